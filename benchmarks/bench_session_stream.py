@@ -1,0 +1,120 @@
+"""Streaming a frame stack through ``Session``: throughput and peak memory.
+
+Writes N frames of W x H uint16 TIFF (uncompressed, like camera output) plus a manifest into
+``benchmarks/_data/stream``, then, each in a fresh process so peak RSS is its own:
+
+* ``oiio``:   the plain OpenImageIO read loop of the same files (the limit: reading only);
+* ``session``: ``open_session`` + ``Session.iter_frames`` + per-pixel mean and variance
+  (:class:`ccdcore.stats.PixelMoments`);
+* ``numpy``:  the naive way, ``np.stack`` of every frame then ``mean``/``var`` (memory grows
+  with N), for scale.
+
+Run by hand (not part of the tests)::
+
+    .venv/bin/python benchmarks/bench_session_stream.py            # 64 frames of 2048x2048
+    .venv/bin/python benchmarks/bench_session_stream.py --frames 16 --size 512
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(ROOT))
+
+
+def make_data(folder: Path, n: int, size: int) -> None:
+    from ccdcore.io import atomic_write_text, write_image
+
+    manifest = folder / "session.toml"
+    stamp = f"{n} {size}"
+    if manifest.exists() and (folder / ".stamp").read_text() == stamp:
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    base = rng.normal(3000, 30, size=(size, size))
+    for i in range(n):
+        frame = np.clip(base + rng.normal(0, 20, size=(size, size)), 0, 65535).astype(np.uint16)
+        write_image(folder / f"frames/f{i:04d}.tif", frame, exposure=0.01,
+                    attributes={"compression": "none"})
+    atomic_write_text(manifest, 'schema = 1\n[camera]\nname = "bench"\nbits = 16\n'
+                                'layout = "mono"\n\n[[groups]]\nglob = "frames/*.tif"\n'
+                                'role = "dark"\nexposure = 0.01\n')
+    (folder / ".stamp").write_text(stamp)
+
+
+def run_variant(variant: str, folder: Path) -> dict:
+    import OpenImageIO as oiio
+
+    files = sorted((folder / "frames").glob("*.tif"))
+    t0 = time.perf_counter()
+    if variant == "oiio":
+        total = 0
+        for f in files:
+            inp = oiio.ImageInput.open(str(f))
+            a = inp.read_image(format=oiio.UNKNOWN)
+            inp.close()
+            total += a.size
+    elif variant == "session":
+        from ccdcore.session import open_session
+        from ccdcore.stats import PixelMoments
+
+        session = open_session(folder)
+        acc = PixelMoments()
+        for rec, frame in session.iter_frames(session.dark_frames()):
+            acc.add(frame, name=rec.relpath)
+        res = acc.result()
+        total = res.n
+    elif variant == "numpy":
+        from ccdcore.io import read_image
+
+        stack = np.stack([read_image(f) for f in files]).astype(np.float64)
+        mean, var = stack.mean(axis=0), stack.var(axis=0, ddof=1)
+        total = len(stack)
+    else:
+        raise SystemExit(f"unknown variant {variant}")
+    dt = time.perf_counter() - t0
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return {"variant": variant, "seconds": dt, "frames": len(files), "peak_rss_mb": peak_mb}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=64)
+    ap.add_argument("--size", type=int, default=2048)
+    ap.add_argument("--variant", help=argparse.SUPPRESS)
+    ap.add_argument("--skip-numpy", action="store_true")
+    args = ap.parse_args()
+    folder = HERE / "_data" / f"stream_{args.frames}x{args.size}"
+    if args.variant:
+        print(json.dumps(run_variant(args.variant, folder)))
+        return
+    make_data(folder, args.frames, args.size)
+    frame_mb = args.size * args.size * 2 / 2**20
+    variants = ["oiio", "session"] + ([] if args.skip_numpy else ["numpy"])
+    rows = []
+    for v in variants:
+        # first run warms the page cache; report the second
+        for _ in range(2):
+            out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames), "--size",
+                                  str(args.size), "--variant", v], capture_output=True, text=True,
+                                 check=True)
+        rows.append(json.loads(out.stdout))
+    print(f"{args.frames} frames of {args.size}x{args.size} uint16 ({frame_mb:.1f} MB each)")
+    print(f"{'variant':<10}{'seconds':>9}{'frames/s':>10}{'MB/s':>9}{'peak RSS MB':>13}")
+    for r in rows:
+        fps = r["frames"] / r["seconds"]
+        print(f"{r['variant']:<10}{r['seconds']:>9.2f}{fps:>10.1f}{fps * frame_mb:>9.0f}"
+              f"{r['peak_rss_mb']:>13.0f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,215 @@
+"""The ``ccdcore`` command line (contract in DESIGN.md).
+
+Every analysis verb prints a human summary, or with ``--json`` one JSON object on stdout. Bad input
+exits with code 2 and one line on stderr naming the file and the problem, never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from . import __version__
+from .errors import CcdError
+
+__all__ = ["main", "build_parser"]
+
+EXIT_BAD_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with our one-line error style (exit code 2)."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"size '{text}' is not WxH, e.g. 256x192") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"size '{text}' must be positive")
+    return w, h
+
+
+def _roi(text: str) -> tuple[int, int, int, int]:
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"ROI '{text}' is not X,Y,W,H, e.g. 10,10,100,100") from None
+    if w < 1 or h < 1 or x < 0 or y < 0:
+        raise argparse.ArgumentTypeError(f"ROI '{text}' needs x, y >= 0 and w, h >= 1")
+    return x, y, w, h
+
+
+def _print_json(obj: Any) -> None:
+    json.dump(obj, sys.stdout, indent=2, sort_keys=False, allow_nan=False, default=str)
+    sys.stdout.write("\n")
+
+
+# --------------------------------------------------------------------------------------------
+# verbs
+# --------------------------------------------------------------------------------------------
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulate import simulate
+
+    truth = simulate(args.preset, args.out_dir, seed=args.seed, size=args.size)
+    if args.json:
+        _print_json({"preset": args.preset, "out_dir": str(args.out_dir), "seed": args.seed,
+                     "truth": truth})
+        return 0
+    n_frames = sum(1 for _ in Path(args.out_dir).rglob("*") if _.is_file()) - 2
+    print(f"wrote {args.preset} session to {args.out_dir} (seed {args.seed}, {n_frames} files)")
+    print(f"  manifest: {Path(args.out_dir) / 'session.toml'}")
+    print(f"  truth:    {Path(args.out_dir) / 'truth.json'}")
+    return 0
+
+
+def _cmd_session(args: argparse.Namespace) -> int:
+    from .session import draft_manifest, open_session
+
+    session = open_session(args.session)
+    draft = draft_manifest(session) if args.draft else None
+    if args.json:
+        out = session.to_dict()
+        if draft is not None:
+            out["draft"] = str(draft)
+        _print_json(out)
+    else:
+        cam = session.camera
+        print(f"session {session.root} ({session.source}), camera '{cam.name}', "
+              f"{cam.bits} bits, {cam.layout}")
+        for row in session.groups_table():
+            desc = ", ".join(f"{k}={v}" for k, v in row.items() if k not in ("role",) and v not in (None, ""))
+            print(f"  {row['role']:<14} {desc}")
+        for problem in session.problems:
+            print(f"  {problem.severity}: {problem}")
+        if draft is not None:
+            print(f"manifest draft written to {draft}")
+    errors = [p for p in session.problems if p.severity == "error"]
+    if errors:
+        first = errors[0]
+        more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
+        print(f"ccdcore session: error: {first}{more}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    return 0
+
+
+def _cmd_app(args: argparse.Namespace) -> int:
+    from app.main import serve
+
+    if args.session is not None and not Path(args.session).exists():
+        raise CcdError(args.session, "session not found")
+    print(f"serving the ccdcore app on http://127.0.0.1:{args.port} (Ctrl+C to stop)", flush=True)
+    serve(args.session, port=args.port, show=False)
+    return 0
+
+
+def _not_built(verb: str, what: str) -> Callable[[argparse.Namespace], int]:
+    def run(args: argparse.Namespace) -> int:
+        raise CcdError(f"ccdcore {verb}", f"{what} is not built yet in this version")
+
+    return run
+
+
+# --------------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="ccdcore", description="Radiometric camera calibration toolkit.")
+    parser.add_argument("--version", action="version", version=f"ccdcore {__version__}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+    sub.required = True
+
+    def verb(name: str, help_: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_, description=help_)
+        p.set_defaults(func=func)
+        return p
+
+    from .simulate import PRESETS
+
+    p = verb("simulate", "write a simulated capture session and its truth.json", _cmd_simulate)
+    p.add_argument("preset", choices=sorted(PRESETS))
+    p.add_argument("out_dir", type=Path)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--size", type=_size, default=None, help="frame size WxH")
+    p.add_argument("--json", action="store_true")
+
+    p = verb("session", "inspect and validate a capture session", _cmd_session)
+    p.add_argument("session", type=Path)
+    p.add_argument("--draft", action="store_true",
+                   help="write session.toml.draft (for a plain folder or descriptor)")
+    p.add_argument("--json", action="store_true")
+
+    p = verb("ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
+             _not_built("ptc", "photon-transfer estimation"))
+    p.add_argument("session", type=Path)
+    p.add_argument("--roi", type=_roi)
+    p.add_argument("--json", action="store_true")
+
+    p = verb("calibrate", "every estimate the session allows, saved as a calibration product",
+             _not_built("calibrate", "the calibration product"))
+    p.add_argument("session", type=Path)
+    p.add_argument("-o", "--out", type=Path, required=True)
+    p.add_argument("--json", action="store_true")
+
+    p = verb("apply", "correct images with a calibration product",
+             _not_built("apply", "image correction"))
+    p.add_argument("calib", type=Path)
+    p.add_argument("images", type=Path, nargs="+")
+    p.add_argument("-o", "--out-dir", type=Path, required=True)
+
+    p = verb("snup", "spatial nonuniformity percentage (de Lasarte et al. 2007)",
+             _not_built("snup", "the SNUP metric"))
+    p.add_argument("images", type=Path, nargs="+")
+    p.add_argument("--roi", type=_roi)
+    p.add_argument("--json", action="store_true")
+
+    p = verb("response", "inverse camera response per channel",
+             _not_built("response", "response-curve estimation"))
+    p.add_argument("session", type=Path)
+    p.add_argument("--method", choices=["tsin", "debevec", "robertson", "mitsunaga"], default="tsin")
+    p.add_argument("--json", action="store_true")
+
+    p = verb("hdr", "HDR radiance map and its sigma map", _not_built("hdr", "HDR radiance"))
+    p.add_argument("session", type=Path)
+    p.add_argument("--calib", type=Path)
+    p.add_argument("-o", "--out-dir", type=Path, required=True)
+
+    p = verb("change", "illumination-invariant change and shadow masks",
+             _not_built("change", "change detection"))
+    p.add_argument("session", type=Path)
+    p.add_argument("--pfa", type=float, default=0.01)
+    p.add_argument("-o", "--out-dir", type=Path, required=True)
+    p.add_argument("--json", action="store_true")
+
+    p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)
+    p.add_argument("session", nargs="?", default=None)
+    p.add_argument("--port", type=int, default=5006)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 2 bad input)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CcdError as err:
+        print(f"ccdcore {args.verb}: error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except (OSError, PermissionError) as err:
+        where = getattr(err, "filename", None) or ""
+        print(f"ccdcore {args.verb}: error: {where}{': ' if where else ''}{err.strerror or err}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
