@@ -1,0 +1,458 @@
+"""Preset ``tsin01``: the imaging pipeline of Tsin, Ramesh & Kanade (2001), eq. 3.
+
+Each exposure ``k`` of a static scene with radiance ``E(x)`` is imaged as (eq. 3)::
+
+    z_k(x) = f(a_k E(x) + N_s + N_c1 + b_k) + N_c2
+
+with the camera response ``f`` (its inverse ``g = f^-1`` is the *response function* the estimators
+recover), the white-balance scale ``a_k = t_k w_k`` (nominal exposure time ``t_k`` times a
+white-balance gain ``w_k``) and offset ``b_k`` (eq. 2), shot noise ``N_s``, thermal noise ``N_c1``
+and the output noise ``N_c2`` (amplifier, A/D), then quantised to 8 bits with clipping.
+
+The defaults follow the simulation protocol of sec. 4.1: ``N = 8`` exposures with ratio ``sqrt 2``
+between consecutive ones, ``g(z) = (z / 255) ** 1.2`` so ``f(v) = 255 v ** (1 / 1.2)`` on
+``[0, 1]``, radiance ``E`` uniform on ``[0, 1]`` per pixel (per channel for colour), and noise
+``sigma_s = 0.015``, ``sigma_c1 = 0.01`` (both in units of ``g``, i.e. of ``aE + b``) and
+``sigma_c2 = 1`` DN.
+
+Modelling choices (all recorded in ``truth.json``)
+--------------------------------------------------
+Shot noise.  Eq. 7 as extracted reads ``sigma^2 = a^2 E^2 + ...``, but sec. 2 says the shot-noise
+variance "is proportional to Et", and the paper's own remark in sec. 4.1 ("when calibrated
+``aE ~ g(z)``; if ``g(z)`` has a similar form as ``g'(z)^2`` it is not easy to discriminate the
+contributions of ``sigma_s^2`` and ``sigma_c2^2``") only holds if the shot term is linear in the
+signal.  Photon counting is Poisson, whose variance equals its mean.  We therefore draw
+``N_s ~ Normal(0, sigma_s^2 a_k E)``, so that the noise variance of eq. 7 becomes::
+
+    sigma^2(a, z) = sigma_s^2 a E + sigma_c1^2 + g'(z)^2 sigma_c2^2      (eq. 7, linear shot term)
+
+Consequence: the shot-noise standard deviation grows as ``sqrt(aE)`` (``sigma_s`` is the shot
+standard deviation at full scale ``aE = 1``), not proportionally to ``aE`` as the extracted
+``a^2 E^2`` would give; relative noise falls with signal, and an estimator fitting eq. 17 must use
+the linear form to recover ``sigma_s``.
+
+Exposure times.  ``t_k = t_max ratio^(k - N + 1)``, ``k = 0 .. N-1``; with the defaults
+``t_max = sqrt 2`` this is ``t_k = 2^(-3) sqrt(2)^k = 0.125 ... 1.414``: the shortest image maps the
+brightest pixel (``E = 1``) to ``g = 0.125`` (z ~ 45), the second-longest puts it exactly at full
+scale and the longest saturates every pixel with ``E > 1/sqrt 2`` (29 % of them), so the bracket
+runs from dark to saturated as the paper's 8-exposure sequence implies.
+
+White balance.  Off by default (``a_k = t_k``, ``b_k = 0``, the paper's first experiment).  With
+``white_balance=True`` (second experiment) ``w_k ~ Normal(1, 0.05)`` per image (per image and
+channel for colour) and ``b_k ~ Normal(0, offset_sigma)``, except that ``b`` of the first image is
+0: the offsets are only defined up to ``b_k + c a_k`` and sec. 3.2 fixes one of them.
+
+Full well, quantisation.  The signal ``v = aE + N_s + N_c1 + b`` saturates at ``v = 1`` (the top of
+``f``'s domain); a site at full scale reads 255 (the camera's white clip: ``N_c2`` does not pull a
+saturated pixel below 255).  Elsewhere ``z = clip(round(f(v) + N_c2), 0, 255)``, so the output
+noise seen in the data is ``sigma_c2^2 + 1/12`` DN^2 (rounding adds 1/12).
+
+Colour and Bayer.  ``layout="rgb"`` draws an independent ``E`` per channel.  ``bayer="rggb"`` (or
+another pattern) samples ``E`` through the colour filter array, adds the noise per *sensor site*,
+applies white balance per colour and interpolates bilinearly (:func:`ccdcore.cfa.demosaic_bilinear`)
+before ``f`` -- the paper's camera.  Interpolated pixels then carry averaged, spatially correlated
+noise, and the noise-free image obeys eq. 5 with the *effective* radiance
+``demosaic(mosaic(E))``, written as ``truth/E_effective.exr`` next to the scene ``truth/E.exr``.
+
+Blooming.  With ``blooming=True`` the charge above full well at a saturated site spills evenly onto
+the sites within radius ``r = 3`` (sec. 2 removes "pixels surrounding a saturated pixel within a
+certain radius ... usually 3 pixels").  Per image a label mask is written
+(``truth/bloom_s<j>_k<kk>.png``: 0 clean, 1 contaminated = within ``r`` of a saturated site,
+2 saturated).  For Bayer output the contamination is widened by the 3x3 interpolation support.
+
+Public objects
+--------------
+DEFAULTS
+    Default options of :func:`simulate`.
+Exposure
+    One simulated frame: ``z`` (uint8), the signal ``v`` entering ``f``, blooming labels.
+inverse_response(z, gamma), response(v, gamma)
+    ``g(z) = (z/255)^gamma`` and ``f(v) = 255 clip(v, 0, 1)^(1/gamma)``.
+exposure_times(n, ratio, t_max)
+    Nominal exposure times ``t_k`` of the bracket.
+white_balance(t, rng, ...)
+    Draw ``a_k = t_k w_k`` and ``b_k``.
+uniform_radiance(rng, shape)
+    ``E`` uniform on ``[0, 1]`` (float32).
+effective_radiance(E, bayer)
+    ``demosaic(mosaic(E))`` for a Bayer camera, ``E`` otherwise.
+expose(E, a, b, rng, ...)
+    Image one exposure through the pipeline of eq. 3.
+bloom_kernel(radius)
+    Disk footprint of the blooming neighbourhood.
+SHOT_NOISE_NOTE, QUANTISATION_NOTE
+    The modelling notes recorded in ``truth.json``.
+simulate(out_dir, *, seed, size, **options)
+    Write the ``tsin01`` session and its ``truth.json``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
+
+from .. import cfa
+from ..errors import CcdError
+from ..io import write_image
+from ._common import SessionWriter
+
+__all__ = ["DEFAULTS", "Exposure", "inverse_response", "response", "exposure_times",
+           "white_balance", "uniform_radiance", "effective_radiance", "expose", "bloom_kernel",
+           "simulate", "SHOT_NOISE_NOTE", "QUANTISATION_NOTE"]
+
+#: default options of :func:`simulate` (sec. 4.1 of Tsin et al. 2001)
+DEFAULTS: dict[str, Any] = {
+    "n_exposures": 8,
+    "ratio": math.sqrt(2.0),
+    "t_max": math.sqrt(2.0),
+    "gamma": 1.2,
+    "sigma_s": 0.015,
+    "sigma_c1": 0.01,
+    "sigma_c2": 1.0,
+    "white_balance": False,
+    "wb_sigma": 0.05,
+    "offset_sigma": 0.01,
+    "layout": "mono",
+    "bayer": None,
+    "blooming": False,
+    "bloom_radius": 3,
+    "bloom_strength": 1.0,
+    "n_stacks": 1,
+    "radiance": None,
+}
+
+SHOT_NOISE_NOTE = ("N_s ~ Normal(0, sigma_s^2 * a_k * E): shot-noise variance proportional to the "
+                   "signal (Poisson), so eq. 7 reads sigma^2 = sigma_s^2 a E + sigma_c1^2 + "
+                   "g'(z)^2 sigma_c2^2 (the extracted a^2 E^2 is read as sigma_s^2 a E).")
+QUANTISATION_NOTE = ("z = clip(round(f(v) + N_c2), 0, 255) as uint8; sites with v >= 1 (full well) "
+                     "read 255; rounding adds 1/12 DN^2 to sigma_c2^2.")
+
+LABEL_CLEAN, LABEL_CONTAMINATED, LABEL_SATURATED = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Exposure:
+    """One simulated frame.
+
+    Attributes
+    ----------
+    z
+        Observed 8-bit image (``uint8``), ``(H, W)`` or ``(H, W, 3)``.
+    v
+        The signal ``aE + N_s + N_c1 + b`` entering ``f`` (after full-well clipping, blooming and,
+        for Bayer, interpolation), float64, same shape as ``z``.
+    bloom
+        ``uint8`` labels (0 clean, 1 contaminated, 2 saturated), ``(H, W)``, or ``None`` when
+        blooming is off.
+    """
+
+    z: NDArray[np.uint8]
+    v: NDArray[np.float64]
+    bloom: NDArray[np.uint8] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"shape": list(self.z.shape), "saturated": int(np.count_nonzero(self.z == 255)),
+                "bloom": None if self.bloom is None else int(np.count_nonzero(self.bloom))}
+
+
+def inverse_response(z: ArrayLike, gamma: float = 1.2) -> NDArray[np.float64]:
+    """The response function ``g(z) = (z / 255) ** gamma`` of sec. 4.1 (``g = f^-1``, eq. 5)."""
+    return (np.asarray(z, dtype=np.float64) / 255.0) ** gamma
+
+
+def response(v: ArrayLike, gamma: float = 1.2) -> NDArray[np.float64]:
+    """The camera response ``f(v) = 255 clip(v, 0, 1) ** (1 / gamma)`` (eq. 3), in DN."""
+    return 255.0 * np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0) ** (1.0 / gamma)
+
+
+def exposure_times(n: int = 8, ratio: float = math.sqrt(2.0),
+                   t_max: float = math.sqrt(2.0)) -> NDArray[np.float64]:
+    """Nominal exposure times ``t_k = t_max ratio^(k - n + 1)``, ``k = 0 .. n-1`` (sec. 4.1).
+
+    The times are rounded to 12 significant digits (consecutive ratios exact to 1e-12).
+    """
+    if int(n) < 1:
+        raise CcdError("n_exposures", f"need at least 1 exposure, got {n}")
+    if not ratio > 1.0 or not t_max > 0.0:
+        raise CcdError("ratio", f"need ratio > 1 and t_max > 0, got {ratio}, {t_max}")
+    t = [t_max * ratio ** (k - int(n) + 1) for k in range(int(n))]
+    # round to 12 significant digits so that manifests show 0.125, not 0.12499999999999994
+    return np.array([float(f"{x:.12g}") for x in t], dtype=np.float64)
+
+
+def white_balance(t: ArrayLike, rng: np.random.Generator, *, enabled: bool, channels: int = 1,
+                  wb_sigma: float = 0.05, offset_sigma: float = 0.01
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """White-balance scales ``a_k = t_k w_k`` and offsets ``b_k`` (eq. 2, sec. 4.1).
+
+    Parameters
+    ----------
+    t
+        Nominal exposure times, shape ``(N,)``.
+    rng
+        Random generator (always advanced by the same amount, whatever ``enabled``).
+    enabled
+        ``False``: ``a_k = t_k``, ``b_k = 0``.  ``True``: ``w_k ~ Normal(1, wb_sigma)``,
+        ``b_k ~ Normal(0, offset_sigma)`` with ``b`` of the first image fixed at 0 (sec. 3.2).
+    channels
+        1 for mono (returns ``(N,)`` arrays), 3 for colour (``(N, 3)``).
+
+    Returns
+    -------
+    a, b
+    """
+    t = np.asarray(t, dtype=np.float64)
+    shape = t.shape if channels == 1 else t.shape + (channels,)
+    w = 1.0 + wb_sigma * rng.standard_normal(shape)
+    b = offset_sigma * rng.standard_normal(shape)
+    tt = t if channels == 1 else t[:, None]
+    if not enabled:
+        return np.broadcast_to(tt, shape).copy(), np.zeros(shape)
+    b[0] = 0.0
+    return tt * w, b
+
+
+def uniform_radiance(rng: np.random.Generator, shape: tuple[int, ...]) -> NDArray[np.float32]:
+    """Radiance ``E`` uniform on ``[0, 1]`` per pixel and channel (sec. 4.1), float32."""
+    return rng.random(shape, dtype=np.float32)
+
+
+def effective_radiance(E: ArrayLike, bayer: str | None) -> NDArray[np.float64]:
+    """Radiance the noise-free output obeys eq. 5 with: ``demosaic(mosaic(E))`` for Bayer."""
+    E = np.asarray(E, dtype=np.float64)
+    if bayer is None:
+        return E
+    return cfa.demosaic_bilinear(cfa.mosaic(E, bayer), bayer)
+
+
+def bloom_kernel(radius: int) -> NDArray[np.bool_]:
+    """Disk footprint of the sites within ``radius`` of the centre (centre included)."""
+    r = int(radius)
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return (xx * xx + yy * yy) <= r * r
+
+
+def _per_site(value: ArrayLike, E: NDArray, bayer: str | None) -> NDArray[np.float64]:
+    """Broadcast a scalar / per-channel parameter to the sensor array."""
+    val = np.asarray(value, dtype=np.float64)
+    if val.ndim == 0:
+        return np.full(E.shape[:2] if bayer else E.shape, float(val))
+    if E.ndim != 3 or val.shape != (E.shape[2],):
+        raise CcdError("a/b", f"per-channel parameters of shape {val.shape} do not fit E of "
+                              f"shape {E.shape}")
+    full = np.broadcast_to(val, E.shape)
+    return cfa.mosaic(full, bayer) if bayer else np.array(full)
+
+
+def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *,
+           sigma_s: float = 0.015, sigma_c1: float = 0.01, sigma_c2: float = 1.0,
+           gamma: float = 1.2, bayer: str | None = None, blooming: bool = False,
+           bloom_radius: int = 3, bloom_strength: float = 1.0) -> Exposure:
+    """Image one exposure: ``z = f(aE + N_s + N_c1 + b) + N_c2`` (eq. 3), quantised to 8 bits.
+
+    Parameters
+    ----------
+    E
+        Radiance, ``(H, W)`` mono or ``(H, W, 3)`` colour (required for ``bayer``).
+    a, b
+        White-balance scale ``a_k = t_k w_k`` and offset ``b_k``: scalars or per channel ``(3,)``.
+    rng
+        Random generator; draws ``N_s``, ``N_c1`` (per sensor site) then ``N_c2`` (per output
+        value), the same numbers whatever ``blooming``.
+    sigma_s, sigma_c1
+        Shot noise (variance ``sigma_s^2 a E``, see the module notes) and thermal noise, in units
+        of ``g``.
+    sigma_c2
+        Output noise in DN.
+    gamma
+        ``f(v) = 255 v^(1/gamma)``.
+    bayer
+        ``None``, or a pattern of :data:`ccdcore.cfa.PATTERNS`: noise per CFA site, then bilinear
+        interpolation before ``f``.
+    blooming, bloom_radius, bloom_strength
+        Spill ``bloom_strength`` times the charge above full well (``v > 1``) evenly onto the other
+        sites of the disk of radius ``bloom_radius``.
+
+    Returns
+    -------
+    Exposure
+    """
+    E = np.asarray(E, dtype=np.float64)
+    if bayer is not None:
+        bayer = cfa.check_pattern(bayer)
+        if E.ndim != 3 or E.shape[2] != 3:
+            raise CcdError("E", f"a Bayer camera needs an (H, W, 3) radiance, got {E.shape}")
+        sensor_E = cfa.mosaic(E, bayer)
+    else:
+        if E.ndim not in (2, 3):
+            raise CcdError("E", f"expected an (H, W) or (H, W, C) radiance, got {E.shape}")
+        sensor_E = E
+    a_s, b_s = _per_site(a, E, bayer), _per_site(b, E, bayer)
+    signal = a_s * sensor_E                                    # aE
+    n_s = rng.standard_normal(sensor_E.shape)
+    n_c1 = rng.standard_normal(sensor_E.shape)
+    n_c2 = rng.standard_normal(E.shape)
+    v = signal + sigma_s * np.sqrt(np.maximum(signal, 0.0)) * n_s + sigma_c1 * n_c1 + b_s
+    labels = None
+    if blooming:
+        footprint = bloom_kernel(bloom_radius)
+        excess = np.maximum(v - 1.0, 0.0)
+        primary = excess > 0.0 if v.ndim == 2 else np.any(excess > 0.0, axis=2)
+        spill_kernel = footprint.astype(np.float64)
+        r = int(bloom_radius)
+        spill_kernel[r, r] = 0.0
+        spill_kernel /= max(spill_kernel.sum(), 1.0)
+        if v.ndim == 2:
+            spill = ndimage.convolve(excess, spill_kernel, mode="constant")
+        else:
+            spill = np.stack([ndimage.convolve(excess[..., c], spill_kernel, mode="constant")
+                              for c in range(v.shape[2])], axis=2)
+        v = np.minimum(v, 1.0) + bloom_strength * spill
+        near = ndimage.binary_dilation(primary, structure=footprint)
+        v = np.minimum(v, 1.0)
+        saturated = v >= 1.0 if v.ndim == 2 else np.any(v >= 1.0, axis=2)
+        labels = np.zeros(primary.shape, dtype=np.uint8)
+        labels[near] = LABEL_CONTAMINATED
+        labels[saturated] = LABEL_SATURATED
+        if bayer is not None:
+            # each output pixel is interpolated from its 3x3 neighbourhood
+            wide = ndimage.binary_dilation(labels > 0, structure=np.ones((3, 3), bool))
+            labels = np.where(wide & (labels == 0), LABEL_CONTAMINATED, labels).astype(np.uint8)
+    else:
+        v = np.minimum(v, 1.0)
+    if bayer is not None:
+        v = cfa.demosaic_bilinear(v, bayer)
+    zf = np.rint(response(v, gamma) + sigma_c2 * n_c2)
+    zf[v >= 1.0] = 255.0                                       # white clip at full well
+    z = np.clip(zf, 0.0, 255.0).astype(np.uint8)
+    return Exposure(z=z, v=v, bloom=labels)
+
+
+def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
+    unknown = sorted(set(opts) - set(DEFAULTS))
+    if unknown:
+        raise CcdError("tsin01", f"unknown option(s) {', '.join(unknown)}; known: "
+                                 f"{', '.join(DEFAULTS)}")
+    if opts["layout"] not in ("mono", "rgb"):
+        raise CcdError("layout", f"layout must be 'mono' or 'rgb', got {opts['layout']!r}")
+    if opts["bayer"] is not None:
+        opts["bayer"] = cfa.check_pattern(opts["bayer"])
+        opts["layout"] = "rgb"
+        if size[0] % 2 or size[1] % 2:
+            raise CcdError("--size", f"a Bayer camera needs even width and height, got "
+                                     f"{size[0]}x{size[1]}")
+    if int(opts["n_stacks"]) < 1:
+        raise CcdError("n_stacks", f"need at least one stack, got {opts['n_stacks']}")
+    for key in ("sigma_s", "sigma_c1", "sigma_c2", "wb_sigma", "offset_sigma", "bloom_strength"):
+        if not float(opts[key]) >= 0.0:
+            raise CcdError(key, f"must be >= 0, got {opts[key]}")
+    if not float(opts["gamma"]) > 0.0:
+        raise CcdError("gamma", f"must be > 0, got {opts['gamma']}")
+
+
+def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128, 128),
+             **options: Any) -> dict[str, Any]:
+    """Write the ``tsin01`` session (sec. 4.1 of Tsin et al. 2001) and return its truth.
+
+    Parameters
+    ----------
+    out_dir
+        Session folder to write.
+    seed
+        Seed of the random generator; the same seed and options give the same bytes.
+    size
+        ``(width, height)``.
+    **options
+        See :data:`DEFAULTS`: ``n_exposures``, ``ratio``, ``t_max`` (bracket), ``gamma``,
+        ``sigma_s``, ``sigma_c1``, ``sigma_c2`` (noise), ``white_balance``, ``wb_sigma``,
+        ``offset_sigma``, ``layout`` (``"mono"``/``"rgb"``), ``bayer`` (pattern or ``None``),
+        ``blooming``, ``bloom_radius``, ``bloom_strength``, ``n_stacks`` (sequences of the same
+        scene, new noise and white balance each) and ``radiance`` (an explicit ``E`` array).
+
+    Returns
+    -------
+    dict
+        The content of ``truth.json``.
+    """
+    opts = {**DEFAULTS, **options}
+    width, height = int(size[0]), int(size[1])
+    _check_options(opts, (width, height))
+    rng = np.random.default_rng(int(seed))
+    channels = 3 if opts["layout"] == "rgb" else 1
+    shape = (height, width) if channels == 1 else (height, width, 3)
+    if opts["radiance"] is None:
+        E = uniform_radiance(rng, shape)
+    else:
+        E = np.asarray(opts["radiance"], dtype=np.float32)
+        if E.shape != shape:
+            raise CcdError("radiance", f"expected shape {shape}, got {E.shape}")
+    bayer = opts["bayer"]
+    t = exposure_times(opts["n_exposures"], opts["ratio"], opts["t_max"])
+    gamma = float(opts["gamma"])
+    noise = {k: float(opts[k]) for k in ("sigma_s", "sigma_c1", "sigma_c2")}
+
+    camera = {"name": "tsin01 simulated camera" + (f" (Bayer {bayer}, bilinear)" if bayer else ""),
+              "bits": 8, "layout": opts["layout"]}
+    writer = SessionWriter(out_dir, camera)
+    writer.add_map("truth/E.exr", E)
+    if bayer:
+        writer.add_map("truth/E_effective.exr", effective_radiance(E, bayer))
+    a_all, b_all, frames, bloom_paths = [], [], [], []
+    for j in range(int(opts["n_stacks"])):
+        a, b = white_balance(t, rng, enabled=bool(opts["white_balance"]), channels=channels,
+                             wb_sigma=float(opts["wb_sigma"]),
+                             offset_sigma=float(opts["offset_sigma"]))
+        a_all.append(a)
+        b_all.append(b)
+        stack_blooms = []
+        for k in range(t.size):
+            shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
+                          blooming=bool(opts["blooming"]), bloom_radius=int(opts["bloom_radius"]),
+                          bloom_strength=float(opts["bloom_strength"]), **noise)
+            rel = f"bracket/s{j}_k{k:02d}.tif"
+            writer.add_frame(rel, shot.z, role="bracket", exposure=float(t[k]), stack=j)
+            frames.append({"path": rel, "stack": j, "index": k, "exposure": float(t[k]),
+                           "a": a[k], "b": b[k]})
+            if shot.bloom is not None:
+                mask_rel = f"truth/bloom_s{j}_k{k:02d}.png"
+                write_image(Path(out_dir) / mask_rel, shot.bloom)
+                stack_blooms.append(mask_rel)
+        bloom_paths.append(stack_blooms)
+
+    truth: dict[str, Any] = {
+        "preset": "tsin01",
+        "paper": "Tsin, Ramesh & Kanade 2001, eq. 3 and sec. 4.1",
+        "seed": int(seed),
+        "size": [width, height],
+        "layout": opts["layout"],
+        "bayer": bayer,
+        "g": inverse_response(np.arange(256), gamma),
+        "gamma": gamma,
+        "f": f"f(v) = 255 * clip(v, 0, 1) ** (1 / {gamma:g}); g(z) = (z / 255) ** {gamma:g}",
+        "t": t,
+        "ratio": float(opts["ratio"]),
+        "a": a_all,
+        "b": b_all,
+        "white_balance": bool(opts["white_balance"]),
+        "wb_sigma": float(opts["wb_sigma"]) if opts["white_balance"] else 0.0,
+        **noise,
+        "noise_model": "sigma^2(a, z) = sigma_s^2 a E + sigma_c1^2 + g'(z)^2 sigma_c2^2 (eq. 7)",
+        "shot_noise": SHOT_NOISE_NOTE,
+        "quantisation": QUANTISATION_NOTE,
+        "radiance_map": "E_effective" if bayer else "E",
+        "n_stacks": int(opts["n_stacks"]),
+        "frames": frames,
+    }
+    if opts["blooming"]:
+        truth["blooming"] = {"radius": int(opts["bloom_radius"]),
+                             "strength": float(opts["bloom_strength"]),
+                             "labels": {"0": "clean", "1": "contaminated", "2": "saturated"},
+                             "masks": bloom_paths}
+    note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
+            "Truth in truth.json.")
+    return writer.finish(truth, note=note)
