@@ -90,12 +90,7 @@ def _cmd_session(args: argparse.Namespace) -> int:
             print(f"  {problem.severity}: {problem}")
         if draft is not None:
             print(f"manifest draft written to {draft}")
-    errors = [p for p in session.problems if p.severity == "error"]
-    if errors:
-        first = errors[0]
-        more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
-        print(f"ccdcore session: error: {first}{more}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    session.raise_if_invalid()  # exit 2 with the first error and the count of the others
     return 0
 
 

@@ -1,0 +1,46 @@
+"""Regenerate the bundled demo sessions bit-exactly.
+
+    .venv/bin/python assets/regenerate.py            # all presets
+    .venv/bin/python assets/regenerate.py healey94   # one
+
+Each demo is ``ccdcore.simulate.simulate(preset, assets/<preset>, seed=DEMO_SEED, **DEMOS[preset])``;
+``tests/test_assets.py`` checks that the committed files are exactly what this writes.
+"""
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+DEMO_SEED = 1994
+#: preset -> options for the demo (small enough to commit: all of assets/ stays well under 20 MB)
+DEMOS: dict[str, dict] = {
+    "healey94": {"size": (256, 192)},
+    "delasarte07": {},
+    "tsin01": {},
+    "change": {},
+}
+
+
+def regenerate(preset: str, out_root: Path = HERE) -> Path:
+    from ccdcore.simulate import simulate
+
+    out = out_root / preset
+    if out.exists():
+        shutil.rmtree(out)
+    simulate(preset, out, seed=DEMO_SEED, **DEMOS[preset])
+    return out
+
+
+def main(argv: list[str]) -> None:
+    for preset in argv or list(DEMOS):
+        out = regenerate(preset)
+        size = sum(f.stat().st_size for f in out.rglob("*") if f.is_file())
+        print(f"{preset}: {out} ({size / 1e6:.2f} MB)")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

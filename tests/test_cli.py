@@ -1,0 +1,95 @@
+"""The command line: exit codes, one-line messages naming the file, JSON output."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccdcore.cli import main
+from ccdcore.io import write_image
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert "ccdcore" in capsys.readouterr().out
+
+
+def test_unknown_verb_and_bad_arguments_exit_2(capsys):
+    for argv in (["frobnicate"], ["simulate", "nope", "x"], ["simulate", "healey94", "x", "--size", "12by3"],
+                 ["ptc", "s", "--roi", "1,2,3"]):
+        with pytest.raises(SystemExit) as info:
+            main(argv)
+        assert info.value.code == 2
+        err = capsys.readouterr().err
+        assert "error:" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("verb", [["ptc", "S"], ["calibrate", "S", "-o", "O"], ["snup", "a.tif"],
+                                  ["response", "S"], ["hdr", "S", "-o", "O"],
+                                  ["change", "S", "-o", "O"], ["apply", "C", "a.tif", "-o", "O"]])
+def test_verbs_not_built_say_so(capsys, verb):
+    code, out, err = run(capsys, *verb)
+    assert code == 2
+    assert out == ""
+    assert "not built yet" in err and len(err.strip().splitlines()) == 1
+
+
+def test_simulate_writes_session_and_truth(capsys, tmp_path):
+    code, out, err = run(capsys, "simulate", "healey94", str(tmp_path / "h"), "--seed", "3",
+                         "--size", "40x32", "--json")
+    assert code == 0, err
+    report = json.loads(out)
+    truth = json.loads((tmp_path / "h" / "truth.json").read_text())
+    assert report["truth"] == truth
+    for key in ("A", "sigma_c2", "read_noise_e", "bits"):
+        assert key in truth
+    assert (tmp_path / "h" / "session.toml").exists()
+
+
+def test_session_verb_on_demo_and_json(capsys):
+    code, out, err = run(capsys, "session", str(ROOT / "assets" / "healey94"), "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["camera"]["bits"] == 8
+    assert {f["role"] for f in info["frames"]} >= {"dark", "ptc", "fixed_pattern"}
+
+
+def test_session_verb_reports_problems_with_exit_2(capsys, tmp_path):
+    write_image(tmp_path / "a.tif", np.zeros((8, 8), np.uint8))
+    (tmp_path / "session.toml").write_text(
+        'schema = 1\n[camera]\nbits = 8\n[[frames]]\npath = "a.tif"\nrole = "drak"\n'
+        '[[frames]]\npath = "missing.tif"\nrole = "dark"\n')
+    code, out, err = run(capsys, "session", str(tmp_path))
+    assert code == 2
+    assert "drak" in out and "missing.tif" in out          # every problem in the summary
+    assert len(err.strip().splitlines()) == 1 and "more problem" in err
+
+
+def test_session_verb_on_missing_path(capsys, tmp_path):
+    code, out, err = run(capsys, "session", str(tmp_path / "nowhere"))
+    assert code == 2
+    assert "nowhere" in err and "Traceback" not in err
+
+
+def test_console_script_bad_input_has_no_traceback(tmp_path):
+    broken = tmp_path / "s"
+    broken.mkdir()
+    (broken / "session.toml").write_text("schema = 1\n[camera\n")
+    proc = subprocess.run([sys.executable, "-m", "ccdcore.cli", "session", str(broken)],
+                          capture_output=True, text=True, cwd=ROOT)
+    assert proc.returncode == 2
+    assert "session.toml" in proc.stderr and "Traceback" not in proc.stderr
