@@ -10,7 +10,8 @@ Public objects
     Frozen result: per-pixel mean, unbiased variance, and the number of frames.
 
 The accumulation is the shifted-data algorithm: sums of ``x - x_0`` and ``(x - x_0)**2`` in
-float64, with ``x_0`` the first frame. For integer data of up to 16 bits over any realistic number
+float64, with ``x_0`` the first frame, fused into one compiled pass per frame (numba), about three
+times faster than the equivalent four numpy passes (``benchmarks/bench_session_stream.py``). For integer data of up to 16 bits over any realistic number
 of frames the sums stay far below 2**53, so the result equals the two-pass mean and variance to
 rounding error (the test checks it against ``numpy.mean``/``numpy.var``), while memory holds three
 float64 frames whatever the number of frames.
@@ -20,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Iterable
 
+import numba
 import numpy as np
 
 from .errors import CcdError
@@ -56,6 +58,19 @@ class MomentsResult:
                 "mean_of_var": float(np.nanmean(self.var)) if self.n > 1 else None}
 
 
+@numba.njit(cache=True, nogil=True)
+def _accumulate(frame, shift, s1, s2):  # pragma: no cover - compiled
+    """One fused pass: ``s1 += x - x0``, ``s2 += (x - x0)**2`` (all C-contiguous, same size)."""
+    x = frame.ravel()
+    x0 = shift.ravel()
+    a = s1.ravel()
+    b = s2.ravel()
+    for i in range(x.size):
+        d = np.float64(x[i]) - x0[i]
+        a[i] += d
+        b[i] += d * d
+
+
 class PixelMoments:
     """Accumulate per-pixel mean and variance frame by frame.
 
@@ -72,7 +87,6 @@ class PixelMoments:
         self._shift: np.ndarray | None = None
         self._s1: np.ndarray | None = None
         self._s2: np.ndarray | None = None
-        self._tmp: np.ndarray | None = None
         self.n = 0
 
     def add(self, frame: np.ndarray, *, name: str | None = None) -> None:
@@ -84,15 +98,12 @@ class PixelMoments:
             self._shift = a.astype(np.float64)
             self._s1 = np.zeros(a.shape, np.float64)
             self._s2 = np.zeros(a.shape, np.float64)
-            self._tmp = np.empty(a.shape, np.float64)
         elif a.shape != self._shift.shape:
             raise CcdError(name, f"frame shape {a.shape} differs from the first frame's "
                                  f"{self._shift.shape}")
-        d = self._tmp
-        np.subtract(a, self._shift, out=d, casting="unsafe")
-        self._s1 += d
-        np.multiply(d, d, out=d)
-        self._s2 += d
+        if a.dtype.kind not in "uifb":
+            raise CcdError(name, f"cannot average frames of dtype {a.dtype}")
+        _accumulate(np.ascontiguousarray(a), self._shift, self._s1, self._s2)
         self.n += 1
 
     def result(self) -> MomentsResult:
