@@ -75,7 +75,7 @@ EXPOSURE_ROLES = frozenset({"bracket", "reference", "target"})
 #: roles whose frames must all share one shape, dtype and bit depth (scenes are independent images)
 UNIFORM_ROLES = frozenset(ROLES) - {"scene"}
 
-_CAMERA_KEYS = ("name", "bits", "layout")
+_CAMERA_KEYS = ("name", "bits", "layout", "black_level")
 _META_KEYS = ("level", "exposure", "config", "gain", "temperature", "roi", "stack", "note",
               "photons")
 _FRAME_KEYS = frozenset(("path", "role") + _META_KEYS)
@@ -88,14 +88,18 @@ _HEADER_KEYS = ("exposure", "gain", "temperature")  # metadata a file header can
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Camera:
-    """The camera of a session: free-text name, ADC bit depth, colour layout (one of LAYOUTS)."""
+    """The camera of a session: free-text name, ADC bit depth, colour layout (one of LAYOUTS)
+    and, optionally, its black level (the electronic offset in DN that is not signal and carries
+    no shot noise; manifest key ``[camera] black_level``, used by :mod:`ccdcore.noise`)."""
 
     name: str = ""
     bits: int | None = None
     layout: str = "mono"
+    black_level: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "bits": self.bits, "layout": self.layout}
+        return {"name": self.name, "bits": self.bits, "layout": self.layout,
+                "black_level": self.black_level}
 
 
 @dataclass(frozen=True)
@@ -610,7 +614,15 @@ def _parse_camera(doc: dict, problems: list[Problem]) -> Camera:
         problems.append(Problem("camera.layout", f"unknown layout {layout!r}; choose one of "
                                                  f"{', '.join(LAYOUTS)}"))
         layout = "mono"
-    return Camera(name=name, bits=bits, layout=layout)
+    black_level = cam.get("black_level")
+    if black_level is not None:
+        if _is_number(black_level) and black_level >= 0:
+            black_level = float(black_level)
+        else:
+            problems.append(Problem("camera.black_level", f"must be a number >= 0 (DN), got "
+                                                          f"{black_level!r}"))
+            black_level = None
+    return Camera(name=name, bits=bits, layout=layout, black_level=black_level)
 
 
 def _glob_problem(pattern: str) -> str | None:

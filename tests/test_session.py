@@ -237,6 +237,24 @@ def test_unknown_camera_layout(tmp_path: Path) -> None:
                                            + ", ".join(LAYOUTS))]
 
 
+def test_camera_black_level(tmp_path: Path) -> None:
+    """Optional ``[camera] black_level`` (DN): parsed as a float, validated, round-tripped."""
+    put(tmp_path / "s", "a.tif")
+    body = '[[frames]]\npath = "a.tif"\nrole = "dark"'
+    s = manifest(tmp_path / "s", body, camera='bits = 8\nblack_level = 20')
+    assert s.ok and s.camera.black_level == 20.0 and isinstance(s.camera.black_level, float)
+    assert s.camera.to_dict()["black_level"] == 20.0
+    assert "black_level = 20.0" in s.to_toml()
+    (tmp_path / "s" / "session.toml").write_text(s.to_toml())
+    assert open_session(tmp_path / "s").camera == s.camera
+    assert manifest(tmp_path / "s", body).camera.black_level is None  # absent: None
+    for bad in ("-1.5", '"high"', "true", "nan"):
+        s = manifest(tmp_path / "s", body, camera=f"bits = 8\nblack_level = {bad}")
+        assert s.camera.black_level is None
+        ((where, message),) = errors(s)
+        assert where == "camera.black_level" and message.startswith("must be a number >= 0 (DN)")
+
+
 def test_missing_file(tmp_path: Path) -> None:
     put(tmp_path / "s", "a.tif")
     s = manifest(tmp_path / "s", '[[frames]]\npath = "a.tif"\nrole = "dark"\n'

@@ -45,7 +45,8 @@ def test_registry_returns_required_truth(session):
     assert (root / truth["K_map"]).is_file() and (root / truth["dark_map"]).is_file()
     assert truth["maps"] == {"K": "truth/K.exr", "dark": "truth/dark.exr"}
     man = _manifest(root)
-    assert man["camera"] == {"name": "XC-77-like simulated CCD", "bits": 8, "layout": "mono"}
+    assert man["camera"] == {"name": "XC-77-like simulated CCD", "bits": 8, "layout": "mono",
+                             "black_level": 0.0}
     roles = [f["role"] for f in man["frames"]]
     assert roles.count("dark") == 8
     assert roles.count("ptc") == 2 * 6          # 5 levels + the saturated one, pairs

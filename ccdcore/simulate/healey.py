@@ -5,6 +5,8 @@ capture the paper uses, with parameters close to its Sony XC-77 + frame grabber 
 A = 0.0034 DN/e, σ_C² ≈ 1.10 DN² (σ_R ≈ 297 e, eq. 27), dark image mean 10.7 DN with spatial std
 ≈ 0.52 DN, σ_K = 3.7·10⁻³, 8 bits, 1/30 s exposure.
 
+The manifest's ``[camera]`` table states the simulated black level (``black_level``, DN).
+
 Frames written (all ``exposure`` = the fixed exposure time, TIFF, 8-bit unless ``bits`` > 8):
 
 ``dark/dark_NNN.tif``  (role ``dark``, ``s`` = ``n_dark`` frames)
@@ -186,7 +188,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         """Mean ideal electrons that put the raw frame mean at ``frac`` of the usable range."""
         return max(frac * range_dn - dark_mean_dn, 0.01 * range_dn) / model.A
 
-    writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits), "layout": "mono"})
+    # the simulated camera's electronic offset is known, so the manifest states it ([camera]
+    # black_level, DN): the photon-transfer fit then needs no dark-frame estimate of it
+    writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits),
+                                            "layout": "mono",
+                                            "black_level": float(model.black_level_dn)})
     add = writer.add_frame
 
     # ---- dark frames (sec. V-A, eq. 43) -----------------------------------------------------

@@ -1,0 +1,895 @@
+"""Photon transfer: the camera noise model σ²_N = A·μ + σ²_C from pairs of flat frames.
+
+Implements sec. IV and the appendix of G. E. Healey and R. Kondepudy, "Radiometric CCD Camera
+Calibration and Noise Estimation", IEEE TPAMI 16(3), 1994.  For each light level a pair of frames
+D₁, D₂ of a nearly uniform card gives the mean μ̂ (eq. 37), the noise variance σ̂²_N from the
+difference image D₁ − D₂ (eq. 38) and the variance of that estimate (eq. 40).  The weighted line
+σ²_N = A·μ + σ²_C (eq. 41) is fitted in closed form (eqs. 59–65, minimising χ² of eq. 42) with its
+covariance (eq. 66) and goodness of fit Q (eq. 67).  A is the gain in DN per electron, 1/A the
+conversion gain in electrons per DN, and σ²_C = A²σ²_R + q²/12 (eq. 27) gives the read noise σ_R in
+electrons once the quantisation term q²/12 is removed (q = 1 DN for integer data).
+
+Black level (an extension of the paper's model)
+-----------------------------------------------
+The paper's model (eq. 20) has no electronic offset: μ (eq. 36) is signal plus dark signal, all of
+it with shot noise.  Real cameras add a black level b₀ (DN) that is not signal and has no shot
+noise, so eq. 41 becomes σ²_N = A·(μ − b₀) + σ²_C and the fitted abscissa is μ̂ − b₀.  b₀ is, in
+order (:attr:`PhotonTransfer.black_level_source`):
+
+``"argument"``
+    the ``black_level`` argument;
+``"camera"``
+    the session's ``[camera] black_level`` (manifest key, DN);
+``"dark_extrapolated"``
+    dark frames at two or more exposure times: the dark mean (over the ROI) extrapolated to zero
+    exposure by a least-squares line in T (dark current ∝ T, sec. II-B), so the dark signal stays
+    in μ with its shot noise, exactly as in the paper;
+``"dark_mean"``
+    dark frames at one exposure time: their mean (the EMVA 1288 convention).  Then μ̂ − b₀ is the
+    light signal only and the intercept σ²_C also holds the dark shot noise A²·E_DC (noted);
+``"none"``
+    no dark frames: b₀ = 0, the paper's model (noted).
+
+Exclusions (each excluded level keeps its reason in :attr:`PtcPoint.reason`; never silent)
+------------------------------------------------------------------------------------------
+* clipped: more than :data:`CLIP_LIMIT` (10⁻⁴) of the ROI pixel values of the level's frames are
+  at 0 or at the full scale 2^bits − 1;
+* zero variance (identical frames);
+* user exclusions (``exclude_levels``): reason ``"excluded by user"``;
+* beyond the linear range (saturation): the photon-transfer curve turns down past saturation;
+  the level of largest σ̂²_N marks it (the EMVA 1288 convention), and a level of higher μ̂ whose
+  σ̂²_N is below that peak by more than :data:`LINEARITY_Z` combined standard errors and by more
+  than ``linearity_tolerance`` is excluded (this catches a full well that saturates below the
+  ADC's full scale, where no value is clipped; a gross outlier *above* the curve at mid range
+  would be taken for the peak, so check the points when many levels are excluded this way);
+* beyond the linear range, when the light level is known (every level has an EMVA ``photons``
+  count, or every level has its own exposure time): μ̂ is fitted by a least-squares line in that
+  quantity over the lower half of the levels; a level above them whose μ̂ deviates from the line
+  by more than ``linearity_tolerance`` (default 5 %) of its fitted signal is excluded.  Otherwise
+  (light level unknown, e.g. neutral-density filters at one exposure) a level whose μ̂ lies in the
+  top 10 % of the levels' μ̂ range is excluded when its σ̂²_N is more than :data:`LINEARITY_Z` (5)
+  standard deviations *and* more than ``linearity_tolerance`` away from the line fitted to the
+  levels below that top 10 % (the linearity rules see only the levels the earlier rules kept);
+* robust mode: after the fit, the level with the largest |residual|/σ is dropped when that exceeds
+  :data:`ROBUST_Z` (3), and the fit is repeated, as long as at least three levels remain.
+
+Public objects
+--------------
+PtcPoint, LineFit, PhotonTransfer
+    Frozen results: one light level; the weighted line; the photon-transfer result.
+photon_transfer(session_or_path, ...)
+    Measure every PTC level of a session and fit the noise model.
+ptc_points(session, ...)
+    Only measure the levels (one pass over the frames).
+fit_points(points, ...)
+    Apply exclusions and fit already measured levels (no frame is read again).
+pair_statistics(d1, d2)
+    μ̂, σ̂²_N, var[σ̂²_N] and M for one pair (eqs. 37, 38, 40).
+weighted_line_fit(mu, var, var_var)
+    The closed-form weighted line, its covariance, χ², degrees of freedom and Q (eqs. 59–67).
+goodness_of_fit(chi2, dof)
+    Q (eq. 67).
+CLIP_LIMIT, LINEARITY_Z, LINEARITY_TOLERANCE, ROBUST_Z, QUANTISATION_STEP
+    The thresholds of the exclusion rules and q.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from os import PathLike
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy import stats
+
+from .errors import CcdError, SessionError
+from .session import FrameRecord, Session, open_session
+from .stats import PixelMoments
+
+__all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
+           "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
+           "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP"]
+
+#: a level is clipped when more than this fraction of its ROI pixel values is at 0 or full scale
+CLIP_LIMIT = 1e-4
+#: standardized σ̂²_N residual beyond which a top-10 % level counts as beyond the linear range
+LINEARITY_Z = 5.0
+#: default relative deviation from linearity tolerated (μ̂ vs light, or σ̂²_N vs the line)
+LINEARITY_TOLERANCE = 0.05
+#: robust mode drops a level whose |residual| / σ exceeds this
+ROBUST_Z = 3.0
+#: quantisation step q of integer data, DN (eq. 4)
+QUANTISATION_STEP = 1.0
+#: the fraction of the μ̂ range where the variance-based linearity rule looks
+_TOP_FRACTION = 0.10
+
+
+def _jsonable(x: Any) -> Any:
+    """float (None for NaN/inf) for numbers; recursive for lists and tuples."""
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    return x
+
+
+# --------------------------------------------------------------------------------------------
+# results
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PtcPoint:
+    """One photon-transfer light level.
+
+    Attributes
+    ----------
+    level
+        The ``level`` id of the session.
+    mu
+        μ̂ − b₀: the mean of eq. 37 minus the black level, DN (the fit's abscissa).
+    var
+        σ̂²_N (eq. 38), DN²; with several pairs, the average of the pairs' estimates.
+    var_err
+        Standard error of ``var``: √(eq. 40), i.e. √(2(σ̂²_N)²/(n_pairs·(M − 1))) for the average
+        of ``n_pairs`` independent pair estimates.
+    n_pairs, n_pixels
+        Number of disjoint pairs (frames 0-1, 2-3, ...) and pixels M per frame (the ROI).
+    used, reason
+        Whether the fit used the level, and why not (``None`` when used).
+    exposure
+        The level's exposure time (s), when known.
+    mu_raw
+        μ̂ as measured (eq. 37), DN.
+    clipped_fraction
+        Fraction of the ROI pixel values of the level's frames at 0 or at 2^bits − 1.
+    photons
+        Mean photons per pixel (EMVA1288 descriptors), when known.
+    """
+
+    level: int
+    mu: float
+    var: float
+    var_err: float
+    n_pairs: int
+    n_pixels: int
+    used: bool
+    reason: str | None
+    exposure: float | None
+    mu_raw: float
+    clipped_fraction: float
+    photons: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: _jsonable(getattr(self, k)) for k in (
+            "level", "mu", "var", "var_err", "used", "reason", "n_pairs", "n_pixels", "exposure",
+            "mu_raw", "clipped_fraction", "photons")}
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """The weighted line σ²_N = A·μ + σ²_C (eqs. 59–67).
+
+    ``cov`` is the 2×2 covariance of (A, σ²_C) (eq. 66); ``Q`` the probability that χ² would exceed
+    the value found if the model is right (eq. 67), NaN when ``dof`` = 0.
+    """
+
+    A: float
+    sigma_c2: float
+    cov: np.ndarray
+    chi2: float
+    dof: int
+    Q: float
+
+    def predict(self, mu: ArrayLike) -> tuple[np.ndarray | float, np.ndarray | float]:
+        """The line at ``mu`` and its 1-σ band from the covariance:
+        ``std² = μ²·C₀₀ + 2μ·C₀₁ + C₁₁``."""
+        m = np.asarray(mu, dtype=np.float64)
+        value = self.A * m + self.sigma_c2
+        var = m * m * self.cov[0, 0] + 2.0 * m * self.cov[0, 1] + self.cov[1, 1]
+        std = np.sqrt(np.maximum(var, 0.0))
+        if m.ndim == 0:
+            return float(value), float(std)
+        return value, std
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"A": _jsonable(self.A), "sigma_c2": _jsonable(self.sigma_c2),
+                "cov": _jsonable(self.cov.tolist()), "chi2": _jsonable(self.chi2),
+                "dof": self.dof, "Q": _jsonable(self.Q)}
+
+
+@dataclass(frozen=True)
+class PhotonTransfer:
+    """The photon-transfer result: noise model, its uncertainty, the points and diagnostics.
+
+    Attributes
+    ----------
+    A, A_err
+        Gain in DN per electron (slope of eq. 41) and its standard error.
+    sigma_c2, sigma_c2_err
+        σ²_C = A²σ²_R + q²/12 (eq. 27), DN², and its standard error.
+    cov
+        Covariance of (A, σ²_C) (eq. 66).
+    chi2, dof, Q, verdict
+        χ² (eq. 42), P − 2 degrees of freedom, goodness of fit Q (eq. 67) and its plain reading:
+        ``"model rejected"`` (Q < 0.001), ``"poor"`` (Q < 0.05), ``"acceptable"``, or
+        ``"untested (no degrees of freedom)"``.
+    points
+        Every level, used or not (with the reason).
+    conversion_gain_e_per_dn, conversion_gain_e_per_dn_err
+        1/A, electrons per DN.
+    read_noise_e, read_noise_e_err
+        σ_R = √(σ²_C − q²/12)/A (eq. 27), electrons (NaN when σ²_C < q²/12), with the error
+        propagated from ``cov``.
+    read_noise_dn
+        A·σ_R = √(σ²_C − q²/12), DN.
+    quantisation_dn2
+        q²/12, DN².
+    black_level_dn, black_level_source
+        b₀ and the rule that gave it (see the module docstring).
+    roi, bits
+        The region (x, y, w, h) or ``None`` for the whole frame; the ADC bit depth.
+    robust_dropped
+        Levels dropped by the robust mode, in the order dropped.
+    notes
+        Plain-language remarks (black-level rule, exclusions, unpaired frames ...).
+    source
+        The session the points came from, when known.
+    """
+
+    A: float
+    A_err: float
+    sigma_c2: float
+    sigma_c2_err: float
+    cov: np.ndarray
+    chi2: float
+    dof: int
+    Q: float
+    points: tuple[PtcPoint, ...]
+    conversion_gain_e_per_dn: float
+    conversion_gain_e_per_dn_err: float
+    read_noise_e: float
+    read_noise_e_err: float
+    read_noise_dn: float
+    quantisation_dn2: float
+    black_level_dn: float
+    black_level_source: str
+    roi: tuple[int, int, int, int] | None
+    bits: int | None
+    robust_dropped: tuple[int, ...]
+    notes: tuple[str, ...]
+    verdict: str
+    linearity_tolerance: float = LINEARITY_TOLERANCE
+    source: str | None = None
+
+    @property
+    def fit(self) -> LineFit:
+        """The fitted line as a :class:`LineFit` (for :meth:`LineFit.predict`)."""
+        return LineFit(self.A, self.sigma_c2, self.cov, self.chi2, self.dof, self.Q)
+
+    def sigma_n2(self, mu: ArrayLike) -> np.ndarray | float:
+        """σ²_N = A·μ + σ²_C (eq. 41) at black-level-corrected means ``mu`` (DN)."""
+        m = np.asarray(mu, dtype=np.float64)
+        out = self.A * m + self.sigma_c2
+        return float(out) if out.ndim == 0 else out
+
+    def refit(self, *, exclude_levels: Iterable[int] = (), robust: bool = False,
+              linearity_tolerance: float | None = None) -> PhotonTransfer:
+        """Fit the same points again with other exclusions (no frame is read)."""
+        return fit_points(self.points, exclude_levels=exclude_levels, robust=robust,
+                          bits=self.bits, black_level_dn=self.black_level_dn,
+                          black_level_source=self.black_level_source, roi=self.roi,
+                          notes=tuple(n for n in self.notes if not n.startswith(_FIT_NOTE)),
+                          linearity_tolerance=(self.linearity_tolerance
+                                               if linearity_tolerance is None
+                                               else linearity_tolerance),
+                          source=self.source)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly values (NaN becomes ``None``); the keys of DESIGN.md's ``ptc`` verb
+        (``A``, ``sigma_c2``, ``cov``, ``chi2``, ``dof``, ``Q``, ``points``,
+        ``conversion_gain_e_per_dn``, ``read_noise_e``) plus errors and diagnostics."""
+        out: dict[str, Any] = {}
+        for key in ("A", "A_err", "sigma_c2", "sigma_c2_err"):
+            out[key] = _jsonable(getattr(self, key))
+        out["cov"] = _jsonable(self.cov.tolist())
+        out.update(chi2=_jsonable(self.chi2), dof=self.dof, Q=_jsonable(self.Q),
+                   verdict=self.verdict, points=[p.to_dict() for p in self.points])
+        for key in ("conversion_gain_e_per_dn", "conversion_gain_e_per_dn_err", "read_noise_e",
+                    "read_noise_e_err", "read_noise_dn", "quantisation_dn2", "black_level_dn"):
+            out[key] = _jsonable(getattr(self, key))
+        out.update(black_level_source=self.black_level_source,
+                   roi=None if self.roi is None else list(self.roi), bits=self.bits,
+                   robust_dropped=list(self.robust_dropped), notes=list(self.notes),
+                   linearity_tolerance=self.linearity_tolerance, source=self.source)
+        return out
+
+
+# notes added by fit_points start with this (so refit can replace them)
+_FIT_NOTE = "level "
+
+
+# --------------------------------------------------------------------------------------------
+# the estimators
+# --------------------------------------------------------------------------------------------
+def goodness_of_fit(chi2: float, dof: int) -> float:
+    """Q(χ²_M | ν) = ∫_{χ²_M}^∞ f_ν(x) dx, the chi-square survival function (eq. 67).
+
+    Returns NaN when ``dof`` < 1.  The paper's fit (χ² = 4.3496, P = 6 pairs, ν = 4) gives 0.3607.
+    """
+    if dof < 1:
+        return float("nan")
+    return float(stats.chi2.sf(float(chi2), int(dof)))
+
+
+def weighted_line_fit(mu: ArrayLike, var: ArrayLike, var_var: ArrayLike) -> LineFit:
+    """Fit σ̂²_N = A·μ̂ + σ²_C minimising χ² (eq. 42) in the closed form of the appendix.
+
+    Parameters
+    ----------
+    mu, var, var_var
+        μ̂_i, σ̂²_N,i and var[σ̂²_N,i] (eqs. 37, 38, 40) of P ≥ 2 points; ``var_var`` > 0.
+
+    Returns
+    -------
+    LineFit
+        Â (eq. 59), σ̂²_C (eq. 60) from the sums S₁…S₅ (eqs. 61–65), the covariance of (A, σ²_C)
+        (eq. 66), χ² at the minimum, ν = P − 2 and Q (eq. 67).
+
+    Raises
+    ------
+    CcdError
+        Fewer than two points, non-positive or non-finite weights, or all μ̂ equal.
+    """
+    x = np.asarray(mu, dtype=np.float64).ravel()
+    y = np.asarray(var, dtype=np.float64).ravel()
+    v = np.asarray(var_var, dtype=np.float64).ravel()
+    if not (x.size == y.size == v.size):
+        raise CcdError("weighted_line_fit", f"mu, var and var_var differ in length "
+                                            f"({x.size}, {y.size}, {v.size})")
+    if x.size < 2:
+        raise CcdError("weighted_line_fit", f"need at least 2 points, got {x.size}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(v))
+            and np.all(v > 0)):
+        raise CcdError("weighted_line_fit", "mu, var must be finite and var_var finite and > 0")
+    w = 1.0 / v
+    s1 = w.sum()                 # eq. 61
+    s2 = (w * x).sum()           # eq. 62
+    s3 = (w * y).sum()           # eq. 63
+    s4 = (w * x * x).sum()       # eq. 64
+    s5 = (w * x * y).sum()       # eq. 65
+    delta = s1 * s4 - s2 * s2
+    if not delta > 0 or delta <= 1e-12 * s1 * s4:
+        raise CcdError("weighted_line_fit", "all points have the same mean: the slope is "
+                                            "undetermined")
+    a = (s1 * s5 - s2 * s3) / delta          # eq. 59
+    c = (s3 * s4 - s2 * s5) / delta          # eq. 60
+    cov = np.array([[s1, -s2], [-s2, s4]]) / delta  # eq. 66, order (A, σ²_C)
+    chi2 = float(np.sum((y - (a * x + c)) ** 2 * w))  # eq. 42
+    dof = int(x.size - 2)
+    return LineFit(A=float(a), sigma_c2=float(c), cov=cov, chi2=chi2, dof=dof,
+                   Q=goodness_of_fit(chi2, dof))
+
+
+def pair_statistics(d1: ArrayLike, d2: ArrayLike) -> tuple[float, float, float, int]:
+    """μ̂, σ̂²_N, var[σ̂²_N] and M of one pair of frames (ROI already applied).
+
+    μ̂ is the mean of both frames (eq. 37); σ̂²_N the sample variance of the difference image
+    D_Δ = D₁ − D₂ divided by two, Σ(D_Δ − μ̂_Δ)²/(2(M − 1)) (eqs. 31, 38); and
+    var[σ̂²_N] ≈ 2(σ̂²_N)²/(M − 1) (eq. 40, normal pixels).  Computed in float64.
+
+    Raises
+    ------
+    CcdError
+        Shapes differ or the frames have fewer than two pixels.
+    """
+    a = np.asarray(d1, dtype=np.float64)
+    b = np.asarray(d2, dtype=np.float64)
+    if a.shape != b.shape:
+        raise CcdError("pair_statistics", f"frame shapes differ: {a.shape} and {b.shape}")
+    m = int(a.size)
+    if m < 2:
+        raise CcdError("pair_statistics", "a pair needs at least two pixels per frame")
+    mu = (a.sum() + b.sum()) / (2.0 * m)                         # eq. 37
+    diff = a - b                                                 # eq. 31
+    var = float(np.sum((diff - diff.mean()) ** 2) / (2.0 * (m - 1)))  # eq. 38
+    var_var = 2.0 * var * var / (m - 1)                          # eq. 40
+    return float(mu), var, float(var_var), m
+
+
+# --------------------------------------------------------------------------------------------
+# reading a session
+# --------------------------------------------------------------------------------------------
+def _as_session(session_or_path: Session | str | PathLike) -> Session:
+    if isinstance(session_or_path, Session):
+        return session_or_path
+    return open_session(session_or_path)
+
+
+def _label(session: Session) -> str:
+    return str(session.manifest_path or session.root)
+
+
+def _check_session(session: Session) -> None:
+    """Raise SessionError for the session errors that concern the PTC or dark frames."""
+    used = {r.relpath for r in session.frames if r.role in ("ptc", "dark")}
+    relevant = tuple(p for p in session.errors
+                     if p.where in used or p.where.startswith(("ptc level", "camera"))
+                     or "ptc" in p.message)
+    if relevant:
+        first = relevant[0]
+        more = f" (and {len(relevant) - 1} more)" if len(relevant) > 1 else ""
+        raise SessionError(first.where, first.message + more, problems=relevant)
+
+
+def _check_roi(roi: Sequence[int] | None, shape: tuple[int, ...], where: str
+               ) -> tuple[int, int, int, int] | None:
+    """Validate ``roi`` = (x, y, w, h) against a frame of ``shape`` = (H, W)."""
+    if roi is None:
+        return None
+    h_img, w_img = shape[:2]
+    try:
+        x, y, w, h = (int(v) for v in roi)
+        ok_ints = all(float(v) == int(v) for v in roi)
+    except (TypeError, ValueError):
+        raise CcdError(f"roi {roi!r}", "must be four integers (x, y, w, h)") from None
+    if not ok_ints:
+        raise CcdError(f"roi {list(roi)}", "must be four integers (x, y, w, h)")
+    if x < 0 or y < 0 or w < 1 or h < 1 or x + w > w_img or y + h > h_img:
+        raise CcdError(f"roi {[x, y, w, h]}", f"does not fit inside the {w_img}x{h_img} frames "
+                                              f"of {where} (need x, y >= 0, w, h >= 1, "
+                                              f"x + w <= {w_img}, y + h <= {h_img})")
+    if w * h < 2:
+        raise CcdError(f"roi {[x, y, w, h]}", "needs at least two pixels")
+    return (x, y, w, h)
+
+
+def _crop(frame: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
+    if roi is None:
+        return frame
+    x, y, w, h = roi
+    return frame[y:y + h, x:x + w]
+
+
+def _same(a: float | None, b: float | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+
+
+def _check_level_metadata(session: Session, level: int, recs: Sequence[FrameRecord]) -> None:
+    """Frames of one level must share their exposure time and photon count."""
+    where = f"{_label(session)}: ptc level {level}"
+    for key, unit in (("exposure", " s"), ("photons", " photons")):
+        first = recs[0]
+        for rec in recs[1:]:
+            a, b = getattr(first, key), getattr(rec, key)
+            if (a is None) != (b is None) or not _same(a, b):
+                raise CcdError(where, f"mismatched {'exposure times' if key == 'exposure' else key}"
+                                      f": {first.relpath} ({a}{unit if a is not None else ''}) "
+                                      f"and {rec.relpath} ({b}{unit if b is not None else ''}); "
+                                      "frames of one level must be captured at the same light "
+                                      "level and exposure")
+
+
+def _bits(session: Session, rec: FrameRecord) -> int | None:
+    if session.camera.bits is not None:
+        return int(session.camera.bits)
+    hdr = session.header(rec)
+    return int(hdr.bits) if hdr.dtype.kind in "ui" else None
+
+
+def _checked_pixels(rec: FrameRecord, frame: np.ndarray,
+                    roi: tuple[int, int, int, int] | None) -> np.ndarray:
+    if frame.ndim != 2:
+        raise CcdError(rec.relpath, f"colour frames ({'x'.join(map(str, frame.shape))}): photon "
+                                    "transfer reads mono (or raw CFA) frames; per channel support "
+                                    "comes with the flat-field work")
+    pix = _crop(frame, roi)
+    if pix.dtype.kind == "f":
+        bad = int(np.count_nonzero(~np.isfinite(pix)))
+        if bad:
+            raise CcdError(rec.relpath, f"{bad} NaN or infinite pixel value{'s' if bad > 1 else ''}"
+                                        f" in the {'ROI' if roi else 'frame'}; photon transfer "
+                                        "needs finite pixel values")
+    return pix
+
+
+def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
+                      ) -> tuple[float, str, tuple[str, ...]]:
+    """b₀ from the dark frames (rules ``dark_extrapolated`` / ``dark_mean`` / ``none``)."""
+    darks = session.dark_frames()
+    if not darks:
+        return 0.0, "none", ("no black level given and no dark frames: b0 = 0, the paper's model "
+                             "(eq. 20); an electronic offset would then be counted as signal",)
+    groups: dict[float | None, PixelMoments] = {}
+    for rec, frame in session.iter_frames(darks):
+        pix = _checked_pixels(rec, frame, roi)
+        groups.setdefault(rec.exposure, PixelMoments()).add(pix, name=rec.relpath)
+    means = {t: float(acc.result().mean.mean()) for t, acc in groups.items()}
+    timed = {t: m for t, m in means.items() if t is not None}
+    if len(timed) >= 2:
+        t = np.array(sorted(timed))
+        m = np.array([timed[k] for k in sorted(timed)])
+        slope, intercept = np.polyfit(t, m, 1)
+        table = ", ".join(f"{k:g} s: {timed[k]:.4g} DN" for k in sorted(timed))
+        return float(intercept), "dark_extrapolated", (
+            f"black level b0 = {intercept:.4g} DN: dark mean extrapolated to zero exposure "
+            f"({table}; dark signal {slope:.4g} DN/s); the dark signal stays in mu with its "
+            "shot noise as in eq. 36",)
+    n = sum(acc.n for acc in groups.values())
+    total = sum(means[t] * groups[t].n for t in groups) / n
+    return total, "dark_mean", (
+        f"black level b0 = {total:.4g} DN: mean of {n} dark frame{'s' if n > 1 else ''} at one "
+        "exposure (EMVA 1288 convention); mu is then the light signal only and sigma_c2 also "
+        "contains the dark shot noise A^2 E_DC; give [camera] black_level to separate them",)
+
+
+def _measure(session: Session, roi: Sequence[int] | None, black_level: float | None
+             ) -> tuple[tuple[PtcPoint, ...], dict[str, Any]]:
+    """One streamed pass over the PTC (and dark) frames: the points and the fit context."""
+    _check_session(session)
+    label = _label(session)
+    levels = session.ptc_levels()
+    if not levels:
+        raise CcdError(label, "no ptc frames: photon transfer needs two or more frames "
+                              "(role = \"ptc\", level = N) at each of three or more light levels")
+    first = next(iter(levels.values()))[0]
+    hdr = session.header(first)
+    if hdr.channels != 1:
+        raise CcdError(first.relpath, f"colour frames ({hdr.channels} channels): photon transfer "
+                                      "reads mono (or raw CFA) frames; per channel support comes "
+                                      "with the flat-field work")
+    roi_t = _check_roi(roi, hdr.shape, label)
+    for level, recs in levels.items():
+        _check_level_metadata(session, level, recs)
+    bits = _bits(session, first)
+    full = None if bits is None else float(2 ** bits - 1)
+
+    notes: list[str] = []
+    if black_level is not None:
+        try:
+            b0 = float(black_level)
+        except (TypeError, ValueError):
+            b0 = float("nan")
+        if isinstance(black_level, bool) or not math.isfinite(b0):
+            raise CcdError("black_level", f"must be a finite number (DN), got {black_level!r}")
+        source = "argument"
+        notes.append(f"black level b0 = {b0:g} DN given as an argument")
+    elif session.camera.black_level is not None:
+        b0, source = float(session.camera.black_level), "camera"
+        notes.append(f"black level b0 = {b0:g} DN from the manifest ([camera] black_level)")
+    else:
+        b0, source, more = _dark_black_level(session, roi_t)
+        notes.extend(more)
+
+    points = []
+    for level, recs in levels.items():
+        n_pairs = len(recs) // 2
+        if len(recs) % 2:
+            notes.append(f"ptc level {level}: {len(recs)} frames, the last one "
+                         f"({recs[-1].relpath}) has no partner and is not used")
+        mus, vars_, clipped, count, m = [], [], 0, 0, 0
+        frames = session.iter_frames(recs[:2 * n_pairs])
+        for (r1, f1), (r2, f2) in zip(frames, frames):
+            p1, p2 = _checked_pixels(r1, f1, roi_t), _checked_pixels(r2, f2, roi_t)
+            if p1.shape != p2.shape:
+                raise CcdError(r2.relpath, f"shape {p2.shape} differs from {r1.relpath} "
+                                           f"{p1.shape}")
+            if full is not None:
+                clipped += int(np.count_nonzero(p1 <= 0) + np.count_nonzero(p1 >= full)
+                               + np.count_nonzero(p2 <= 0) + np.count_nonzero(p2 >= full))
+            count += p1.size + p2.size
+            mu, var, _, m = pair_statistics(p1, p2)
+            mus.append(mu)
+            vars_.append(var)
+        mu_raw = float(np.mean(mus))
+        var = float(np.mean(vars_))
+        # eq. 40 for the mean of n_pairs independent estimates, evaluated at their average
+        var_err = math.sqrt(2.0 * var * var / (n_pairs * (m - 1)))
+        pt = PtcPoint(level=int(level), mu=mu_raw - b0, var=var, var_err=var_err,
+                      n_pairs=n_pairs, n_pixels=m, used=True, reason=None,
+                      exposure=recs[0].exposure, mu_raw=mu_raw,
+                      clipped_fraction=clipped / count if count else 0.0,
+                      photons=recs[0].photons)
+        reason = _data_reason(pt, bits)
+        points.append(replace(pt, used=reason is None, reason=reason))
+    context = {"bits": bits, "black_level_dn": b0, "black_level_source": source,
+               "roi": roi_t, "notes": tuple(notes), "source": label}
+    return tuple(points), context
+
+
+def ptc_points(session: Session | str | PathLike, *, roi: Sequence[int] | None = None,
+               black_level: float | None = None) -> tuple[PtcPoint, ...]:
+    """Measure every PTC level of a session (eqs. 37, 38, 40), without fitting.
+
+    One streamed pass over the frames (two frames in memory at a time).  Levels with more than two
+    frames use every disjoint pair (frames 0-1, 2-3, ...).  Clipped levels come back with
+    ``used=False`` and their reason; :func:`fit_points` applies the other exclusions.  See
+    :func:`photon_transfer` for the parameters and errors.
+    """
+    return _measure(_as_session(session), roi, black_level)[0]
+
+
+# --------------------------------------------------------------------------------------------
+# exclusions and the fit
+# --------------------------------------------------------------------------------------------
+def _data_reason(p: PtcPoint, bits: int | None) -> str | None:
+    """Why the data of a level cannot be used (clipping, zero variance), or None."""
+    if p.clipped_fraction > CLIP_LIMIT:
+        top = f"{2 ** bits - 1}" if bits is not None else "full scale"
+        return (f"clipped: {100 * p.clipped_fraction:.3g}% of the ROI pixel values at 0 or "
+                f"{top} (limit {100 * CLIP_LIMIT:g}%)")
+    if not (p.var > 0 and math.isfinite(p.var)):
+        return "zero variance: the frames of the pair are identical"
+    return None
+
+
+def _light_quantity(points: Sequence[PtcPoint]) -> tuple[str, np.ndarray] | None:
+    """The known light level per point: photons when all have them, else the exposure time when
+    every level has its own, else None."""
+    if all(p.photons is not None and p.photons > 0 for p in points):
+        return "photons", np.array([p.photons for p in points], dtype=np.float64)
+    exps = [p.exposure for p in points]
+    if all(e is not None and e > 0 for e in exps) and len(
+            {round(math.log(e), 9) for e in exps}) == len(exps):
+        return "exposure", np.array(exps, dtype=np.float64)
+    return None
+
+
+def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]:
+    """Levels past saturation: the saturation point is the level of largest σ̂²_N (the EMVA 1288
+    convention: the photon-transfer curve turns down there); a level of higher μ̂ whose σ̂²_N is
+    below that peak by more than :data:`LINEARITY_Z` combined standard errors and by more than
+    ``tol`` (relative) is beyond it."""
+    out: dict[int, str] = {}
+    if len(points) < 2:
+        return out
+    peak = max(points, key=lambda p: p.var)
+    for p in points:
+        if p.mu <= peak.mu:
+            continue
+        drop = peak.var - p.var
+        z = drop / math.hypot(peak.var_err, p.var_err)
+        if z > LINEARITY_Z and drop > tol * peak.var:
+            out[p.level] = (f"beyond the linear range (saturation): variance {p.var:.4g} DN² is "
+                            f"{100 * drop / peak.var:.3g}% ({z:.0f} sigma) below the peak "
+                            f"{peak.var:.4g} DN² of level {peak.level} at a lower mean")
+    return out
+
+
+def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]:
+    """Levels beyond the linear range (see the module docstring), level -> reason."""
+    out: dict[int, str] = {}
+    if len(points) < 3:
+        return out
+    light = _light_quantity(points)
+    if light is not None:
+        name, x = light
+        order = np.argsort(x, kind="stable")
+        n_fit = max(2, (len(points) + 1) // 2)
+        fit_idx, test_idx = order[:n_fit], order[n_fit:]
+        if len(np.unique(x[fit_idx])) < 2:
+            return out
+        mu = np.array([p.mu_raw for p in points])
+        a, c = np.polyfit(x[fit_idx], mu[fit_idx], 1)
+        unit = "photons" if name == "photons" else "exposure"
+        for i in test_idx:
+            signal = a * x[i]
+            dev = mu[i] - (signal + c)
+            if signal != 0 and abs(dev) > tol * abs(signal):
+                out[points[i].level] = (
+                    f"beyond the linear range: mean {mu[i]:.4g} DN is {100 * dev / signal:+.3g}% "
+                    f"off the line of mean against {unit} fitted on the lower "
+                    f"{n_fit} levels (tolerance {100 * tol:g}%)")
+        return out
+    mus = np.array([p.mu for p in points])
+    lo, hi = mus.min(), mus.max()
+    top = mus >= lo + (1.0 - _TOP_FRACTION) * (hi - lo)
+    lower = [p for p, t in zip(points, top) if not t]
+    if len(lower) < 2 or len({p.mu for p in lower}) < 2:
+        return out
+    fit = weighted_line_fit([p.mu for p in lower], [p.var for p in lower],
+                            [p.var_err ** 2 for p in lower])
+    for p, t in zip(points, top):
+        if not t:
+            continue
+        pred, pred_std = fit.predict(p.mu)
+        z = (p.var - pred) / math.hypot(p.var_err, pred_std)
+        rel = (p.var - pred) / pred if pred > 0 else float("inf")
+        if abs(z) > LINEARITY_Z and abs(rel) > tol:
+            out[p.level] = (f"beyond the linear range: variance {p.var:.4g} DN² is {z:+.1f} sigma "
+                            f"({100 * rel:+.3g}%) from the line fitted on the {len(lower)} lower "
+                            f"levels, and its mean is in the top {100 * _TOP_FRACTION:g}% of the "
+                            "range (no exposure or photon counts to test linearity directly)")
+    return out
+
+
+def _verdict(q: float) -> str:
+    if not math.isfinite(q):
+        return "untested (no degrees of freedom)"
+    if q < 0.001:
+        return "model rejected"
+    if q < 0.05:
+        return "poor"
+    return "acceptable"
+
+
+def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = (),
+               robust: bool = False, bits: int | None = None,
+               black_level_dn: float | None = None, black_level_source: str = "given",
+               roi: Sequence[int] | None = None, notes: Sequence[str] = (),
+               linearity_tolerance: float = LINEARITY_TOLERANCE,
+               source: str | None = None) -> PhotonTransfer:
+    """Apply the exclusion rules to measured levels and fit σ²_N = A·μ + σ²_C (eqs. 41, 59–67).
+
+    Each point's ``used``/``reason`` is recomputed from scratch (clipping and zero variance from
+    its data, then ``exclude_levels``, the linearity rule and the robust mode), so the app can
+    toggle levels and refit at once without reading frames.
+
+    Parameters
+    ----------
+    points
+        Levels from :func:`ptc_points` (or a previous result's ``points``).
+    exclude_levels
+        Level ids to leave out (reason ``"excluded by user"``).
+    robust
+        Drop, one at a time, the level with the largest |residual|/σ while it exceeds 3, keeping
+        at least three levels; :attr:`PhotonTransfer.robust_dropped` lists them in order.
+    bits
+        ADC bit depth (for the clipping message and the result).
+    black_level_dn, black_level_source
+        b₀ and its rule, for the result; b₀ defaults to ``mu_raw − mu`` of the points.
+    roi, notes, source
+        Carried into the result (``notes`` first, then the fit's own notes).
+    linearity_tolerance
+        Relative deviation tolerated by the linearity rule (module docstring).
+
+    Raises
+    ------
+    CcdError
+        Fewer than three usable levels (the message says why the others were excluded).
+    """
+    pts = list(points)
+    if not pts:
+        raise CcdError("photon transfer", "no ptc levels to fit")
+    if not (linearity_tolerance > 0):
+        raise CcdError("linearity_tolerance", f"must be > 0, got {linearity_tolerance!r}")
+    known = {p.level for p in pts}
+    user = set()
+    for lv in exclude_levels:
+        if lv not in known:
+            raise CcdError("exclude_levels", f"no ptc level {lv!r} (levels: "
+                                             f"{', '.join(map(str, sorted(known)))})")
+        user.add(lv)
+    reasons: dict[int, str] = {}
+    for p in pts:
+        why = _data_reason(p, bits)
+        if why is not None:
+            reasons[p.level] = why
+        elif p.level in user:
+            reasons[p.level] = "excluded by user"
+    candidates = [p for p in pts if p.level not in reasons]
+    reasons.update(_saturation_reasons(candidates, float(linearity_tolerance)))
+    candidates = [p for p in pts if p.level not in reasons]
+    reasons.update(_linearity_reasons(candidates, float(linearity_tolerance)))
+
+    def usable() -> list[PtcPoint]:
+        return [p for p in pts if p.level not in reasons]
+
+    def too_few(used: list[PtcPoint]) -> CcdError:
+        why = "; ".join(f"level {lv}: {r}" for lv, r in reasons.items())
+        return CcdError(source or "photon transfer",
+                        f"{len(used)} usable ptc level{'s' if len(used) != 1 else ''} "
+                        f"({', '.join(str(p.level) for p in used) or 'none'}) of {len(pts)}; "
+                        f"need at least 3" + (f" ({why})" if why else ""))
+
+    used = usable()
+    if len(used) < 3:
+        raise too_few(used)
+
+    def fit_of(ps: list[PtcPoint]) -> LineFit:
+        return weighted_line_fit([p.mu for p in ps], [p.var for p in ps],
+                                 [p.var_err ** 2 for p in ps])
+
+    fit = fit_of(used)
+    dropped: list[int] = []
+    if robust:
+        while len(used) > 3:
+            r = [abs(p.var - (fit.A * p.mu + fit.sigma_c2)) / p.var_err for p in used]
+            worst = int(np.argmax(r))
+            if r[worst] <= ROBUST_Z:
+                break
+            lv = used[worst].level
+            reasons[lv] = f"robust mode: residual {r[worst]:.1f} sigma > {ROBUST_Z:g}"
+            dropped.append(lv)
+            used = usable()
+            fit = fit_of(used)
+
+    b0 = (float(np.median([p.mu_raw - p.mu for p in pts])) if black_level_dn is None
+          else float(black_level_dn))
+    out_points = tuple(replace(p, used=p.level not in reasons, reason=reasons.get(p.level))
+                       for p in pts)
+    q2 = QUANTISATION_STEP ** 2 / 12.0
+    a, c, cov = fit.A, fit.sigma_c2, fit.cov
+    a_err, c_err = math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0))
+    all_notes = list(notes)
+    for p in out_points:
+        if not p.used:
+            all_notes.append(f"{_FIT_NOTE}{p.level} not used: {p.reason}")
+    if a > 0:
+        gain, gain_err = 1.0 / a, a_err / (a * a)
+    else:
+        gain, gain_err = float("nan"), float("nan")
+        all_notes.append(f"{_FIT_NOTE}fit: slope A = {a:.4g} is not positive; no conversion "
+                         "gain or read noise in electrons")
+    rn_dn = math.sqrt(c - q2) if c > q2 else float("nan")
+    if a > 0 and c > q2:
+        rn_e = rn_dn / a
+        jac = np.array([-rn_e / a, 1.0 / (2.0 * a * rn_dn)])  # d sigma_R / d(A, sigma_c2), eq. 27
+        rn_err = math.sqrt(max(float(jac @ cov @ jac), 0.0))
+    else:
+        rn_e = rn_err = float("nan")
+        if c <= q2:
+            all_notes.append(f"{_FIT_NOTE}fit: sigma_c2 = {c:.4g} DN² is not above q²/12 = "
+                             f"{q2:.4g} DN²: the read noise is not resolved")
+    return PhotonTransfer(
+        A=a, A_err=a_err, sigma_c2=c, sigma_c2_err=c_err, cov=cov, chi2=fit.chi2, dof=fit.dof,
+        Q=fit.Q, points=out_points, conversion_gain_e_per_dn=gain,
+        conversion_gain_e_per_dn_err=gain_err, read_noise_e=rn_e, read_noise_e_err=rn_err,
+        read_noise_dn=rn_dn, quantisation_dn2=q2, black_level_dn=b0,
+        black_level_source=black_level_source,
+        roi=None if roi is None else tuple(int(v) for v in roi), bits=bits,
+        robust_dropped=tuple(dropped), notes=tuple(all_notes), verdict=_verdict(fit.Q),
+        linearity_tolerance=float(linearity_tolerance), source=source)
+
+
+def photon_transfer(session_or_path: Session | str | PathLike, *,
+                    roi: Sequence[int] | None = None, robust: bool = False,
+                    exclude_levels: Iterable[int] = (), black_level: float | None = None,
+                    linearity_tolerance: float = LINEARITY_TOLERANCE) -> PhotonTransfer:
+    """Estimate the noise model σ²_N = A·(μ − b₀) + σ²_C of a camera from its PTC frames.
+
+    For each light level: μ̂ (eq. 37), σ̂²_N from the difference image (eq. 38) and
+    var[σ̂²_N] (eq. 40), over the frame or ``roi``, averaged over the level's disjoint pairs; then
+    the exclusions and the weighted fit of :func:`fit_points` (eqs. 59–67).
+
+    Parameters
+    ----------
+    session_or_path
+        A :class:`~ccdcore.session.Session` or anything :func:`~ccdcore.session.open_session`
+        opens.
+    roi
+        ``(x, y, w, h)`` in pixels; default the whole frame.
+    robust
+        Robust mode (drop levels beyond 3 sigma one at a time, reported).
+    exclude_levels
+        Level ids to leave out.
+    black_level
+        b₀ in DN; overrides the manifest and the dark frames (module docstring).
+    linearity_tolerance
+        Relative deviation from linearity tolerated (module docstring).
+
+    Returns
+    -------
+    PhotonTransfer
+
+    Raises
+    ------
+    CcdError
+        No ptc frames; a session error concerning the PTC or dark frames; colour frames; an ROI
+        outside the frame; frames of one level with different exposure times (or photon counts);
+        NaN or infinite pixels; fewer than three usable levels.
+
+    Examples
+    --------
+    >>> pt = photon_transfer("assets/healey94")                      # doctest: +SKIP
+    >>> pt.A, pt.read_noise_e, pt.Q                                  # doctest: +SKIP
+    """
+    session = _as_session(session_or_path)
+    points, ctx = _measure(session, roi, black_level)
+    return fit_points(points, exclude_levels=exclude_levels, robust=robust,
+                      linearity_tolerance=linearity_tolerance, **ctx)
