@@ -94,6 +94,34 @@ def _cmd_session(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_ptc(args: argparse.Namespace) -> int:
+    from .noise import photon_transfer
+
+    res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
+                          exclude_levels=tuple(args.exclude or ()))
+    if args.json:
+        _print_json(res.to_dict())
+        return 0
+    print(f"photon transfer of {args.session}" + (f", ROI {args.roi}" if args.roi else ""))
+    print(f"{'level':>5} {'mu [DN]':>10} {'var [DN2]':>11} {'+/-':>9}  used")
+    for p in res.points:
+        used = "yes" if p.used else f"no: {p.reason}"
+        print(f"{p.level:>5} {p.mu:>10.3f} {p.var:>11.4f} {p.var_err:>9.4f}  {used}")
+    print(f"A        = {res.A:.6g} +/- {res.A_err:.2g} DN/e   "
+          f"(conversion gain {res.conversion_gain_e_per_dn:.4g} +/- "
+          f"{res.conversion_gain_e_per_dn_err:.2g} e/DN)")
+    print(f"sigma_C2 = {res.sigma_c2:.5g} +/- {res.sigma_c2_err:.2g} DN2  "
+          f"(read noise {res.read_noise_e:.4g} +/- {res.read_noise_e_err:.2g} e, "
+          f"quantisation q2/12 = {res.quantisation_dn2:.4g} DN2)")
+    print(f"chi2 = {res.chi2:.4g} with {res.dof} dof, Q = {res.Q:.4g}: {res.verdict}")
+    print(f"black level {res.black_level_dn:.4g} DN ({res.black_level_source})")
+    if res.robust_dropped:
+        print(f"robust mode dropped levels {', '.join(map(str, res.robust_dropped))}")
+    for note in res.notes:
+        print(f"note: {note}")
+    return 0
+
+
 def _cmd_app(args: argparse.Namespace) -> int:
     from app.main import serve
 
@@ -141,9 +169,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
 
     p = verb("ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
-             _not_built("ptc", "photon-transfer estimation"))
+             _cmd_ptc)
     p.add_argument("session", type=Path)
     p.add_argument("--roi", type=_roi)
+    p.add_argument("--robust", action="store_true",
+                   help="drop levels whose residual is beyond 3 sigma, one at a time")
+    p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
+                   help="exclude a light level from the fit (repeatable)")
     p.add_argument("--json", action="store_true")
 
     p = verb("calibrate", "every estimate the session allows, saved as a calibration product",

@@ -38,7 +38,7 @@ def test_unknown_verb_and_bad_arguments_exit_2(capsys):
         assert "error:" in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize("verb", [["ptc", "S"], ["calibrate", "S", "-o", "O"], ["snup", "a.tif"],
+@pytest.mark.parametrize("verb", [["calibrate", "S", "-o", "O"], ["snup", "a.tif"],
                                   ["response", "S"], ["hdr", "S", "-o", "O"],
                                   ["change", "S", "-o", "O"], ["apply", "C", "a.tif", "-o", "O"]])
 def test_verbs_not_built_say_so(capsys, verb):
@@ -58,6 +58,29 @@ def test_simulate_writes_session_and_truth(capsys, tmp_path):
     for key in ("A", "sigma_c2", "read_noise_e", "bits"):
         assert key in truth
     assert (tmp_path / "h" / "session.toml").exists()
+
+
+def test_ptc_json_has_the_contract_keys_and_recovers_truth(capsys):
+    demo = ROOT / "assets" / "healey94"
+    code, out, err = run(capsys, "ptc", str(demo), "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    for key in ("A", "sigma_c2", "cov", "chi2", "dof", "Q", "points", "conversion_gain_e_per_dn",
+                "read_noise_e"):
+        assert key in res
+    assert {"level", "mu", "var", "var_err", "used"} <= set(res["points"][0])
+    truth = json.loads((demo / "truth.json").read_text())
+    a_err = res["cov"][0][0] ** 0.5
+    assert abs(res["A"] - truth["A"]) < 3 * a_err  # three standard errors of the fit
+
+
+def test_ptc_human_summary_and_bad_roi(capsys):
+    demo = str(ROOT / "assets" / "healey94")
+    code, out, err = run(capsys, "ptc", demo, "--roi", "10,10,50,40", "--exclude", "8")
+    assert code == 0, err
+    assert "excluded by user" in out and "Q =" in out
+    code, out, err = run(capsys, "ptc", demo, "--roi", "200,100,500,500")
+    assert code == 2 and "roi" in err.lower() and len(err.strip().splitlines()) == 1
 
 
 def test_session_verb_on_demo_and_json(capsys):
