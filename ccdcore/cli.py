@@ -122,6 +122,51 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .product import calibrate
+
+    product = calibrate(args.session, roi=args.roi)
+    folder = product.save(args.out)
+    if args.json:
+        out = product.to_dict()
+        out["folder"] = str(folder)
+        _print_json(out)
+        return 0
+    est = product.estimates
+    print(f"calibration product written to {folder}")
+    if "noise" in est:
+        n = est["noise"]
+        print(f"  noise model   A = {n['A']:.6g} +/- {n['A_err']:.2g} DN/e, sigma_C2 = "
+              f"{n['sigma_c2']:.5g} +/- {n['sigma_c2_err']:.2g} DN2, Q = {n['Q']:.3g} ({n['verdict']})")
+    if "dark" in est:
+        d = est["dark"]
+        print(f"  dark          s = {d['s']}, mean {d['mean']:.4g} DN, spatial std "
+              f"{d['spatial_std']:.4g} DN, {d['n_hot']} hot, {d['n_dead']} dead")
+    if "fixed_pattern" in est:
+        k = est["fixed_pattern"]
+        print(f"  fixed pattern n1 = {k['n1']}, n2 = {k['n2']}, K mean {k['mean']:.6g}, "
+              f"spatial std {k['spatial_std']:.4g}, error var {k['K_var_mean']:.3g} "
+              f"(eq. 50 bound {k['var_bound'] if k['var_bound'] is not None else 'infinite'})")
+    if "plan" in est:
+        pl = est["plan"]
+        print(f"  plan          n1 >= {pl['n1_required']}, n2 >= {pl['n2_required']}")
+    for name, sv in est.get("scene", {}).items():
+        print(f"  scene {name:<8} V_S = {sv['V_S']:.4g} +/- {sv['V_S_err']:.2g}")
+    for note in product.notes:
+        print(f"  note: {note}")
+    print(f"  maps: {', '.join(sorted(product.maps))}")
+    return 0
+
+
+def _cmd_apply(args: argparse.Namespace) -> int:
+    from .product import apply_product
+
+    written = apply_product(args.calib, args.images, args.out_dir)
+    for path in written:
+        print(path)
+    return 0
+
+
 def _cmd_app(args: argparse.Namespace) -> int:
     from app.main import serve
 
@@ -179,13 +224,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
 
     p = verb("calibrate", "every estimate the session allows, saved as a calibration product",
-             _not_built("calibrate", "the calibration product"))
+             _cmd_calibrate)
     p.add_argument("session", type=Path)
+    p.add_argument("--roi", type=_roi, help="ROI for the photon-transfer statistics")
     p.add_argument("-o", "--out", type=Path, required=True)
     p.add_argument("--json", action="store_true")
 
-    p = verb("apply", "correct images with a calibration product",
-             _not_built("apply", "image correction"))
+    p = verb("apply", "correct images with a calibration product (eq. 51), float32 out",
+             _cmd_apply)
     p.add_argument("calib", type=Path)
     p.add_argument("images", type=Path, nargs="+")
     p.add_argument("-o", "--out-dir", type=Path, required=True)

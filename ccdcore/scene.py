@@ -371,7 +371,8 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
                       sigma_c2: float, roi: Any, black_level: float = 0.0,
                       noise_cov: ArrayLike | None = None, path: str | None = None,
                       level: int | None = None, full_scale: float | None = None,
-                      dark_var: ArrayLike | float = 0.0, K_var: float = 0.0) -> SceneMeasurement:
+                      dark_var: ArrayLike | float = 0.0, K_var: float = 0.0,
+                      fp_level: float | None = None) -> SceneMeasurement:
     """Scene variation of one ROI of one scene image (eqs. 51, 54–58).
 
     Parameters
@@ -400,6 +401,12 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
     K_var
         Relative variance of K̂'s estimation error (≤ the bound of eq. 50 divided by K² ≈ 1);
         it multiplies the signal, so it adds K_var·μ̂²_D, which would otherwise look like V_S.
+    fp_level
+        When K̂ was estimated with the same D̂_D (eq. 46), the dark-reference error δ enters K̂
+        too: K̂ ≈ K − δ/μ_fp with μ_fp the (harmonic) mean level e_i of the fixed-pattern
+        configurations, so D_C ≈ μ − δ·(1 − μ/μ_fp) and the dark term is
+        ``dark_var·(1 − μ̂_D/μ_fp)²`` — it vanishes for a scene at the calibration level.
+        ``None`` treats the two errors as independent.
 
     Returns
     -------
@@ -455,6 +462,10 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
     dv = float(np.mean(_map(dv, shape, "dark_var")[sl] * invK2)) if dv.ndim else float(dv) * E
     if dv < 0:
         raise CcdError("dark_var", "variance of the dark reference must be >= 0")
+    if fp_level is not None:
+        if not fp_level > 0:
+            raise CcdError("fp_level", f"must be > 0 DN, got {fp_level}")
+        dv *= (1.0 - mu / float(fp_level)) ** 2
     sigma_cal2 = dv + float(K_var) * mu * mu
     y = var_D - sigma_KN2 - sigma_cal2
     V = y / (mu * mu)                                            # eq. 57
@@ -554,7 +565,8 @@ def _frame_meta(item: Any) -> tuple[Any, NDArray, dict[str, Any]]:
 def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: Any, *,
                     name: str | None = None, roi: Any = None,
                     black_level: float | None = None, full_scale: float | None = None,
-                    dark_var: ArrayLike | float = 0.0, K_var: float = 0.0) -> SceneVariation:
+                    dark_var: ArrayLike | float = 0.0, K_var: float = 0.0,
+                    fp_level: float | None = None) -> SceneVariation:
     """Scene variation of one patch imaged at several light levels (sec. VI, VII-B).
 
     Parameters
@@ -590,7 +602,7 @@ def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: A
         m = scene_measurement(pixels, dark_map, K_map, A=A, sigma_c2=c2, roi=r, black_level=b0,
                               noise_cov=cov, path=meta.get("path") and str(meta.get("path")),
                               level=meta.get("level"), full_scale=full_scale,
-                              dark_var=dark_var, K_var=K_var)
+                              dark_var=dark_var, K_var=K_var, fp_level=fp_level)
         if name is None:
             note = meta.get("note") or ""
             hit = _PATCH_RE.search(note)
@@ -619,7 +631,8 @@ def _patch_key(rec: Any) -> str | None:
 
 def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
                      black_level: float | None = None, dark_var: ArrayLike | float = 0.0,
-                     K_var: float = 0.0) -> dict[str, SceneVariation]:
+                     K_var: float = 0.0,
+                     fp_level: float | None = None) -> dict[str, SceneVariation]:
     """Scene variation of every patch among a session's ``scene`` frames.
 
     Frames are grouped by ``note = "patch=NAME"`` (as the ``healey94`` simulator writes), else by
@@ -670,7 +683,7 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
                        "no scene frames with a 'patch=NAME' note or an roi to measure V_S on")
     return {name: scene_variation(session.iter_frames(recs), dark, K, noise, name=name,
                                   black_level=black_level, full_scale=full_scale,
-                                  dark_var=dark_var, K_var=K_var)
+                                  dark_var=dark_var, K_var=K_var, fp_level=fp_level)
             for name, recs in groups.items()}
 
 

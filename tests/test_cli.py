@@ -38,9 +38,9 @@ def test_unknown_verb_and_bad_arguments_exit_2(capsys):
         assert "error:" in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize("verb", [["calibrate", "S", "-o", "O"], ["snup", "a.tif"],
+@pytest.mark.parametrize("verb", [["snup", "a.tif"],
                                   ["response", "S"], ["hdr", "S", "-o", "O"],
-                                  ["change", "S", "-o", "O"], ["apply", "C", "a.tif", "-o", "O"]])
+                                  ["change", "S", "-o", "O"]])
 def test_verbs_not_built_say_so(capsys, verb):
     code, out, err = run(capsys, *verb)
     assert code == 2

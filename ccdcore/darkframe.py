@@ -1,0 +1,256 @@
+"""Dark reference image D̂_D(a, b) and hot/dead pixel flags (sec. V-A of Healey & Kondepudy 1994).
+
+A dark frame (I ≡ 0) is modelled by eq. 43, ``D = (N_DC + N_S + N_R)·A + N_Q``: per pixel mean
+E_DC(a, b)·A (plus the camera's black level, which this estimate simply includes) and variance
+σ²_N(a, b).  Averaging ``s`` dark frames gives D̂_D(a, b) with variance σ²_N(a, b)/s.  The frames
+are streamed through :class:`ccdcore.stats.PixelMoments` (memory: three float64 frames, whatever
+``s``).
+
+Hot and dead pixels (the rules, also returned in :attr:`DarkReference.hot_rule` / ``dead_rule``):
+
+* the *robust spatial scale* of the mean map is ``r = 1.4826·MAD(D̂_D)`` (MAD about the median;
+  1.4826·MAD is the standard deviation for Gaussian data);
+* **hot**: ``D̂_D − median(D̂_D) > k·r`` (k = ``hot_sigma``, default 6), or *noisy* (RTS /
+  telegraph pixels): temporal variance above the ``1 − 1e-6`` quantile of the scaled χ²_{s−1}
+  distribution a normal pixel's sample variance follows (scale from the median variance), times
+  ``noisy_factor`` (default 1);
+* **dead**: ``median(D̂_D) − D̂_D > k·r`` (a cold pixel, e.g. stuck at 0), or *stuck*: temporal
+  variance exactly 0 while a normal pixel practically never gives s identical quantised values
+  (the rule is applied only when the expected number of such false flags over the array is below
+  0.01; otherwise it is skipped and a note says so).
+
+Public objects
+--------------
+DarkReference
+    Frozen result: mean map D̂_D, variance map, s, mean, spatial std, hot/dead masks and rules.
+dark_reference(frames_or_session, ...)
+    Stream dark frames (arrays, ``(record, array)`` pairs, or a Session's dark frames).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+import numpy as np
+from scipy import special
+
+from .errors import CcdError
+from .stats import PixelMoments
+
+__all__ = ["DarkReference", "dark_reference", "as_dark_map"]
+
+#: false-alarm probability per pixel of the "noisy" (temporal variance) rule
+NOISY_ALPHA = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class DarkReference:
+    """The dark reference image D̂_D(a, b) of sec. V-A (Healey & Kondepudy 1994).
+
+    Attributes
+    ----------
+    mean_map
+        D̂_D(a, b): per-pixel mean of the ``s`` dark frames, float64 (H, W), DN.
+    var_map
+        Per-pixel temporal sample variance (ddof = 1), an estimate of σ²_N(a, b) (eq. 43).
+    s
+        Number of dark frames averaged.
+    mean, spatial_std
+        Mean and standard deviation (ddof = 0) of D̂_D over the array (paper, sec. VII-A: 10.74
+        and 0.555).  The spatial std includes the noise of the average, σ²_N/s; see
+        :attr:`spatial_std_signal` for the part that is dark-signal nonuniformity.
+    hot_mask, dead_mask
+        Boolean (H, W) flags; the rules in ``hot_rule`` / ``dead_rule`` (see the module docstring).
+    exposure
+        Exposure time of the dark frames (seconds) when known and common, else ``None``.
+    notes
+        Diagnostics (rules skipped, frames of several exposures ...).
+    """
+
+    mean_map: np.ndarray
+    var_map: np.ndarray
+    s: int
+    mean: float
+    spatial_std: float
+    hot_mask: np.ndarray
+    dead_mask: np.ndarray
+    hot_rule: str
+    dead_rule: str
+    exposure: float | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.mean_map.shape
+
+    @property
+    def sem_map(self) -> np.ndarray:
+        """Standard error of D̂_D per pixel, ``sqrt(var_map / s)`` (σ_N/√s, sec. V-A)."""
+        return np.sqrt(self.var_map / self.s)
+
+    @property
+    def noise_var(self) -> float:
+        """Mean temporal variance of a dark pixel, σ²_N at the dark level (DN²)."""
+        return float(np.nanmean(self.var_map))
+
+    @property
+    def spatial_std_signal(self) -> float:
+        """Spatial std of the dark signal with the noise of the average removed:
+        ``sqrt(max(spatial_std² − mean(var_map)/s, 0))``."""
+        if self.s < 2:
+            return float("nan")
+        return math.sqrt(max(self.spatial_std ** 2 - self.noise_var / self.s, 0.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary statistics only (no maps), JSON-friendly."""
+        good = ~(self.hot_mask | self.dead_mask)
+        return {
+            "s": int(self.s), "shape": list(self.mean_map.shape),
+            "mean": float(self.mean), "spatial_std": float(self.spatial_std),
+            "spatial_std_signal": self.spatial_std_signal,
+            "mean_sem": float(np.sqrt(self.noise_var / self.s / self.mean_map.size))
+            if self.s > 1 else None,
+            "noise_var": self.noise_var if self.s > 1 else None,
+            "mean_good": float(self.mean_map[good].mean()) if good.any() else None,
+            "spatial_std_good": float(self.mean_map[good].std()) if good.any() else None,
+            "n_hot": int(self.hot_mask.sum()), "n_dead": int(self.dead_mask.sum()),
+            "hot_rule": self.hot_rule, "dead_rule": self.dead_rule,
+            "exposure": self.exposure, "notes": list(self.notes),
+        }
+
+
+def _is_session(obj: Any) -> bool:
+    return hasattr(obj, "dark_frames") and hasattr(obj, "iter_frames")
+
+
+def _check_mono(a: np.ndarray, where: str | None) -> None:
+    if a.ndim == 3:
+        raise CcdError(where, f"colour frames {a.shape}: the dark reference is mono only for now; "
+                              "per channel support comes with the flat-field work")
+    if a.ndim != 2:
+        raise CcdError(where, f"expected a 2-D frame, got shape {a.shape}")
+
+
+def _session_darks(session: Any, exposure: float | None) -> tuple[list, float | None, list[str]]:
+    recs = list(session.dark_frames())
+    where = str(getattr(session, "root", "session"))
+    if not recs:
+        raise CcdError(where, "no dark frames (role = 'dark'): the dark reference D̂_D of "
+                              "sec. V-A needs lens-capped frames")
+    notes: list[str] = []
+    exposures = sorted({r.exposure for r in recs if r.exposure is not None})
+    if exposure is not None:
+        recs = [r for r in recs if r.exposure is not None and math.isclose(r.exposure, exposure,
+                                                                           rel_tol=1e-6)]
+        if not recs:
+            raise CcdError(where, f"no dark frames at exposure {exposure} s (have "
+                                  f"{', '.join(map(str, exposures)) or 'none'})")
+        return recs, float(exposure), notes
+    if len(exposures) > 1:
+        raise CcdError(where, f"dark frames at {len(exposures)} exposures "
+                              f"({', '.join(map(str, exposures))} s): choose one with exposure=")
+    return recs, (exposures[0] if exposures else None), notes
+
+
+def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
+                   noisy_factor: float = 1.0, exposure: float | None = None) -> DarkReference:
+    """Average dark frames into the dark reference image D̂_D(a, b) (sec. V-A, eq. 43).
+
+    Parameters
+    ----------
+    frames_or_session
+        A :class:`~ccdcore.session.Session` (its ``dark`` frames are used), or an iterable of 2-D
+        arrays or ``(record, array)`` pairs (as :meth:`Session.iter_frames` yields).  Streamed.
+    hot_sigma
+        k of the hot/dead rules: a pixel whose mean is more than k robust spatial standard
+        deviations (1.4826·MAD) above (hot) or below (dead) the median is flagged.
+    noisy_factor
+        Multiplies the χ² threshold of the temporal-variance ("noisy"/RTS) rule; ``inf`` disables.
+    exposure
+        With a session whose darks have several exposures, the exposure to use (seconds).
+
+    Returns
+    -------
+    DarkReference
+
+    Raises
+    ------
+    CcdError
+        No frames, frames of different shapes (naming the file), colour frames, or a session
+        with darks at several exposures and no ``exposure``.
+    """
+    notes: list[str] = []
+    acc = PixelMoments()
+    if _is_session(frames_or_session):
+        recs, exp, notes = _session_darks(frames_or_session, exposure)
+        items: Iterable = frames_or_session.iter_frames(recs)
+    else:
+        items, exp = frames_or_session, exposure
+        if isinstance(items, np.ndarray) and items.ndim == 2:
+            raise CcdError("frames", "give an iterable of dark frames (or a (s, H, W) stack), "
+                                     "not a single frame")
+    for k, item in enumerate(items):
+        rec, arr = item if isinstance(item, tuple) else (None, item)
+        name = getattr(rec, "relpath", None) or f"dark frame {k}"
+        arr = np.asarray(arr)
+        _check_mono(arr, name)
+        acc.add(arr, name=name)
+    if acc.n == 0:
+        raise CcdError("dark", "no dark frames given")
+    res = acc.result()
+    s = res.n
+    mean_map, var_map = res.mean, res.var
+    if s < 2:
+        notes.append("one dark frame: no variance map, no noisy/stuck rules, sem unknown")
+
+    med = float(np.median(mean_map))
+    mad = float(np.median(np.abs(mean_map - med)))
+    r = 1.4826 * mad
+    if r == 0.0:
+        # quantised, very quiet darks: fall back to the std so that the rule is not "any change"
+        r = float(mean_map.std()) or 1e-12
+        notes.append("MAD of the dark mean map is 0; the std is used as the spatial scale")
+    hot = (mean_map - med) > hot_sigma * r
+    dead = (med - mean_map) > hot_sigma * r
+    hot_rule = (f"hot: D̂_D − median > {hot_sigma:g}·1.4826·MAD (= {hot_sigma * r:.4g} DN above "
+                f"{med:.4g} DN)")
+    dead_rule = (f"dead: median − D̂_D > {hot_sigma:g}·1.4826·MAD (= {hot_sigma * r:.4g} DN "
+                 f"below {med:.4g} DN)")
+    if s >= 2:
+        dof = s - 1
+        med_var = float(np.median(var_map))
+        # sample variance of a normal pixel: σ²·χ²_dof/dof; σ² from the median variance
+        sigma2 = med_var / (special.chdtri(dof, 0.5) / dof)   # chdtri: χ² inverse survival
+        if np.isfinite(noisy_factor) and sigma2 > 0:
+            thr = noisy_factor * sigma2 * special.chdtri(dof, NOISY_ALPHA) / dof
+            hot |= var_map > thr
+            hot_rule += (f"; or noisy: temporal variance > {thr:.4g} DN² (the 1 − {NOISY_ALPHA:g} "
+                         f"quantile of σ²·χ²_{dof}/{dof}, σ² = {sigma2:.4g} from the median"
+                         + (f", × {noisy_factor:g}" if noisy_factor != 1 else "") + ")")
+        # probability that s quantised values of a normal pixel are identical: at most
+        # P(one bin)^(s-1), P(one bin) <= erf(0.5 / (σ√2)) for q = 1 DN
+        sigma = math.sqrt(sigma2) if sigma2 > 0 else 0.0
+        p_bin = float(special.erf(0.5 / (sigma * math.sqrt(2)))) if sigma > 0 else 1.0
+        false_stuck = mean_map.size * p_bin ** dof
+        if false_stuck < 0.01:
+            dead |= var_map == 0
+            dead_rule += f"; or stuck: temporal variance 0 over the {s} frames"
+        else:
+            notes.append(f"stuck-pixel rule (variance 0) skipped: a normal pixel would give {s} "
+                         f"identical values too often (expected {false_stuck:.3g} false flags)")
+    hot &= ~dead
+    spatial_mean = float(mean_map.mean())
+    return DarkReference(mean_map=mean_map, var_map=var_map, s=s, mean=spatial_mean,
+                         spatial_std=float(mean_map.std()), hot_mask=hot, dead_mask=dead,
+                         hot_rule=hot_rule, dead_rule=dead_rule, exposure=exp, notes=tuple(notes))
+
+
+def as_dark_map(dark: DarkReference | np.ndarray | float, where: str = "dark") -> np.ndarray:
+    """D̂_D as a float64 array from a :class:`DarkReference`, an array, or a scalar."""
+    if isinstance(dark, DarkReference):
+        return dark.mean_map
+    if dark is None:
+        raise CcdError(where, "no dark reference D̂_D given (sec. V-A): compute one with "
+                              "dark_reference() from dark frames")
+    return np.asarray(dark, dtype=np.float64)
