@@ -1,0 +1,195 @@
+"""The app shell: template, navigation, header, and the server entry point.
+
+Public objects
+--------------
+create_app(session_path=None, *, allowed_roots=None)
+    A fresh app (one per browser session): a Bootstrap template with the page registry in the
+    sidebar and the loaded session in the header.
+serve(session_path=None, port=5006, show=False, threaded=False, address="127.0.0.1")
+    Serve the app (what ``ccdcore app [SESSION] [--port N]`` and ``python -m app`` call).
+AppShell
+    The navigation between the registry's pages (built lazily, cached per browser session).
+
+The Bootstrap template is used because it loads nothing from outside hosts (its CSS and JS are
+served by Panel itself), unlike templates that fetch Google web fonts; lab machines are offline.
+"""
+from __future__ import annotations
+
+import html
+import logging
+from functools import partial
+from pathlib import Path
+from typing import Any, Iterable
+
+import holoviews as hv
+import panel as pn
+import param
+
+from . import plots
+from .pages import PAGES, PageSpec, build_page, is_available
+from .state import AppState, default_roots
+
+__all__ = ["create_app", "serve", "AppShell", "TITLE"]
+
+log = logging.getLogger(__name__)
+
+TITLE = "ccdcore \u00b7 radiometric camera calibration"
+
+pn.extension("tabulator", sizing_mode="stretch_width", notifications=False)
+hv.extension("bokeh", logo=False)
+
+_CSS = """
+.ccd-badge { display: inline-block; padding: 1px 7px; border-radius: 9px; font-size: 0.72em;
+  font-weight: 600; letter-spacing: 0.02em; background: #e9ecef; color: #6c757d;
+  border: 1px solid #ced4da; vertical-align: middle; }
+.ccd-session { color: #e8eef5; font-size: 0.95em; white-space: nowrap; overflow: hidden;
+  text-overflow: ellipsis; }
+.ccd-session code { color: #ffffff; background: rgba(255,255,255,0.12); padding: 1px 5px;
+  border-radius: 4px; }
+"""
+
+_NAV_CSS = """
+:host { --ccd-nav: 1; }
+.bk-btn { text-align: left; font-size: 0.98em; }
+"""
+
+
+class AppShell(param.Parameterized):
+    """Sidebar navigation over :data:`app.pages.PAGES` and the main area showing one page."""
+
+    page = param.Selector(default=PAGES[0].slug, objects=[p.slug for p in PAGES],
+                          doc="Slug of the page shown.")
+
+    def __init__(self, state: AppState, **params: Any):
+        super().__init__(**params)
+        self.state = state
+        self._pages: dict[str, pn.viewable.Viewable] = {}
+        self.buttons: dict[str, pn.widgets.Button] = {}
+        rows = []
+        for spec in PAGES:
+            button = pn.widgets.Button(name=f"{spec.icon}  {spec.title}", button_type="light",
+                                       sizing_mode="stretch_width", stylesheets=[_NAV_CSS],
+                                       margin=(2, 4))
+            button.on_click(partial(self._go, spec.slug))
+            self.buttons[spec.slug] = button
+            if is_available(spec):
+                rows.append(button)
+            else:
+                badge = pn.pane.HTML("<span class='ccd-badge' title='planned, not built yet'>"
+                                     "coming</span>", width=70, margin=(8, 4),
+                                     stylesheets=[_CSS], sizing_mode="fixed")
+                rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
+        self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
+        self.main = pn.Column(sizing_mode="stretch_width", css_classes=["ccd-main"])
+        self._show()
+
+    def _go(self, slug: str, event: Any = None) -> None:
+        self.page = slug
+
+    def page_view(self, slug: str) -> pn.viewable.Viewable:
+        """The page ``slug`` (built on first visit, then kept with its widget state)."""
+        if slug not in self._pages:
+            spec: PageSpec = next(p for p in PAGES if p.slug == slug)
+            self._pages[slug] = build_page(spec, self.state)
+        return self._pages[slug]
+
+    @param.depends("page", watch=True)
+    def _show(self) -> None:
+        for slug, button in self.buttons.items():
+            button.button_type = "primary" if slug == self.page else "light"
+        self.main.objects = [self.page_view(self.page)]
+
+
+def _session_header(path: str, status: str, busy: bool) -> str:
+    if busy:
+        text = "opening\u2026"
+    elif path:
+        text = f"Session: <code>{html.escape(Path(path).name)}</code> " \
+               f"<span style='opacity:0.75'>{html.escape(path)}</span>"
+    else:
+        text = "No session loaded"
+    return f"<div class='ccd-session'>{text}</div>"
+
+
+def create_app(session_path: str | Path | None = None, *,
+               allowed_roots: Iterable[str | Path] | None = None) -> pn.template.BaseTemplate:
+    """Build a fresh app for one browser session.
+
+    Parameters
+    ----------
+    session_path
+        A session to open when the page loads (folder, ``session.toml``, folder of images or
+        EMVA1288 descriptor). Its folder is added to the allowed roots: the user named it.
+        A bad path shows an alert in the page; the app keeps working.
+    allowed_roots
+        Folders the user may open sessions from; default: the bundled assets, the home folder
+        and the working folder.
+
+    Returns
+    -------
+    panel.template.BootstrapTemplate
+    """
+    extra: list[Path] = []
+    if session_path is not None:
+        p = Path(session_path).expanduser().resolve()
+        extra.append(p if p.is_dir() else p.parent)
+    roots = default_roots(extra) if allowed_roots is None else \
+        [Path(r).expanduser().resolve() for r in (*allowed_roots, *extra)]
+    state = AppState(allowed_roots=roots)
+    shell = AppShell(state)
+
+    template = pn.template.BootstrapTemplate(
+        title=TITLE, sidebar_width=250, header_background="#1f3b57", header_color="#ffffff")
+    template.header.append(pn.pane.HTML(
+        pn.bind(_session_header, state.param.session_path, state.param.status,
+                state.param.busy),
+        stylesheets=[_CSS], sizing_mode="stretch_width", margin=(12, 10)))
+    template.sidebar.append(pn.pane.Markdown("#### Pages", margin=(0, 10)))
+    template.sidebar.append(shell.nav)
+    template.sidebar.append(pn.pane.Markdown(
+        "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
+        stylesheets=[_CSS], margin=(12, 10), styles={"font-size": "0.85em", "color": "#6c757d"}))
+    template.main.append(shell.main)
+    template.config.raw_css.append(_CSS)
+    # handles for tests and for later pages
+    template.app_state = state  # type: ignore[attr-defined]
+    template.app_shell = shell  # type: ignore[attr-defined]
+
+    if session_path is not None:
+        path = str(session_path)
+
+        async def _initial_load() -> None:
+            await state.load_async(path)
+
+        pn.state.onload(_initial_load)
+    return template
+
+
+_warmed = False
+
+
+def warm_up() -> None:
+    """Compile datashader's kernels once per process (first rasterize costs 2–3 s)."""
+    global _warmed
+    if not _warmed:
+        seconds = plots.warm_up()
+        log.info("datashader warm-up took %.1f s", seconds)
+        _warmed = True
+
+
+def serve(session_path: str | Path | None = None, port: int = 5006, show: bool = False,
+          threaded: bool = False, address: str = "127.0.0.1") -> Any:
+    """Serve the app on ``address:port`` (default 127.0.0.1:5006).
+
+    Warms datashader up first. ``threaded=True`` returns the running server thread (stop it with
+    ``pn.state.kill_all_servers()``); otherwise this blocks until interrupted.
+    """
+    warm_up()
+    origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
+
+    def app() -> pn.template.BaseTemplate:  # a plain function: Panel calls it per session
+        return create_app(session_path)
+
+    return pn.serve({"/": app}, port=port, address=address,
+                    show=show, threaded=threaded, title="ccdcore", liveness=True,
+                    websocket_origin=origins, start=True)

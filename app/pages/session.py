@@ -1,0 +1,504 @@
+"""The Session page: open a capture session, check it, preview its frames.
+
+Public objects
+--------------
+SessionPage
+    The page (a :class:`panel.viewable.Viewer`): choose a bundled demo or open a folder (typed
+    path or file browser restricted to the allowed roots); camera, groups and per-frame metadata
+    tables; every validation problem as an alert; what was inferred for plain folders and a
+    button writing the manifest draft; a zoomable preview of any frame with its histogram.
+create_page(state)
+    The registry entry point.
+groups_frame(session), frames_frame(session)
+    The groups and frames tables of a session as DataFrames (display-ready).
+inferred_summary(session)
+    Which metadata keys were inferred, from what, for how many frames.
+
+Widgets call ccdcore (``open_session``, ``Session.read``, ``draft_manifest``); the plots come from
+:mod:`app.plots`. Long work (opening a session, reading a frame) runs in a worker thread from
+async callbacks, so the page stays responsive, with a progress bar or loading spinner meanwhile.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import traceback
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import holoviews as hv
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+
+from ccdcore.errors import CcdError
+from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
+
+from .. import plots
+from ..state import AppState, assets_dir, demo_sessions
+
+__all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",
+           "MAX_ALERTS"]
+
+log = logging.getLogger(__name__)
+
+#: at most this many problem alerts are listed (one more alert counts the rest)
+MAX_ALERTS = 200
+#: frames table rows per page
+PAGE_SIZE = 12
+#: at most this many lines of the manifest draft are shown (the written file has all)
+MAX_DRAFT_LINES = 400
+
+_SOURCES = {"manifest": "manifest", "folder": "plain folder (no manifest)",
+            "emva1288": "EMVA1288 descriptor"}
+_FROM = {"role": "folder names", "level": "sub-folder names", "config": "sub-folder names",
+         "exposure": "file headers", "gain": "file headers", "temperature": "file headers"}
+# frames-table columns always shown; the other metadata columns only when some frame sets them
+_ALWAYS = ("relpath", "role", "exposure", "shape", "dtype", "bits")
+
+
+def _code(text: Any) -> str:
+    """``text`` as a Markdown code span (paths keep their underscores and asterisks)."""
+    return "`" + str(text).replace("`", "'") + "`"
+
+
+def groups_frame(session: Session) -> pd.DataFrame:
+    """One row per group of frames (role, key, count, shape, dtype, exposures) for display."""
+    rows = []
+    for row in session.groups_table():
+        exposures = row.get("exposures") or []
+        rows.append({"role": row["role"],
+                     "key": "" if row.get("key") is None else str(row["key"]),
+                     "count": int(row["count"]),
+                     "shape": row.get("shape") or "unreadable",
+                     "dtype": row.get("dtype") or "unreadable",
+                     "exposure (s)": ", ".join(f"{e:g}" for e in exposures)})
+    return pd.DataFrame(rows, columns=["role", "key", "count", "shape", "dtype", "exposure (s)"])
+
+
+def frames_frame(session: Session) -> pd.DataFrame:
+    """One row per frame: path, role, metadata set in any frame, header shape/dtype/bits."""
+    df = pd.DataFrame(session.frames_table())
+    if df.empty:
+        return pd.DataFrame(columns=list(_ALWAYS) + ["inferred"])
+    for col in df.columns:
+        if df[col].map(lambda v: isinstance(v, (list, tuple))).any():
+            df[col] = df[col].map(lambda v: ", ".join(map(str, v))
+                                  if isinstance(v, (list, tuple)) else v)
+    for col in ("stack", "note", "shape", "dtype"):  # mixed int/str or None: show as text
+        if col in df.columns:
+            df[col] = df[col].map(lambda v: "" if v is None or v is np.nan
+                                  or isinstance(v, float) and np.isnan(v) else str(v))
+    keep = [c for c in df.columns
+            if c in _ALWAYS or c == "inferred" and (df[c] != "").any()
+            or c not in _ALWAYS and c != "inferred" and df[c].notna().any()
+            and (df[c] != "").any()]
+    order = [c for c in _ALWAYS if c in keep] + [c for c in keep if c not in _ALWAYS]
+    return df[order].reset_index(drop=True)
+
+
+def inferred_summary(session: Session) -> list[tuple[str, int, str]]:
+    """``(key, number of frames, where it came from)`` for every inferred metadata key."""
+    counts = Counter(k for rec in session.frames for k in rec.inferred)
+    return [(k, n, _FROM.get(k, "file headers")) for k, n in counts.items()]
+
+
+def _problem_alert(problem: Any) -> pn.pane.Alert:
+    kind = "danger" if problem.severity == "error" else "warning"
+    label = "Error" if problem.severity == "error" else "Warning"
+    return pn.pane.Alert(f"**{label}** in {_code(problem.where)}: {problem.message}",
+                         alert_type=kind, sizing_mode="stretch_width", margin=(2, 5))
+
+
+class SessionPage(pn.viewable.Viewer):
+    """Open, check and preview a capture session (the app's first page)."""
+
+    state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
+    frame = param.Selector(default=None, objects=[], allow_None=True,
+                           doc="relpath of the previewed frame (None for none).")
+    channel = param.Selector(default="L", objects={"R": "R", "G": "G", "B": "B",
+                                                   "Luminance": "L"},
+                             doc="Channel shown for colour frames (R, G, B or L = luminance).")
+
+    def __init__(self, state: AppState | None = None, **params: Any):
+        super().__init__(state=state if state is not None else AppState(), **params)
+        self._records: dict[str, FrameRecord] = {}
+        self._array: np.ndarray | None = None     # the previewed frame, as stored
+        self._shown: FrameRecord | None = None    # its record
+        self._plane: np.ndarray | None = None     # its shown channel (2-D)
+        self._frame_request = 0                   # newest preview request (older ones drop)
+        self._build_open_widgets()
+        self._build_session_widgets()
+        self._build_preview_widgets()
+        self.state.param.watch(self._on_session, "session")
+        self.state.param.watch(self._on_state_message, ["error", "status", "busy", "progress"])
+        if self.state.session is not None:
+            self._on_session()
+        self._on_state_message()
+
+    # ================================================================ building the widgets ====
+    def _build_open_widgets(self) -> None:
+        demos = demo_sessions()
+        self.demo_select = pn.widgets.Select(
+            name="Bundled demo session", options=list(demos), width=220,
+            value=next(iter(demos), None), disabled=not demos)
+        self.open_demo_button = pn.widgets.Button(
+            name="Open demo", button_type="primary", disabled=not demos, align="end")
+        self.path_input = pn.widgets.TextInput(
+            name="Session folder, session.toml, folder of images or EMVA1288 descriptor",
+            placeholder="/path/to/session", sizing_mode="stretch_width", min_width=300)
+        self.open_path_button = pn.widgets.Button(name="Open", button_type="primary",
+                                                  align="end")
+        roots = {self._root_label(r): str(r) for r in self.state.allowed_roots if r.is_dir()}
+        self.root_select = pn.widgets.Select(name="Browse in", options=roots, width=320)
+        self.file_selector = self._file_selector(self.root_select.value)
+        self.browse_holder = pn.Column(self.file_selector, sizing_mode="stretch_width")
+        self.open_selected_button = pn.widgets.Button(name="Open selected", button_type="primary")
+        self.progress = pn.indicators.Progress(name="Working", active=False, visible=False,
+                                               value=-1, bar_color="primary",
+                                               sizing_mode="stretch_width", height=12)
+        self.status_pane = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
+        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
+                                         sizing_mode="stretch_width",
+                                         css_classes=["ccd-open-error"])
+        self.notice_alert = pn.pane.Alert("", alert_type="success", visible=False,
+                                          sizing_mode="stretch_width")
+
+        self.open_demo_button.on_click(self._on_open_demo)
+        self.open_path_button.on_click(self._on_open_path)
+        self.path_input.param.watch(self._on_open_path, "enter_pressed")
+        self.open_selected_button.on_click(self._on_open_selected)
+        self.root_select.param.watch(self._on_root, "value")
+
+    @staticmethod
+    def _root_label(root: Path) -> str:
+        if root == assets_dir().resolve():
+            return f"Demo assets ({root})"
+        if root == Path.home().resolve():
+            return f"Home ({root})"
+        if root == Path.cwd().resolve():
+            return f"Working folder ({root})"
+        return str(root)
+
+    @staticmethod
+    def _file_selector(root: str | None) -> pn.widgets.FileSelector:
+        root = root or str(Path.cwd())
+        return pn.widgets.FileSelector(directory=root, root_directory=root, height=300,
+                                       sizing_mode="stretch_width")
+
+    def _build_session_widgets(self) -> None:
+        self.camera_pane = pn.pane.Markdown("No session loaded.", sizing_mode="stretch_width")
+        self.problems_column = pn.Column(sizing_mode="stretch_width", max_height=420,
+                                         scroll=True, css_classes=["ccd-problems"])
+        self.groups_table = pn.widgets.Tabulator(
+            pd.DataFrame(), disabled=True, show_index=False,
+            sizing_mode="stretch_width", layout="fit_data_stretch", selectable=False,
+            name="groups")
+        self.frames_table = pn.widgets.Tabulator(
+            pd.DataFrame(), disabled=True, show_index=False, pagination="remote",
+            page_size=PAGE_SIZE, selectable=1, sizing_mode="stretch_width",
+            layout="fit_data_stretch", name="frames", header_filters=False)
+        self.frames_table.param.watch(self._on_table_selection, "selection")
+        self.inferred_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.draft_button = pn.widgets.Button(
+            name=f"Write manifest draft ({DRAFT_NAME})", button_type="success")
+        self.draft_button.on_click(self._on_draft)
+        self.draft_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.draft_card = pn.Card(
+            self.inferred_pane, self.draft_button,
+            pn.Card(self.draft_pane, title="Manifest draft (preview)", collapsed=True,
+                    sizing_mode="stretch_width"),
+            title="Inferred metadata and manifest draft", visible=False,
+            sizing_mode="stretch_width")
+
+    def _build_preview_widgets(self) -> None:
+        self.frame_select = pn.widgets.Select.from_param(
+            self.param.frame, name="Frame", sizing_mode="stretch_width")
+        self.param.watch(self._on_frame, "frame")
+        self.channel_select = pn.widgets.RadioButtonGroup.from_param(
+            self.param.channel, name="Channel", visible=False, button_type="default")
+        self.param.watch(self._on_channel, "channel")
+        self.clim_slider = pn.widgets.EditableRangeSlider(
+            name="Colour range (DN)", start=0, end=1, value=(0, 1), step=1,
+            sizing_mode="stretch_width")
+        self.auto_button = pn.widgets.Button(name="Auto (0.5\u201399.5 %)", align="end")
+        self.auto_button.on_click(self._on_auto)
+        self.frame_info = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.readout = pn.pane.Markdown("Move the cursor over the image to read pixel values.",
+                                        css_classes=["ccd-readout"], sizing_mode="stretch_width")
+        self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
+                                           sizing_mode="stretch_width",
+                                           css_classes=["ccd-preview-error"])
+        self.image_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=300,
+                                            max_height=640, css_classes=["ccd-image"],
+                                            linked_axes=False)
+        self.hist_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=240,
+                                           css_classes=["ccd-histogram"], linked_axes=False)
+        self.preview_body = pn.Column(
+            self.frame_select, self.channel_select,
+            pn.Row(self.clim_slider, self.auto_button, sizing_mode="stretch_width"),
+            self.preview_alert, self.frame_info, self.image_pane, self.readout, self.hist_pane,
+            sizing_mode="stretch_width")
+
+    # ================================================================== layout =============
+    def __panel__(self) -> pn.viewable.Viewable:
+        open_card = pn.Card(
+            pn.Row(self.demo_select, self.open_demo_button),
+            pn.Row(self.path_input, self.open_path_button, sizing_mode="stretch_width"),
+            pn.Card(self.root_select, self.browse_holder, self.open_selected_button,
+                    title="Browse folders", collapsed=True, sizing_mode="stretch_width"),
+            title="Open a session", sizing_mode="stretch_width", collapsible=False)
+        return pn.Column(
+            pn.pane.Markdown("## Session", css_classes=["ccd-page-title"]),
+            open_card, self.progress, self.status_pane, self.error_alert, self.notice_alert,
+            pn.Row(
+                pn.Card(self.camera_pane, title="Camera and source", width=380,
+                        collapsible=False),
+                pn.Card(self.groups_table, title="Groups", sizing_mode="stretch_width",
+                        collapsible=False),
+                sizing_mode="stretch_width"),
+            pn.Card(self.problems_column, title="Validation", sizing_mode="stretch_width"),
+            pn.Card(self.frames_table, title="Frames (select a row to preview it)",
+                    sizing_mode="stretch_width"),
+            self.draft_card,
+            pn.Card(self.preview_body, title="Frame preview", sizing_mode="stretch_width"),
+            sizing_mode="stretch_width", name="Session")
+
+    # ============================================================ opening sessions =========
+    async def _open(self, path: str | Path) -> None:
+        self.notice_alert.visible = False
+        await self.state.load_async(path)
+
+    async def _on_open_demo(self, event: Any = None) -> None:
+        name = self.demo_select.value
+        if not name:
+            self.state.error = "No bundled demo session found in " + str(assets_dir())
+            return
+        await self._open(demo_sessions()[name])
+
+    async def _on_open_path(self, event: Any = None) -> None:
+        await self._open(self.path_input.value_input or self.path_input.value)
+
+    async def _on_open_selected(self, event: Any = None) -> None:
+        chosen = self.file_selector.value
+        if not chosen:
+            self.state.error = ("Nothing selected: select a session folder, a session.toml or "
+                                "a descriptor in the browser, then press Open selected.")
+            return
+        await self._open(chosen[0])
+
+    def _on_root(self, event: Any) -> None:
+        self.file_selector = self._file_selector(event.new)
+        self.browse_holder.objects = [self.file_selector]
+
+    def _on_state_message(self, *events: Any) -> None:
+        st = self.state
+        self.error_alert.object = f"**Could not open:** {st.error}" if st.error else ""
+        self.error_alert.visible = bool(st.error)
+        self.status_pane.object = st.status
+        self.progress.value = st.progress
+        self.progress.active = st.busy and st.progress < 0
+        self.progress.visible = st.busy
+
+    # ============================================================ showing a session ========
+    def _on_session(self, *events: Any) -> None:
+        session = self.state.session
+        if session is None:
+            return
+        self._records = {rec.relpath: rec for rec in session.frames}
+        self.camera_pane.object = self._camera_markdown(session)
+        self.groups_table.value = groups_frame(session)
+        self.frames_table.param.update(value=frames_frame(session), selection=[], page=1)
+        self._show_problems(session)
+        self._show_inferred(session)
+        first = session.frames[0].relpath if session.frames else None
+        self.param.frame.objects = list(self._records)
+        if first is None:
+            self.frame = None
+            self._clear_preview("This session has no frames to preview.")
+        elif self.frame == first:
+            self.param.trigger("frame")
+        else:
+            self.frame = first
+
+    @staticmethod
+    def _camera_markdown(session: Session) -> str:
+        cam = session.camera
+        roles = ", ".join(f"{n} {role}" for role, n in session.roles().items()) or "none"
+        manifest = _code(session.manifest_path) if session.manifest_path else "none"
+        rows = [("Camera", cam.name or "(unnamed)"),
+                ("ADC bits", "unknown" if cam.bits is None else str(cam.bits)),
+                ("Layout", cam.layout),
+                ("Source", _SOURCES.get(session.source, session.source)),
+                ("Folder", _code(session.root)),
+                ("Manifest", manifest),
+                ("Frames", f"{len(session.frames)} ({roles})"),
+                ("Status", "valid" if session.ok else "**has errors**")]
+        return "| | |\n|---|---|\n" + "\n".join(f"| {k} | {v} |" for k, v in rows)
+
+    def _show_problems(self, session: Session) -> None:
+        problems = sorted(session.problems, key=lambda p: p.severity != "error")
+        if not problems:
+            alerts = [pn.pane.Alert("No problems found: the session is valid.",
+                                    alert_type="success", sizing_mode="stretch_width")]
+        else:
+            alerts = [_problem_alert(p) for p in problems[:MAX_ALERTS]]
+            rest = problems[MAX_ALERTS:]
+            if rest:
+                n_err = sum(p.severity == "error" for p in rest)
+                alerts.append(pn.pane.Alert(
+                    f"... and {len(rest)} more problems ({n_err} errors) not listed.",
+                    alert_type="danger" if n_err else "warning", sizing_mode="stretch_width"))
+        self.problems_column.objects = alerts
+
+    def _show_inferred(self, session: Session) -> None:
+        summary = inferred_summary(session)
+        relevant = session.source != "manifest" or bool(summary)
+        self.draft_card.visible = relevant
+        if not relevant:
+            return
+        if summary:
+            lines = [f"- **{key}** for {n} of {len(session.frames)} frames, from {origin}"
+                     for key, n, origin in summary]
+            text = "Inferred (not given by a manifest):\n\n" + "\n".join(lines)
+        else:
+            text = "Nothing was inferred: every frame's metadata comes from the manifest."
+        self.inferred_pane.object = text
+        self.draft_button.visible = session.source != "manifest"
+        draft = session.to_toml().splitlines()
+        more = len(draft) - MAX_DRAFT_LINES
+        shown = "\n".join(draft[:MAX_DRAFT_LINES]) + (f"\n# ... {more} more lines" if more > 0
+                                                      else "")
+        self.draft_pane.object = f"```toml\n{shown}\n```"
+
+    def _on_draft(self, event: Any = None) -> None:
+        session = self.state.session
+        if session is None:
+            return
+        try:
+            path = draft_manifest(session)
+        except CcdError as err:
+            self.state.error = str(err)
+            return
+        except OSError as err:
+            self.state.error = f"{session.root / DRAFT_NAME}: cannot write: {err}"
+            return
+        self.notice_alert.object = (f"Manifest draft written to {_code(path)}. Check it, then "
+                                    "rename it to `session.toml`.")
+        self.notice_alert.visible = True
+
+    def _on_table_selection(self, event: Any) -> None:
+        df = self.frames_table.value
+        if not event.new or df is None or df.empty:
+            return
+        index = event.new[0]
+        if 0 <= index < len(df):
+            self.frame = str(df.iloc[index]["relpath"])
+
+    # ============================================================ frame preview ============
+    def _clear_preview(self, message: str = "") -> None:
+        self._array = self._plane = self._shown = None
+        self.image_pane.object = None
+        self.hist_pane.object = None
+        self.frame_info.object = message
+        self.channel_select.visible = False
+
+    @staticmethod
+    def _read(session: Session, rec: FrameRecord) -> tuple[np.ndarray | None, str]:
+        """Read a frame (worker thread); the error message instead of raising."""
+        try:
+            return session.read(rec), ""
+        except CcdError as err:
+            return None, str(err)
+        except Exception as err:  # unreadable in an unforeseen way: still an alert, not a crash
+            log.error("reading %s failed:\n%s", rec.path, traceback.format_exc())
+            return None, f"{rec.relpath}: unexpected error: {type(err).__name__}: {err}"
+
+    async def _on_frame(self, event: Any = None) -> None:
+        session, rec = self.state.session, self._records.get(self.frame)
+        if session is None or rec is None:
+            self._clear_preview()
+            return
+        self._frame_request += 1
+        request = self._frame_request
+        self.preview_body.loading = True
+        try:
+            array, error = await asyncio.to_thread(self._read, session, rec)
+        finally:
+            if request == self._frame_request:
+                self.preview_body.loading = False
+        if request != self._frame_request:  # a newer frame was chosen meanwhile
+            return
+        if array is None:
+            self._clear_preview()
+            self.preview_alert.object = f"**Cannot preview the frame:** {error}"
+            self.preview_alert.visible = True
+            return
+        self.preview_alert.visible = False
+        self._array, self._shown = array, rec
+        names = plots.channel_names(array)
+        self.channel_select.visible = bool(names)
+        self._show_plane(rec)
+
+    def _on_channel(self, event: Any = None) -> None:
+        if self._array is not None and self._shown is not None:
+            self._show_plane(self._shown)
+
+    def _show_plane(self, rec: FrameRecord) -> None:
+        """Show the current channel of the current frame: image, histogram, range, info."""
+        array = self._array
+        plane = plots.channel_data(array, self.channel)
+        self._plane = plane
+        finite = plane[np.isfinite(plane)] if plane.dtype.kind == "f" else plane
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+        if not hi > lo:
+            hi = lo + 1.0
+        integer = plane.dtype.kind in "iu"
+        clim = plots.auto_clim(plane)
+        self.clim_slider.param.update(start=lo, end=hi, step=1 if integer else (hi - lo) / 1000,
+                                      value=(max(lo, clim[0]), min(hi, clim[1])))
+        channel = "" if plane is array else f", channel {self.channel}"
+        self.frame_info.object = (
+            f"{_code(rec.relpath)} \u2014 {rec.role}"
+            + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
+            + f", {'x'.join(map(str, array.shape))} {array.dtype}{channel}; "
+            f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
+        image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
+                                       title=Path(rec.relpath).name)
+        image = image.apply.opts(clim=self.clim_slider.param.value)
+        pointer = hv.streams.PointerXY(x=None, y=None, source=image)
+        pointer.add_subscriber(self._on_pointer)
+        span = hv.DynamicMap(pn.bind(plots.clim_span, self.clim_slider.param.value))
+        self.image_pane.object = image
+        self.hist_pane.object = plots.histogram_element(plane) * span
+        self.readout.object = "Move the cursor over the image to read pixel values."
+
+    def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
+        plane = self._plane
+        if plane is None or x is None or y is None:
+            return
+        col, row = int(round(x)), int(round(y))
+        if 0 <= row < plane.shape[0] and 0 <= col < plane.shape[1]:
+            value = plane[row, col]
+            text = f"{value:g}" if plane.dtype.kind == "f" else str(value)
+            self.readout.object = f"x = {col}, y = {row}: **{text} DN**"
+
+    def _on_auto(self, event: Any = None) -> None:
+        if self._plane is None:
+            return
+        lo, hi = plots.auto_clim(self._plane)
+        start, end = self.clim_slider.start, self.clim_slider.end
+        self.clim_slider.value = (max(start, lo), min(end, hi))
+
+    # ============================================================ helpers for tests ========
+    @property
+    def problem_alerts(self) -> list[pn.pane.Alert]:
+        """The alerts listing the session's problems (a success alert when there are none)."""
+        return list(self.problems_column.objects)
+
+
+def create_page(state: AppState) -> SessionPage:
+    """Registry entry point: the Session page bound to ``state``."""
+    return SessionPage(state)

@@ -1,0 +1,214 @@
+"""Pure plot-building functions for the app (no widgets, no state).
+
+Every function takes arrays and options and returns a HoloViews element (or plain numbers), so
+the plotting pipeline is tested without a browser and the page classes stay thin.
+
+Public objects
+--------------
+CHANNELS
+    Channel choices for colour frames: ``"R"``, ``"G"``, ``"B"`` and ``"L"`` (luminance).
+channel_names(array)
+    The channel choices that make sense for a frame (``()`` for a mono frame).
+channel_data(array, channel)
+    One 2-D plane of a frame: a colour channel, the luminance, or the frame itself when mono.
+auto_clim(values, lower=0.5, upper=99.5)
+    Colour range from percentiles of the finite values.
+image_element(plane, ...)
+    ``hv.Image`` of one plane in pixel coordinates (x = column, y = row, row 0 at the top).
+rasterized_image(image, clim=None, ...)
+    The datashader-rasterised, zoomable, greyscale view of an image with a hover tool.
+histogram_edges(values, bins=256)
+    Bin edges for a frame's histogram (one bin per DN for small integer ranges).
+histogram_element(values, ...)
+    ``hv.Histogram`` of a plane's values (``framewise=True`` so its axes follow the frame).
+clim_span(clim)
+    ``hv.VSpan`` marking the colour range on the histogram.
+warm_up()
+    Run the datashader/numba rasterisation once per common dtype (first call compiles).
+"""
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import holoviews as hv
+import numpy as np
+from holoviews.operation.datashader import rasterize
+from numpy.typing import NDArray
+
+__all__ = ["CHANNELS", "LUMINANCE_WEIGHTS", "channel_names", "channel_data", "auto_clim",
+           "image_element", "rasterized_image", "histogram_edges", "histogram_element",
+           "clim_span", "warm_up"]
+
+#: channel choices of a colour frame: label -> index (``"L"`` is the luminance)
+CHANNELS: dict[str, int | None] = {"R": 0, "G": 1, "B": 2, "L": None}
+
+#: Rec. 709 luminance weights applied to linear R, G, B digital numbers
+LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
+
+#: most pixels used for percentiles (a regular subsample keeps auto-range fast on big frames)
+_PERCENTILE_SAMPLES = 1_000_000
+
+
+def channel_names(array: NDArray) -> tuple[str, ...]:
+    """The channel choices for ``array``: ``()`` for mono, ``("R", "G", "B", "L")`` for colour.
+
+    Frames with more than three channels (RGBA) offer R, G, B and L; the extra channels are ignored.
+    """
+    if array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 1):
+        return ()
+    if array.ndim == 3 and array.shape[2] >= 3:
+        return tuple(CHANNELS)
+    raise ValueError(f"array: expected (H, W) or (H, W, C>=3) frame, got shape {array.shape}")
+
+
+def channel_data(array: NDArray, channel: str | None = None) -> NDArray:
+    """Return one 2-D plane of a frame.
+
+    Parameters
+    ----------
+    array
+        A frame, ``(H, W)`` or ``(H, W, C)``, dtype as stored.
+    channel
+        ``"R"``, ``"G"``, ``"B"`` (the channel as stored, same dtype) or ``"L"`` (Rec. 709
+        luminance of the linear digital numbers, float32). Ignored for mono frames; ``None``
+        means ``"L"`` for colour frames.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` plane.
+    """
+    names = channel_names(array)
+    if not names:
+        return array if array.ndim == 2 else array[:, :, 0]
+    channel = "L" if channel is None else channel
+    if channel not in CHANNELS:
+        raise ValueError(f"channel: expected one of {', '.join(CHANNELS)}, got {channel!r}")
+    index = CHANNELS[channel]
+    if index is not None:
+        return array[:, :, index]
+    rgb = array[:, :, :3].astype(np.float32)
+    w = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
+    return rgb @ w
+
+
+def _sample(values: NDArray) -> NDArray:
+    """A regular subsample of at most ``_PERCENTILE_SAMPLES`` values (all of them if fewer)."""
+    flat = np.ravel(values)
+    step = max(1, flat.size // _PERCENTILE_SAMPLES)
+    return flat[::step]
+
+
+def auto_clim(values: NDArray, lower: float = 0.5, upper: float = 99.5) -> tuple[float, float]:
+    """Colour range ``(lo, hi)`` from the ``lower`` and ``upper`` percentiles of the finite values.
+
+    A flat (or empty) plane gives a range of width 1 around its value so the colour map stays
+    defined.
+    """
+    if not 0 <= lower < upper <= 100:
+        raise ValueError(f"lower, upper: need 0 <= lower < upper <= 100, got {lower}, {upper}")
+    sample = _sample(values)
+    if sample.dtype.kind == "f":
+        sample = sample[np.isfinite(sample)]
+    if sample.size == 0:
+        return (0.0, 1.0)
+    lo, hi = np.percentile(sample, [lower, upper])
+    lo, hi = float(lo), float(hi)
+    if not hi > lo:
+        lo, hi = lo - 0.5, lo + 0.5
+    return (lo, hi)
+
+
+def image_element(plane: NDArray, *, label: str = "", vdim: str = "DN") -> hv.Image:
+    """``hv.Image`` of a 2-D plane in pixel coordinates.
+
+    Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)``; the element is meant to be shown
+    with ``invert_yaxis=True`` (as :func:`rasterized_image` does) so row 0 is at the top, as in
+    the file.
+    """
+    if plane.ndim != 2:
+        raise ValueError(f"plane: expected a 2-D array, got shape {plane.shape}")
+    h, w = plane.shape
+    # hv.Image puts data[0] at the top of its bounds; flipping puts row r at y = r.
+    return hv.Image(plane[::-1], bounds=(-0.5, -0.5, w - 0.5, h - 0.5),
+                    kdims=["x", "y"], vdims=[hv.Dimension(vdim, label=vdim)], label=label)
+
+
+def rasterized_image(image: hv.Image, clim: tuple[float, float] | None = None, *,
+                     dynamic: bool = True, title: str = "") -> hv.DynamicMap:
+    """The zoomable greyscale view of ``image``: datashader ``rasterize`` + hover tool.
+
+    Zooming re-rasterises at screen resolution (``dynamic=True``); the hover tool shows ``x``,
+    ``y`` (pixel column and row) and the value under the cursor (the mean of the pixels under a
+    screen pixel when zoomed out, the pixel itself when zoomed in).
+    """
+    vdim = image.vdims[0].name
+    (x0, x1), (y0, y1) = image.range("x"), image.range("y")
+    aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
+    out = rasterize(image, dynamic=dynamic, aggregator="mean")
+    opts: dict[str, Any] = dict(
+        cmap="gray", colorbar=True, tools=["hover"], invert_yaxis=True, aspect=aspect,
+        responsive=True, title=title, xlabel="x (column)", ylabel="y (row)",
+        hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (vdim, "@image")],
+        default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
+        active_tools=["wheel_zoom"])
+    if clim is not None:
+        opts["clim"] = tuple(float(c) for c in clim)
+    return out.opts(**opts)
+
+
+def histogram_edges(values: NDArray, bins: int = 256) -> NDArray:
+    """Bin edges for the histogram of ``values``.
+
+    Integer data spanning at most ``bins`` DN get one bin per DN (edges at half-integers), so no
+    bin mixes neighbouring codes; otherwise ``bins`` equal bins over the finite range.
+    """
+    sample = np.ravel(values)
+    if sample.dtype.kind == "f":
+        sample = sample[np.isfinite(sample)]
+    if sample.size == 0:
+        return np.linspace(0.0, 1.0, bins + 1)
+    lo, hi = float(sample.min()), float(sample.max())
+    if sample.dtype.kind in "iub" and hi - lo + 1 <= bins:
+        return np.arange(lo - 0.5, hi + 1.5, 1.0)
+    if not hi > lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    return np.linspace(lo, hi, bins + 1)
+
+
+def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim: str = "DN",
+                      log: bool = False, height: int = 220) -> hv.Histogram:
+    """``hv.Histogram`` of all values of a plane (non-finite values are left out).
+
+    ``framewise=True`` makes the axes follow each new frame or channel (otherwise the first
+    range sticks, see NOTES.md). With ``log`` the counts axis is logarithmic.
+    """
+    flat = np.ravel(values)
+    if flat.dtype.kind == "f":
+        flat = flat[np.isfinite(flat)]
+    edges = histogram_edges(flat, bins)
+    counts, edges = np.histogram(flat, bins=edges)
+    hist = hv.Histogram((edges, counts), kdims=[hv.Dimension(vdim)], vdims=["count"],
+                        label=label)
+    return hist.opts(framewise=True, responsive=True, height=height, color="#4a6fa5",
+                     line_color=None, logy=log, tools=["hover"], title="Histogram")
+
+
+def clim_span(clim: tuple[float, float]) -> hv.VSpan:
+    """A translucent band over the histogram showing the colour range ``clim``."""
+    lo, hi = (float(c) for c in clim)
+    return hv.VSpan(lo, hi).opts(color="#f0ad4e", alpha=0.2, line_alpha=0)
+
+
+def warm_up() -> float:
+    """Rasterise a small image of each common dtype once and return the seconds it took.
+
+    datashader compiles its numba kernels on first use (about 2–3 s, NOTES.md); calling this at
+    server start moves that cost out of the first user's click.
+    """
+    start = time.perf_counter()
+    for dtype in (np.uint8, np.uint16, np.float32, np.float64):
+        plane = np.arange(64 * 48, dtype=np.float64).reshape(48, 64).astype(dtype)
+        rasterize(image_element(plane), dynamic=False, aggregator="mean", width=32, height=24)
+    return time.perf_counter() - start

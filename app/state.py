@@ -1,0 +1,182 @@
+"""The app's one state object, shared by every page of a browser session.
+
+Public objects
+--------------
+AppState
+    The loaded capture session, the computed results and the user-facing status: ``load(path)``
+    (and its off-the-UI-thread twin ``load_async``) opens a session and turns any bad input into
+    an ``error`` message instead of an exception.
+assets_dir()
+    The bundled demo sessions folder (``<repo>/assets``).
+demo_sessions(assets=None)
+    Name -> folder of the bundled demo sessions (sub-folders holding ``session.toml``).
+default_roots(extra=())
+    The folders the user may open sessions from: the assets, the home and the working folder.
+is_allowed(path, roots)
+    Whether ``path`` lies inside one of ``roots``.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import traceback
+from pathlib import Path
+from typing import Any, Iterable
+
+import param
+
+from ccdcore.errors import CcdError
+from ccdcore.session import MANIFEST_NAME, Session, open_session
+
+__all__ = ["AppState", "ASSETS_ENV", "assets_dir", "demo_sessions", "default_roots", "is_allowed"]
+
+log = logging.getLogger(__name__)
+
+
+#: environment variable naming another demo sessions folder (e.g. for an installed package)
+ASSETS_ENV = "CCDCORE_ASSETS"
+
+
+def assets_dir() -> Path:
+    """The bundled demo sessions: ``<repo>/assets`` next to the ``app`` package.
+
+    The environment variable ``CCDCORE_ASSETS``, when set, names another folder instead.
+    """
+    override = os.environ.get(ASSETS_ENV)
+    if override:
+        return Path(override).expanduser().resolve()
+    import app
+
+    return Path(app.__file__).resolve().parents[1] / "assets"
+
+
+def demo_sessions(assets: Path | None = None) -> dict[str, Path]:
+    """Name -> folder of every demo session (a sub-folder of ``assets`` with ``session.toml``)."""
+    assets = assets_dir() if assets is None else Path(assets)
+    if not assets.is_dir():
+        return {}
+    return {p.name: p for p in sorted(assets.iterdir())
+            if p.is_dir() and (p / MANIFEST_NAME).is_file()}
+
+
+def default_roots(extra: Iterable[str | Path] = ()) -> list[Path]:
+    """Folders sessions may be opened from: the assets, ``~``, the working folder, ``extra``."""
+    roots: list[Path] = []
+    for p in (assets_dir(), Path.home(), Path.cwd(), *extra):
+        rp = Path(p).expanduser().resolve()
+        if rp not in roots:
+            roots.append(rp)
+    return roots
+
+
+def is_allowed(path: str | Path, roots: Iterable[Path]) -> bool:
+    """True when the resolved ``path`` is one of ``roots`` or lies inside one of them."""
+    p = Path(path).expanduser().resolve()
+    return any(p == r or p.is_relative_to(r) for r in roots)
+
+
+class AppState(param.Parameterized):
+    """State shared by the pages of one browser session.
+
+    Pages read ``session`` and ``results`` and watch ``session`` to refresh; they report long work
+    through ``busy``/``progress`` and problems through ``error`` (shown as a red alert), never by
+    raising.
+    """
+
+    session = param.ClassSelector(class_=Session, default=None, allow_None=True,
+                                  doc="The loaded capture session, or None.")
+    session_path = param.String(default="", doc="Path the current session was opened from.")
+    results = param.Dict(default={}, doc="Computed results by name (cleared on a new session).")
+    status = param.String(default="No session loaded.", doc="Last status message for the user.")
+    error = param.String(default="", doc="Last error message for the user ('' when none).")
+    busy = param.Boolean(default=False, doc="True while a long task runs.")
+    progress = param.Integer(default=-1, bounds=(-1, 100),
+                             doc="Percent done of the current task; -1 when unknown.")
+    allowed_roots = param.List(default=[], item_type=Path,
+                               doc="Folders sessions may be opened from (resolved paths).")
+
+    def __init__(self, **params: Any):
+        params.setdefault("allowed_roots", default_roots())
+        super().__init__(**params)
+
+    # ---- opening sessions ---------------------------------------------------------------------
+    def check_allowed(self, path: str | Path) -> Path:
+        """Return ``path`` resolved, or raise :class:`CcdError` if outside ``allowed_roots``."""
+        text = str(path).strip()
+        if not text:
+            raise CcdError("path", "empty; type a session folder, its session.toml, a folder of "
+                                   "images or an EMVA1288 descriptor")
+        p = Path(text).expanduser()
+        if not p.is_absolute():
+            p = Path.cwd() / p
+        p = p.resolve()
+        if not is_allowed(p, self.allowed_roots):
+            roots = ", ".join(str(r) for r in self.allowed_roots)
+            raise CcdError(p, f"outside the folders this app may open ({roots})")
+        return p
+
+    def _open(self, path: str | Path) -> tuple[Path, Session | None, str]:
+        """Open a session without touching any parameter (safe in a worker thread).
+
+        Returns the resolved path, the session (None on failure) and the error message.
+        """
+        try:
+            p = self.check_allowed(path)
+            return p, open_session(p), ""
+        except CcdError as err:
+            return Path(str(path)), None, str(err)
+        except Exception as err:  # a bug or an OS error must not reach the user as a traceback
+            log.error("opening %s failed:\n%s", path, traceback.format_exc())
+            return Path(str(path)), None, f"{path}: unexpected error: {type(err).__name__}: {err}"
+
+    def _apply(self, path: Path, session: Session | None, error: str) -> bool:
+        """Publish the outcome of :meth:`_open` (one batched update)."""
+        with param.parameterized.batch_call_watchers(self):
+            self.busy = False
+            self.progress = -1
+            if session is None:
+                self.error = error
+                self.status = "Could not open the session." if self.session is None else \
+                    f"Could not open the session; still showing {self.session_path}."
+                return False
+            self.results = {}
+            self.session_path = str(path)
+            self.session = session
+            self.error = ""
+            self.status = self.summary(session)
+        return True
+
+    def _start(self, path: str | Path) -> None:
+        self.error = ""
+        self.status = f"Opening {path} ..."
+        self.progress = -1
+        self.busy = True
+
+    def load(self, path: str | Path) -> bool:
+        """Open the session at ``path`` (in this thread); True on success.
+
+        On bad input (path outside ``allowed_roots``, missing, not a session, TOML syntax error)
+        the current session stays loaded and ``error`` says what is wrong.
+        """
+        self._start(path)
+        return self._apply(*self._open(path))
+
+    async def load_async(self, path: str | Path) -> bool:
+        """:meth:`load` with the opening (header reads of every frame) in a worker thread."""
+        self._start(path)
+        result = await asyncio.to_thread(self._open, path)
+        return self._apply(*result)
+
+    def clear_error(self) -> None:
+        self.error = ""
+
+    @staticmethod
+    def summary(session: Session) -> str:
+        """One line describing a session: name, frame count per role, problem counts."""
+        roles = ", ".join(f"{n} {role}" for role, n in session.roles().items()) or "no frames"
+        n_err = sum(p.severity == "error" for p in session.problems)
+        n_warn = len(session.problems) - n_err
+        checks = "valid" if not session.problems else \
+            f"{n_err} error(s), {n_warn} warning(s)"
+        return f"Loaded {session.root.name}: {len(session.frames)} frames ({roles}); {checks}."

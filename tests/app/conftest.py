@@ -1,0 +1,175 @@
+"""Fixtures for the app tests: small sessions on disk, the bundled demos, a served app and
+Playwright (pytest-playwright) running Debian's Chromium headless."""
+from __future__ import annotations
+
+import socket
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+import pytest
+
+from app.state import assets_dir
+from ccdcore.io import write_image
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                 "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync"]
+
+
+# ------------------------------------------------------------------------------ sessions -------
+@pytest.fixture(scope="session")
+def assets() -> Path:
+    """The bundled demo sessions folder (the lead guarantees it is populated at test time)."""
+    folder = assets_dir()
+    missing = [p for p in ("healey94", "delasarte07", "tsin01", "change")
+               if not (folder / p / "session.toml").is_file()]
+    if missing:
+        pytest.fail(f"bundled demo sessions missing in {folder}: {', '.join(missing)} "
+                    "(run .venv/bin/python assets/regenerate.py)")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def healey94(assets: Path) -> Path:
+    return assets / "healey94"
+
+
+def _frames(rng: np.random.Generator, n: int, shape: tuple[int, ...], mean: float
+            ) -> list[np.ndarray]:
+    return [np.clip(rng.normal(mean, 3.0, shape), 0, 4095).astype(np.uint16) for _ in range(n)]
+
+
+def make_session(root: Path, *, extra_toml: str = "", rgb: bool = True) -> Path:
+    """A small valid session: 2 darks, one ptc pair (mono 12-bit) and an RGB scene."""
+    rng = np.random.default_rng(7)
+    root.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for i, frame in enumerate(_frames(rng, 2, (24, 32), 100.0)):
+        write_image(root / f"dark/d{i}.tif", frame, exposure=0.01, bits=12)
+        entries.append(f'[[frames]]\npath = "dark/d{i}.tif"\nrole = "dark"\nexposure = 0.01\n')
+    for i, frame in enumerate(_frames(rng, 2, (24, 32), 900.0)):
+        write_image(root / f"ptc/p{i}.tif", frame, exposure=0.01, bits=12)
+        entries.append(f'[[frames]]\npath = "ptc/p{i}.tif"\nrole = "ptc"\nlevel = 1\n'
+                       'exposure = 0.01\n')
+    if rgb:
+        scene = rng.integers(0, 4096, (24, 32, 3), dtype=np.uint16)
+        scene[..., 0] = 4000  # a flat red channel: R differs visibly from G and B
+        write_image(root / "scene/rgb.tif", scene, exposure=0.02, bits=12)
+        entries.append('[[frames]]\npath = "scene/rgb.tif"\nrole = "scene"\n')
+    text = ('schema = 1\n[camera]\nname = "test camera"\nbits = 12\nlayout = "mono"\n\n'
+            + "\n".join(entries) + extra_toml)
+    (root / "session.toml").write_text(text)
+    return root
+
+
+@pytest.fixture
+def small_session(tmp_path: Path) -> Path:
+    return make_session(tmp_path / "small")
+
+
+@pytest.fixture
+def broken_manifest(tmp_path: Path) -> Path:
+    """A session whose session.toml is not valid TOML (line 3)."""
+    root = make_session(tmp_path / "broken")
+    (root / "session.toml").write_text('schema = 1\n[camera]\nname = "unterminated\n')
+    return root
+
+
+@pytest.fixture
+def problem_session(tmp_path: Path) -> Path:
+    """Valid TOML with validation problems: a missing file and an unknown role."""
+    extra = ('\n[[frames]]\npath = "dark/missing.tif"\nrole = "dark"\n'
+             '\n[[frames]]\npath = "dark/d0.tif"\nrole = "darkish"\n')
+    return make_session(tmp_path / "problems", extra_toml=extra)
+
+
+@pytest.fixture
+def unreadable_session(tmp_path: Path) -> Path:
+    """A session whose scene frame is garbage bytes with a .tif name."""
+    root = make_session(tmp_path / "unreadable", rgb=False)
+    (root / "scene").mkdir()
+    (root / "scene/bad.tif").write_bytes(b"this is not a TIFF file" * 10)
+    with (root / "session.toml").open("a") as f:
+        f.write('\n[[frames]]\npath = "scene/bad.tif"\nrole = "scene"\n')
+    return root
+
+
+@pytest.fixture
+def plain_folder(tmp_path: Path) -> Path:
+    """A folder of images without a manifest (roles from folder names)."""
+    root = tmp_path / "plain"
+    rng = np.random.default_rng(3)
+    for i, frame in enumerate(_frames(rng, 2, (16, 20), 50.0)):
+        write_image(root / f"darks/d{i}.tif", frame, exposure=0.05, bits=12)
+    for i, frame in enumerate(_frames(rng, 2, (16, 20), 800.0)):
+        write_image(root / f"flats/f{i}.tif", frame, exposure=0.05, bits=12)
+    return root
+
+
+# ------------------------------------------------------------------------------ browser --------
+@pytest.fixture(scope="session")
+def browser_type_launch_args(browser_type_launch_args: dict) -> dict:
+    """Debian's Chromium, headless, with no background traffic (playwright cannot download)."""
+    if not CHROMIUM.is_file():
+        pytest.fail(f"{CHROMIUM} is missing: install Debian's chromium "
+                    "(apt-get install -y chromium); the browser tests need it")
+    return {**browser_type_launch_args, "executable_path": str(CHROMIUM),
+            "args": CHROMIUM_ARGS}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_alive(url: str, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with urllib.request.urlopen(url + "/liveness", timeout=2) as r:
+                if r.status == 200:
+                    return
+        except (urllib.error.URLError, ConnectionError, TimeoutError):
+            pass
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"the app did not come up at {url} within {timeout} s")
+        time.sleep(0.1)
+
+
+@pytest.fixture(scope="session")
+def warmed() -> None:
+    """Compile datashader's kernels once for the whole run (as ``serve`` does)."""
+    from app.main import warm_up
+
+    warm_up()
+
+
+@pytest.fixture
+def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
+    """``serve_app(session_path=None, allowed_roots=None) -> url``: the app on a free port,
+    served threaded as ``app.main.serve`` does; every server is stopped after the test."""
+    import panel as pn
+
+    from app.main import create_app
+
+    def start(session_path: str | Path | None = None, allowed_roots=None) -> str:
+        port = _free_port()
+
+        def app():  # a plain function (Panel renders a functools.partial as text)
+            return create_app(session_path, allowed_roots=allowed_roots)
+
+        pn.serve({"/": app},
+                 port=port, address="127.0.0.1", threaded=True, show=False, liveness=True,
+                 websocket_origin=[f"127.0.0.1:{port}"], title="ccdcore")
+        url = f"http://127.0.0.1:{port}"
+        _wait_alive(url)
+        return url
+
+    yield start
+    pn.state.kill_all_servers()

@@ -1,0 +1,81 @@
+"""The real app in headless Chromium: open a demo, see its tables, preview a frame, read a pixel."""
+from __future__ import annotations
+
+import re
+
+from playwright.sync_api import Page, expect
+
+TIMEOUT = 30_000
+
+
+def _outside(requests: list[str]) -> list[str]:
+    return [u for u in requests if not re.match(r"^(https?|wss?)://127\.0\.0\.1[:/]", u)
+            and not u.startswith(("data:", "blob:", "about:"))]
+
+
+def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, serve_app, healey94):
+    requests: list[str] = []
+    page.on("request", lambda r: requests.append(r.url))
+    url = serve_app(healey94)
+    page.set_viewport_size({"width": 1400, "height": 1000})
+    page.goto(url)
+
+    # the groups and per-frame metadata tables
+    expect(page.get_by_text("Loaded healey94")).to_be_visible(timeout=TIMEOUT)
+    expect(page.get_by_role("gridcell", name="dark/dark_000.tif").first).to_be_visible(
+        timeout=TIMEOUT)
+    expect(page.get_by_text("XC-77-like simulated CCD")).to_be_visible()
+    expect(page.get_by_text("No problems found: the session is valid.")).to_be_visible()
+
+    # select another frame in the table: the preview follows
+    page.get_by_role("gridcell", name="dark/dark_003.tif").first.click()
+    info = page.locator(".ccd-image").first
+    info.scroll_into_view_if_needed()
+    expect(page.get_by_text(re.compile(r"dark_003\.tif.*dark, exposure 0\.033 s"))).to_be_visible(
+        timeout=TIMEOUT)
+    # the rasterised image and its histogram are drawn (bokeh canvases)
+    canvas = page.locator(".ccd-image canvas").first
+    expect(canvas).to_be_visible(timeout=TIMEOUT)
+    expect(page.locator(".ccd-histogram canvas").first).to_be_visible(timeout=TIMEOUT)
+
+    # hovering the image reports the pixel value under the cursor
+    page.wait_for_timeout(1500)  # let the re-rendered plot settle before moving the mouse
+    canvas = page.locator(".ccd-image canvas").first
+    canvas.scroll_into_view_if_needed()
+    page.wait_for_timeout(500)
+    box = canvas.bounding_box()
+    assert box is not None
+    for dx in (0.3, 0.4, 0.5, 0.6):
+        page.mouse.move(box["x"] + box["width"] * dx, box["y"] + box["height"] * 0.5)
+        page.wait_for_timeout(400)
+    expect(page.get_by_text(re.compile(r"x = \d+, y = \d+: \d+ DN"))).to_be_visible(
+        timeout=TIMEOUT)
+
+    # a lab machine is offline: nothing may be fetched from another host
+    assert _outside(requests) == []
+
+
+def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app, tmp_path,
+                                                           healey94):
+    url = serve_app(None, allowed_roots=[tmp_path, healey94.parent])
+    page.goto(url)
+    box = page.get_by_placeholder("/path/to/session")
+    expect(box).to_be_visible(timeout=TIMEOUT)
+    box.fill(str(tmp_path / "no-such-session"))
+    box.press("Enter")
+    alert = page.get_by_text(re.compile(r"Could not open:.*no-such-session"))
+    expect(alert).to_be_visible(timeout=TIMEOUT)
+
+    # still working: open the demo next
+    box.fill(str(healey94))
+    box.press("Enter")
+    expect(page.get_by_text("Loaded healey94")).to_be_visible(timeout=TIMEOUT)
+    expect(alert).to_be_hidden()
+
+
+def test_coming_pages_are_marked_and_honest(page: Page, serve_app):
+    url = serve_app(None)
+    page.goto(url)
+    expect(page.get_by_text("coming").first).to_be_visible(timeout=TIMEOUT)
+    page.get_by_role("button", name=re.compile("Change detection")).click()
+    expect(page.get_by_text("Not built yet.")).to_be_visible(timeout=TIMEOUT)

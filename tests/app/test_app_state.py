@@ -1,0 +1,118 @@
+"""App logic without a browser: the state object, the Session page wiring and the plot functions."""
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from app import plots
+from app.pages import PAGES, build_page, is_available
+from app.pages.session import SessionPage, frames_frame, groups_frame
+from app.state import AppState, demo_sessions
+
+
+@pytest.fixture
+def state(tmp_path, assets):
+    return AppState(allowed_roots=[tmp_path.resolve(), assets.resolve()])
+
+
+def test_demo_sessions_are_found(assets):
+    assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "change"}
+
+
+def test_load_demo_fills_state(state, healey94):
+    assert state.load(healey94)
+    assert state.session is not None and state.error == ""
+    assert "96 frames" in state.status and "valid" in state.status
+    assert state.session_path == str(healey94.resolve())
+
+
+@pytest.mark.parametrize("bad,words", [("nowhere", "not"), ("", "empty")])
+def test_bad_paths_become_messages_and_keep_the_session(state, healey94, tmp_path, bad, words):
+    state.load(healey94)
+    path = tmp_path / bad if bad else ""
+    assert not state.load(path)
+    assert words in state.error
+    assert state.session is not None and state.session_path == str(healey94.resolve())
+
+
+def test_paths_outside_the_allowed_roots_are_refused(tmp_path, assets):
+    st = AppState(allowed_roots=[assets.resolve()])
+    assert not st.load(tmp_path)
+    assert "outside the folders" in st.error
+
+
+def test_broken_manifest_names_the_file(state, broken_manifest):
+    assert not state.load(broken_manifest)
+    assert "session.toml" in state.error
+
+
+def test_async_load(state, healey94):
+    assert asyncio.run(state.load_async(healey94))
+    assert state.session is not None and not state.busy
+
+
+def test_session_page_tables_and_problems(state, problem_session):
+    page = SessionPage(state)
+    state.load(problem_session)
+    groups = page.groups_table.value
+    assert set(groups["role"]) >= {"dark", "ptc"}
+    frames = page.frames_table.value
+    assert "dark/d0.tif" in set(frames["relpath"])
+    texts = " ".join(a.object for a in page.problem_alerts)
+    assert "missing.tif" in texts and "darkish" in texts
+    assert any(a.alert_type == "danger" for a in page.problem_alerts)
+
+
+def test_session_page_preview_of_an_unreadable_frame_is_an_alert(state, unreadable_session):
+    page = SessionPage(state)
+    state.load(unreadable_session)
+    page.frame = "scene/bad.tif"
+    asyncio.run(page._on_frame())
+    assert page.preview_alert.visible and "bad.tif" in page.preview_alert.object
+    page.frame = "dark/d0.tif"
+    asyncio.run(page._on_frame())
+    assert not page.preview_alert.visible and page.image_pane.object is not None
+
+
+def test_plain_folder_shows_inference_and_writes_the_draft(state, plain_folder):
+    page = SessionPage(state)
+    assert state.load(plain_folder)
+    assert page.draft_card.visible
+    assert "exposure" in page.inferred_pane.object
+    page._on_draft()
+    assert (plain_folder / "session.toml.draft").is_file()
+    assert not (plain_folder / "session.toml").exists()
+
+
+def test_tables_of_a_demo(healey94):
+    from ccdcore.session import open_session
+
+    s = open_session(healey94)
+    assert groups_frame(s)["count"].sum() == len(s.frames)
+    assert len(frames_frame(s)) == len(s.frames)
+
+
+def test_every_page_builds(state):
+    for spec in PAGES:
+        view = build_page(spec, state)
+        assert view is not None
+    assert is_available(PAGES[0])
+
+
+def test_plot_functions():
+    plane = np.arange(12, dtype=np.uint16).reshape(3, 4)
+    img = plots.image_element(plane)
+    # row r of the file is at y = r (the view inverts the y axis so row 0 is on top)
+    assert img[0, 0] == 0 and img[3, 2] == 11
+    edges = plots.histogram_edges(plane)
+    assert len(edges) == 13 and edges[0] == -0.5           # one bin per DN
+    lo, hi = plots.auto_clim(np.arange(1000.0))
+    assert 4 < lo < 6 and 993 < hi < 995
+    rgb = np.zeros((2, 2, 3), np.uint8)
+    rgb[..., 0] = 200
+    assert plots.channel_names(rgb) == ("R", "G", "B", "L")
+    assert plots.channel_data(rgb, "R").max() == 200
+    assert plots.channel_data(rgb, "L").max() == pytest.approx(200 * 0.2126, rel=1e-6)
