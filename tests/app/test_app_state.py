@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -11,6 +12,13 @@ from app import plots
 from app.pages import PAGES, build_page, is_available
 from app.pages.session import SessionPage, frames_frame, groups_frame
 from app.state import AppState, demo_sessions
+
+
+def _run(coro):
+    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
+    running in this one)."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
 
 
 @pytest.fixture
@@ -50,7 +58,7 @@ def test_broken_manifest_names_the_file(state, broken_manifest):
 
 
 def test_async_load(state, healey94):
-    assert asyncio.run(state.load_async(healey94))
+    assert _run(state.load_async(healey94))
     assert state.session is not None and not state.busy
 
 
@@ -70,10 +78,10 @@ def test_session_page_preview_of_an_unreadable_frame_is_an_alert(state, unreadab
     page = SessionPage(state)
     state.load(unreadable_session)
     page.frame = "scene/bad.tif"
-    asyncio.run(page._on_frame())
+    _run(page._on_frame())
     assert page.preview_alert.visible and "bad.tif" in page.preview_alert.object
     page.frame = "dark/d0.tif"
-    asyncio.run(page._on_frame())
+    _run(page._on_frame())
     assert not page.preview_alert.visible and page.image_pane.object is not None
 
 
