@@ -22,7 +22,7 @@ import logging
 import os
 import traceback
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Callable, Iterable
 
 import param
 
@@ -170,6 +170,56 @@ class AppState(param.Parameterized):
 
     def clear_error(self) -> None:
         self.error = ""
+
+    # ---- computed results -----------------------------------------------------------------------
+    def _run_safely(self, func: Callable[..., Any], args: tuple, kwargs: dict
+                    ) -> tuple[Any, str]:
+        """Call ``func`` (in a worker thread); the result, or the user-facing error message."""
+        try:
+            return func(*args, **kwargs), ""
+        except CcdError as err:
+            return None, str(err)
+        except Exception as err:  # a bug must reach the user as a message, not a traceback
+            log.error("computing with %s failed:\n%s", getattr(func, "__name__", func),
+                      traceback.format_exc())
+            return None, f"unexpected error: {type(err).__name__}: {err}"
+
+    async def compute(self, name: str, func: Callable[..., Any], *args: Any,
+                      label: str | None = None, **kwargs: Any) -> Any | None:
+        """Run ``func(*args, **kwargs)`` off the UI thread and store it as ``results[name]``.
+
+        While it runs ``busy`` is set and ``status`` says what is computed; a :class:`CcdError`
+        (bad input: too few levels, missing frames ...) becomes ``error`` and ``None`` is
+        returned. Results are dropped when another session is opened.
+        """
+        session = self.session
+        with param.parameterized.batch_call_watchers(self):
+            self.error = ""
+            self.busy = True
+            self.progress = -1
+            self.status = f"Computing {label or name} ..."
+        result, error = await asyncio.to_thread(self._run_safely, func, args, kwargs)
+        with param.parameterized.batch_call_watchers(self):
+            self.busy = False
+            if self.session is not session:  # another session was opened meanwhile
+                return None
+            if error:
+                self.error = error
+                self.status = f"Could not compute {label or name}."
+                return None
+            self.results = {**self.results, name: result}
+            self.status = f"Computed {label or name}."
+        return result
+
+    def compute_now(self, name: str, func: Callable[..., Any], *args: Any,
+                    label: str | None = None, **kwargs: Any) -> Any | None:
+        """:meth:`compute` in this thread (for scripts and tests)."""
+        result, error = self._run_safely(func, args, kwargs)
+        if error:
+            self.error = error
+            return None
+        self.results = {**self.results, name: result}
+        return result
 
     @staticmethod
     def summary(session: Session) -> str:

@@ -35,7 +35,8 @@ from .io import (FITS_EXTENSIONS, atomic_write_text, read_frame, read_header, re
                  write_image, write_map)
 from .session import Session, open_session
 
-__all__ = ["CalibrationProduct", "calibrate", "load_product", "apply_product", "PRODUCT_FILE"]
+__all__ = ["CalibrationProduct", "Estimates", "estimate_all", "scene_error_terms", "calibrate",
+           "load_product", "apply_product", "PRODUCT_FILE"]
 
 PRODUCT_FILE = "calibration.json"
 PRODUCT_SCHEMA = 1
@@ -181,6 +182,102 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
 
 
 # ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Estimates:
+    """The result objects of :func:`estimate_all` (``None`` where the session lacks the frames).
+
+    ``notes`` say why an estimate is missing; ``plan_warnings`` list what the session lacks
+    compared with the acquisition plan (sec. V-B).
+    """
+
+    noise: Any = None
+    dark: Any = None
+    fixed_pattern: Any = None
+    plan: Any = None
+    plan_warnings: tuple[str, ...] = ()
+    scene: dict[str, Any] | None = None
+    notes: tuple[str, ...] = ()
+
+
+def scene_error_terms(dark: Any, fixed_pattern: Any) -> dict[str, Any]:
+    """The calibration maps' own errors for :func:`ccdcore.scene.scene_variations`.
+
+    D̂_D's error variance σ²_N/s per pixel (sec. V-A), K̂'s measured error variance
+    (:attr:`FixedPattern.K_var`) and the level at which K̂ was measured (harmonic mean of the
+    configurations' levels), through which K̂ absorbed the D̂_D error (eq. 46).
+    """
+    levels = np.asarray(fixed_pattern.config_levels, dtype=np.float64)
+    return {"dark_var": dark.var_map / dark.s, "K_var": float(np.mean(fixed_pattern.K_var)),
+            "fp_level": float(1.0 / np.mean(1.0 / levels))}
+
+
+def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
+                 window: int = 9, p: float = 1.5, noise: Any = None,
+                 progress: Progress | None = None) -> Estimates:
+    """Every Healey–Kondepudy estimate the session's frames allow (see :func:`calibrate`).
+
+    ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
+    excluded in the app) instead of computing it here.
+    """
+    from .darkframe import dark_reference
+    from .fixedpattern import fixed_pattern_map
+    from .noise import photon_transfer
+    from .planning import check_session_plan, plan_acquisition
+    from .scene import scene_variations
+
+    report = progress or _no_progress
+    notes: list[str] = []
+    roles = session.roles()
+    dark = fp = plan = scene = None
+    warnings: list[str] = []
+
+    report("photon transfer", 0.0)
+    if noise is None and roles.get("ptc"):
+        noise = photon_transfer(session, roi=roi)
+    elif noise is None:
+        notes.append("no ptc frames: noise model not estimated")
+
+    report("dark reference", 0.25)
+    if roles.get("dark"):
+        fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
+        dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
+        dark_exposures = {r.exposure for r in session.dark_frames()}
+        dark = dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None)
+    else:
+        notes.append("no dark frames: dark reference not estimated")
+
+    report("fixed pattern", 0.5)
+    if roles.get("fixed_pattern"):
+        if dark is None:
+            raise CcdError(session.root, "fixed_pattern frames need dark frames for D̂_D (eq. 46); "
+                                         "add dark frames to the session")
+        fp = fixed_pattern_map(session, dark, window=window, p=p)
+    else:
+        notes.append("no fixed_pattern frames: K map not estimated")
+
+    report("planning", 0.75)
+    if noise is not None and session.camera.bits and fp is not None:
+        try:
+            plan = plan_acquisition(noise, bits=session.camera.bits, fixed_pattern=fp)
+        except CcdError as err:
+            notes.append(f"acquisition plan not computed: {err}")
+        else:
+            warnings = list(check_session_plan(session, plan))
+    elif noise is not None:
+        notes.append("acquisition plan needs the fixed-pattern slope spread σ̂ (fixed_pattern "
+                     "frames) and the camera bit depth")
+
+    if roles.get("scene") and noise is not None and fp is not None and dark is not None:
+        report("scene variation", 0.85)
+        try:
+            scene = scene_variations(session, dark, fp, noise, **scene_error_terms(dark, fp))
+        except CcdError as err:
+            notes.append(f"scene variation not estimated: {err}")
+    report("done", 1.0)
+    return Estimates(noise=noise, dark=dark, fixed_pattern=fp, plan=plan,
+                     plan_warnings=tuple(warnings), scene=scene, notes=tuple(notes))
+
+
 def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
               progress: Progress | None = None) -> CalibrationProduct:
@@ -195,40 +292,22 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     An estimate whose frames are absent is skipped with a note; an estimate whose frames are there
     but bad raises :class:`CcdError` (naming the file or level), so nothing is silently dropped.
     """
-    from .darkframe import dark_reference
-    from .fixedpattern import fixed_pattern_map
-    from .noise import photon_transfer
-    from .planning import check_session_plan, plan_acquisition
-    from .scene import scene_variations
-
-    report = progress or _no_progress
     session = session_or_path if isinstance(session_or_path, Session) \
         else open_session(session_or_path)
     session.raise_if_invalid()
     if not session.frames:
         raise CcdError(session.root, "the session has no frames")
+    e = estimate_all(session, roi=roi, window=window, p=p, progress=progress)
     maps: dict[str, np.ndarray] = {}
     est: dict[str, Any] = {}
     steps: dict[str, Any] = {}
-    notes: list[str] = []
-    roles = session.roles()
-
-    noise = dark = fp = None
-    report("photon transfer", 0.0)
-    if roles.get("ptc"):
-        noise = photon_transfer(session, roi=roi)
-        est["noise"] = noise.to_dict()
+    notes = list(e.notes) + list(e.plan_warnings)
+    if e.noise is not None:
+        est["noise"] = e.noise.to_dict()
         steps["noise"] = {"method": "photon transfer, Healey & Kondepudy 1994 eqs. 37-42, 59-67",
                           "roi": list(roi) if roi else None}
-    else:
-        notes.append("no ptc frames: noise model not estimated")
-
-    report("dark reference", 0.25)
-    if roles.get("dark"):
-        fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
-        dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
-        dark_exposures = {r.exposure for r in session.dark_frames()}
-        dark = dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None)
+    if e.dark is not None:
+        dark = e.dark
         maps["dark"] = dark.mean_map.astype(np.float32)
         maps["dark_var"] = dark.var_map.astype(np.float32)
         maps["hot"] = dark.hot_mask.astype(np.float32)
@@ -236,52 +315,19 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         est["dark"] = dark.to_dict()
         steps["dark"] = {"method": "streamed average, sec. V-A", "s": dark.s,
                          "hot_rule": dark.hot_rule, "dead_rule": dark.dead_rule}
-    else:
-        notes.append("no dark frames: dark reference not estimated")
-
-    report("fixed pattern", 0.5)
-    if roles.get("fixed_pattern"):
-        if dark is None:
-            raise CcdError(session.root, "fixed_pattern frames need dark frames for D̂_D (eq. 46); "
-                                         "add dark frames to the session")
-        fp = fixed_pattern_map(session, dark, window=window, p=p)
+    if e.fixed_pattern is not None:
+        fp = e.fixed_pattern
         maps["K"] = fp.K.astype(np.float32)
-        maps["n1_used"] = fp.n1_used.astype(np.float32)
         maps["K_var"] = fp.K_var.astype(np.float32)
+        maps["n1_used"] = fp.n1_used.astype(np.float32)
         est["fixed_pattern"] = fp.to_dict()
         steps["fixed_pattern"] = {"method": "eqs. 45-50, sec. V-B", "window": window, "p": p}
-    else:
-        notes.append("no fixed_pattern frames: K map not estimated")
-
-    report("planning", 0.75)
-    if noise is not None and session.camera.bits and (fp is not None):
-        try:
-            plan = plan_acquisition(noise, bits=session.camera.bits, fixed_pattern=fp)
-        except CcdError as err:
-            notes.append(f"acquisition plan not computed: {err}")
-        else:
-            est["plan"] = plan.to_dict()
-            warnings = check_session_plan(session, plan)
-            est["plan"]["warnings"] = list(warnings)
-            notes.extend(warnings)
-    elif noise is not None:
-        notes.append("acquisition plan needs the fixed-pattern slope spread σ̂ (fixed_pattern "
-                     "frames) and the camera bit depth")
-
-    if roles.get("scene") and noise is not None and fp is not None and dark is not None:
-        report("scene variation", 0.85)
-        try:
-            # include the calibration maps' own errors (D̂_D: σ²_N/s; K̂: FixedPattern.K_var),
-            # with the D̂_D error that K̂ absorbed through eq. 46 (scene.scene_measurement)
-            fp_level = 1.0 / float(np.mean(1.0 / np.asarray(fp.config_levels)))
-            sv = scene_variations(session, dark, fp, noise, dark_var=dark.var_map / dark.s,
-                                  K_var=float(np.mean(fp.K_var)), fp_level=fp_level)
-        except CcdError as err:
-            notes.append(f"scene variation not estimated: {err}")
-        else:
-            est["scene"] = {name: v.to_dict() for name, v in sv.items()}
-            steps["scene"] = {"method": "eqs. 53-58, sec. VI"}
-    report("done", 1.0)
+    if e.plan is not None:
+        est["plan"] = e.plan.to_dict()
+        est["plan"]["warnings"] = list(e.plan_warnings)
+    if e.scene is not None:
+        est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
+        steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
     provenance = {"ccdcore": __version__, "session": str(session.manifest_path or session.root),
                   "source": session.source, "n_frames": len(session.frames), "steps": steps}
     return CalibrationProduct(maps=maps, estimates=_clean(est), camera=session.camera.to_dict(),

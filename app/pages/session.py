@@ -295,7 +295,7 @@ class SessionPage(pn.viewable.Viewer):
 
     def _on_state_message(self, *events: Any) -> None:
         st = self.state
-        self.error_alert.object = f"**Could not open:** {st.error}" if st.error else ""
+        self.error_alert.object = f"**Error:** {st.error}" if st.error else ""
         self.error_alert.visible = bool(st.error)
         self.status_pane.object = st.status
         self.progress.value = st.progress

@@ -63,7 +63,7 @@ def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app
     expect(box).to_be_visible(timeout=TIMEOUT)
     box.fill(str(tmp_path / "no-such-session"))
     box.press("Enter")
-    alert = page.get_by_text(re.compile(r"Could not open:.*no-such-session"))
+    alert = page.get_by_text(re.compile(r"Error:.*no-such-session"))
     expect(alert).to_be_visible(timeout=TIMEOUT)
 
     # still working: open the demo next
