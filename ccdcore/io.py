@@ -221,17 +221,17 @@ def _fits_header(path: Path) -> ImageHeader:
         hdul.close()
 
 
-def _rawpy():
+def _rawpy(path: Path):
     try:
         import rawpy
     except ImportError:
-        raise MethodNotAvailable(None, "reading camera raw files needs the 'raw' extra: "
+        raise MethodNotAvailable(path, "reading camera raw files needs the 'raw' extra: "
                                        "pip install 'ccdcore[raw]' (installs rawpy/LibRaw)") from None
     return rawpy
 
 
 def _raw_open(path: Path):
-    rawpy = _rawpy()
+    rawpy = _rawpy(path)
     try:
         return rawpy.imread(str(path))
     except Exception as exc:  # LibRawError subclasses

@@ -113,12 +113,26 @@ def test_missing_empty_truncated_and_junk_files_name_the_file(tmp_path):
         assert words in str(info.value)
 
 
-def test_raw_file_errors_are_clear(tmp_path):
+def test_raw_file_errors_are_clear(tmp_path, monkeypatch):
     bogus = tmp_path / "shot.dng"
     bogus.write_bytes(b"II*\x00 this is not a raw file")
-    with pytest.raises((ImageReadError, MethodNotAvailable)) as info:
+    with pytest.raises(ImageReadError) as info:          # rawpy is in the test extra
         read_image(bogus)
     assert "shot.dng" in str(info.value)
+    # without the optional 'raw' extra: one message naming the file and how to install it
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_rawpy(name, *args, **kwargs):
+        if name == "rawpy":
+            raise ImportError("No module named 'rawpy'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_rawpy)
+    with pytest.raises(MethodNotAvailable) as info:
+        read_image(bogus)
+    assert "shot.dng" in str(info.value) and "ccdcore[raw]" in str(info.value)
 
 
 def test_bad_writes(tmp_path):

@@ -78,4 +78,4 @@ def test_coming_pages_are_marked_and_honest(page: Page, serve_app):
     page.goto(url)
     expect(page.get_by_text("coming").first).to_be_visible(timeout=TIMEOUT)
     page.get_by_role("button", name=re.compile("Change detection")).click()
-    expect(page.get_by_text("Not built yet.")).to_be_visible(timeout=TIMEOUT)
+    expect(page.get_by_text("Not built yet.", exact=True)).to_be_visible(timeout=TIMEOUT)
