@@ -146,7 +146,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         k = est["fixed_pattern"]
         print(f"  fixed pattern n1 = {k['n1']}, n2 = {k['n2']}, K mean {k['mean']:.6g}, "
               f"spatial std {k['spatial_std']:.4g}, error var {k['K_var_mean']:.3g} "
-              f"(eq. 50 bound {k['var_bound'] if k['var_bound'] is not None else 'infinite'})")
+              f"(eq. 50 bound {'infinite' if k['var_bound'] is None else format(k['var_bound'], '.3g')})")
+    if "correction_check" in est:
+        c = est["correction_check"]
+        print(f"  correction    eq. 51 on the max-intensity frame changes {100 * c['frac_gt_1q']:.1f} % "
+              f"of pixels by > 1 q, {100 * c['frac_gt_2q']:.1f} % by > 2 q, at most "
+              f"{c['max_change_q']:.2f} q")
     if "plan" in est:
         pl = est["plan"]
         print(f"  plan          n1 >= {pl['n1_required']}, n2 >= {pl['n2_required']}")

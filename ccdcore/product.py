@@ -196,6 +196,7 @@ class Estimates:
     plan: Any = None
     plan_warnings: tuple[str, ...] = ()
     scene: dict[str, Any] | None = None
+    correction_check: Any = None
     notes: tuple[str, ...] = ()
 
 
@@ -220,7 +221,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     excluded in the app) instead of computing it here.
     """
     from .darkframe import dark_reference
-    from .fixedpattern import fixed_pattern_map
+    from .fixedpattern import correction_check, fixed_pattern_map
     from .noise import photon_transfer
     from .planning import check_session_plan, plan_acquisition
     from .scene import scene_variations
@@ -273,9 +274,18 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
             scene = scene_variations(session, dark, fp, noise, **scene_error_terms(dark, fp))
         except CcdError as err:
             notes.append(f"scene variation not estimated: {err}")
+    check = None
+    brightest = [r for r in session.scenes() if (r.note or "").strip() == "max-intensity"]
+    if brightest and dark is not None and fp is not None:
+        # the paper's check of eq. 51 on a maximum-intensity image (sec. VII-A)
+        check = correction_check(session.read(brightest[0]), dark, fp)
+    elif fp is not None:
+        notes.append("no scene frame with note = \"max-intensity\": the correction check of "
+                     "sec. VII-A (pixels changed by more than 1 and 2 quantisation steps) skipped")
     report("done", 1.0)
     return Estimates(noise=noise, dark=dark, fixed_pattern=fp, plan=plan,
-                     plan_warnings=tuple(warnings), scene=scene, notes=tuple(notes))
+                     plan_warnings=tuple(warnings), scene=scene, correction_check=check,
+                     notes=tuple(notes))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -325,6 +335,8 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     if e.plan is not None:
         est["plan"] = e.plan.to_dict()
         est["plan"]["warnings"] = list(e.plan_warnings)
+    if e.correction_check is not None:
+        est["correction_check"] = e.correction_check.to_dict()
     if e.scene is not None:
         est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
         steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
