@@ -152,6 +152,11 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"  correction    eq. 51 on the max-intensity frame changes {100 * c['frac_gt_1q']:.1f} % "
               f"of pixels by > 1 q, {100 * c['frac_gt_2q']:.1f} % by > 2 q, at most "
               f"{c['max_change_q']:.2f} q")
+    if "flat_field" in est:
+        ff = est["flat_field"]
+        ks = ", ".join(f"{c['name']} {c['k']:.4g}" for c in ff["channels"])
+        print(f"  flat field    base {ff['base']} ({ff['n_base']} frames), {ff['n_dark']} darks, "
+              f"k: {ks}; {ff['n_flagged']} pixels flagged")
     if "plan" in est:
         pl = est["plan"]
         print(f"  plan          n1 >= {pl['n1_required']}, n2 >= {pl['n2_required']}")
@@ -160,6 +165,28 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     for note in product.notes:
         print(f"  note: {note}")
     print(f"  maps: {', '.join(sorted(product.maps))}")
+    return 0
+
+
+def _cmd_snup(args: argparse.Namespace) -> int:
+    from .io import read_frame
+    from .uniformity import snup
+
+    images = []
+    for path in args.images:
+        data, header = read_frame(path)
+        layout = args.layout or header.layout
+        res = snup(data, roi=args.roi, layout=layout, where=str(path))
+        images.append({"path": str(path), "layout": layout,
+                       "channels": res.to_dict()["channels"]})
+    if args.json:
+        _print_json({"images": images})
+        return 0
+    for img in images:
+        print(f"{img['path']} ({img['layout']})" + (f", ROI {args.roi}" if args.roi else ""))
+        for ch in img["channels"]:
+            print(f"  {ch['name']:<3} mean {ch['mean']:10.3f} DN   SNUP {ch['snup']:.4f} "
+                  f"+/- {ch['snup_err']:.4f} %")
     return 0
 
 
@@ -241,10 +268,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", type=Path, nargs="+")
     p.add_argument("-o", "--out-dir", type=Path, required=True)
 
-    p = verb("snup", "spatial nonuniformity percentage (de Lasarte et al. 2007)",
-             _not_built("snup", "the SNUP metric"))
+    p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
+                     "(de Lasarte et al. 2007)", _cmd_snup)
     p.add_argument("images", type=Path, nargs="+")
     p.add_argument("--roi", type=_roi)
+    p.add_argument("--layout", choices=["mono", "rgb", "bayer-rggb", "bayer-bggr", "bayer-grbg",
+                                        "bayer-gbrg"],
+                   help="channel layout (default: from the file; give it for mosaicked raw data)")
     p.add_argument("--json", action="store_true")
 
     p = verb("response", "inverse camera response per channel",

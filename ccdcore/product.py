@@ -55,9 +55,10 @@ class CalibrationProduct:
     Attributes
     ----------
     maps
-        Name -> float32 (H, W) map. Names in use: ``dark`` (D̂_D), ``dark_var`` (its per-pixel
+        Name -> float32 map. Names in use: ``dark`` (D̂_D), ``dark_var`` (its per-pixel
         temporal variance), ``hot``, ``dead`` (0/1 flags), ``K`` (K̂, eq. 49), ``K_var`` (its
-        per-pixel error variance), ``n1_used`` (n'_1).
+        per-pixel error variance), ``n1_used`` (n'_1); flat field (frame-shaped, colour or
+        mosaic): ``flat_G``, ``flat_O``, ``flat_flags``, ``flat_dark`` (DL_0), ``flat_base`` (DL_B).
     estimates
         Name -> JSON summary of each estimate: ``noise`` (photon transfer), ``dark``,
         ``fixed_pattern``, ``plan``, ``scene``.
@@ -112,16 +113,30 @@ class CalibrationProduct:
     # -------------------------------------------------------------------------------------
     @property
     def shape(self) -> tuple[int, ...] | None:
-        for m in self.maps.values():
-            return m.shape
+        """Shape of the frames the product corrects."""
+        for name in ("flat_G", "dark"):
+            if name in self.maps:
+                return self.maps[name].shape
         return None
 
-    def correct(self, frame: np.ndarray, *, name: str | None = None) -> np.ndarray:
-        """Correct one frame: (D − D̂_D)/K̂ (eq. 51), float32.
+    @property
+    def method(self) -> str:
+        """How :meth:`correct` corrects: ``"flat_field"``, ``"fixed_pattern"`` or ``"dark"``."""
+        if "flat_G" in self.maps:
+            return "flat_field"
+        return "fixed_pattern" if "K" in self.maps else "dark"
 
-        Without ``K`` only the dark reference is subtracted; without ``dark`` nothing can be done
-        and a :class:`CcdError` says so.
+    def correct(self, frame: np.ndarray, *, name: str | None = None) -> np.ndarray:
+        """Correct one frame, float32.
+
+        With flat-field maps: DL_c = O + G·DL (de Lasarte et al. 2007), which removes the dark
+        image, the PRNU and the vignetting. Otherwise (D − D̂_D)/K̂ (eq. 51 of Healey & Kondepudy
+        1994), or D − D̂_D without ``K``; without any of them a :class:`CcdError` says so.
         """
+        if "flat_G" in self.maps:
+            from .flatfield import correct as flat_correct
+
+            return flat_correct(frame, self.maps["flat_G"], self.maps["flat_O"], where=name)
         if "dark" not in self.maps:
             raise CcdError(name, "the calibration product has no dark reference to correct with")
         d = np.asarray(frame)
@@ -197,6 +212,7 @@ class Estimates:
     plan_warnings: tuple[str, ...] = ()
     scene: dict[str, Any] | None = None
     correction_check: Any = None
+    flat: Any = None
     notes: tuple[str, ...] = ()
 
 
@@ -222,6 +238,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     """
     from .darkframe import dark_reference
     from .fixedpattern import correction_check, fixed_pattern_map
+    from .flatfield import flat_field_from_session
     from .noise import photon_transfer
     from .planning import check_session_plan, plan_acquisition
     from .scene import scene_variations
@@ -239,7 +256,11 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         notes.append("no ptc frames: noise model not estimated")
 
     report("dark reference", 0.25)
-    if roles.get("dark"):
+    mono = session.camera.layout == "mono"
+    if roles.get("dark") and not mono and not roles.get("fixed_pattern"):
+        notes.append(f"{session.camera.layout} camera: the dark reference D̂_D of sec. V-A is "
+                     "made for mono frames; the flat-field DL_0 serves instead")
+    elif roles.get("dark"):
         fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
         dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
         dark_exposures = {r.exposure for r in session.dark_frames()}
@@ -274,6 +295,14 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
             scene = scene_variations(session, dark, fp, noise, **scene_error_terms(dark, fp))
         except CcdError as err:
             notes.append(f"scene variation not estimated: {err}")
+    flat = None
+    if roles.get("flat"):
+        report("flat field", 0.9)
+        if not roles.get("dark"):
+            raise CcdError(session.root, "flat frames need dark frames for DL_0 (de Lasarte et "
+                                         "al. 2007); add dark frames to the session")
+        flat = flat_field_from_session(session, base="auto")
+
     check = None
     brightest = [r for r in session.scenes() if (r.note or "").strip() == "max-intensity"]
     if brightest and dark is not None and fp is not None:
@@ -285,7 +314,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     report("done", 1.0)
     return Estimates(noise=noise, dark=dark, fixed_pattern=fp, plan=plan,
                      plan_warnings=tuple(warnings), scene=scene, correction_check=check,
-                     notes=tuple(notes))
+                     flat=flat, notes=tuple(notes))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -337,6 +366,12 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         est["plan"]["warnings"] = list(e.plan_warnings)
     if e.correction_check is not None:
         est["correction_check"] = e.correction_check.to_dict()
+    if e.flat is not None:
+        maps.update(e.flat.maps())
+        est["flat_field"] = e.flat.to_dict()
+        steps["flat_field"] = {"method": "gain/offset maps, de Lasarte et al. 2007",
+                               "base": est["flat_field"]["base"],
+                               "flag_rule": e.flat.flag_rule}
     if e.scene is not None:
         est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
         steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}

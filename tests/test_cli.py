@@ -38,8 +38,7 @@ def test_unknown_verb_and_bad_arguments_exit_2(capsys):
         assert "error:" in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize("verb", [["snup", "a.tif"],
-                                  ["response", "S"], ["hdr", "S", "-o", "O"],
+@pytest.mark.parametrize("verb", [["response", "S"], ["hdr", "S", "-o", "O"],
                                   ["change", "S", "-o", "O"]])
 def test_verbs_not_built_say_so(capsys, verb):
     code, out, err = run(capsys, *verb)
@@ -81,6 +80,20 @@ def test_ptc_human_summary_and_bad_roi(capsys):
     assert "excluded by user" in out and "Q =" in out
     code, out, err = run(capsys, "ptc", demo, "--roi", "200,100,500,500")
     assert code == 2 and "roi" in err.lower() and len(err.strip().splitlines()) == 1
+
+
+def test_snup_json_contract_and_bad_file(capsys, tmp_path):
+    flat = ROOT / "assets" / "delasarte07" / "nzdi" / "flat_L3_E04_0.tif"
+    code, out, err = run(capsys, "snup", str(flat), "--roi", "8,8,40,30", "--json")
+    assert code == 0, err
+    res = json.loads(out)
+    [img] = res["images"]
+    assert img["path"] == str(flat)
+    assert [c["name"] for c in img["channels"]] == ["R", "G", "B"]
+    assert all({"name", "mean", "snup", "snup_err"} <= set(c) for c in img["channels"])
+    (tmp_path / "bad.tif").write_bytes(b"nope")
+    code, out, err = run(capsys, "snup", str(tmp_path / "bad.tif"))
+    assert code == 2 and "bad.tif" in err and len(err.strip().splitlines()) == 1
 
 
 def test_session_verb_on_demo_and_json(capsys):

@@ -123,3 +123,21 @@ def test_cli_calibrate_and_apply(sim, tmp_path, capsys):
     assert main(["apply", str(tmp_path / "nowhere"), str(root / "ptc" / "L02_a.tif"), "-o",
                  str(tmp_path / "o")]) == 2
     assert "no calibration.json" in capsys.readouterr().err
+
+
+def test_flat_field_product_round_trip_and_apply(tmp_path):
+    from ccdcore.flatfield import flat_field_from_session
+    from ccdcore.session import open_session
+
+    root = tmp_path / "dl"
+    simulate("delasarte07", root, seed=5, size=(48, 32))
+    prod = calibrate(root)
+    assert {"flat_G", "flat_O", "flat_flags"} <= set(prod.maps) and prod.method == "flat_field"
+    assert "flat_field" in prod.estimates
+    back = load_product(prod.save(tmp_path / "c"))
+    for name in ("flat_G", "flat_O"):
+        assert back.maps[name].tobytes() == prod.maps[name].tobytes()
+    ff = flat_field_from_session(open_session(root), base="auto")
+    src = sorted((root / "nzdi").glob("flat_*.tif"))[0]
+    [out] = apply_product(back, [src], tmp_path / "out")
+    np.testing.assert_array_equal(read_image(out), ff.correct(read_image(src)))
