@@ -1,0 +1,645 @@
+"""The Photon transfer page: the camera's noise model σ²_N = A·μ + σ²_C from pairs of flat frames.
+
+Healey & Kondepudy 1994, sec. IV and appendix: per light level the mean μ̂ (eq. 37), the noise
+variance σ̂²_N of the difference image (eq. 38) and its standard error (eq. 40); the weighted line
+(eq. 41, eqs. 59–65) with the covariance of (A, σ²_C) (eq. 66), χ² (eq. 42) and Q (eq. 67).
+
+Public objects
+--------------
+PhotonTransferPage
+    The page (a :class:`panel.viewable.Viewer`): the points with error bars, the fitted line with
+    its 1-σ confidence band, residuals in sigma units, a log-log view in the EMVA 1288 style, Q with
+    a plain-language verdict, the parameter table with uncertainties and units, level toggles and
+    a robust mode that refit at once (no frame is read again), and an ROI drawn on a frame preview.
+create_page(state)
+    The registry entry point.
+parameter_frame(result)
+    The fitted parameters of a :class:`~ccdcore.noise.PhotonTransfer` as a display-ready
+    DataFrame (quantity, symbol, value ± error, unit).
+format_value(value, error=None)
+    ``"value ± error"`` with the error to two significant digits (the value to the same place).
+verdict_message(result)
+    The alert type and plain-language text for the fit's Q.
+
+Every number comes from :mod:`ccdcore.noise`: the page calls ``photon_transfer`` (one streamed
+pass over the frames, off the UI thread), then ``PhotonTransfer.refit`` (i.e. ``fit_points`` with
+the same black level, bit depth, ROI and notes) for every toggle; when too few levels are usable
+for a fit it still shows the levels measured by ``ptc_points``. The plots come from
+:mod:`app.ptc_plots` and :mod:`app.plots`.
+"""
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import logging
+import math
+import traceback
+from typing import Any, Sequence
+
+import holoviews as hv
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+
+from ccdcore.errors import CcdError
+from ccdcore.noise import ROBUST_Z, PhotonTransfer, PtcPoint, photon_transfer, ptc_points
+from ccdcore.planning import check_session_plan
+from ccdcore.session import FrameRecord, Session
+
+from .. import plots, ptc_plots
+from ..state import AppState
+
+__all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "format_value",
+           "verdict_message", "NO_PTC_MESSAGE"]
+
+log = logging.getLogger(__name__)
+
+#: what the page says when the session has no photon-transfer frames
+NO_PTC_MESSAGE = (
+    "**No photon-transfer frames in this session.** Capture pairs of frames (two or more "
+    "frames each) of a uniformly lit card at **three or more light levels**, from just above "
+    "the dark level to just below saturation, and list them in `session.toml` with "
+    "`role = \"ptc\"` and `level = N` (one N per light level). Dark frames at two or more "
+    "exposure times give the black level; `[camera] black_level` states it directly.")
+
+_BLACK_SOURCES = {
+    "argument": "given",
+    "camera": "from the manifest ([camera] black_level)",
+    "dark_extrapolated": "dark frames extrapolated to zero exposure",
+    "dark_mean": "mean of the dark frames (EMVA 1288 convention)",
+    "none": "no dark frames: 0, the paper's model",
+    "given": "given",
+}
+
+_VERDICTS = {
+    "acceptable": ("success", "Fit acceptable",
+                   "the line \u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C explains the points "
+                   "within their error bars."),
+    "poor": ("warning", "Poor fit",
+             "the points scatter about the line more than their error bars allow (Q < 0.05). "
+             "Look at the residuals for a level off the line; exclude it or try robust mode."),
+    "model rejected": ("danger", "Model rejected",
+                       "the points are not on one line within their errors (Q < 0.001). Look "
+                       "for saturated, non-linear or disturbed levels in the residuals and the "
+                       "log-log view; exclude them or try robust mode."),
+}
+
+_TABLE_CSS = """
+table { width: 100%; border-collapse: collapse; font-size: 0.95em; }
+th { text-align: left !important; color: #495057; border-bottom: 2px solid #dee2e6;
+     padding: 4px 8px; }
+td { text-align: left !important; padding: 4px 8px; border-bottom: 1px solid #eef0f2; }
+tr:nth-child(even) td { background: #f8f9fa; }
+"""
+
+_NAV_NOTE = ("Levels the estimator leaves out (clipped, beyond the linear range) stay out "
+             "whatever their tick; the points table says why.")
+
+
+def _finite(x: Any) -> bool:
+    return x is not None and isinstance(x, (int, float, np.floating)) and math.isfinite(x)
+
+
+def format_value(value: float, error: float | None = None) -> str:
+    """``"value ± error"``, the error rounded to two significant digits and the value to the same
+    decimal place; ``"n/a"`` for a non-finite value; the value alone (5 significant digits) when
+    the error is missing or not positive."""
+    if not _finite(value):
+        return "n/a"
+    if not _finite(error) or error <= 0:
+        return f"{value:.5g}"
+    decimals = 1 - int(math.floor(math.log10(error)))
+    if decimals > 0:
+        return f"{value:.{decimals}f} \u00b1 {error:.{decimals}f}"
+    return f"{round(value, decimals):.0f} \u00b1 {round(error, decimals):.0f}"
+
+
+def _roi_text(roi: Sequence[int] | None, shape: tuple[int, int] | None) -> str:
+    if roi is None:
+        return "full frame" + ("" if shape is None else f" ({shape[1]} \u00d7 {shape[0]} px)")
+    x, y, w, h = roi
+    return f"x = {x}, y = {y}, {w} \u00d7 {h} px"
+
+
+def parameter_frame(result: PhotonTransfer, shape: tuple[int, int] | None = None
+                    ) -> pd.DataFrame:
+    """The fitted noise model as rows of quantity, symbol, value (± standard error) and unit.
+
+    ``shape`` (H, W) of the frames only labels the full-frame region.
+    """
+    used = [p for p in result.points if p.used]
+    pixels = used[0].n_pixels if used else (result.points[0].n_pixels if result.points else 0)
+    source = _BLACK_SOURCES.get(result.black_level_source, result.black_level_source)
+    rows = [
+        ("Gain (slope, eq. 41)", "A", format_value(result.A, result.A_err), "DN/e\u207b"),
+        ("Conversion gain", "1/A", format_value(result.conversion_gain_e_per_dn,
+                                                result.conversion_gain_e_per_dn_err),
+         "e\u207b/DN"),
+        ("Noise intercept (eq. 27)", "\u03c3\u00b2_C",
+         format_value(result.sigma_c2, result.sigma_c2_err), "DN\u00b2"),
+        ("Read noise", "\u03c3_R", format_value(result.read_noise_e, result.read_noise_e_err),
+         "e\u207b"),
+        ("Read noise in DN", "A\u00b7\u03c3_R", format_value(result.read_noise_dn), "DN"),
+        ("Quantisation noise", "q\u00b2/12", format_value(result.quantisation_dn2), "DN\u00b2"),
+        ("Black level", "b\u2080", f"{format_value(result.black_level_dn)} ({source})", "DN"),
+        ("Chi-square (eq. 42)", "\u03c7\u00b2", format_value(result.chi2), ""),
+        ("Degrees of freedom", "\u03bd", str(result.dof), ""),
+        ("Goodness of fit (eq. 67)", "Q", format_value(result.Q), ""),
+        ("Levels used", "P", f"{len(used)} of {len(result.points)}", ""),
+        ("Region", "ROI", f"{_roi_text(result.roi, shape)}; M = {pixels} px per frame", ""),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "symbol", "value", "unit"])
+
+
+def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
+    """``(alert_type, markdown)`` reading the fit's Q (``PhotonTransfer.verdict``) for a person:
+    acceptable → success, poor → warning, model rejected → danger, untested → info."""
+    stats = (f"Q = {format_value(result.Q)} (\u03c7\u00b2 = {format_value(result.chi2)} on "
+             f"{result.dof} degree{'s' if result.dof != 1 else ''} of freedom)")
+    if result.verdict in _VERDICTS:
+        kind, head, text = _VERDICTS[result.verdict]
+        return kind, f"**{head}** \u2014 {stats}: {text}"
+    return "info", (f"**Fit untested** \u2014 {result.verdict}: with as many parameters as "
+                    "levels the line passes through the points; add light levels to test it.")
+
+
+def _level_label(p: PtcPoint) -> str:
+    return f"Level {p.level} (\u03bc {p.mu:.4g} DN)"
+
+
+class PhotonTransferPage(pn.viewable.Viewer):
+    """Photon transfer of the loaded session: points, fit, verdict, parameters, toggles, ROI."""
+
+    state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
+    robust = param.Boolean(default=False, doc=(
+        f"Robust mode: drop, one at a time, the level whose residual exceeds {ROBUST_Z:g} sigma "
+        "(at least three levels kept)."))
+
+    def __init__(self, state: AppState | None = None, *, auto: bool = True, **params: Any):
+        """``auto``: compute as soon as the page is built and whenever the session changes
+        (scheduled on the server's event loop); tests pass ``False`` and await :meth:`refresh`."""
+        super().__init__(state=state if state is not None else AppState(), **params)
+        self.auto = auto
+        #: the measured levels at the applied ROI (with the estimator's flags when fitted)
+        self.points: tuple[PtcPoint, ...] = ()
+        #: ``photon_transfer`` at the applied ROI with no user choices: carries the black level,
+        #: bits, ROI and notes for every refit (None when the points cannot be fitted)
+        self.base: PhotonTransfer | None = None
+        #: the fit shown (None when there is none)
+        self.result: PhotonTransfer | None = None
+        #: the applied ROI (x, y, w, h), None for the full frame
+        self.roi: tuple[int, int, int, int] | None = None
+        #: (H, W) of the ptc frames, None before a session with ptc frames is shown
+        self.shape: tuple[int, int] | None = None
+        self.error = ""          # the page's current problem ('' when none)
+        self._session: Session | None = None   # the session the page shows
+        self._syncing = False    # True while the page sets widgets itself (no refit)
+        self._preview_request = 0
+        self._records: dict[str, FrameRecord] = {}
+        self._build_widgets()
+        self.state.param.watch(self._on_session, "session")
+        self.state.param.watch(self._on_results, "results")
+        self._show_empty()
+        if auto and self.state.session is not None:
+            pn.state.execute(self.refresh)
+
+    # ================================================================ building the widgets ====
+    def _build_widgets(self) -> None:
+        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
+                                        sizing_mode="stretch_width", css_classes=["ccd-ptc-info"])
+        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
+                                         sizing_mode="stretch_width",
+                                         css_classes=["ccd-ptc-error"])
+        self.plan_alert = pn.pane.Alert("", alert_type="warning", visible=False,
+                                        sizing_mode="stretch_width")
+        self.verdict_alert = pn.pane.Alert("", alert_type="info", visible=False,
+                                           sizing_mode="stretch_width", margin=(5, 5, 0, 5))
+        self.parameter_table = pn.pane.DataFrame(
+            pd.DataFrame(columns=["quantity", "symbol", "value", "unit"]), index=False,
+            sizing_mode="stretch_width", name="parameters", css_classes=["ccd-ptc-parameters"],
+            stylesheets=[_TABLE_CSS])
+
+        self.level_select = pn.widgets.CheckBoxGroup(name="Levels in the fit", options={},
+                                                     value=[], inline=False)
+        self.level_select.param.watch(self._on_levels, "value")
+        self.robust_checkbox = pn.widgets.Checkbox.from_param(
+            self.param.robust, name=f"Robust mode (drop levels beyond {ROBUST_Z:g}\u03c3, one at "
+                                    "a time)")
+        self.param.watch(self._on_robust, "robust")
+        self.all_levels_button = pn.widgets.Button(name="Use all levels", button_type="light")
+        self.all_levels_button.on_click(self._on_all_levels)
+        self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                            styles={"font-size": "0.9em"})
+
+        self.transfer_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=380,
+                                               linked_axes=False, css_classes=["ccd-ptc-plot"])
+        self.residual_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=220,
+                                               linked_axes=False)
+        self.loglog_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=600,
+                                             linked_axes=False)
+        self.plot_tabs = pn.Tabs(
+            ("Linear: \u03c3\u00b2_N against \u03bc",
+             pn.Column(self.transfer_pane, self.residual_pane, sizing_mode="stretch_width")),
+            ("Log-log (EMVA 1288)", self.loglog_pane),
+            sizing_mode="stretch_width", dynamic=False)
+
+        self.points_table = pn.pane.DataFrame(pd.DataFrame(), index=False,
+                                              sizing_mode="stretch_width", name="points",
+                                              stylesheets=[_TABLE_CSS])
+        self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
+
+        # ---- ROI
+        self.frame_select = pn.widgets.Select(name="Preview frame", options=[],
+                                              sizing_mode="stretch_width")
+        self.frame_select.param.watch(self._on_frame, "value")
+        self.x_input = pn.widgets.IntInput(name="X (column)", value=0, start=0, width=110)
+        self.y_input = pn.widgets.IntInput(name="Y (row)", value=0, start=0, width=110)
+        self.w_input = pn.widgets.IntInput(name="W (px)", value=1, start=1, width=110)
+        self.h_input = pn.widgets.IntInput(name="H (px)", value=1, start=1, width=110)
+        self.apply_roi_button = pn.widgets.Button(name="Apply ROI", button_type="primary")
+        self.apply_roi_button.on_click(self._on_apply_roi)
+        self.full_frame_button = pn.widgets.Button(name="Full frame", button_type="light")
+        self.full_frame_button.on_click(self._on_full_frame)
+        self.roi_status = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
+                                           sizing_mode="stretch_width")
+        self.preview_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=300,
+                                              max_height=560, linked_axes=False,
+                                              css_classes=["ccd-ptc-preview"])
+        self.bounds_stream: hv.streams.BoundsXY | None = None
+
+        levels_card = pn.Card(
+            pn.pane.Markdown("Untick a level to leave it out; the fit follows at once.",
+                             margin=(0, 10)),
+            self.level_select, self.all_levels_button, pn.layout.Divider(),
+            self.robust_checkbox, self.robust_pane,
+            pn.pane.Markdown(_NAV_NOTE, styles={"font-size": "0.85em", "color": "#6c757d"}),
+            title="Levels", width=320, collapsible=False)
+        fit_card = pn.Card(self.verdict_alert, self.parameter_table, title="Noise model",
+                           sizing_mode="stretch_width", collapsible=False)
+        roi_inputs = pn.Column(
+            pn.pane.Markdown("Drag a box on the frame (box-select tool) or type the region; "
+                             "**Apply ROI** measures the levels again over it.", margin=(0, 10)),
+            pn.Row(self.x_input, self.y_input), pn.Row(self.w_input, self.h_input),
+            pn.Row(self.apply_roi_button, self.full_frame_button), self.roi_status,
+            width=280)
+        self.roi_card = pn.Card(
+            self.preview_alert,
+            pn.Row(pn.Column(self.frame_select, self.preview_pane, sizing_mode="stretch_width"),
+                   roi_inputs, sizing_mode="stretch_width"),
+            title="Region of interest", sizing_mode="stretch_width", collapsible=False)
+        self.content = pn.Column(
+            pn.Row(fit_card, levels_card, sizing_mode="stretch_width"),
+            pn.Card(self.plot_tabs, title="Photon-transfer curve", sizing_mode="stretch_width",
+                    collapsible=False),
+            pn.Card(self.points_table, title="Points (one per light level)",
+                    sizing_mode="stretch_width"),
+            self.roi_card,
+            pn.Card(self.notes_pane, title="Notes", sizing_mode="stretch_width"),
+            sizing_mode="stretch_width", visible=False)
+
+    # ================================================================== layout =============
+    def __panel__(self) -> pn.viewable.Viewable:
+        intro = ("The noise variance of a pair of flat frames grows linearly with the mean "
+                 "signal, \u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C (Healey & Kondepudy "
+                 "1994, eq. 41): the slope A is the gain in DN per electron, the intercept "
+                 "\u03c3\u00b2_C holds the read noise and the quantisation noise (eq. 27).")
+        return pn.Column(
+            pn.pane.Markdown("## Photon transfer", css_classes=["ccd-page-title"]),
+            pn.pane.Markdown(intro, sizing_mode="stretch_width",
+                             styles={"color": "#495057"}),
+            self.info_alert, self.error_alert, self.plan_alert, self.content,
+            sizing_mode="stretch_width", name="Photon transfer")
+
+    # ============================================================ session and computing =====
+    def _show_empty(self) -> None:
+        if self.state.session is None:
+            self._info("No session loaded: open one on the **Session** page.")
+
+    def _info(self, text: str) -> None:
+        self.info_alert.object = text
+        self.info_alert.visible = bool(text)
+        if text:
+            self.content.visible = False
+
+    def _set_error(self, text: str) -> None:
+        self.error = text
+        self.error_alert.object = f"**Error:** {text}" if text else ""
+        self.error_alert.visible = bool(text)
+
+    def _on_session(self, *events: Any) -> None:
+        """A new session: forget the old one's points, ROI and choices; compute again."""
+        self._session = None
+        self.points, self.base, self.result, self.roi, self.shape = (), None, None, None, None
+        self._syncing = True
+        try:
+            self.level_select.param.update(options={}, value=[])
+        finally:
+            self._syncing = False
+        self._set_error("")
+        if self.auto and self.state.session is not None:
+            pn.state.execute(self.refresh)
+
+    def _on_results(self, *events: Any) -> None:
+        self._show_plan()
+
+    async def refresh(self) -> None:
+        """Show the current session: its ptc frames' geometry, then the points and the fit (from
+        ``state.results["ptc"]`` when another page already computed them for the full frame)."""
+        session = self.state.session
+        if session is None:
+            self._show_empty()
+            return
+        if session is self._session:
+            return
+        self._session = session
+        self._set_error("")
+        levels = session.ptc_levels()
+        self.roi, self.points, self.base, self.result = None, (), None, None
+        if not levels:
+            self._info(NO_PTC_MESSAGE)
+            self._show_plan()
+            return
+        self._info("")
+        self.content.visible = True
+        self._records = {r.relpath: r for recs in levels.values() for r in recs}
+        try:
+            header = session.header(next(iter(levels.values()))[0])
+            self.shape = (int(header.shape[0]), int(header.shape[1]))
+        except CcdError as err:
+            self.shape = None
+            self._set_error(str(err))
+        self._reset_roi_inputs(None)
+        order = sorted(levels)
+        middle = levels[order[len(order) // 2]][0].relpath
+        self._syncing = True
+        try:
+            self.frame_select.options = list(self._records)
+            self.frame_select.value = middle
+        finally:
+            self._syncing = False
+        self._show_plan()
+        cached = self.state.results.get("ptc")
+        if isinstance(cached, PhotonTransfer) and cached.roi is None:
+            # another page's fit of the full frame: reuse its points, without its choices
+            chosen = cached.robust_dropped or any(p.reason == "excluded by user"
+                                                  for p in cached.points)
+            self._adopt(cached.refit() if chosen else cached, cached.points, None)
+            if "ptc_points" not in self.state.results:
+                self.state.results = {**self.state.results, "ptc_points": cached.points}
+        else:
+            await self._measure(None)
+        if self.state.session is session:
+            await self._on_frame()
+
+    async def _measure(self, roi: tuple[int, int, int, int] | None) -> bool:
+        """Measure the levels over ``roi`` (frames read in a worker thread) and fit them.
+
+        On a :class:`CcdError` the page keeps showing what it showed and says why; when only the
+        fit fails (fewer than three usable levels) the measured levels are still shown.
+        """
+        session = self.state.session
+        if session is None:
+            return False
+        self.content.loading = True
+        try:
+            base = await self.state.compute("ptc", photon_transfer, session, roi=roi,
+                                            label="photon transfer")
+            if self.state.session is not session:
+                return False
+            if base is not None:
+                self.state.results = {**self.state.results, "ptc_points": base.points}
+                self._adopt(base, base.points, base.roi)
+                return True
+            error = self.state.error
+            points = await self.state.compute("ptc_points", ptc_points, session, roi=roi,
+                                              label="photon-transfer points")
+            if self.state.session is not session:
+                return False
+            self.state.error = error
+            if points is None:  # nothing measurable (bad ROI, unreadable frames ...): keep view
+                self._set_error(error)
+                return False
+            self._adopt(None, points, roi, error)
+            return True
+        finally:
+            self.content.loading = False
+
+    def _adopt(self, base: PhotonTransfer | None, points: Sequence[PtcPoint],
+               roi: Sequence[int] | None, error: str = "") -> None:
+        """Take new points measured over ``roi`` (and their default fit, ``base``) and refit
+        with the user's choices."""
+        self.base, self.points = base, tuple(points)
+        self.roi = None if roi is None else tuple(int(v) for v in roi)  # type: ignore[assignment]
+        excluded = self._excluded()
+        options = {_level_label(p): p.level for p in self.points}
+        self._syncing = True
+        try:
+            self.level_select.options = options
+            self.level_select.value = [p.level for p in self.points if p.level not in excluded]
+        finally:
+            self._syncing = False
+        self._reset_roi_inputs(self.roi)
+        self._refit(error)
+
+    def _excluded(self) -> set[int]:
+        """Levels the user unticked (kept across ROI changes while the level exists)."""
+        options = self.level_select.options
+        known = set(options.values()) if isinstance(options, dict) else set(options)
+        return known - set(self.level_select.value)
+
+    def _refit(self, error: str = "") -> None:
+        """Fit the measured points again with the ticked levels and the robust mode (instant:
+        ``PhotonTransfer.refit``, i.e. ``fit_points``; no frame is read)."""
+        excluded = sorted(self._excluded() & {p.level for p in self.points})
+        result: PhotonTransfer | None = None
+        if self.base is not None:
+            if not excluded and not self.robust:
+                result = self.base
+            else:
+                try:
+                    result = self.base.refit(exclude_levels=excluded, robust=self.robust)
+                except CcdError as err:
+                    error = str(err)
+        self.result = result
+        self._set_error(error)
+        if result is not None:
+            self.state.results = {**self.state.results, "ptc": result}
+        self._render()
+
+    # ============================================================ showing the result =======
+    def _display_points(self) -> tuple[PtcPoint, ...]:
+        """The points to draw: the fit's, or (no fit) the measured ones with the user's
+        exclusions marked as ``fit_points`` would mark them."""
+        if self.result is not None:
+            return self.result.points
+        excluded = self._excluded()
+        return tuple(dataclasses.replace(p, used=False, reason="excluded by user")
+                     if p.used and p.level in excluded else p for p in self.points)
+
+    def _render(self) -> None:
+        result, points = self.result, self._display_points()
+        self.transfer_pane.object = ptc_plots.transfer_plot(points, result) if points else None
+        self.residual_pane.object = ptc_plots.residual_plot(result) if result else None
+        self.residual_pane.visible = result is not None
+        self.loglog_pane.object = ptc_plots.loglog_plot(points, result) if points else None
+        table = ptc_plots.points_table(points, result)
+        def fmt(column: str, spec: str) -> list[str]:
+            return [format(v, spec) if math.isfinite(v) else "" for v in table[column]]
+
+        shown = pd.DataFrame({
+            "level": table["level"], "\u03bc \u2212 b\u2080 (DN)": fmt("mu", ".3f"),
+            "\u03c3\u0302\u00b2_N (DN\u00b2)": fmt("var", ".5g"),
+            "\u00b1 (DN\u00b2)": fmt("var_err", ".2g"),
+            "residual (\u03c3)": fmt("residual", "+.2f"),
+            "pairs": table["n_pairs"], "pixels M": table["n_pixels"],
+            "status": table["status"], "reason": table["reason"]})
+        self.points_table.object = shown
+        if result is None:
+            self.verdict_alert.visible = False
+            self.parameter_table.object = pd.DataFrame(
+                columns=["quantity", "symbol", "value", "unit"])
+            self.robust_pane.object = ""
+            self.notes_pane.object = "No fit."
+        else:
+            kind, text = verdict_message(result)
+            self.verdict_alert.param.update(alert_type=kind, object=text, visible=True)
+            self.parameter_table.object = parameter_frame(result, self.shape)
+            if self.robust:
+                dropped = result.robust_dropped
+                self.robust_pane.object = (
+                    "Robust mode dropped " + ", ".join(f"level {lv}" for lv in dropped) + "."
+                    if dropped else f"Robust mode dropped no level (every residual within "
+                                    f"{ROBUST_Z:g}\u03c3).")
+            else:
+                self.robust_pane.object = ""
+            self.notes_pane.object = "\n".join(f"- {n}" for n in result.notes) or "No notes."
+        self.roi_status.object = f"Applied: **{_roi_text(self.roi, self.shape)}**"
+
+    def _show_plan(self) -> None:
+        """The acquisition plan's warnings (computed on the Maps page) for this session."""
+        plan, session = self.state.results.get("plan"), self.state.session
+        warnings: list[str] = []
+        if plan is not None and session is not None:
+            try:
+                warnings = check_session_plan(session, plan)
+            except Exception:  # a stale or foreign plan must not break this page
+                log.error("checking the plan failed:\n%s", traceback.format_exc())
+        self.plan_alert.object = ("**This session has fewer frames than the acquisition plan "
+                                  "requires** (see the Maps page):\n\n"
+                                  + "\n".join(f"- {w}" for w in warnings)) if warnings else ""
+        self.plan_alert.visible = bool(warnings)
+
+    # ============================================================ toggles ==================
+    def _on_levels(self, event: Any = None) -> None:
+        if not self._syncing and self.points:
+            self._refit()
+
+    def _on_robust(self, event: Any = None) -> None:
+        if self.points:
+            self._refit()
+
+    def _on_all_levels(self, event: Any = None) -> None:
+        self.level_select.value = [p.level for p in self.points]
+
+    # ============================================================ ROI ======================
+    def _pending_roi(self) -> tuple[int, int, int, int]:
+        return (int(self.x_input.value), int(self.y_input.value), int(self.w_input.value),
+                int(self.h_input.value))
+
+    def _reset_roi_inputs(self, roi: Sequence[int] | None) -> None:
+        if roi is None:
+            roi = (0, 0, self.shape[1], self.shape[0]) if self.shape else (0, 0, 1, 1)
+        x, y, w, h = (int(v) for v in roi)
+        self.x_input.value, self.y_input.value = x, y
+        self.w_input.value, self.h_input.value = w, h
+
+    def roi_request(self) -> tuple[int, int, int, int] | None:
+        """The typed region, or None when it is the full frame."""
+        roi = self._pending_roi()
+        if self.shape is not None and roi == (0, 0, self.shape[1], self.shape[0]):
+            return None
+        return roi
+
+    async def apply_roi(self) -> bool:
+        """Measure the levels again over the typed region (frames read off the UI thread)."""
+        if self.state.session is None or self._session is None:
+            return False
+        return await self._measure(self.roi_request())
+
+    async def _on_apply_roi(self, event: Any = None) -> None:
+        await self.apply_roi()
+
+    async def full_frame(self) -> bool:
+        """Back to the whole frame."""
+        self._reset_roi_inputs(None)
+        if self.roi is None and (self.points or self._session is None):
+            return True
+        return await self._measure(None)
+
+    async def _on_full_frame(self, event: Any = None) -> None:
+        await self.full_frame()
+
+    def _on_bounds(self, bounds: tuple[float, float, float, float] | None = None) -> None:
+        """A box drawn on the preview -> the X, Y, W, H inputs: the pixels whose centres (at
+        integer coordinates) lie in the box, clipped to the frame, at least one pixel."""
+        if bounds is None or self.shape is None:
+            return
+        h_img, w_img = self.shape
+        x0, y0, x1, y1 = bounds
+        left = min(max(int(math.ceil(min(x0, x1))), 0), w_img - 1)
+        top = min(max(int(math.ceil(min(y0, y1))), 0), h_img - 1)
+        right = min(max(int(math.floor(max(x0, x1))) + 1, left + 1), w_img)
+        bottom = min(max(int(math.floor(max(y0, y1))) + 1, top + 1), h_img)
+        self._reset_roi_inputs((left, top, right - left, bottom - top))
+
+    @staticmethod
+    def _read(session: Session, rec: FrameRecord) -> tuple[np.ndarray | None, str]:
+        try:
+            return session.read(rec), ""
+        except CcdError as err:
+            return None, str(err)
+        except Exception as err:  # unforeseen: still an alert, not a crash
+            log.error("reading %s failed:\n%s", rec.path, traceback.format_exc())
+            return None, f"{rec.relpath}: unexpected error: {type(err).__name__}: {err}"
+
+    async def _on_frame(self, event: Any = None) -> None:
+        """Show the chosen ptc frame with the ROI box (read in a worker thread)."""
+        if self._syncing and event is not None:
+            return
+        session, rec = self.state.session, self._records.get(self.frame_select.value)
+        if session is None or rec is None:
+            self.preview_pane.object = None
+            return
+        self._preview_request += 1
+        request = self._preview_request
+        self.preview_pane.loading = True
+        try:
+            array, error = await asyncio.to_thread(self._read, session, rec)
+        finally:
+            if request == self._preview_request:
+                self.preview_pane.loading = False
+        if request != self._preview_request or session is not self.state.session:
+            return
+        if array is None:
+            self.preview_pane.object = None
+            self.preview_alert.param.update(object=f"**Cannot preview the frame:** {error}",
+                                            visible=True)
+            return
+        self.preview_alert.visible = False
+        plane = plots.channel_data(array, "L")
+        image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
+                                       plots.auto_clim(plane), title=rec.relpath)
+        image = image.opts(tools=["hover", "box_select"],
+                           active_tools=["box_select", "wheel_zoom"])
+        self.bounds_stream = hv.streams.BoundsXY(source=image, bounds=None)
+        self.bounds_stream.add_subscriber(lambda bounds: self._on_bounds(bounds))
+        box = hv.DynamicMap(pn.bind(ptc_plots.roi_box, self.x_input, self.y_input, self.w_input,
+                                    self.h_input))
+        self.preview_pane.object = image * box
+
+
+def create_page(state: AppState) -> PhotonTransferPage:
+    """Registry entry point: the Photon transfer page bound to ``state``."""
+    return PhotonTransferPage(state)

@@ -1,0 +1,308 @@
+"""The Photon transfer page without a browser: its wiring to ccdcore and its plot functions."""
+from __future__ import annotations
+
+import asyncio
+import math
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import holoviews as hv
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from app import ptc_plots
+from app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, format_value,
+                                       parameter_frame, verdict_message)
+from app.state import AppState
+from ccdcore.io import write_image
+from ccdcore.noise import photon_transfer
+from ccdcore.planning import check_session_plan, plan_acquisition
+
+
+def _run(coro):
+    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
+    running in this one)."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
+
+
+@pytest.fixture
+def state(tmp_path, assets):
+    return AppState(allowed_roots=[tmp_path.resolve(), assets.resolve()])
+
+
+@pytest.fixture(scope="module")
+def demo_pt(assets):
+    return photon_transfer(assets / "healey94")
+
+
+def _page(state: AppState, path: Path) -> PhotonTransferPage:
+    assert state.load(path), state.error
+    page = PhotonTransferPage(state, auto=False)
+    _run(page.refresh())
+    return page
+
+
+def _ptc_session(root: Path, means: list[float], *, inflate: dict[int, float] | None = None,
+                 seed: int = 11) -> Path:
+    """Mono 12-bit pairs of 64x64 frames with σ²_N = A·μ + σ²_C (A = 0.25, σ²_C = 9); the
+    variance of the levels in ``inflate`` (level -> factor) is multiplied by the factor."""
+    rng = np.random.default_rng(seed)
+    inflate = inflate or {}
+    entries = []
+    for level, mean in enumerate(means, start=1):
+        var = (0.25 * mean + 9.0) * inflate.get(level, 1.0)
+        for k in "ab":
+            frame = np.clip(np.rint(rng.normal(mean, math.sqrt(var), (64, 64))), 0, 4095)
+            write_image(root / f"ptc/L{level}_{k}.tif", frame.astype(np.uint16), bits=12,
+                        exposure=0.01)
+            entries.append(f'[[frames]]\npath = "ptc/L{level}_{k}.tif"\nrole = "ptc"\n'
+                           f'level = {level}\nexposure = 0.01\n')
+    (root / "session.toml").write_text(
+        'schema = 1\n[camera]\nname = "robust test"\nbits = 12\nlayout = "mono"\n'
+        'black_level = 0\n\n' + "\n".join(entries))
+    return root
+
+
+# ------------------------------------------------------------------------- the demo --------
+def test_demo_fit_equals_photon_transfer(state, healey94, demo_pt):
+    page = _page(state, healey94)
+    assert page.result is not None and page.error == ""
+    # the same estimator on the same frames: equal to rounding
+    assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
+    assert page.result.sigma_c2 == pytest.approx(demo_pt.sigma_c2, rel=0, abs=1e-12)
+    assert page.result.black_level_source == demo_pt.black_level_source
+    assert page.result.notes == demo_pt.notes
+    assert len(page.points) == 8 and all(p.used for p in page.points)
+    # shared with the other pages under the agreed names
+    assert state.results["ptc"] is page.result
+    assert state.results["ptc_points"] == page.points
+    # the parameter table, the verdict, the plots
+    table = page.parameter_table.object
+    a_row = table[table["symbol"] == "A"].iloc[0]
+    assert a_row["value"] == format_value(demo_pt.A, demo_pt.A_err)
+    assert a_row["unit"] == "DN/e\u207b"
+    assert set(table["symbol"]) >= {"A", "1/A", "\u03c3\u00b2_C", "\u03c3_R", "A\u00b7\u03c3_R",
+                                     "q\u00b2/12", "b\u2080", "\u03c7\u00b2", "\u03bd", "Q"}
+    assert page.verdict_alert.visible and page.verdict_alert.alert_type == "success"
+    assert "acceptable" in page.verdict_alert.object.lower()
+    assert page.transfer_pane.object is not None and page.loglog_pane.object is not None
+    assert len(page.points_table.object) == 8
+    assert page.level_select.value == list(range(1, 9))
+    assert not page.info_alert.visible and not page.error_alert.visible
+    assert page.content.visible
+
+
+def test_excluding_a_level_refits_at_once_and_marks_the_point(state, healey94, demo_pt):
+    page = _page(state, healey94)
+    page.level_select.value = [lv for lv in range(1, 9) if lv != 8]
+    assert page.result.A != demo_pt.A
+    expected = photon_transfer(healey94, exclude_levels=[8])
+    assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
+    p8 = next(p for p in page.result.points if p.level == 8)
+    assert not p8.used and p8.reason == "excluded by user"
+    assert page.points_table.object.iloc[7]["status"] == "excluded"
+    table = page.parameter_table.object
+    assert table[table["symbol"] == "A"].iloc[0]["value"] == format_value(expected.A,
+                                                                          expected.A_err)
+    assert state.results["ptc"] is page.result
+    # back to all levels
+    page._on_all_levels()
+    assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
+
+
+def test_too_few_levels_is_an_alert_and_the_points_stay(state, healey94):
+    page = _page(state, healey94)
+    page.level_select.value = [1, 2]
+    assert page.result is None
+    assert page.error_alert.visible and "need at least 3" in page.error_alert.object
+    assert page.transfer_pane.object is not None          # the points are still drawn
+    assert page.parameter_table.object.empty and not page.verdict_alert.visible
+    assert list(page.points_table.object["status"]).count("excluded") == 6
+    page.level_select.value = [1, 2, 3]
+    assert page.result is not None and not page.error_alert.visible
+
+
+def test_roi_apply_changes_the_pixels_and_full_frame_resets(state, healey94):
+    page = _page(state, healey94)
+    assert page.shape == (192, 256)
+    page.x_input.value, page.y_input.value, page.w_input.value, page.h_input.value = \
+        10, 20, 64, 32
+    assert _run(page.apply_roi())
+    assert page.roi == (10, 20, 64, 32) and page.result.roi == (10, 20, 64, 32)
+    assert {p.n_pixels for p in page.result.points} == {64 * 32}
+    expected = photon_transfer(healey94, roi=(10, 20, 64, 32))
+    assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
+    assert state.results["ptc_points"] == page.points
+    assert "64 \u00d7 32" in page.roi_status.object
+    assert _run(page.full_frame())
+    assert page.roi is None and {p.n_pixels for p in page.result.points} == {256 * 192}
+    assert (page.w_input.value, page.h_input.value) == (256, 192)
+
+
+def test_bad_roi_is_an_alert_and_keeps_the_fit(state, healey94, demo_pt):
+    page = _page(state, healey94)
+    page.x_input.value, page.w_input.value = 200, 100
+    assert not _run(page.apply_roi())
+    assert page.error_alert.visible and "does not fit" in page.error_alert.object
+    assert page.result is not None and page.result.roi is None
+    assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
+
+
+def test_box_drawn_on_the_preview_sets_the_inputs(state, healey94):
+    page = _page(state, healey94)
+    assert page.preview_pane.object is not None and page.bounds_stream is not None
+    # pixel centres are at integers: the box takes the pixels whose centres it holds
+    page.bounds_stream.event(bounds=(-0.5, 9.6, 63.5, 41.4))
+    assert page._pending_roi() == (0, 10, 64, 32)
+    page.bounds_stream.event(bounds=(249.8, 180.0, 400.0, 300.0))  # clipped to the frame
+    assert page._pending_roi() == (250, 180, 6, 12)
+    page.bounds_stream.event(bounds=(5.1, 5.2, 5.3, 5.4))  # inside one pixel: that pixel
+    assert page._pending_roi()[2:] == (1, 1)
+
+
+def test_robust_mode_drops_the_outlier(state, tmp_path):
+    root = _ptc_session(tmp_path / "outlier", [150, 500, 900, 1400, 2000, 2600, 3200],
+                        inflate={4: 1.3})
+    page = _page(state, root)
+    assert page.result.verdict == "model rejected"
+    assert page.verdict_alert.alert_type == "danger"
+    page.robust = True
+    assert page.result.robust_dropped == (4,)
+    assert "level 4" in page.robust_pane.object
+    p4 = next(p for p in page.result.points if p.level == 4)
+    assert not p4.used and p4.reason.startswith("robust mode")
+    expected = photon_transfer(root, robust=True)
+    assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
+    page.robust = False
+    assert page.result.robust_dropped == () and all(p.used for p in page.result.points)
+
+
+def test_a_session_without_ptc_frames_says_what_to_capture(state, assets):
+    page = _page(state, assets / "tsin01")
+    assert page.info_alert.visible and page.info_alert.object == NO_PTC_MESSAGE
+    assert "three or more light levels" in page.info_alert.object
+    assert not page.content.visible and page.result is None
+
+
+def test_two_levels_show_the_points_and_why_there_is_no_fit(state, tmp_path):
+    root = _ptc_session(tmp_path / "two", [300, 2000])
+    page = _page(state, root)
+    assert page.result is None and len(page.points) == 2
+    assert page.error_alert.visible and "need at least 3" in page.error_alert.object
+    assert page.transfer_pane.object is not None
+
+
+def test_no_session_and_session_change(state, healey94, assets):
+    page = PhotonTransferPage(state, auto=False)
+    assert page.info_alert.visible and "No session" in page.info_alert.object
+    _run(page.refresh())
+    assert page.result is None
+    state.load(healey94)
+    _run(page.refresh())
+    assert page.result is not None
+    page.level_select.value = [1, 2, 3, 4]
+    state.load(assets / "tsin01")
+    assert page.result is None and page.level_select.options == {}  # forgotten at once
+    _run(page.refresh())
+    assert page.info_alert.visible and not page.content.visible
+
+
+def test_reuses_another_pages_fit_without_its_choices(state, healey94, demo_pt):
+    state.load(healey94)
+    state.results = {"ptc": photon_transfer(healey94, exclude_levels=[3])}
+    page = PhotonTransferPage(state, auto=False)
+    _run(page.refresh())
+    assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
+    assert all(p.used for p in page.result.points)
+    assert state.results["ptc_points"] == page.points
+
+
+def test_plan_warnings_are_shown(state, tmp_path):
+    root = _ptc_session(tmp_path / "plan", [150, 900, 2000, 3200])
+    page = _page(state, root)
+    assert not page.plan_alert.visible
+    plan = plan_acquisition(page.result, bits=12, sigma_hat=2e-3)
+    warnings = check_session_plan(state.session, plan)
+    assert warnings  # no fixed-pattern frames at all
+    state.results = {**state.results, "plan": plan}
+    assert page.plan_alert.visible and warnings[0] in page.plan_alert.object
+
+
+# ------------------------------------------------------------------------- formatting -------
+def test_format_value_and_verdicts(demo_pt):
+    assert format_value(0.0034649085, 4.759e-05) == "0.003465 \u00b1 0.000048"
+    assert format_value(288.6, 3.96) == "288.6 \u00b1 4.0"
+    assert format_value(12346.0, 678.0) == "12350 \u00b1 680"
+    assert format_value(float("nan"), 1.0) == "n/a"
+    assert format_value(2.5) == "2.5"
+    kind, text = verdict_message(demo_pt)
+    assert kind == "success" and format_value(demo_pt.Q) in text
+    for verdict, expected in (("poor", "warning"), ("model rejected", "danger"),
+                              ("untested (no degrees of freedom)", "info")):
+        import dataclasses
+
+        assert verdict_message(dataclasses.replace(demo_pt, verdict=verdict))[0] == expected
+    frame = parameter_frame(demo_pt, (192, 256))
+    assert "full frame (256 \u00d7 192 px)" in frame.iloc[-1]["value"]
+    assert "from the manifest" in frame[frame["symbol"] == "b\u2080"].iloc[0]["value"]
+
+
+# ------------------------------------------------------------------------- plot functions ---
+def _elements(overlay: hv.Overlay, kind: type) -> list:
+    return [el for el in overlay if type(el) is kind]
+
+
+def test_transfer_plot_band_line_and_points(healey94):
+    pt = photon_transfer(healey94, exclude_levels=[2])
+    overlay = ptc_plots.transfer_plot(pt.points, pt)
+    (band,) = _elements(overlay, hv.Spread)
+    mu = band.dimension_values("mu")
+    value, std = pt.fit.predict(mu)
+    # the band is exactly LineFit.predict: centre the line, half-width its std
+    np.testing.assert_array_equal(band.dimension_values("std"), std)
+    np.testing.assert_array_equal(band.dimension_values("var"), value)
+    assert mu.min() <= min(p.mu for p in pt.points) and mu.max() >= max(p.mu for p in pt.points)
+    (line,) = [c for c in _elements(overlay, hv.Curve)]
+    np.testing.assert_allclose(line.dimension_values("var"), pt.A * mu + pt.sigma_c2,
+                               rtol=1e-12)
+    used, excluded = _elements(overlay, hv.Scatter)
+    assert list(used.dimension_values("level")) == [1, 3, 4, 5, 6, 7, 8]
+    assert list(excluded.dimension_values("level")) == [2]
+    assert list(excluded.dimension_values("reason")) == ["excluded by user"]
+    bars_used, bars_excluded = _elements(overlay, hv.ErrorBars)
+    np.testing.assert_array_equal(bars_used.dimension_values("var_err"),
+                                  [p.var_err for p in pt.points if p.used])
+    # without a fit: points only
+    bare = ptc_plots.transfer_plot(pt.points)
+    assert not _elements(bare, hv.Spread) and not _elements(bare, hv.Curve)
+    hv.render(overlay)  # builds a bokeh figure
+
+
+def test_residual_and_loglog_plots(healey94):
+    pt = photon_transfer(healey94)
+    res = ptc_plots.residual_plot(pt)
+    (used,) = _elements(res, hv.Scatter)  # every level used: no hollow layer
+    expected = [(p.var - (pt.A * p.mu + pt.sigma_c2)) / p.var_err for p in pt.points]
+    np.testing.assert_allclose(used.dimension_values("residual"), expected, rtol=1e-9)
+    lines = sorted(h.data for h in _elements(res, hv.HLine))
+    assert lines == [-3, -1, 0, 1, 3]
+    log = ptc_plots.loglog_plot(pt.points, pt)
+    (pts,) = _elements(log, hv.Scatter)
+    np.testing.assert_allclose(pts.dimension_values("sigma"),
+                               [math.sqrt(p.var) for p in pt.points])
+    model, floor, shot = _elements(log, hv.Curve)
+    grid = model.dimension_values("mu")
+    np.testing.assert_allclose(model.dimension_values("sigma") ** 2,
+                               pt.A * grid + pt.sigma_c2, rtol=1e-12)
+    np.testing.assert_allclose(floor.dimension_values("sigma"), math.sqrt(pt.sigma_c2))
+    np.testing.assert_allclose(shot.dimension_values("sigma") ** 2, pt.A * grid, rtol=1e-12)
+    assert log.opts.get().kwargs["logx"] and log.opts.get().kwargs["logy"]
+    hv.render(res)
+    hv.render(log)
+
+
+def test_roi_box_follows_pixel_edges():
+    box = ptc_plots.roi_box(10, 20, 64, 32)
+    assert list(box.array()[0]) == [9.5, 19.5, 73.5, 51.5]
