@@ -67,7 +67,7 @@ class AppShell(param.Parameterized):
         self.buttons: dict[str, pn.widgets.Button] = {}
         rows = []
         for spec in PAGES:
-            button = pn.widgets.Button(name=f"{spec.icon}  {spec.title}", button_type="light",
+            button = pn.widgets.Button(label=f"{spec.icon}  {spec.title}", color="light",
                                        sizing_mode="stretch_width", stylesheets=[_NAV_CSS],
                                        margin=(2, 4))
             button.on_click(partial(self._go, spec.slug))
@@ -76,7 +76,7 @@ class AppShell(param.Parameterized):
                 rows.append(button)
             else:
                 badge = pn.pane.HTML("<span class='ccd-badge' title='planned, not built yet'>"
-                                     "coming</span>", width=70, margin=(8, 4),
+                                     "coming</span>", width=70, height=24, margin=(8, 4),
                                      stylesheets=[_CSS], sizing_mode="fixed")
                 rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
         self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
@@ -96,13 +96,13 @@ class AppShell(param.Parameterized):
     @param.depends("page", watch=True)
     def _show(self) -> None:
         for slug, button in self.buttons.items():
-            button.button_type = "primary" if slug == self.page else "light"
+            button.color = "primary" if slug == self.page else "light"
         self.main.objects = [self.page_view(self.page)]
 
 
 def _session_header(path: str, status: str, busy: bool) -> str:
     if busy:
-        text = "opening\u2026"
+        text = html.escape(status or "working\u2026")
     elif path:
         text = f"Session: <code>{html.escape(Path(path).name)}</code> " \
                f"<span style='opacity:0.75'>{html.escape(path)}</span>"
@@ -138,8 +138,15 @@ def create_app(session_path: str | Path | None = None, *,
     state = AppState(allowed_roots=roots)
     shell = AppShell(state)
 
+    # Panel's own busy indicator is shared by every browser session of the server (a global
+    # list), so one session's events would change another session's document without its lock;
+    # each session gets a spinner bound to its own state instead.
     template = pn.template.BootstrapTemplate(
-        title=TITLE, sidebar_width=250, header_background="#1f3b57", header_color="#ffffff")
+        title=TITLE, sidebar_width=250, header_background="#1f3b57", header_color="#ffffff",
+        busy_indicator=None)
+    template.header.append(pn.indicators.LoadingSpinner(
+        value=state.param.busy, width=22, height=22, color="light", bgcolor="dark",
+        margin=(14, 4, 0, 10), sizing_mode="fixed", css_classes=["ccd-busy"]))
     template.header.append(pn.pane.HTML(
         pn.bind(_session_header, state.param.session_path, state.param.status,
                 state.param.busy),
@@ -157,11 +164,15 @@ def create_app(session_path: str | Path | None = None, *,
 
     if session_path is not None:
         path = str(session_path)
+        doc = pn.state.curdoc
+        if doc is None or doc.session_context is None:
+            state.load(path)          # not served (a script or a test): open it now
+        else:
 
-        async def _initial_load() -> None:
-            await state.load_async(path)
+            async def _initial_load() -> None:  # served: the page shows first, then progress
+                await state.load_async(path)
 
-        pn.state.onload(_initial_load)
+            pn.state.onload(_initial_load)
     return template
 
 

@@ -24,7 +24,7 @@ def coming_page(spec: PageSpec) -> pn.Column:
                          css_classes=["ccd-page-title"]),
         pn.pane.Alert(f"**Not built yet.** This page is planned: {spec.planned}",
                       alert_type="info", sizing_mode="stretch_width"),
-        pn.pane.Markdown("Until it lands, the same analysis is not available in the app; "
-                         "open and check your session on the **Session** page."),
+        pn.pane.Markdown("Meanwhile, open and check your capture session on the **Session** "
+                         "page: the frames this page will need are listed there by role."),
         name=spec.title, sizing_mode="stretch_width", css_classes=["ccd-coming"],
     )

@@ -129,6 +129,7 @@ class SessionPage(pn.viewable.Viewer):
         self._shown: FrameRecord | None = None    # its record
         self._plane: np.ndarray | None = None     # its shown channel (2-D)
         self._frame_request = 0                   # newest preview request (older ones drop)
+        self._layout: pn.Column | None = None
         self._build_open_widgets()
         self._build_session_widgets()
         self._build_preview_widgets()
@@ -142,21 +143,24 @@ class SessionPage(pn.viewable.Viewer):
     def _build_open_widgets(self) -> None:
         demos = demo_sessions()
         self.demo_select = pn.widgets.Select(
-            name="Bundled demo session", options=list(demos), width=220,
-            value=next(iter(demos), None), disabled=not demos)
+            label="Bundled demo session", options=list(demos), width=220,
+            value="healey94" if "healey94" in demos else next(iter(demos), None),
+            disabled=not demos, css_classes=["ccd-demo"])
         self.open_demo_button = pn.widgets.Button(
-            name="Open demo", button_type="primary", disabled=not demos, align="end")
+            label="Open demo", color="primary", disabled=not demos, align="end",
+            width=140, sizing_mode="fixed")
         self.path_input = pn.widgets.TextInput(
-            name="Session folder, session.toml, folder of images or EMVA1288 descriptor",
+            label="Session folder, session.toml, folder of images or EMVA1288 descriptor",
             placeholder="/path/to/session", sizing_mode="stretch_width", min_width=300)
-        self.open_path_button = pn.widgets.Button(name="Open", button_type="primary",
-                                                  align="end")
+        self.open_path_button = pn.widgets.Button(label="Open", color="primary",
+                                                  align="end", width=140, sizing_mode="fixed")
         roots = {self._root_label(r): str(r) for r in self.state.allowed_roots if r.is_dir()}
-        self.root_select = pn.widgets.Select(name="Browse in", options=roots, width=320)
+        self.root_select = pn.widgets.Select(label="Browse in", options=roots, width=320)
         self.file_selector = self._file_selector(self.root_select.value)
         self.browse_holder = pn.Column(self.file_selector, sizing_mode="stretch_width")
-        self.open_selected_button = pn.widgets.Button(name="Open selected", button_type="primary")
-        self.progress = pn.indicators.Progress(name="Working", active=False, visible=False,
+        self.open_selected_button = pn.widgets.Button(label="Open selected", color="primary",
+                                                      width=140, sizing_mode="fixed")
+        self.progress = pn.indicators.Progress(active=False, visible=False,
                                                value=-1, bar_color="primary",
                                                sizing_mode="stretch_width", height=12)
         self.status_pane = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
@@ -194,16 +198,16 @@ class SessionPage(pn.viewable.Viewer):
                                          scroll=True, css_classes=["ccd-problems"])
         self.groups_table = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=True, show_index=False,
-            sizing_mode="stretch_width", layout="fit_data_stretch", selectable=False,
-            name="groups")
+            sizing_mode="stretch_width", layout="fit_data_stretch", selectable=False)
         self.frames_table = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=True, show_index=False, pagination="remote",
             page_size=PAGE_SIZE, selectable=1, sizing_mode="stretch_width",
-            layout="fit_data_stretch", name="frames", header_filters=False)
+            layout="fit_data_stretch", header_filters=False)
         self.frames_table.param.watch(self._on_table_selection, "selection")
         self.inferred_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.draft_button = pn.widgets.Button(
-            name=f"Write manifest draft ({DRAFT_NAME})", button_type="success")
+            label=f"Write manifest draft ({DRAFT_NAME})", color="success", width=300,
+            sizing_mode="fixed")
         self.draft_button.on_click(self._on_draft)
         self.draft_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.draft_card = pn.Card(
@@ -215,15 +219,17 @@ class SessionPage(pn.viewable.Viewer):
 
     def _build_preview_widgets(self) -> None:
         self.frame_select = pn.widgets.Select.from_param(
-            self.param.frame, name="Frame", sizing_mode="stretch_width")
+            self.param.frame, label="Frame", sizing_mode="stretch_width")
         self.param.watch(self._on_frame, "frame")
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
-            self.param.channel, name="Channel", visible=False, button_type="default")
+            self.param.channel, label="Channel", visible=False, color="primary",
+            css_classes=["ccd-channel"])
         self.param.watch(self._on_channel, "channel")
         self.clim_slider = pn.widgets.EditableRangeSlider(
-            name="Colour range (DN)", start=0, end=1, value=(0, 1), step=1,
-            sizing_mode="stretch_width")
-        self.auto_button = pn.widgets.Button(name="Auto (0.5\u201399.5 %)", align="end")
+            label="Colour range (DN)", start=0, end=1, value=(0, 1), step=1,
+            sizing_mode="stretch_width", css_classes=["ccd-clim"])
+        self.auto_button = pn.widgets.Button(label="Auto (0.5\u201399.5 %)", align="end",
+                                             width=150, sizing_mode="fixed")
         self.auto_button.on_click(self._on_auto)
         self.frame_info = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.readout = pn.pane.Markdown("Move the cursor over the image to read pixel values.",
@@ -244,6 +250,12 @@ class SessionPage(pn.viewable.Viewer):
 
     # ================================================================== layout =============
     def __panel__(self) -> pn.viewable.Viewable:
+        """The page layout (built once, so leaving and revisiting the page keeps it as is)."""
+        if self._layout is None:
+            self._layout = self._build_layout()
+        return self._layout
+
+    def _build_layout(self) -> pn.Column:
         open_card = pn.Card(
             pn.Row(self.demo_select, self.open_demo_button),
             pn.Row(self.path_input, self.open_path_button, sizing_mode="stretch_width"),
@@ -457,8 +469,8 @@ class SessionPage(pn.viewable.Viewer):
             hi = lo + 1.0
         integer = plane.dtype.kind in "iu"
         clim = plots.auto_clim(plane)
-        self.clim_slider.param.update(start=lo, end=hi, step=1 if integer else (hi - lo) / 1000,
-                                      value=(max(lo, clim[0]), min(hi, clim[1])))
+        self.clim_slider.param.update(start=lo, end=hi, step=1 if integer else (hi - lo) / 1000)
+        self._set_clim((max(lo, clim[0]), min(hi, clim[1])))
         channel = "" if plane is array else f", channel {self.channel}"
         self.frame_info.object = (
             f"{_code(rec.relpath)} \u2014 {rec.role}"
@@ -490,7 +502,19 @@ class SessionPage(pn.viewable.Viewer):
             return
         lo, hi = plots.auto_clim(self._plane)
         start, end = self.clim_slider.start, self.clim_slider.end
-        self.clim_slider.value = (max(start, lo), min(end, hi))
+        self._set_clim((max(start, lo), min(end, hi)))
+
+    def _set_clim(self, clim: tuple[float, float]) -> None:
+        """Set the colour range in two steps, widening first.
+
+        The editable slider's browser side clamps a new lower value to the *current* upper value
+        (and vice versa), so going straight from (0, 1) to (8, 14) would arrive as (1, 14).
+        """
+        old_lo, old_hi = self.clim_slider.value
+        wide = (min(old_lo, clim[0]), max(old_hi, clim[1]))
+        if wide != tuple(clim):
+            self.clim_slider.value = wide
+        self.clim_slider.value = tuple(clim)
 
     # ============================================================ helpers for tests ========
     @property

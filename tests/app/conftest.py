@@ -173,3 +173,16 @@ def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
 
     yield start
     pn.state.kill_all_servers()
+
+
+@pytest.fixture
+def open_app(page) -> Callable[[str], None]:
+    """``open_app(url)``: load the app and wait until its websocket is connected and the document
+    is idle. Widgets are drawn from the page's HTML before the connection opens; a click or a
+    choice made earlier can be lost, so interact only after this returns."""
+
+    def go(url: str, timeout: float = 30_000) -> None:
+        with page.expect_console_message(lambda m: "document idle" in m.text, timeout=timeout):
+            page.goto(url)
+
+    return go

@@ -13,12 +13,13 @@ def _outside(requests: list[str]) -> list[str]:
             and not u.startswith(("data:", "blob:", "about:"))]
 
 
-def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, serve_app, healey94):
+def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, serve_app, open_app,
+                                                                  healey94):
     requests: list[str] = []
     page.on("request", lambda r: requests.append(r.url))
     url = serve_app(healey94)
     page.set_viewport_size({"width": 1400, "height": 1000})
-    page.goto(url)
+    open_app(url)
 
     # the groups and per-frame metadata tables
     expect(page.get_by_text("Loaded healey94")).to_be_visible(timeout=TIMEOUT)
@@ -55,10 +56,10 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
     assert _outside(requests) == []
 
 
-def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app, tmp_path,
-                                                           healey94):
+def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app, open_app,
+                                                           tmp_path, healey94):
     url = serve_app(None, allowed_roots=[tmp_path, healey94.parent])
-    page.goto(url)
+    open_app(url)
     box = page.get_by_placeholder("/path/to/session")
     expect(box).to_be_visible(timeout=TIMEOUT)
     box.fill(str(tmp_path / "no-such-session"))
@@ -73,9 +74,61 @@ def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app
     expect(alert).to_be_hidden()
 
 
-def test_coming_pages_are_marked_and_honest(page: Page, serve_app):
+def test_coming_pages_are_marked_and_honest(page: Page, serve_app, open_app):
     url = serve_app(None)
-    page.goto(url)
+    open_app(url)
     expect(page.get_by_text("coming").first).to_be_visible(timeout=TIMEOUT)
     page.get_by_role("button", name=re.compile("Change detection")).click()
     expect(page.get_by_text("Not built yet.", exact=True)).to_be_visible(timeout=TIMEOUT)
+
+
+def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_app, open_app,
+                                                            assets):
+    """RGB frames: channel buttons, the auto colour range reaches the browser intact, and the
+    hover tooltip shows the exact DN of the pixel under the cursor."""
+    import numpy as np
+
+    from app import plots
+    from ccdcore.session import open_session
+
+    url = serve_app(None)
+    page.set_viewport_size({"width": 1400, "height": 1000})
+    open_app(url)
+    page.locator(".ccd-demo select").select_option("change")
+    page.get_by_role("button", name="Open demo").click()
+    expect(page.get_by_text("Loaded change")).to_be_visible(timeout=TIMEOUT)
+
+    session = open_session(assets / "change")
+    first = session.frames[0]
+    red = plots.channel_data(session.read(first), "R")
+    red_button = page.locator(".ccd-channel").get_by_role("button", name="R", exact=True)
+    expect(red_button).to_be_visible(timeout=TIMEOUT)
+    red_button.click()
+    expect(page.get_by_text(re.compile(r"channel R; min \d+, max \d+"))).to_be_visible(
+        timeout=TIMEOUT)
+
+    # the editable range shows the 0.5-99.5 % range of the R plane (not clamped on the way)
+    lo, hi = plots.auto_clim(red)
+    inputs = page.locator(".ccd-clim input")
+    expect(inputs.nth(0)).to_have_value(f"{lo:.1f}", timeout=TIMEOUT)
+    expect(inputs.nth(1)).to_have_value(f"{hi:.1f}", timeout=TIMEOUT)
+
+    # the bokeh hover tooltip: x, y and the DN of that pixel of the R plane
+    page.wait_for_timeout(1500)  # let the re-rendered plot settle before moving the mouse
+    canvas = page.locator(".ccd-image canvas").first
+    canvas.scroll_into_view_if_needed()
+    page.wait_for_timeout(500)
+    box = canvas.bounding_box()
+    assert box is not None
+    tooltip = page.locator(".bk-tooltip-content").filter(has_text="DN")
+    for dx in (0.35, 0.45, 0.55):
+        page.mouse.move(box["x"] + box["width"] * dx, box["y"] + box["height"] * 0.5)
+        page.wait_for_timeout(300)
+    expect(tooltip.first).to_be_visible(timeout=TIMEOUT)
+    text = tooltip.first.inner_text()
+    m = re.search(r"x:\s*(\d+)\s*y:\s*(\d+)\s*DN:\s*([\d.]+)", text)
+    assert m, text
+    x, y, dn = int(m[1]), int(m[2]), float(m[3])
+    # at this zoom a screen pixel is smaller than a frame pixel: the value is the pixel's own
+    assert dn == float(red[y, x]), (x, y, dn, red[y - 1:y + 2, x - 1:x + 2])
+    assert np.issubdtype(red.dtype, np.integer)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import math
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -241,8 +242,6 @@ def test_format_value_and_verdicts(demo_pt):
     assert kind == "success" and format_value(demo_pt.Q) in text
     for verdict, expected in (("poor", "warning"), ("model rejected", "danger"),
                               ("untested (no degrees of freedom)", "info")):
-        import dataclasses
-
         assert verdict_message(dataclasses.replace(demo_pt, verdict=verdict))[0] == expected
     frame = parameter_frame(demo_pt, (192, 256))
     assert "full frame (256 \u00d7 192 px)" in frame.iloc[-1]["value"]

@@ -1,0 +1,383 @@
+"""Pure plot-building functions of the Maps page (no widgets, no state).
+
+The maps come straight from ccdcore's result objects (:class:`ccdcore.darkframe.DarkReference`,
+:class:`ccdcore.fixedpattern.FixedPattern`); nothing here estimates anything, it only arranges
+arrays for display. Every function returns a HoloViews element, a layout or plain numbers, so the
+pipeline is tested without a browser.
+
+Public objects
+--------------
+MapLayer
+    One inspectable map: key, title, symbol, unit, the (H, W) data, colour map and kind.
+MAP_TITLES
+    Map key -> title, in display order.
+map_layers(dark=None, fixed_pattern=None)
+    Every map the results allow: D̂_D, its temporal variance, K̂, K̂'s error, n'_1, rejected
+    configurations, hot/dead flags.
+default_clim(layer)
+    The colour range a map opens with (0.5–99.5 % percentiles; symmetric about 1 for K̂; the
+    category range for flags).
+map_image(layer), map_view(layer, clim=None)
+    ``hv.Image`` of a map and its rasterised, zoomable view in the map's colour map.
+map_grid(views, cols=2)
+    The maps in one ``hv.Layout`` whose plots share (link) their x and y axes.
+crosshair(row, col)
+    Lines marking the profile row and column on a map.
+row_profile(layer, row), column_profile(layer, col)
+    ``hv.Curve`` of one row / one column of a map.
+pixel_values(layers, x, y)
+    The value of every map at a cursor position (for the readout line).
+scaled_uint16(data, clim)
+    A map scaled to a colour range as 16-bit grey levels (0 at ``clim[0]``, 65535 at ``clim[1]``).
+scene_fit_plot(variations)
+    Fig. 3 of Healey & Kondepudy 1994: σ̂²_D − σ̂²_KN against μ̂²_D per patch with the fitted
+    lines V_S·μ̂²_D (eq. 57).
+budget_plot(budget)
+    Fig. 4: the fractions of the variance of an uncorrected region against intensity, stacked.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import holoviews as hv
+import numpy as np
+from holoviews.operation.datashader import rasterize
+from numpy.typing import NDArray
+
+from . import plots
+
+__all__ = ["MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
+           "map_image", "map_view", "map_grid", "crosshair", "row_profile", "column_profile",
+           "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
+
+#: map key -> title, in display order
+MAP_TITLES: dict[str, str] = {
+    "dark": "Dark reference D\u0302_D",
+    "dark_var": "Dark temporal variance \u03c3\u00b2_N",
+    "K": "Fixed pattern K\u0302",
+    "K_err": "K\u0302 error \u221avar[K\u0302]",
+    "n1_used": "Slopes kept n'_1",
+    "n_rejected": "Rejected configurations n1 \u2212 n'_1",
+    "flags": "Hot / dead pixels",
+}
+
+#: flag value -> label and colour of the hot/dead map (0 = normal)
+FLAG_LABELS: dict[int, str] = {0: "normal", 1: "hot", 2: "dead"}
+FLAG_COLORS: tuple[str, ...] = ("#e9ecef", "#d62728", "#1f4e9c")
+
+#: colours of the variance-budget components (Fig. 4), in BUDGET_COMPONENTS order
+BUDGET_COLORS: dict[str, str] = {"dark spatial": "#7f7f7f", "sigma_C^2": "#9467bd",
+                                 "shot noise": "#2ca02c", "K variation": "#ff7f0e",
+                                 "scene": "#1f77b4"}
+_BUDGET_LABELS = {"dark spatial": "dark spatial", "sigma_C^2": "\u03c3\u00b2_C",
+                  "shot noise": "shot noise", "K variation": "K variation",
+                  "scene": "scene V_S"}
+
+
+@dataclass(frozen=True, eq=False)
+class MapLayer:
+    """One map of the Maps page.
+
+    Attributes
+    ----------
+    key
+        Short name (a key of :data:`MAP_TITLES`; also the export file's base name).
+    title
+        Title shown above the map.
+    symbol
+        Value dimension name (hover label, histogram axis), e.g. ``"K\u0302"``.
+    unit
+        Unit of the values (``"DN"``, ``"DN\u00b2"``, ``""``).
+    data
+        The (H, W) values, float32 or float64 as ccdcore returned them (flags: 0/1/2).
+    cmap
+        Colour map name or list of colours.
+    kind
+        ``"value"``, ``"diverging"`` (centred on ``centre``), ``"count"`` or ``"flags"``.
+    centre
+        Centre of a diverging map (1 for K̂).
+    note
+        One line saying what the map is (paper equation, rule).
+    """
+
+    key: str
+    title: str
+    symbol: str
+    unit: str
+    data: NDArray
+    cmap: Any = "gray"
+    kind: str = "value"
+    centre: float = 0.0
+    note: str = ""
+
+    @property
+    def label(self) -> str:
+        """``symbol (unit)`` for axes."""
+        return f"{self.symbol} ({self.unit})" if self.unit else self.symbol
+
+    @property
+    def integer(self) -> bool:
+        return self.kind in ("count", "flags")
+
+
+def map_layers(dark: Any = None, fixed_pattern: Any = None) -> dict[str, MapLayer]:
+    """Every map the results allow, keyed as :data:`MAP_TITLES` and in that order.
+
+    Parameters
+    ----------
+    dark
+        A :class:`~ccdcore.darkframe.DarkReference` (or ``None``): D̂_D, its temporal variance
+        σ̂²_N (sec. V-A, eq. 43) and the hot/dead flags.
+    fixed_pattern
+        A :class:`~ccdcore.fixedpattern.FixedPattern` (or ``None``): K̂ (eq. 49), its per-pixel
+        error √var[K̂], n'_1 and the rejected-configuration count n1 − n'_1.
+    """
+    out: dict[str, MapLayer] = {}
+    if dark is not None:
+        out["dark"] = MapLayer("dark", MAP_TITLES["dark"], "D\u0302_D", "DN", dark.mean_map,
+                               "gray", note=f"mean of s = {dark.s} dark frames (sec. V-A)")
+        out["dark_var"] = MapLayer("dark_var", MAP_TITLES["dark_var"], "\u03c3\u00b2_N", "DN\u00b2",
+                                   dark.var_map, "viridis",
+                                   note="per-pixel temporal sample variance (eq. 43), ddof = 1")
+    if fixed_pattern is not None:
+        fp = fixed_pattern
+        out["K"] = MapLayer("K", MAP_TITLES["K"], "K\u0302", "", fp.K, "RdBu_r",
+                            kind="diverging", centre=1.0,
+                            note="eq. 49: mean of the slopes kept inside "
+                                 "centre \u00b1 p\u00b7\u03c3\u0302")
+        if fp.K_var is not None:
+            out["K_err"] = MapLayer("K_err", MAP_TITLES["K_err"], "\u03c3(K\u0302)", "",
+                                    np.sqrt(fp.K_var), "viridis",
+                                    note="std error of the mean of the kept slopes "
+                                         "(FixedPattern.K_var)")
+        out["n1_used"] = MapLayer("n1_used", MAP_TITLES["n1_used"], "n'_1", "",
+                                  fp.n1_used.astype(np.float32), "viridis", kind="count",
+                                  note=f"of n1 = {fp.n1} configurations (eq. 49)")
+        out["n_rejected"] = MapLayer("n_rejected", MAP_TITLES["n_rejected"], "rejected", "",
+                                     (fp.n1 - fp.n1_used).astype(np.float32), "inferno",
+                                     kind="count",
+                                     note=f"slopes outside centre "
+                                          f"\u00b1 {fp.p:g}\u00b7\u03c3\u0302")
+    if dark is not None:
+        flags = np.where(dark.dead_mask, 2, np.where(dark.hot_mask, 1, 0)).astype(np.float32)
+        out["flags"] = MapLayer("flags", MAP_TITLES["flags"], "flag", "", flags,
+                                list(FLAG_COLORS), kind="flags",
+                                note="0 normal, 1 hot, 2 dead (rules of dark_reference)")
+    return out
+
+
+def default_clim(layer: MapLayer) -> tuple[float, float]:
+    """The colour range a map opens with.
+
+    Values: the 0.5–99.5 % percentiles (:func:`app.plots.auto_clim`); diverging maps: the same
+    made symmetric about ``layer.centre`` (so 1 is white for K̂); counts: their integer range
+    (± 0.5); flags: the three categories.
+    """
+    if layer.kind == "flags":
+        return (-0.5, 2.5)
+    data = layer.data
+    if layer.kind == "count":
+        finite = data[np.isfinite(data)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+        return (lo - 0.5, hi + 0.5)
+    lo, hi = plots.auto_clim(data)
+    if layer.kind == "diverging":
+        half = max(abs(lo - layer.centre), abs(hi - layer.centre)) or 0.5
+        return (layer.centre - half, layer.centre + half)
+    return (lo, hi)
+
+
+def map_image(layer: MapLayer) -> hv.Image:
+    """``hv.Image`` of a map in pixel coordinates (x = column, y = row), see
+    :func:`app.plots.image_element`."""
+    return plots.image_element(layer.data, label=layer.title, vdim=layer.symbol)
+
+
+def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
+             dynamic: bool = True, frame_width: int | None = None) -> hv.DynamicMap:
+    """The rasterised, zoomable view of a map in its colour map, with a hover tool.
+
+    Values are rasterised with the mean of the pixels under a screen pixel
+    (:func:`app.plots.rasterized_image`); counts and flags with their maximum, so a single hot
+    pixel or rejected slope stays visible when a large map is zoomed out. With ``frame_width``
+    the plot has that fixed width (and the map's aspect) instead of stretching (plots in a
+    layout grid need a fixed size).
+    """
+    image = map_image(layer)
+    clim = default_clim(layer) if clim is None else clim
+    if layer.kind in ("count", "flags"):
+        (x0, x1), (y0, y1) = image.range("x"), image.range("y")
+        aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
+        view = rasterize(image, dynamic=dynamic, aggregator="max").opts(
+            colorbar=True, tools=["hover"], invert_yaxis=True, aspect=aspect, responsive=True,
+            xlabel="x (column)", ylabel="y (row)",
+            hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (layer.symbol, "@image")],
+            default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
+            active_tools=["wheel_zoom"])
+    else:
+        view = plots.rasterized_image(image, dynamic=dynamic)
+    opts: dict[str, Any] = dict(cmap=layer.cmap, title=layer.title,
+                                clim=tuple(float(c) for c in clim), clabel=layer.label)
+    if frame_width is not None:
+        (x0, x1), (y0, y1) = image.range("x"), image.range("y")
+        frame_height = frame_width * (y1 - y0) / max(x1 - x0, 1e-9)
+        # plot size = frame + axes, title and colour bar (a fixed frame_width with an aspect
+        # is laid out at zero size inside nested stretching Panel layouts)
+        opts.update(responsive=False, aspect=None, data_aspect=None,
+                    width=int(frame_width) + 150, height=int(frame_height) + 80)
+    if layer.kind == "flags":
+        from bokeh.models import FixedTicker
+
+        opts.update(color_levels=3, colorbar_opts={
+            "ticker": FixedTicker(ticks=[0, 1, 2]),
+            "major_label_overrides": {0: "normal", 1: "hot", 2: "dead"}})
+    return view.opts(**opts)
+
+
+def map_grid(views: Sequence[Any], cols: int = 2) -> hv.Layout:
+    """The map views in one layout whose plots share their x and y axes (linked zoom and pan).
+
+    HoloViews links the axes of plots in a layout whose key dimensions are the same (here x and
+    y in pixels); ``shared_axes=True`` states it explicitly.
+    """
+    layout = hv.Layout(list(views)).cols(max(1, min(cols, len(views))))
+    return layout.opts(shared_axes=True, merge_tools=True)
+
+
+def crosshair(row: int, col: int) -> hv.Overlay:
+    """A horizontal line at ``row`` and a vertical line at ``col`` (the profiles' position)."""
+    style = dict(color="#00c853", line_width=1, line_dash="dashed", alpha=0.9)
+    return hv.HLine(float(row)).opts(**style) * hv.VLine(float(col)).opts(**style)
+
+
+def row_profile(layer: MapLayer, row: int) -> hv.Curve:
+    """The values of ``row`` against the column x."""
+    row = int(np.clip(row, 0, layer.data.shape[0] - 1))
+    values = np.asarray(layer.data[row], dtype=np.float64)
+    curve = hv.Curve((np.arange(values.size), values), kdims=["x (column)"],
+                     vdims=[hv.Dimension(layer.symbol, label=layer.label)],
+                     label=f"row y = {row}")
+    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"],
+                      title=f"Row profile, y = {row}", color="#1f3b57", line_width=1,
+                      interpolation="steps-mid")
+
+
+def column_profile(layer: MapLayer, col: int) -> hv.Curve:
+    """The values of column ``col`` against the row y."""
+    col = int(np.clip(col, 0, layer.data.shape[1] - 1))
+    values = np.asarray(layer.data[:, col], dtype=np.float64)
+    curve = hv.Curve((np.arange(values.size), values), kdims=["y (row)"],
+                     vdims=[hv.Dimension(layer.symbol, label=layer.label)],
+                     label=f"column x = {col}")
+    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"],
+                      title=f"Column profile, x = {col}", color="#8c2d04", line_width=1,
+                      interpolation="steps-mid")
+
+
+def _format(value: float, layer: MapLayer) -> str:
+    if not math.isfinite(value):
+        return "NaN"
+    if layer.kind == "flags":
+        return FLAG_LABELS.get(int(value), f"{value:g}")
+    if layer.integer:
+        return f"{int(value)}"
+    if layer.kind == "diverging":
+        return f"{value:.5f}"
+    return f"{value:.4g}"
+
+
+def pixel_values(layers: Mapping[str, MapLayer], x: float | None, y: float | None
+                 ) -> tuple[int, int, dict[str, str]] | None:
+    """``(col, row, {key: formatted value})`` of every map at the cursor ``(x, y)``; ``None``
+    outside the maps (or without a position)."""
+    if x is None or y is None or not layers:
+        return None
+    col, row = int(round(x)), int(round(y))
+    shape = next(iter(layers.values())).data.shape
+    if not (0 <= row < shape[0] and 0 <= col < shape[1]):
+        return None
+    return col, row, {k: _format(float(l.data[row, col]), l) for k, l in layers.items()}
+
+
+def scaled_uint16(data: NDArray, clim: tuple[float, float]) -> NDArray[np.uint16]:
+    """``data`` scaled linearly so ``clim[0]`` -> 0 and ``clim[1]`` -> 65535, clipped, rounded;
+    non-finite values become 0. (What the PNG export writes: a picture of the map in the chosen
+    colour range, not its values.)"""
+    lo, hi = (float(c) for c in clim)
+    if not hi > lo:
+        raise ValueError(f"clim: need lo < hi, got {clim}")
+    a = np.asarray(data, dtype=np.float64)
+    scaled = np.clip((a - lo) / (hi - lo), 0.0, 1.0) * 65535.0
+    scaled = np.where(np.isfinite(scaled), scaled, 0.0)
+    return np.rint(scaled).astype(np.uint16)
+
+
+# -------------------------------------------------------------------------- scene (Figs. 3, 4)
+_PALETTE = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2",
+            "#17becf")
+
+
+def scene_fit_plot(variations: Mapping[str, Any]) -> hv.Overlay:
+    """Fig. 3: y = σ̂²_D − σ̂²_KN (− σ̂²_cal) against x = μ̂²_D, per patch, with error bars
+    √var_y and the fitted line V_S·x of eq. 57 (``ccdcore.scene.SceneVariation``).
+
+    Measurements left out of the fit (clipped pixels) are drawn as open markers.
+    """
+    layers = []
+    for i, (name, var) in enumerate(variations.items()):
+        color = _PALETTE[i % len(_PALETTE)]
+        ms = var.measurements
+        used = var.used or tuple(True for _ in ms)
+        x = np.array([m.mu_D ** 2 for m in ms])
+        y = np.array([m.y for m in ms])
+        err = np.sqrt(np.maximum([m.var_y for m in ms], 0.0))
+        levels = [m.level if m.level is not None else -1 for m in ms]
+        data = {"x": x, "y": y, "err": err, "level": levels, "used": list(used)}
+        kd, vd = [hv.Dimension("x", label="\u03bc\u0302\u00b2_D (DN\u00b2)")], \
+            [hv.Dimension("y", label="\u03c3\u0302\u00b2_D \u2212 "
+                                     "\u03c3\u0302\u00b2_KN (DN\u00b2)"),
+             "err", "level", "used"]
+        pts = hv.Scatter(data, kdims=kd, vdims=vd, label=f"{name}")
+        keep = pts.select(used=True) if not all(used) else pts
+        layers.append(hv.ErrorBars(data, kdims=kd, vdims=vd[:2]).opts(color=color,
+                                                                      line_width=1))
+        layers.append(keep.opts(color=color, size=7, tools=["hover"]))
+        if not all(used):
+            layers.append(pts.select(used=False).opts(color=color, size=7, fill_alpha=0,
+                                                      marker="circle"))
+        if math.isfinite(var.V_S) and x.size:
+            xs = np.linspace(0.0, float(x.max()) * 1.05, 50)
+            layers.append(hv.Curve((xs, var.V_S * xs), kdims=kd, vdims=vd[:1],
+                                   label=f"{name}: V_S = {var.V_S:.3e}").opts(
+                color=color, line_width=1.5, line_dash="dashed"))
+    if not layers:
+        return hv.Overlay([hv.Curve([])])
+    return hv.Overlay(layers).opts(
+        title="Scene variation: \u03c3\u0302\u00b2_D \u2212 \u03c3\u0302\u00b2_KN "
+              "= V_S\u00b7\u03bc\u0302\u00b2_D "
+              "(eq. 57, Fig. 3)",
+        legend_position="top_left", responsive=True, height=360, show_grid=True)
+
+
+def budget_plot(budget: Any) -> hv.Overlay:
+    """Fig. 4: the fractions of the variance of an uncorrected region against its mean,
+    stacked (``ccdcore.scene.VarianceBudget``)."""
+    from ccdcore.scene import BUDGET_COMPONENTS
+
+    mu = np.asarray(budget.mu, dtype=np.float64)
+    areas = []
+    kd = hv.Dimension("mu", label="region mean \u03bc (DN)")
+    for name in BUDGET_COMPONENTS:
+        frac = np.asarray(budget.fractions[name], dtype=np.float64)
+        areas.append(hv.Area((mu, frac), kdims=[kd],
+                             vdims=[hv.Dimension("fraction", label="fraction of the variance")],
+                             label=_BUDGET_LABELS.get(name, name)).opts(
+            color=BUDGET_COLORS.get(name, "#999999"), line_width=0, alpha=0.85))
+    stacked = hv.Area.stack(hv.Overlay(areas))
+    return stacked.opts(
+        hv.opts.Area(tools=["hover"]),
+        hv.opts.Overlay(title="Variance budget of an uncorrected region (Fig. 4)",
+                        legend_position="right", responsive=True, height=360,
+                        ylim=(0, 1), show_grid=True))

@@ -1,0 +1,988 @@
+"""The Maps page: dark and fixed-pattern maps, acquisition planning and scene variation.
+
+Healey & Kondepudy 1994: the dark reference D̂_D with hot/dead flags (sec. V-A), the
+fixed-pattern map K̂ with n'_1 and the rejected slopes (eqs. 45–50), the acquisition plan n1, n2
+(sec. V-B), the correction check (sec. VII-A) and the scene variation V_S with the variance budget
+(sec. VI, VII-B/C, Figs. 3 and 4).
+
+Public objects
+--------------
+MapsPage
+    The page (a :class:`panel.viewable.Viewer`) with three tabs:
+
+    * **Maps**: a grid of rasterised maps with linked zoom, the values of every map under the
+      cursor, a histogram per shown map, row and column profiles (tap a map or use the sliders),
+      colour range control and export of the selected map as EXR, FITS or 16-bit PNG; the
+      summary statistics and the correction check next to them.
+    * **Scene**: V_S ± error per patch and per light level, the eq. 57 fit (Fig. 3) and the
+      variance budget (Fig. 4) of a chosen patch.
+    * **Planning**: n1 and n2 from typed or estimated inputs, with their formulas.
+
+    Warnings that the session has fewer configurations or frames than the plan requires are shown
+    at the top of the page; missing frames give an info alert saying what to capture.
+create_page(state)
+    The registry entry point.
+dark_summary(dark), fixed_pattern_summary(fp), correction_summary(check)
+    The summary tables (DataFrames: quantity, this session, paper).
+scene_patch_frame(scene), scene_level_frame(variation)
+    The scene tables (DataFrames).
+export_bytes(layer, fmt, clim)
+    A map as the bytes of an EXR, FITS or 16-bit PNG file.
+max_intensity_frame(session)
+    The session's max-intensity scene frame (``note = "max-intensity"``) or ``None``.
+missing_frames(session)
+    What the session lacks for this page, as sentences saying what to capture.
+budget_inputs(dark, fp, noise, variation, bits)
+    The inputs of :func:`ccdcore.scene.variance_budget` for one patch.
+
+Every number comes from ccdcore: :func:`ccdcore.product.estimate_all` (the same estimates, with
+the same parameters, as ``calibrate()`` and the ``ccdcore calibrate`` verb),
+:func:`ccdcore.planning.plan_acquisition`, :func:`ccdcore.planning.check_session_plan`,
+:func:`ccdcore.fixedpattern.correction_check` and :func:`ccdcore.scene.variance_budget`.
+Results are shared with the other pages through ``state.results`` (``ptc``, ``dark``,
+``fixed_pattern``, ``plan``, ``scene``, plus ``correction_check``).
+"""
+from __future__ import annotations
+
+import html
+import io
+import logging
+import math
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import holoviews as hv
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+
+from ccdcore.errors import CcdError
+from ccdcore.fixedpattern import correction_check
+from ccdcore.io import write_image, write_map
+from ccdcore.planning import (DEFAULT_WORST_RATIO, N2_READINGS, check_session_plan,
+                              plan_acquisition)
+from ccdcore.product import estimate_all
+from ccdcore.scene import variance_budget
+
+from .. import map_plots, plots
+from ..map_plots import MapLayer
+from ..state import AppState
+
+__all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
+           "correction_summary", "scene_patch_frame", "scene_level_frame", "export_bytes",
+           "max_intensity_frame", "missing_frames", "budget_inputs", "PAPER_PLAN_INPUTS",
+           "DEFAULT_SHOWN", "EXPORT_FORMATS"]
+
+log = logging.getLogger(__name__)
+
+#: the paper's noise model and bit depth (sec. VII-A); σ̂ is not reported by the paper:
+#: 2.7e-3 is inside the interval (2.604e-3, 2.731e-3] that gives its n̂_1 = 11 (ccdcore.planning)
+PAPER_PLAN_INPUTS: dict[str, Any] = {"A": 0.003384, "sigma_c2": 1.1196, "bits": 8,
+                                     "sigma_hat": 2.7e-3, "p": 1.5,
+                                     "worst_ratio": DEFAULT_WORST_RATIO, "black_level": 0.0,
+                                     "n2_reading": "paper"}
+#: maps shown in the grid when they exist
+DEFAULT_SHOWN = ("K", "dark", "n_rejected", "flags")
+#: export format -> file extension
+EXPORT_FORMATS = {"exr": ".exr", "fits": ".fits", "png": ".png"}
+#: the note of the sec. VII-A maximum-intensity frame (as the healey94 simulator writes it)
+MAX_INTENSITY_NOTE = "max-intensity"
+
+_READINGS = {"paper (σ²_N/n2 ≤ 0.2 q², the literal text)": "paper",
+             "with the dark reference's error": "with_dark",
+             "difference-image variance 2σ²_N": "difference",
+             "requantised average (+ q²/12)": "requantised"}
+_READING_TEXT = {v: k for k, v in _READINGS.items()}
+
+_CSS = """
+.ccd-readout { font-family: var(--bs-font-monospace, monospace); font-size: 0.92em; }
+.ccd-big { font-size: 1.6em; font-weight: 600; color: #1f3b57; }
+.ccd-formula code { white-space: pre-wrap; }
+"""
+
+
+# ============================================================================ pure helpers ====
+def _fmt(value: Any, spec: str = ".4g") -> str:
+    if value is None:
+        return "—"
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if not math.isfinite(v):
+        return "—"
+    return format(v, spec)
+
+
+def _round(value: float, digits: int = 6) -> float:
+    """``value`` to ``digits`` significant digits (inputs a person can read)."""
+    return float(f"{float(value):.{digits}g}")
+
+
+def dark_summary(dark: Any) -> pd.DataFrame:
+    """The dark reference's statistics (from ``DarkReference.to_dict()``) beside the paper's
+    (sec. VII-A: mean 10.74, spatial std 0.555)."""
+    d = dark.to_dict()
+    rows = [
+        ("D̂_D mean (DN)", f"{_fmt(d['mean'], '.4f')} ± {_fmt(d['mean_sem'], '.2g')}", "10.74"),
+        ("D̂_D spatial std (DN)", _fmt(d["spatial_std"], ".4g"), "0.555"),
+        ("  without the averaging noise σ²_N/s", _fmt(d["spatial_std_signal"], ".4g"), ""),
+        ("dark frames averaged s", str(d["s"]), ""),
+        ("mean temporal variance σ²_N (DN²)", _fmt(d["noise_var"], ".4g"), ""),
+        ("hot pixels", str(d["n_hot"]), ""),
+        ("dead pixels", str(d["n_dead"]), ""),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
+
+
+def fixed_pattern_summary(fp: Any) -> pd.DataFrame:
+    """K̂'s statistics (from ``FixedPattern.to_dict()``) beside the paper's (sec. VII-A: mean
+    0.99998, spatial std 3.72e-3), with the eq. 50 bound and the measured error."""
+    d = fp.to_dict()
+    k_var = d.get("K_var_mean")
+    rows = [
+        ("K̂ mean", _fmt(d["mean"], ".6f"), "0.99998"),
+        ("K̂ spatial std", _fmt(d["spatial_std"], ".4g"), "3.72e-3"),
+        ("σ̂ (std of the slopes m_i)", _fmt(d["sigma_hat"], ".4g"), ""),
+        ("configurations n1 × frames n2", f"{d['n1']} × {d['n2']}", "20 × 20"),
+        ("n̂_1 = min n'_1", str(d["n1_hat"]), ""),
+        ("eq. 50 bound √((p·σ̂)²/n̂_1)", _fmt(d["sd_bound"], ".4g"), ""),
+        ("measured error √mean(var[K̂])", _fmt(math.sqrt(k_var) if k_var is not None else None,
+                                               ".4g"), ""),
+        ("pixels with a rejected slope",
+         f"{100 * d['fraction_pixels_with_rejection']:.1f} %", ""),
+        ("window m, rejection p", f"{d['window']}, {d['p']:g}", "9, 1.5"),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
+
+
+def correction_summary(check: Any) -> pd.DataFrame:
+    """The sec. VII-A correction check (``CorrectionCheck.to_dict()``) beside the paper's
+    (27 % of pixels changed by more than one quantisation step, 3 % by more than two, at most
+    five steps)."""
+    d = check.to_dict()
+    rows = [
+        ("pixels changed by > 1 q", f"{100 * d['frac_gt_1q']:.1f} %", "27 %"),
+        ("pixels changed by > 2 q", f"{100 * d['frac_gt_2q']:.1f} %", "3 %"),
+        ("  (of those > 1 q)", f"{100 * d['frac_gt_2q_of_gt_1q']:.1f} %", ""),
+        ("largest change (steps q)", _fmt(d["max_change_q"], ".3g"), "5"),
+        ("mean level above dark (DN)", _fmt(d["mean_level"], ".4g"), ""),
+    ]
+    return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
+
+
+def scene_patch_frame(scene: dict[str, Any]) -> pd.DataFrame:
+    """One row per patch: V_S ± error and the χ²/dof/Q of the eq. 57 fit."""
+    rows = []
+    for name, var in scene.items():
+        d = var.to_dict()
+        rows.append({"patch": name, "V_S": d["V_S"], "± err": d["V_S_err"],
+                     "χ²": d["chi2"], "dof": d["dof"], "Q": d["Q"],
+                     "levels used": f"{sum(var.used)} of {len(var.measurements)}"})
+    return pd.DataFrame(rows, columns=["patch", "V_S", "± err", "χ²", "dof", "Q",
+                                       "levels used"])
+
+
+def scene_level_frame(variation: Any) -> pd.DataFrame:
+    """One row per light level of a patch: μ̂_D, σ̂²_D, σ̂²_KN, σ̂²_cal, V_S ± error."""
+    rows = []
+    for m in variation.to_dict()["measurements"]:
+        rows.append({"level": m["level"], "frame": m["path"], "μ̂_D (DN)": m["mu_D"],
+                     "σ̂²_D (DN²)": m["var_D"], "σ̂²_KN (DN²)": m["sigma_KN2"],
+                     "σ̂²_cal (DN²)": m["sigma_cal2"], "V_S": m["V_S"], "± err": m["V_S_err"],
+                     "used": m["used"]})
+    return pd.DataFrame(rows, columns=["level", "frame", "μ̂_D (DN)", "σ̂²_D (DN²)",
+                                       "σ̂²_KN (DN²)", "σ̂²_cal (DN²)", "V_S", "± err", "used"])
+
+
+def export_bytes(layer: MapLayer, fmt: str, clim: tuple[float, float] | None = None) -> bytes:
+    """The bytes of ``layer`` written as a file.
+
+    ``"exr"`` and ``"fits"``: the float32 map (:func:`ccdcore.io.write_map`, bit-exact when read
+    back). ``"png"``: a 16-bit greyscale picture of the map scaled to ``clim`` (0 at its low end,
+    65535 at its high end, :func:`app.map_plots.scaled_uint16`), not the values themselves.
+    """
+    if fmt not in EXPORT_FORMATS:
+        raise ValueError(f"fmt: expected one of {', '.join(EXPORT_FORMATS)}, got {fmt!r}")
+    with tempfile.TemporaryDirectory(prefix="ccdcore-export-") as tmp:
+        path = Path(tmp) / f"{layer.key}{EXPORT_FORMATS[fmt]}"
+        if fmt == "png":
+            clim = map_plots.default_clim(layer) if clim is None else clim
+            write_image(path, map_plots.scaled_uint16(layer.data, clim))
+        else:
+            write_map(path, layer.data)
+        return path.read_bytes()
+
+
+def max_intensity_frame(session: Any) -> Any | None:
+    """The record of the session's maximum-intensity scene frame (sec. VII-A), if any."""
+    for rec in session.scenes():
+        if (getattr(rec, "note", None) or "").strip() == MAX_INTENSITY_NOTE:
+            return rec
+    return None
+
+
+def missing_frames(session: Any) -> list[str]:
+    """What the session lacks for the Maps page, each as a sentence saying what to capture."""
+    roles = session.roles()
+    out = []
+    if not roles.get("dark"):
+        out.append("**No dark frames**: capture lens-capped frames (role = `dark`, 16 or more, "
+                   "at the exposure of the other frames) for the dark reference D̂_D, the "
+                   "hot/dead flags and K̂ (sec. V-A).")
+    if not roles.get("fixed_pattern"):
+        out.append("**No fixed-pattern frames**: capture n1 configurations × n2 frames of a "
+                   "uniform card, moving card and lamp between configurations (role = "
+                   "`fixed_pattern`, config = 1 … n1) for K̂ (eqs. 45–50); the Planning tab "
+                   "says how many.")
+    if not roles.get("ptc"):
+        out.append("**No photon-transfer frames**: capture pairs of frames at several light "
+                   "levels (role = `ptc`, level = …) for the noise model A, σ²_C that the "
+                   "session's plan and V_S need; the Planning tab takes typed values meanwhile.")
+    if not roles.get("scene"):
+        out.append("**No scene frames**: image uniform surface patches at several light levels "
+                   "(role = `scene`, note = \"patch=NAME\" or an roi) for V_S (sec. VI), and a "
+                   "card at maximum intensity (note = \"max-intensity\") for the correction "
+                   "check (sec. VII-A).")
+    return out
+
+
+def budget_inputs(dark: Any, fp: Any, noise: Any, variation: Any, bits: int | None
+                  ) -> dict[str, Any]:
+    """Inputs of :func:`ccdcore.scene.variance_budget` for one patch (Fig. 4).
+
+    ``dark_spatial_var``: D̂_D's spatial variance without the averaging noise
+    (``DarkReference.spatial_std_signal²``); ``sigma_K2``: K̂'s spatial variance less its mean
+    estimation variance (``mean(FixedPattern.K_var)``), clamped at 0; ``V_S``: the patch's fit,
+    clamped at 0; black level from the noise model; μ from the dark mean to full scale.
+    """
+    full = float(2 ** int(bits) - 1) if bits else 255.0
+    k_var = float(np.mean(fp.K_var)) if fp.K_var is not None else 0.0
+    dark_sig = dark.spatial_std_signal
+    b0 = getattr(noise, "black_level_dn", None)
+    b0 = 0.0 if b0 is None or not math.isfinite(b0) else float(b0)
+    dbar = max(float(dark.mean), b0)
+    return {"mu": np.linspace(dbar, max(full, dbar + 1.0), 200),
+            "A": float(noise.A), "sigma_c2": max(float(noise.sigma_c2), 0.0),
+            "dark_spatial_var": dark_sig ** 2 if math.isfinite(dark_sig) else 0.0,
+            "sigma_K2": max(fp.spatial_std ** 2 - k_var, 0.0),
+            "V_S": max(float(variation.V_S), 0.0) if math.isfinite(variation.V_S) else 0.0,
+            "black_level": b0, "dark_mean": dbar}
+
+
+def _alert(text: str, kind: str, **kw: Any) -> pn.pane.Alert:
+    return pn.pane.Alert(text, alert_type=kind, visible=bool(text), sizing_mode="stretch_width",
+                         **kw)
+
+
+_STATS_CSS = """
+table { border-collapse: collapse; width: 100%; font-size: 0.86em; }
+th, td { padding: 3px 6px; border-bottom: 1px solid #dee2e6; text-align: left; }
+th { background: #f1f3f5; }
+td:nth-child(2), td:nth-child(3) { white-space: nowrap; }
+td:first-child, th:first-child { text-align: left !important; }
+"""
+
+
+def _stats_pane() -> pn.pane.DataFrame:
+    return pn.pane.DataFrame(pd.DataFrame(), index=False, escape=True, border=0,
+                             stylesheets=[_STATS_CSS], sizing_mode="stretch_width")
+
+
+def _display(df: pd.DataFrame) -> pd.DataFrame:
+    """A copy of ``df`` with floats as 4 significant digits (tables of small numbers)."""
+    out = df.copy()
+    for col in out.columns:
+        if out[col].dtype.kind == "f" or out[col].map(lambda v: isinstance(v, float)).any():
+            out[col] = out[col].map(lambda v: _fmt(v, ".4g") if isinstance(v, (float, int))
+                                    and not isinstance(v, bool) else v)
+    return out
+
+
+def _table(df: pd.DataFrame | None = None, **kw: Any) -> pn.widgets.Tabulator:
+    return pn.widgets.Tabulator(pd.DataFrame() if df is None else df, disabled=True,
+                                show_index=False, selectable=False, layout="fit_data_stretch",
+                                sizing_mode="stretch_width", **kw)
+
+
+# ================================================================================ the page ====
+class MapsPage(pn.viewable.Viewer):
+    """Dark and fixed-pattern maps, planning and scene variation (see the module docstring)."""
+
+    state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
+    auto_compute = param.Boolean(default=True, doc=(
+        "Compute the maps when the page is shown and the session has dark frames but no "
+        "maps yet."))
+
+    def __init__(self, state: AppState | None = None, **params: Any):
+        super().__init__(state=state if state is not None else AppState(), **params)
+        self._layers: dict[str, MapLayer] = {}
+        self._sliders: dict[str, pn.widgets.EditableRangeSlider] = {}
+        self._shown_objects: tuple = ()      # (dark, fp) the maps were built from
+        self._scene_object: Any = None
+        self._computing = False
+        self._quiet = False                   # True while the page sets its own widgets
+        self._notes: tuple[str, ...] = ()
+        self.plan_result: Any = None          # the planning panel's AcquisitionPlan
+        self._build_header()
+        self._build_maps_tab()
+        self._build_scene_tab()
+        self._build_planning_tab()
+        self._layout: pn.viewable.Viewable | None = None
+        self.state.param.watch(self._on_session, "session")
+        self.state.param.watch(self._on_results, "results")
+        self.state.param.watch(self._on_state_message, ["error", "status", "busy"])
+        self._on_session()
+        self._on_state_message()
+
+    # ====================================================================== building ========
+    def _build_header(self) -> None:
+        self.compute_button = pn.widgets.Button(
+            name="Compute maps", button_type="primary", width=170,
+            description="D̂_D, K̂, the acquisition plan and V_S from this session's frames "
+                        "(the same estimates as `ccdcore calibrate`)")
+        self.compute_button.on_click(self._on_compute)
+        self.status_pane = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(8, 10))
+        self.error_alert = _alert("", "danger", css_classes=["ccd-maps-error"])
+        self.plan_alert = _alert("", "warning", css_classes=["ccd-plan-warning"])
+        self.info_alert = _alert("", "info", css_classes=["ccd-maps-info"])
+
+    def _build_maps_tab(self) -> None:
+        self.shown_select = pn.widgets.MultiChoice(
+            name="Maps shown (linked zoom)", options={}, value=[], sizing_mode="stretch_width",
+            min_width=320)
+        self.shown_select.param.watch(self._on_shown, "value")
+        self.active_select = pn.widgets.Select(name="Selected map", options={}, width=280)
+        self.active_select.param.watch(self._on_active, "value")
+        self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
+        self.auto_button = pn.widgets.Button(name="Auto (0.5–99.5 %)", align="end", width=150)
+        self.auto_button.on_click(self._on_auto)
+        self.row_slider = pn.widgets.IntSlider(name="Profile row y", start=0, end=1, value=0,
+                                               sizing_mode="stretch_width")
+        self.col_slider = pn.widgets.IntSlider(name="Profile column x", start=0, end=1,
+                                               value=0, sizing_mode="stretch_width")
+        self.row_slider.param.watch(self._update_profiles, "value")
+        self.col_slider.param.watch(self._update_profiles, "value")
+        self.download_exr = pn.widgets.FileDownload(
+            callback=lambda: self._download("exr"), filename="map.exr", label="EXR",
+            button_type="default", embed=False, width=90,
+            description="The selected map as float32 OpenEXR (values, bit-exact)")
+        self.download_fits = pn.widgets.FileDownload(
+            callback=lambda: self._download("fits"), filename="map.fits", label="FITS",
+            button_type="default", embed=False, width=90,
+            description="The selected map as float32 FITS (values, bit-exact)")
+        self.download_png = pn.widgets.FileDownload(
+            callback=lambda: self._download("png"), filename="map.png", label="PNG",
+            button_type="default", embed=False, width=90,
+            description="A 16-bit greyscale picture of the selected map scaled to the current "
+                        "colour range (low end 0, high end 65535) — not the values")
+        # fixed size: the GridPlot's own (a stretching pane lays fixed-size plots out at zero
+        # size when nested in stretching columns)
+        self.grid_pane = pn.pane.HoloViews(None, sizing_mode="fixed", css_classes=["ccd-maps"],
+                                           linked_axes=False)
+        self.readout = pn.pane.Markdown(
+            "Move the cursor over a map to read the values of every map; tap to set the "
+            "profile row and column.", css_classes=["ccd-readout"], stylesheets=[_CSS],
+            sizing_mode="stretch_width")
+        self.hist_row = pn.FlexBox(sizing_mode="stretch_width", css_classes=["ccd-histograms"])
+        # side by side in a FlexBox: a Row of stretching plots nested this deep makes Bokeh
+        # lay the map grid out at zero size
+        self.row_profile_pane = pn.pane.HoloViews(
+            None, sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
+            css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
+        self.col_profile_pane = pn.pane.HoloViews(
+            None, sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
+            css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
+        self.map_note = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10),
+                                         styles={"color": "#6c757d", "font-size": "0.9em"})
+        self.dark_table = _stats_pane()
+        self.fp_table = _stats_pane()
+        self.check_table = _stats_pane()
+        self.rules_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                           styles={"font-size": "0.85em", "color": "#495057"})
+        self.check_note = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                           styles={"font-size": "0.85em", "color": "#495057"})
+        self.dark_card = pn.Card(self.dark_table, self.rules_pane,
+                                 title="Dark reference D̂_D (sec. V-A)", collapsible=False,
+                                 width=355, visible=False, margin=5)
+        self.fp_card = pn.Card(self.fp_table, title="Fixed pattern K̂ (eqs. 45–50)",
+                               collapsible=False, width=355, visible=False, margin=5)
+        self.check_card = pn.Card(self.check_table, self.check_note,
+                                  title="Correction check (sec. VII-A)", collapsible=False,
+                                  width=355, visible=False, margin=5)
+        self.maps_empty = pn.pane.Markdown("No maps yet.", sizing_mode="stretch_width")
+
+    def _build_scene_tab(self) -> None:
+        self.patch_table = _table(name="patches")
+        self.patch_select = pn.widgets.Select(name="Patch", options=[], width=260)
+        self.patch_select.param.watch(self._update_patch, "value")
+        self.level_table = _table(name="levels")
+        self.fit_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=380,
+                                          linked_axes=False, css_classes=["ccd-scene-fit"])
+        self.budget_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=380,
+                                             linked_axes=False, css_classes=["ccd-budget"])
+        self.budget_note = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                            styles={"font-size": "0.88em", "color": "#495057"})
+        self.scene_alert = _alert("", "danger")
+        self.scene_empty = pn.pane.Markdown(
+            "No scene variation yet: compute the maps with a session holding scene frames of "
+            "uniform patches (note = \"patch=NAME\" or an roi) and photon-transfer frames.",
+            sizing_mode="stretch_width")
+
+    def _build_planning_tab(self) -> None:
+        p = PAPER_PLAN_INPUTS
+        self.plan_A = pn.widgets.FloatInput(name="A (DN per electron)", value=p["A"], step=1e-4,
+                                            start=0.0, width=170)
+        self.plan_sigma_c2 = pn.widgets.FloatInput(name="σ²_C (DN²)", value=p["sigma_c2"],
+                                                   step=0.01, start=0.0, width=170)
+        self.plan_bits = pn.widgets.IntInput(name="bits b", value=p["bits"], start=1, end=32,
+                                             width=120)
+        self.plan_sigma_hat = pn.widgets.FloatInput(name="σ̂ (slope std)", value=p["sigma_hat"],
+                                                    step=1e-4, start=0.0, width=170)
+        self.plan_p = pn.widgets.FloatInput(name="p (rejection width)", value=p["p"], step=0.1,
+                                            start=0.1, width=150)
+        self.plan_worst = pn.widgets.FloatInput(name="worst ratio n1/n̂_1",
+                                                value=p["worst_ratio"], step=0.05, start=1.0,
+                                                width=170)
+        self.plan_black = pn.widgets.FloatInput(name="black level b0 (DN)",
+                                                value=p["black_level"], step=1.0, width=150)
+        self.plan_reading = pn.widgets.Select(name="n2 reading", options=_READINGS,
+                                              value=p["n2_reading"], width=330)
+        self._plan_inputs = (self.plan_A, self.plan_sigma_c2, self.plan_bits,
+                             self.plan_sigma_hat, self.plan_p, self.plan_worst,
+                             self.plan_black, self.plan_reading)
+        for w in self._plan_inputs:
+            w.param.watch(self._update_plan, "value")
+        self.paper_button = pn.widgets.Button(name="Paper's values", width=150)
+        self.paper_button.on_click(self._on_paper_inputs)
+        self.session_inputs_button = pn.widgets.Button(
+            name="This session's estimates", width=200, disabled=True,
+            description="A, σ²_C and b0 from photon transfer; σ̂ and the worst ratio from K̂")
+        self.session_inputs_button.on_click(self._on_session_inputs)
+        self.plan_source = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                            styles={"color": "#6c757d", "font-size": "0.9em"})
+        self.plan_numbers = pn.pane.HTML("", sizing_mode="stretch_width", stylesheets=[_CSS],
+                                         css_classes=["ccd-plan-numbers"])
+        self.plan_formulas = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                              css_classes=["ccd-formula"], stylesheets=[_CSS])
+        self.plan_alternatives = _table(name="n2 alternatives")
+        self.plan_error = _alert("", "danger")
+        self._update_plan()
+
+    # ======================================================================== layout =======
+    def __panel__(self) -> pn.viewable.Viewable:
+        # called each time the navigation shows the page: the hook for "compute on first show"
+        if self.auto_compute and self._wants_auto_compute():
+            pn.state.execute(self.compute)
+        if self._layout is None:
+            self._layout = self._build_layout()
+        return self._layout
+
+    def _build_layout(self) -> pn.viewable.Viewable:
+        controls = pn.Column(
+            pn.Row(self.shown_select, self.active_select, sizing_mode="stretch_width"),
+            pn.Row(pn.Column(self.clim_holder, sizing_mode="stretch_width", min_width=300),
+                   self.auto_button, sizing_mode="stretch_width"),
+            sizing_mode="stretch_width")
+        export = pn.Row(pn.pane.Markdown("**Export the selected map:**", margin=(12, 10)),
+                        self.download_exr, self.download_fits, self.download_png)
+        stats = pn.FlexBox(self.dark_card, self.fp_card, self.check_card,
+                           sizing_mode="stretch_width", css_classes=["ccd-map-stats"])
+        maps_body = pn.Column(
+            controls, self.map_note, self.grid_pane, self.readout, stats,
+            pn.Card(self.hist_row, title="Histograms (the band is the colour range)",
+                    sizing_mode="stretch_width"),
+            pn.Card(pn.Row(self.row_slider, self.col_slider, sizing_mode="stretch_width"),
+                    pn.FlexBox(self.row_profile_pane, self.col_profile_pane,
+                               sizing_mode="stretch_width"),
+                    title="Profiles through the selected map (tap a map to move them)",
+                    sizing_mode="stretch_width"),
+            export, sizing_mode="stretch_width")
+        self.maps_body = maps_body
+        maps_tab = pn.Column(self.maps_empty, maps_body, sizing_mode="stretch_width",
+                             name="Maps")
+        scene_tab = pn.Column(
+            self.scene_empty, self.scene_alert,
+            pn.Row(pn.Card(self.patch_table, title="V_S per patch (eq. 57 fit across levels)",
+                           collapsible=False, sizing_mode="stretch_width"),
+                   sizing_mode="stretch_width"),
+            self.fit_pane,
+            pn.Card(self.patch_select, self.level_table,
+                    title="Per light level (eqs. 54–58)", collapsible=False,
+                    sizing_mode="stretch_width"),
+            self.budget_pane, self.budget_note,
+            sizing_mode="stretch_width", name="Scene")
+        inputs = pn.FlexBox(*self._plan_inputs, sizing_mode="stretch_width")
+        planning_tab = pn.Column(
+            pn.pane.Markdown(
+                "How many fixed-pattern configurations **n1** and frames per configuration "
+                "**n2** to capture for K̂ (sec. V-B): the error of K̂ at full scale below "
+                "q²/10 (n1) and the variance of each configuration's average below 0.2 q² (n2)."
+                " Type your camera's values before capture, or take them from this session's "
+                "estimates.", sizing_mode="stretch_width"),
+            pn.Row(self.paper_button, self.session_inputs_button), self.plan_source,
+            inputs, self.plan_error, self.plan_numbers, self.plan_formulas,
+            pn.Card(self.plan_alternatives, title="n2 under each reading of the paper",
+                    sizing_mode="stretch_width", collapsed=False),
+            sizing_mode="stretch_width", name="Planning")
+        # a button bar switching the content (Bokeh's Tabs lay a grid of fixed-size plots out
+        # at zero size; swapping the content also renders each view only when it is shown)
+        self._tab_views = {"Maps": maps_tab, "Scene": scene_tab, "Planning": planning_tab}
+        self.tab_bar = pn.widgets.RadioButtonGroup(
+            options=list(self._tab_views), value="Maps", button_type="primary",
+            button_style="outline", css_classes=["ccd-maps-tabs"], margin=(10, 10, 0, 10))
+        self.tab_content = pn.Column(maps_tab, sizing_mode="stretch_width")
+        self.tab_bar.param.watch(self._on_tab, "value")
+        return pn.Column(
+            pn.pane.Markdown("## Maps", css_classes=["ccd-page-title"]),
+            pn.Row(self.compute_button, self.status_pane, sizing_mode="stretch_width"),
+            self.error_alert, self.plan_alert, self.info_alert, self.tab_bar,
+            pn.layout.Divider(margin=(0, 10)), self.tab_content,
+            sizing_mode="stretch_width", name="Maps", stylesheets=[_CSS])
+
+    def _on_tab(self, event: Any = None) -> None:
+        self.tab_content.objects = [self._tab_views[self.tab_bar.value]]
+
+    # ===================================================================== computing ========
+    def _wants_auto_compute(self) -> bool:
+        s = self.state.session
+        return (s is not None and not self._computing and bool(s.roles().get("dark"))
+                and self.state.results.get("dark") is None and not self.state.busy)
+
+    async def _on_compute(self, event: Any = None) -> None:
+        await self.compute()
+
+    async def compute(self) -> None:
+        """Compute D̂_D, K̂, the plan and V_S (``estimate_all``, off the UI thread), publish them
+        in ``state.results`` and run the correction check on the max-intensity frame."""
+        session = self.state.session
+        if session is None or self._computing:
+            return
+        self._computing = True
+        self.compute_button.loading = True
+        try:
+            est = await self.state.compute(
+                "estimates", estimate_all, session, noise=self.state.results.get("ptc"),
+                label="dark reference, K̂, plan and scene variation")
+            if est is None or self.state.session is not session:
+                return
+            self._notes = tuple(est.notes)
+            new = {name: value for name, value in (
+                ("ptc", est.noise), ("dark", est.dark), ("fixed_pattern", est.fixed_pattern),
+                ("plan", est.plan), ("scene", est.scene)) if value is not None}
+            self.state.results = {**self.state.results, **new}
+            rec = max_intensity_frame(session)
+            if rec is not None and est.dark is not None and est.fixed_pattern is not None:
+                await self.state.compute(
+                    "correction_check", self._correction_check, session, rec, est.dark,
+                    est.fixed_pattern, label="the correction check (sec. VII-A)")
+        finally:
+            self._computing = False
+            self.compute_button.loading = False
+            self._refresh()
+
+    @staticmethod
+    def _correction_check(session: Any, rec: Any, dark: Any, fp: Any) -> Any:
+        return correction_check(session.read(rec), dark, fp, q=1.0)
+
+    # ===================================================================== watchers =========
+    def _on_session(self, event: Any = None) -> None:
+        self._notes = ()
+        self.compute_button.disabled = self.state.session is None
+        self._refresh()
+        if event is not None and self._layout is not None and self.auto_compute \
+                and self._wants_auto_compute():
+            pn.state.execute(self.compute)
+
+    def _on_results(self, event: Any = None) -> None:
+        if not self._computing:
+            self._refresh()
+
+    def _on_state_message(self, *events: Any) -> None:
+        self.error_alert.object = f"**Error:** {html.escape(self.state.error)}" \
+            if self.state.error else ""
+        self.error_alert.visible = bool(self.state.error)
+        self.status_pane.object = self.state.status if self.state.busy else ""
+        self._update_info(self.state.session)
+
+    # ====================================================================== refresh =========
+    def _refresh(self) -> None:
+        """Bring every tab in line with ``state.session`` and ``state.results``."""
+        session, results = self.state.session, self.state.results
+        dark, fp = results.get("dark"), results.get("fixed_pattern")
+        if (dark, fp) != self._shown_objects:
+            self._shown_objects = (dark, fp)
+            self._set_layers(map_plots.map_layers(dark, fp))
+        self._update_stats(results)
+        self._update_info(session)
+        self._update_plan_warnings(session, results.get("plan"))
+        self._update_scene(results.get("scene"))
+        self._prefill_plan(results)
+
+    def _update_info(self, session: Any) -> None:
+        if session is None:
+            text = "Open a session on the Session page; the Planning tab works without one."
+        else:
+            # estimate_all's "no ... frames" notes repeat what missing_frames says
+            lines = missing_frames(session) + [f"Note: {n}" for n in self._notes
+                                               if not n.startswith("no ")]
+            if not self._layers and session.roles().get("dark") and not self._computing \
+                    and not self.state.error:
+                lines.insert(0, "Press **Compute maps** to estimate D̂_D, K̂, the plan and V_S.")
+            text = "\n\n".join(lines)
+        self.info_alert.object = text
+        self.info_alert.visible = bool(text)
+
+    def _update_plan_warnings(self, session: Any, plan: Any) -> None:
+        warnings = check_session_plan(session, plan) if session is not None and plan else []
+        if warnings:
+            items = "\n".join(f"- {html.escape(w)}" for w in warnings)
+            text = ("**This session has fewer frames than the acquisition plan requires "
+                    f"(sec. V-B)** — K̂ is less accurate than the plan's target:\n\n{items}")
+        else:
+            text = ""
+        self.plan_alert.object = text
+        self.plan_alert.visible = bool(text)
+
+    def _update_stats(self, results: dict) -> None:
+        dark, fp, check = (results.get(k) for k in ("dark", "fixed_pattern", "correction_check"))
+        self.dark_card.visible = dark is not None
+        if dark is not None:
+            self.dark_table.object = dark_summary(dark)
+            self.rules_pane.object = (f"Rules — {html.escape(dark.hot_rule)}; "
+                                      f"{html.escape(dark.dead_rule)}.")
+        self.fp_card.visible = fp is not None
+        if fp is not None:
+            self.fp_table.object = fixed_pattern_summary(fp)
+        session = self.state.session
+        rec = max_intensity_frame(session) if session is not None else None
+        self.check_card.visible = fp is not None
+        if check is not None and fp is not None:
+            self.check_table.object = correction_summary(check)
+            self.check_table.visible = True
+            self.check_note.object = (f"How much dividing by K̂ (eq. 51) changes "
+                                      f"`{rec.relpath if rec else 'the max-intensity frame'}`.")
+        elif fp is not None:
+            self.check_table.visible = False
+            self.check_note.object = (
+                "No maximum-intensity scene frame (role = `scene`, note = \"max-intensity\"): "
+                "capture a uniform card just below saturation to check how much K̂ changes it."
+                if rec is None else "Not computed yet: press **Compute maps**.")
+
+    # ========================================================================= maps =========
+    def _set_layers(self, layers: dict[str, MapLayer]) -> None:
+        self._layers = layers
+        self._sliders = {}
+        for key, layer in layers.items():
+            lo, hi = map_plots.default_clim(layer)
+            finite = layer.data[np.isfinite(layer.data)]
+            start = min(lo, float(finite.min())) if finite.size else lo
+            end = max(hi, float(finite.max())) if finite.size else hi
+            if layer.kind == "diverging":
+                half = max(layer.centre - start, end - layer.centre)
+                start, end = layer.centre - half, layer.centre + half
+            if not end > start:
+                end = start + 1.0
+            step = 0.5 if layer.integer else (end - start) / 1000
+            self._sliders[key] = pn.widgets.EditableRangeSlider(
+                name=f"Colour range of {layer.symbol}" + (f" ({layer.unit})" if layer.unit
+                                                          else ""),
+                start=start, end=end, value=(lo, hi), step=step, sizing_mode="stretch_width",
+                disabled=layer.kind == "flags", format="0.[00000]")
+        options = {l.title: k for k, l in layers.items()}
+        shown = [k for k in self.shown_select.value if k in layers] or \
+            [k for k in DEFAULT_SHOWN if k in layers]
+        active = self.active_select.value if self.active_select.value in layers else \
+            next(iter(shown), None)
+        self._quiet = True  # widget values change below; rebuild once at the end
+        try:
+            self.shown_select.param.update(options=options, value=shown)
+            self.active_select.param.update(options=options, value=active)
+        finally:
+            self._quiet = False
+        self.maps_empty.visible = not layers
+        if hasattr(self, "maps_body"):
+            self.maps_body.visible = bool(layers)
+        if layers:
+            h, w = next(iter(layers.values())).data.shape
+            self.row_slider.param.update(end=max(h - 1, 1), value=h // 2)
+            self.col_slider.param.update(end=max(w - 1, 1), value=w // 2)
+        self._build_grid()
+        self._on_active()
+
+    @property
+    def layers(self) -> dict[str, MapLayer]:
+        """The maps on the page (key -> :class:`~app.map_plots.MapLayer`)."""
+        return self._layers
+
+    @property
+    def active_layer(self) -> MapLayer | None:
+        """The selected map (colour range, profiles and export apply to it)."""
+        return self._layers.get(self.active_select.value)
+
+    def _on_shown(self, event: Any = None) -> None:
+        if not self._quiet:
+            self._build_grid()
+
+    def _build_grid(self) -> None:
+        keys = [k for k in self.shown_select.value if k in self._layers]
+        if not keys:
+            self.grid_pane.object = None
+            self.hist_row.objects = []
+            self.grid_views = []
+            return
+        cross = hv.DynamicMap(pn.bind(map_plots.crosshair, self.row_slider.param.value,
+                                      self.col_slider.param.value))
+        views, hists = [], []
+        frame_width = 640 if len(keys) == 1 else 380
+        for key in keys:
+            layer, slider = self._layers[key], self._sliders[key]
+            view = map_plots.map_view(layer, slider.value, frame_width=frame_width).apply.opts(
+                clim=slider.param.value)
+            pointer = hv.streams.PointerXY(x=None, y=None, source=view)
+            pointer.add_subscriber(self._on_pointer)
+            tap = hv.streams.SingleTap(x=None, y=None, source=view)
+            tap.add_subscriber(self._on_tap)
+            views.append(view * cross)
+            data = layer.data.astype(np.int32) if layer.integer else layer.data
+            hist = plots.histogram_element(data, vdim=layer.symbol, height=200,
+                                           bins=256 if layer.integer else 100).opts(
+                title=f"Histogram of {layer.symbol}", xlabel=layer.label)
+            span = hv.DynamicMap(pn.bind(plots.clim_span, slider.param.value))
+            hists.append(pn.pane.HoloViews(hist * span, linked_axes=False, height=220,
+                                           min_width=260, sizing_mode="stretch_width",
+                                           styles={"flex": "1 1 45%"}))
+        self.grid_views = views
+        cols = 1 if len(views) == 1 else 2
+        self.grid_pane.object = map_plots.map_grid(views, cols=cols)
+        self.hist_row.objects = hists
+
+    def _on_active(self, event: Any = None) -> None:
+        if self._quiet:
+            return
+        layer = self.active_layer
+        if layer is None:
+            self.clim_holder.objects = []
+            self.map_note.object = ""
+        else:
+            self.clim_holder.objects = [self._sliders[layer.key]]
+            self.map_note.object = f"**{html.escape(layer.title)}**: {html.escape(layer.note)}."
+            for fmt, widget in (("exr", self.download_exr), ("fits", self.download_fits),
+                                ("png", self.download_png)):
+                widget.filename = f"{layer.key}{EXPORT_FORMATS[fmt]}"
+        for w in (self.auto_button, self.download_exr, self.download_fits, self.download_png):
+            w.disabled = layer is None
+        self._update_profiles()
+
+    def _update_profiles(self, event: Any = None) -> None:
+        layer = self.active_layer
+        if layer is None:
+            self.row_profile_pane.object = self.col_profile_pane.object = None
+            return
+        self.row_profile_pane.object = map_plots.row_profile(layer, self.row_slider.value)
+        self.col_profile_pane.object = map_plots.column_profile(layer, self.col_slider.value)
+
+    def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
+        hit = map_plots.pixel_values(self._layers, x, y)
+        if hit is None:
+            return
+        col, row, values = hit
+        parts = []
+        for key, text in values.items():
+            layer = self._layers[key]
+            unit = f" {layer.unit}" if layer.unit and text != "NaN" else ""
+            parts.append(f"{layer.symbol} = **{text}**{unit}")
+        self.readout.object = f"x = {col}, y = {row}: " + " · ".join(parts)
+
+    def _on_tap(self, x: float | None = None, y: float | None = None) -> None:
+        hit = map_plots.pixel_values(self._layers, x, y)
+        if hit is not None:
+            col, row, _ = hit
+            self.row_slider.value, self.col_slider.value = row, col
+
+    def _on_auto(self, event: Any = None) -> None:
+        layer = self.active_layer
+        if layer is not None:
+            slider = self._sliders[layer.key]
+            lo, hi = map_plots.default_clim(layer)
+            slider.value = (max(slider.start, lo), min(slider.end, hi))
+
+    def export(self, fmt: str) -> bytes:
+        """The selected map as the bytes of an EXR, FITS or PNG file (see :func:`export_bytes`;
+        PNG uses the selected map's current colour range)."""
+        layer = self.active_layer
+        if layer is None:
+            raise CcdError("export", "no map to export: compute the maps first")
+        return export_bytes(layer, fmt, self._sliders[layer.key].value)
+
+    def _download(self, fmt: str) -> io.BytesIO | None:
+        try:
+            return io.BytesIO(self.export(fmt))
+        except (CcdError, OSError, ValueError) as err:
+            self.state.error = f"export as {fmt.upper()} failed: {err}"
+            return None
+
+    # ======================================================================== scene =========
+    def _update_scene(self, scene: dict | None) -> None:
+        has = bool(scene)
+        self.scene_empty.visible = not has
+        for w in (self.patch_table, self.fit_pane, self.patch_select, self.level_table,
+                  self.budget_pane, self.budget_note):
+            w.visible = has
+        if scene is self._scene_object:
+            return
+        self._scene_object = scene
+        if not has:
+            self.patch_select.options = []
+            return
+        self.patch_table.value = _display(scene_patch_frame(scene))
+        self.fit_pane.object = map_plots.scene_fit_plot(scene)
+        current = self.patch_select.value
+        self._quiet = True
+        try:
+            self.patch_select.param.update(
+                options=list(scene), value=current if current in scene else next(iter(scene)))
+        finally:
+            self._quiet = False
+        self._update_patch()
+
+    def _update_patch(self, event: Any = None) -> None:
+        if self._quiet:
+            return
+        scene = self.state.results.get("scene") or {}
+        variation = scene.get(self.patch_select.value)
+        if variation is None:
+            return
+        self.level_table.value = _display(scene_level_frame(variation))
+        results = self.state.results
+        dark, fp, noise = (results.get(k) for k in ("dark", "fixed_pattern", "ptc"))
+        self.scene_alert.visible = False
+        if dark is None or fp is None or noise is None:
+            self.budget_pane.object = None
+            return
+        bits = getattr(getattr(self.state.session, "camera", None), "bits", None)
+        inputs = budget_inputs(dark, fp, noise, variation, bits)
+        try:
+            budget = variance_budget(**inputs)
+        except CcdError as err:
+            self.scene_alert.object = f"**Variance budget:** {html.escape(str(err))}"
+            self.scene_alert.visible = True
+            self.budget_pane.object = None
+            return
+        self.budget = budget
+        self.budget_pane.object = map_plots.budget_plot(budget)
+        self.budget_note.object = (
+            f"Patch **{html.escape(variation.name)}**: V_S = {inputs['V_S']:.4g}, "
+            f"A = {inputs['A']:.4g} DN/e⁻, σ²_C = {inputs['sigma_c2']:.4g} DN², dark spatial "
+            f"variance {inputs['dark_spatial_var']:.4g} DN² (D̂_D without its averaging noise), "
+            f"σ_K² = {inputs['sigma_K2']:.4g} (K̂'s spatial variance less its mean estimation "
+            f"variance), b0 = {inputs['black_level']:g} DN, D̄ = {inputs['dark_mean']:.4g} DN. "
+            "Below the crossing the sensor noise dominates; above it K and the scene texture do.")
+
+    # ===================================================================== planning =========
+    def _plan_kwargs(self) -> dict[str, Any]:
+        return {"A": self.plan_A.value, "sigma_c2": self.plan_sigma_c2.value,
+                "bits": self.plan_bits.value, "sigma_hat": self.plan_sigma_hat.value,
+                "p": self.plan_p.value, "worst_ratio": self.plan_worst.value,
+                "black_level": self.plan_black.value, "n2_reading": self.plan_reading.value}
+
+    def _update_plan(self, event: Any = None) -> None:
+        if self._quiet:
+            return
+        kw = self._plan_kwargs()
+        try:
+            if any(v is None for v in kw.values()):
+                raise CcdError("planning", "fill in every input")
+            plan = plan_acquisition(**kw)
+        except CcdError as err:
+            self.plan_result = None
+            self.plan_error.object = f"**Cannot plan:** {html.escape(str(err))}"
+            self.plan_error.visible = True
+            self.plan_numbers.object = self.plan_formulas.object = ""
+            self.plan_alternatives.value = pd.DataFrame()
+            return
+        self.plan_result = plan
+        self.plan_error.visible = False
+        self.plan_numbers.object = (
+            "<div>Capture <span class='ccd-big'>n1 = "
+            f"{plan.n1_required}</span> configurations &times; <span class='ccd-big'>n2 = "
+            f"{plan.n2_required}</span> frames per configuration "
+            f"({plan.n1_required * plan.n2_required} fixed-pattern frames); "
+            f"n̂_1 = {plan.n1_hat} slopes kept at the worst pixel.</div>")
+        notes = "\n".join(f"- {html.escape(n)}" for n in plan.notes)
+        self.plan_formulas.object = (
+            f"**n1** (text after eq. 50): `{plan.n1_formula}`\n\n"
+            f"**n2** (end of sec. V-B, reading *{plan.n2_reading}*): `{plan.n2_formula}`"
+            + (f"\n\n{notes}" if notes else ""))
+        self.plan_alternatives.value = pd.DataFrame(
+            [{"reading": _READING_TEXT.get(k, k), "n2": v,
+              "chosen": "✓" if k == plan.n2_reading else ""}
+             for k, v in plan.n2_alternatives.items()],
+            columns=["reading", "n2", "chosen"])
+
+    def _set_plan_inputs(self, values: dict[str, Any], source: str) -> None:
+        widgets = dict(zip(("A", "sigma_c2", "bits", "sigma_hat", "p", "worst_ratio",
+                            "black_level", "n2_reading"), self._plan_inputs))
+        self._quiet = True  # one plan update at the end, not one per input
+        try:
+            for key, value in values.items():
+                if key in widgets and value is not None:
+                    widgets[key].value = value
+        finally:
+            self._quiet = False
+        self.plan_source.object = source
+        self._update_plan()
+
+    def session_plan_inputs(self) -> dict[str, Any] | None:
+        """Planning inputs from the session's results (``None`` without a noise model)."""
+        results, session = self.state.results, self.state.session
+        noise, fp = results.get("ptc"), results.get("fixed_pattern")
+        if noise is None:
+            return None
+        b0 = getattr(noise, "black_level_dn", None)
+        values: dict[str, Any] = {"A": _round(noise.A), "sigma_c2": _round(noise.sigma_c2),
+                                  "black_level": float(b0) if b0 is not None else 0.0}
+        bits = getattr(getattr(session, "camera", None), "bits", None)
+        if bits:
+            values["bits"] = int(bits)
+        if fp is not None:
+            values["sigma_hat"] = _round(fp.sigma_hat)
+            if math.isfinite(fp.worst_ratio):
+                values["worst_ratio"] = _round(fp.worst_ratio)
+            values["p"] = float(fp.p)
+        return values
+
+    def _prefill_plan(self, results: dict) -> None:
+        key = (id(results.get("ptc")), id(results.get("fixed_pattern")))
+        if key == getattr(self, "_prefilled", None):
+            return
+        self._prefilled = key
+        values = self.session_plan_inputs()
+        self.session_inputs_button.disabled = values is None
+        if values is None:
+            self._set_plan_inputs(PAPER_PLAN_INPUTS, "Inputs: the paper's values (sec. VII-A; "
+                                  "σ̂ = 2.7e-3 reproduces its n̂_1 = 11). Edit them for your "
+                                  "camera.")
+        else:
+            self._on_session_inputs()
+
+    def _on_paper_inputs(self, event: Any = None) -> None:
+        self._set_plan_inputs(PAPER_PLAN_INPUTS, "Inputs: the paper's values (sec. VII-A; "
+                              "σ̂ = 2.7e-3 reproduces its n̂_1 = 11).")
+
+    def _on_session_inputs(self, event: Any = None) -> None:
+        values = self.session_plan_inputs()
+        if values is None:
+            return
+        has_fp = self.state.results.get("fixed_pattern") is not None
+        self._set_plan_inputs(values, "Inputs: this session's photon transfer (A, σ²_C, b0)"
+                              + (" and fixed pattern (σ̂, worst ratio, p)." if has_fp else
+                                 "; σ̂ and the worst ratio are the paper's / the default until "
+                                 "K̂ is computed."))
+
+
+def create_page(state: AppState) -> MapsPage:
+    """Registry entry point: the Maps page bound to ``state``."""
+    return MapsPage(state)

@@ -1,0 +1,250 @@
+"""The Flat field page without a browser: every number shown is ccdcore's (de Lasarte et al. 2007
+on the bundled ``delasarte07`` demo), the widgets are wired, and bad sessions become alerts."""
+from __future__ import annotations
+
+import asyncio
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import holoviews as hv
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from app import flat_plots
+from app.pages.flat_field import (NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE, FlatFieldPage,
+                                  default_frame, result_key)
+from app.state import AppState
+from ccdcore.flatfield import (base_image_study, flat_field_from_session, recommend_base,
+                               zero_dark)
+from ccdcore.io import write_image
+from ccdcore.uniformity import dark_groups, flat_groups, snup, snup_vs_averaging
+
+
+def _run(coro):
+    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
+    running in this one)."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
+
+
+@pytest.fixture(scope="module")
+def delasarte07() -> Path:
+    from app.state import assets_dir
+
+    return assets_dir() / "delasarte07"
+
+
+@pytest.fixture(scope="module")
+def loaded(delasarte07):
+    """The page on the demo, NZDI setting, recommended base, fully computed (shared: the
+    module's tests only read it, or restore what they change)."""
+    state = AppState(allowed_roots=[delasarte07.parent.resolve()])
+    assert state.load(delasarte07)
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert page.error == "" and state.error == ""
+    return page
+
+
+def test_result_keys_are_strings():
+    assert result_key("flat", "NZDI", (3, 0.04)) == "flat:NZDI:3:0.04"
+    assert result_key("flat_base", None) == "flat_base:"
+
+
+def test_recommended_base_is_marked_chosen_and_explained(loaded):
+    session = loaded.state.session
+    rec = recommend_base(session, setting="NZDI")
+    assert loaded.setting_select.options == ["NZDI", "ZDI"]
+    assert loaded.base_select.value == rec.key
+    marked = [label for label, key in loaded.base_select.options.items()
+              if label.endswith("(recommended)")]
+    assert len(marked) == 1 and loaded.base_select.options[marked[0]] == rec.key
+    assert loaded.recommend_alert.visible and rec.reason in loaded.recommend_alert.object
+    assert set(loaded.base_select.options.values()) == set(flat_groups(session,
+                                                                       setting="NZDI"))
+    # cached under the shared string keys
+    assert loaded.state.results[result_key("flat_base", "NZDI")].key == rec.key
+    assert result_key("flat", "NZDI", rec.key) in loaded.state.results
+
+
+def test_snup_table_is_ccdcores_before_and_after(loaded):
+    session = loaded.state.session
+    rec = recommend_base(session, setting="NZDI")
+    ff = flat_field_from_session(session, setting="NZDI", base=rec.key)
+    groups = flat_groups(session, setting="NZDI")
+    relpath = default_frame(rec, groups)
+    assert loaded.frame_select.value == relpath
+    record = next(r for recs in groups.values() for r in recs if r.relpath == relpath)
+    frame = session.read(record)
+    before = snup(frame, layout="rgb")
+    after = snup(ff.correct(frame), layout="rgb")
+    table = loaded.snup_table.object
+    assert list(table["channel"]) == ["R", "G", "B"]
+    for c, row in zip(before.channels, table.itertuples(index=False)):
+        assert row[2] == flat_plots.format_pm(c.snup, c.snup_err)
+        a = after[c.name]
+        assert row[4] == flat_plots.format_pm(a.snup, a.snup_err)
+        assert loaded.view.after[c.name].snup == a.snup   # the exact numbers, not re-estimated
+    assert loaded.view.after["G"].snup < loaded.view.before["G"].snup / 2  # it did correct
+    # the maps shown are ccdcore's G and O of the chosen channel
+    assert np.array_equal(loaded.flat.G, ff.G) and np.array_equal(loaded.flat.O, ff.O)
+    assert loaded.g_pane.object is not None and loaded.o_pane.object is not None
+    assert "0 flagged pixels" in loaded.flag_pane.object
+    assert "4 dark frames at 0.04 s" in loaded.setup_pane.object
+
+
+def test_pixel_readout_shows_raw_corrected_g_and_o(loaded):
+    loaded._on_pointer(x=10.2, y=5.8)
+    view, flat = loaded.view, loaded.flat
+    c = {"R": 0, "G": 1, "B": 2}[loaded.channel]
+    text = loaded.readout.object
+    assert text.startswith("x = 10, y = 6")
+    assert f"{view.raw[6, 10, c]:g} DN" in text and f"{view.corrected[6, 10, c]:.2f} DN" in text
+    assert f"G = {flat.G[6, 10, c]:.4f}" in text
+
+
+def test_choosing_another_base_changes_the_after_snup(loaded):
+    session = loaded.state.session
+    shown = dict(loaded.after_snup)
+    other = (2, 0.04)
+    try:
+        loaded.base_select.value = other
+        _run(loaded.show_base())
+        ff = flat_field_from_session(session, setting="NZDI", base=other)
+        record = loaded._records[loaded.frame_select.value]
+        expected = snup(ff.correct(session.read(record)), layout="rgb")
+        assert loaded.after_snup == {c.name: flat_plots.format_pm(c.snup, c.snup_err)
+                                     for c in expected.channels}
+        assert loaded.after_snup != shown
+        assert "corrected with base L2 \u00b7 40 ms" in loaded.snup_title.object
+    finally:
+        loaded.base_select.value = recommend_base(session, setting="NZDI").key
+        _run(loaded.show_base())
+    assert loaded.after_snup == shown
+
+
+def test_zero_dark_warning_for_zdi_and_not_for_nzdi(delasarte07):
+    state = AppState(allowed_roots=[delasarte07.parent.resolve()])
+    state.load(delasarte07)
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert not page.zero_alert.visible
+    page.setting_select.value = "ZDI"
+    _run(page.show_setting())
+    darks = [r for g in dark_groups(state.session, setting="ZDI").values() for r in g]
+    zd = zero_dark(state.session.iter_frames(darks), layout="rgb")
+    assert zd.clipped
+    assert page.zero_alert.visible and page.zero_alert.alert_type == "warning"
+    assert ZERO_DARK_MESSAGE in page.zero_alert.object and zd.warning in page.zero_alert.object
+    assert all(k.startswith("zdi/") for k in page._records)
+    page.setting_select.value = "NZDI"
+    _run(page.show_setting())
+    assert not page.zero_alert.visible
+
+
+def _elements(overlay, kind):
+    return [e for e in overlay if isinstance(e, kind)]
+
+
+def test_averaging_plot_and_table_hold_ccdcores_numbers(loaded):
+    session = loaded.state.session
+    key = loaded.base_select.value
+    avg = snup_vs_averaging(session.iter_frames(flat_groups(session, setting="NZDI")[key]),
+                            layout="rgb")
+    overlay = loaded.avg_pane.object
+    scatters = {s.label: s for s in _elements(overlay, hv.Scatter)}
+    assert set(scatters) == {"R", "G", "B"}
+    for name, scatter in scatters.items():
+        rows = avg.channel(name)
+        assert list(scatter.dimension_values(0)) == [r.N for r in rows] == [1, 2, 4, 8]
+        assert np.allclose(scatter.dimension_values(1), [r.snup for r in rows])
+    curves = {c.label: c for c in _elements(overlay, hv.Curve)}
+    g = curves["G predicted"]
+    assert np.allclose(g.dimension_values(1)[0], avg.channel("G")[0].predicted)
+    assert len(loaded.avg_table.object) == len(avg.rows)
+
+
+def test_linearity_plot_shades_the_range_and_marks_saturation(loaded):
+    lin = loaded.recommendation.linearity
+    c = loaded.channel
+    overlay = loaded.lin_pane.object
+    span = _elements(overlay, hv.HSpan)[0]
+    assert span.data[0] == pytest.approx(lin.ranges[c][0])
+    assert span.data[1] == pytest.approx(lin.upper[c])
+    hlines = [h.data for h in _elements(overlay, hv.HLine)]
+    assert any(h == pytest.approx(lin.saturation_dn[c]) for h in hlines)
+    onsets = {f.saturation_exposure for f in lin.fits if f.channel == c} - {None}
+    assert onsets and onsets <= {v.data for v in _elements(overlay, hv.VLine)}
+    points = [p for p in lin.points if p.channel == c]
+    shown = sum(len(s) for s in _elements(overlay, hv.Scatter))
+    assert shown == len(points)
+    table = loaded.lin_table.object
+    assert list(table["channel"]) == list(lin.channels)
+
+
+def test_base_study_heatmap_and_table_are_ccdcores(loaded):
+    session = loaded.state.session
+    study = base_image_study(session, setting="NZDI")
+    c = loaded.channel
+    heat = loaded.study_pane.object
+    groups = list(flat_groups(session, setting="NZDI"))
+    assert len(heat) == len(groups) * (len(groups) + 1)       # + the uncorrected row
+    table = study.table(c)
+    rec = study.recommended
+    df = loaded.study_table.value
+    star = flat_plots.group_label(rec) + " \u2605"
+    assert star in df.columns and "uncorrected" in df.columns
+    row = df[df["corrected group"] == flat_plots.group_label(groups[0])].iloc[0]
+    assert row[star] == round(table[rec][groups[0]], 3)
+    assert row["uncorrected"] == round(table[None][groups[0]], 3)
+
+
+def test_table_2_and_k_comparison_with_the_truth(loaded):
+    settings = loaded.settings_table.object
+    assert set(settings["setting"]) == {"NZDI", "ZDI"} and len(settings) == 6
+    zero = loaded.zero_table.object
+    assert set(zero[zero["clipped at zero"] == "yes"]["setting"]) == {"ZDI"}
+    kmap = loaded.kmap_table.object
+    assert list(kmap["channel"]) == ["R", "G", "B"]
+    assert "residual G (%)" in kmap.columns       # truth.json's true flat field was used
+    assert not loaded.kmap_alert.visible
+
+
+def test_session_without_flats_says_what_to_capture(assets):
+    state = AppState(allowed_roots=[assets.resolve()])
+    state.load(assets / "healey94")
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert page.info_alert.visible and page.info_alert.object == NO_FLAT_MESSAGE
+    assert not page.content.visible and not page.error_alert.visible
+
+
+def test_no_session_is_an_info_alert():
+    page = FlatFieldPage(AppState(), auto=False)
+    assert page.info_alert.visible and "No session loaded" in page.info_alert.object
+
+
+def test_flats_without_darks_show_an_error_and_the_page_keeps_working(tmp_path, assets):
+    root = tmp_path / "nodark"
+    rng = np.random.default_rng(11)
+    entries = []
+    for t in (0.01, 0.02, 0.04):
+        for i in range(2):
+            frame = np.clip(rng.normal(4000 * t, 2.0, (16, 24)), 0, 255).astype(np.uint8)
+            write_image(root / f"flat_{t}_{i}.tif", frame, exposure=t, bits=8)
+            entries.append(f'[[frames]]\npath = "flat_{t}_{i}.tif"\nrole = "flat"\nlevel = 1\n'
+                           f"exposure = {t}\n")
+    (root / "session.toml").write_text('schema = 1\n[camera]\nname = "t"\nbits = 8\n'
+                                       'layout = "mono"\n\n' + "\n".join(entries))
+    state = AppState(allowed_roots=[tmp_path.resolve(), assets.resolve()])
+    assert state.load(root), state.error
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert page.error_alert.visible and "dark" in page.error_alert.object
+    assert page.recommendation is not None         # the linearity part still shows
+    assert page.lin_pane.object is not None
+    # the page keeps working: open the demo next
+    state.load(assets / "delasarte07")
+    _run(page.refresh())
+    assert not page.error_alert.visible and page.after_snup

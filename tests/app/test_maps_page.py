@@ -1,0 +1,291 @@
+"""The Maps page without a browser: computing on the healey94 demo, the summary values, map
+selection, export, linked axes, planning, and sessions that lack frames."""
+from __future__ import annotations
+
+import asyncio
+from concurrent.futures import ThreadPoolExecutor
+import holoviews as hv
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from app import map_plots
+from app.pages.maps import (PAPER_PLAN_INPUTS, MapsPage, budget_inputs, export_bytes,
+                            missing_frames, scene_patch_frame)
+from app.state import AppState
+from ccdcore.io import read_image
+from ccdcore.planning import check_session_plan, plan_acquisition
+from ccdcore.product import estimate_all
+from ccdcore.session import open_session
+
+
+def _run(coro):
+    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
+    running in this one)."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
+
+
+@pytest.fixture(scope="module")
+def reference(assets):
+    """ccdcore's own estimates of the demo, computed independently of the page."""
+    return estimate_all(open_session(assets / "healey94"))
+
+
+@pytest.fixture(scope="module")
+def computed(assets):
+    """The page on the healey94 demo after 'Compute maps' (computed once for the module)."""
+    state = AppState(allowed_roots=[assets.resolve()])
+    assert state.load(assets / "healey94")
+    page = MapsPage(state, auto_compute=False)
+    _run(page.compute())
+    return page
+
+
+def _cell(df, quantity: str) -> str:
+    return str(df.loc[df["quantity"] == quantity, "this session"].iloc[0])
+
+
+def test_compute_fills_the_shared_results(computed):
+    results = computed.state.results
+    for key in ("ptc", "dark", "fixed_pattern", "plan", "scene", "correction_check"):
+        assert results.get(key) is not None, key
+    assert computed.state.error == ""
+    assert set(computed.layers) == set(map_plots.MAP_TITLES)
+
+
+def test_maps_and_summary_equal_ccdcore(computed, reference):
+    """The page shows ccdcore's numbers (the same estimates as calibrate()), exactly."""
+    dark, fp = reference.dark, reference.fixed_pattern
+    np.testing.assert_array_equal(computed.layers["K"].data, fp.K)
+    np.testing.assert_array_equal(computed.layers["dark"].data, dark.mean_map)
+    np.testing.assert_array_equal(computed.layers["n_rejected"].data, fp.n1 - fp.n1_used)
+    np.testing.assert_array_equal(computed.layers["K_err"].data, np.sqrt(fp.K_var))
+    d, f = dark.to_dict(), fp.to_dict()
+    dark_table, fp_table = computed.dark_table.object, computed.fp_table.object
+    assert _cell(dark_table, "D̂_D mean (DN)").startswith(f"{d['mean']:.4f} ± ")
+    assert _cell(dark_table, "D̂_D spatial std (DN)") == f"{d['spatial_std']:.4g}"
+    assert _cell(dark_table, "hot pixels") == str(d["n_hot"])
+    assert _cell(fp_table, "K̂ mean") == f"{f['mean']:.6f}"
+    assert _cell(fp_table, "K̂ spatial std") == f"{f['spatial_std']:.4g}"
+    assert _cell(fp_table, "σ̂ (std of the slopes m_i)") == f"{f['sigma_hat']:.4g}"
+    assert _cell(fp_table, "eq. 50 bound √((p·σ̂)²/n̂_1)") == f"{f['sd_bound']:.4g}"
+    assert _cell(fp_table, "measured error √mean(var[K̂])") == \
+        f"{np.sqrt(f['K_var_mean']):.4g}"
+    # the paper's values sit beside them
+    assert set(dark_table["paper"]) >= {"10.74", "0.555"}
+    assert set(fp_table["paper"]) >= {"0.99998", "3.72e-3"}
+    # the sec. VII-A correction check on the max-intensity frame
+    check = computed.state.results["correction_check"]
+    assert _cell(computed.check_table.object, "pixels changed by > 1 q") == \
+        f"{100 * check.frac_gt_1q:.1f} %"
+    assert computed.check_card.visible and computed.check_table.visible
+
+
+def test_plan_and_scene_equal_ccdcore(computed, reference):
+    plan = computed.state.results["plan"]
+    assert plan.to_dict() == reference.plan.to_dict()
+    # the demo has 12 configurations x 4 frames, fewer than the plan: a warning at the top
+    warnings = check_session_plan(computed.state.session, plan)
+    assert warnings and computed.plan_alert.visible
+    assert "12 configurations" in computed.plan_alert.object
+    assert f"n1 = {plan.n1_required}" in computed.plan_alert.object
+    scene = computed.state.results["scene"]
+    assert list(scene) == list(reference.scene)
+    for name, var in reference.scene.items():
+        assert scene[name].V_S == var.V_S and scene[name].V_S_err == var.V_S_err
+    table = scene_patch_frame(scene)
+    assert list(table["patch"]) == list(scene)
+    assert computed.patch_table.visible and computed.fit_pane.object is not None
+
+
+def test_variance_budget_of_the_chosen_patch(computed):
+    results = computed.state.results
+    for name in results["scene"]:
+        computed.patch_select.value = name
+        budget = computed.budget
+        assert budget.parameters["V_S"] == pytest.approx(max(results["scene"][name].V_S, 0))
+        total = sum(budget.fractions[k] for k in budget.fractions)
+        np.testing.assert_allclose(total, 1.0, rtol=1e-12)   # fractions of one total
+    inputs = budget_inputs(results["dark"], results["fixed_pattern"], results["ptc"],
+                           results["scene"][name], 8)
+    assert inputs["dark_spatial_var"] == pytest.approx(results["dark"].spatial_std_signal ** 2)
+    assert inputs["mu"][0] == pytest.approx(results["dark"].mean)
+    assert inputs["mu"][-1] == 255
+
+
+def test_map_selection_switches_the_data(computed):
+    page = computed
+    page.active_select.value = "dark"
+    assert page.active_layer.key == "dark"
+    row = page.row_slider.value
+    curve = page.row_profile_pane.object
+    np.testing.assert_array_equal(curve.dimension_values(1), page.layers["dark"].data[row])
+    assert page.download_exr.filename == "dark.exr"
+    assert page.clim_holder.objects[0] is page._sliders["dark"]
+    page.active_select.value = "K"
+    np.testing.assert_array_equal(page.row_profile_pane.object.dimension_values(1),
+                                  page.layers["K"].data[row])
+    # a column profile follows the column slider
+    page.col_slider.value = 17
+    np.testing.assert_array_equal(page.col_profile_pane.object.dimension_values(1),
+                                  page.layers["K"].data[:, 17])
+    # the grid follows the shown maps
+    page.shown_select.value = ["dark", "n1_used"]
+    assert len(page.grid_pane.object) == 2
+    page.shown_select.value = ["K", "dark", "n_rejected", "flags"]
+    assert len(page.grid_pane.object) == 4
+
+
+def test_cursor_readout_and_tap(computed):
+    page = computed
+    page._on_pointer(x=10.2, y=20.7)
+    k = page.layers["K"].data[21, 10]
+    assert page.readout.object.startswith("x = 10, y = 21: ")
+    assert f"K̂ = **{k:.5f}**" in page.readout.object
+    page._on_pointer(x=-5, y=3)             # outside the maps: the readout stays
+    assert page.readout.object.startswith("x = 10, y = 21: ")
+    page._on_tap(x=30, y=40)
+    assert (page.row_slider.value, page.col_slider.value) == (40, 30)
+
+
+def test_colour_range_and_auto(computed):
+    page = computed
+    page.active_select.value = "K"
+    slider = page._sliders["K"]
+    lo, hi = map_plots.default_clim(page.layers["K"])
+    assert lo + hi == pytest.approx(2.0)    # diverging map centred on 1
+    slider.value = (0.995, 1.001)
+    page._on_auto()
+    assert slider.value == pytest.approx((lo, hi))
+
+
+def test_export_reads_back_bit_exact(computed, tmp_path):
+    page = computed
+    page.active_select.value = "K"
+    expected = page.layers["K"].data.astype(np.float32)
+    for fmt, ext in (("exr", ".exr"), ("fits", ".fits")):
+        path = tmp_path / f"K{ext}"
+        path.write_bytes(page._download(fmt).getvalue())
+        back = read_image(path)
+        assert back.dtype == np.float32
+        np.testing.assert_array_equal(back, expected)
+    # PNG: 16-bit grey levels of the map scaled to the current colour range
+    page._sliders["K"].value = (0.99, 1.01)
+    path = tmp_path / "K.png"
+    path.write_bytes(page.export("png"))
+    png = read_image(path)
+    assert png.dtype == np.uint16 and png.shape == expected.shape
+    np.testing.assert_array_equal(png, map_plots.scaled_uint16(page.layers["K"].data,
+                                                               (0.99, 1.01)))
+    assert png.min() == 0 and png.max() == 65535      # K̂ spans more than 0.99..1.01
+    assert "colour range" in page.download_png.description
+
+
+def test_export_bytes_of_a_small_map(tmp_path):
+    data = np.array([[0.0, 1.0], [np.nan, 3.5]], dtype=np.float32)
+    layer = map_plots.MapLayer("m", "m", "m", "", data)
+    (tmp_path / "m.fits").write_bytes(export_bytes(layer, "fits"))
+    np.testing.assert_array_equal(read_image(tmp_path / "m.fits"), data)
+    assert map_plots.scaled_uint16(data, (0.0, 2.0)).tolist() == [[0, 32768], [0, 65535]]
+    with pytest.raises(ValueError):
+        export_bytes(layer, "jpeg")
+
+
+def test_maps_share_linked_axes(computed):
+    """Zooming one map zooms all: the Bokeh figures of the grid share one x and one y range."""
+    layout = computed.grid_pane.object
+    assert isinstance(layout, hv.Layout) and len(layout) >= 2
+    plot = hv.renderer("bokeh").get_plot(layout)
+    figures = [p.handles["plot"] for p in plot.subplots.values()
+               if p is not None and "plot" in getattr(p, "handles", {})]
+    if not figures:  # subplots wrap the element plots in AdjointLayoutPlots
+        figures = [sp.handles["plot"] for p in plot.subplots.values()
+                   for sp in p.subplots.values() if sp is not None and "plot" in sp.handles]
+    assert len(figures) == len(layout)
+    assert len({id(f.x_range) for f in figures}) == 1
+    assert len({id(f.y_range) for f in figures}) == 1
+
+
+def test_planning_panel_with_the_papers_inputs(computed):
+    page = computed
+    page._on_paper_inputs()
+    plan = plan_acquisition(**{k: v for k, v in PAPER_PLAN_INPUTS.items()})
+    assert page.plan_result.to_dict() == plan.to_dict()
+    assert plan.n1_hat == 11                  # σ̂ = 2.7e-3 reproduces the paper's n̂_1
+    assert f"n1 = {plan.n1_required}" in page.plan_numbers.object
+    assert f"n2 = {plan.n2_required}" in page.plan_numbers.object
+    assert plan.n1_formula in page.plan_formulas.object
+    assert plan.n2_formula in page.plan_formulas.object
+    alts = page.plan_alternatives.value
+    assert dict(zip(alts["n2"], alts["chosen"]))[plan.n2_required] == "✓"
+    # a typed input changes the plan; a bad one is an alert, not an exception
+    page.plan_bits.value = 12
+    assert page.plan_result.n1_required == plan_acquisition(
+        **{**PAPER_PLAN_INPUTS, "bits": 12}).n1_required
+    page.plan_A.value = 0.0
+    assert page.plan_result is None and page.plan_error.visible
+    assert "need A &gt; 0" in page.plan_error.object   # (escaped for Markdown)
+    # back to this session's estimates: the session's own plan
+    page._on_session_inputs()
+    session_plan = page.state.results["plan"]
+    assert page.plan_result.n1_required == session_plan.n1_required
+    assert page.plan_result.n2_required == session_plan.n2_required
+
+
+def test_session_without_darks_says_what_to_capture(assets):
+    state = AppState(allowed_roots=[assets.resolve()])
+    assert state.load(assets / "tsin01")
+    page = MapsPage(state, auto_compute=False)
+    assert not page._wants_auto_compute()
+    assert page.info_alert.visible and page.info_alert.alert_type == "info"
+    assert "No dark frames" in page.info_alert.object
+    assert "No fixed-pattern frames" in page.info_alert.object
+    assert len(missing_frames(state.session)) == 4
+    _run(page.compute())                     # nothing to estimate: still no error, no maps
+    assert state.error == "" and page.layers == {}
+    assert page.maps_empty.visible and not page.plan_alert.visible
+
+
+def test_bad_frames_are_an_alert_and_the_page_keeps_working(small_session, tmp_path, assets):
+    """One ptc level only: photon transfer refuses (CcdError) and the page shows it."""
+    state = AppState(allowed_roots=[tmp_path.resolve(), assets.resolve()])
+    assert state.load(small_session)
+    page = MapsPage(state, auto_compute=False)
+    assert page._wants_auto_compute()
+    _run(page.compute())
+    assert page.error_alert.visible and "ptc level" in page.error_alert.object
+    assert not page.compute_button.loading
+    # another session clears the alert's cause and computes fine
+    assert state.load(assets / "healey94")
+    assert "Press **Compute maps**" in page.info_alert.object
+    assert page.state.results == {} and page.layers == {}
+
+
+def test_map_plot_functions():
+    plane = np.arange(12, dtype=np.float64).reshape(3, 4)
+    layer = map_plots.MapLayer("k", "K", "K", "", 1 + plane / 100, kind="diverging", centre=1)
+    lo, hi = map_plots.default_clim(layer)
+    assert lo + hi == pytest.approx(2.0)
+    flags = map_plots.MapLayer("f", "F", "flag", "", np.zeros((3, 4)), kind="flags")
+    assert map_plots.default_clim(flags) == (-0.5, 2.5)
+    hit = map_plots.pixel_values({"k": layer, "f": flags}, 3.4, 1.6)
+    assert hit == (3, 2, {"k": f"{1 + 11 / 100:.5f}", "f": "normal"})
+    assert map_plots.pixel_values({"k": layer}, 4.6, 0) is None
+    assert map_plots.row_profile(layer, 1).dimension_values(1).tolist() == \
+        (1 + plane[1] / 100).tolist()
+    assert map_plots.column_profile(layer, 9).dimension_values(1).size == 3  # clipped to x = 3
+    with pytest.raises(ValueError):
+        map_plots.scaled_uint16(plane, (1.0, 1.0))
+
+
+def test_page_builds_its_layout(computed):
+    view = computed.__panel__()
+    assert view is computed.__panel__()       # built once, shown again
+    computed.tab_bar.value = "Planning"
+    assert computed.tab_content.objects[0].name == "Planning"
+    computed.tab_bar.value = "Maps"
+
+
+def test_a_complete_session_lacks_nothing(assets):
+    assert missing_frames(open_session(assets / "healey94")) == []

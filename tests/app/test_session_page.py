@@ -1,0 +1,253 @@
+"""Session page wiring, the app shell and the entry points, without a browser."""
+from __future__ import annotations
+
+import asyncio
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from app import plots
+from app.main import AppShell, _session_header, create_app
+from app.pages import PAGES, build_page, get_page, is_available
+from app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
+from app.state import AppState, is_allowed
+from ccdcore.session import open_session
+
+
+def _run(coro):
+    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
+    running in this one), as the Panel server runs async callbacks on its loop."""
+    with ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, coro).result()
+
+
+@pytest.fixture
+def state(tmp_path, assets):
+    return AppState(allowed_roots=[tmp_path.resolve(), assets.resolve()])
+
+
+def _show(page: SessionPage, relpath: str) -> None:
+    page.frame = relpath
+    _run(page._on_frame())
+
+
+def test_open_demo_button_loads_the_chosen_demo_and_fills_the_page(state, assets):
+    page = SessionPage(state)
+    page.demo_select.value = "healey94"
+    _run(page._on_open_demo())
+    session = state.session
+    assert session is not None and session.root == (assets / "healey94").resolve()
+    # groups: one row per group, counts add up to the frames
+    groups = page.groups_table.value
+    assert groups["count"].sum() == len(session.frames)
+    assert set(groups["role"]) == set(session.roles())
+    # frames: every frame, paginated
+    frames = page.frames_table.value
+    assert list(frames["relpath"]) == [r.relpath for r in session.frames]
+    assert page.frames_table.pagination == "remote" and page.frames_table.page_size < len(frames)
+    assert "XC-77-like simulated CCD" in page.camera_pane.object
+    assert [a.alert_type for a in page.problem_alerts] == ["success"]
+    assert not page.draft_card.visible        # a manifest session: nothing inferred
+    assert page.param.frame.objects == list(frames["relpath"])
+    assert page.frame == session.frames[0].relpath
+
+
+def test_selecting_a_table_row_previews_that_frame(state, healey94):
+    page = SessionPage(state)
+    state.load(healey94)
+    page.frames_table.selection = [3]
+    relpath = page.frames_table.value.iloc[3]["relpath"]
+    assert page.frame == relpath
+    _run(page._on_frame())
+    rec = state.session.frames[3]
+    expected = state.session.read(rec)
+    np.testing.assert_array_equal(page._plane, expected)
+    assert relpath in page.frame_info.object
+    assert page.image_pane.object is not None and page.hist_pane.object is not None
+    # the colour range starts at the 0.5-99.5 % percentiles, inside the data range
+    lo, hi = plots.auto_clim(expected)
+    assert page.clim_slider.value == (max(lo, expected.min()), min(hi, expected.max()))
+    assert page.clim_slider.start == expected.min() and page.clim_slider.end == expected.max()
+    assert not page.channel_select.visible       # mono frame: no channel choice
+
+
+def test_colour_frames_offer_channels_and_auto_range(state, small_session):
+    page = SessionPage(state)
+    state.load(small_session)
+    _show(page, "scene/rgb.tif")
+    rgb = state.session.read(state.session.frames[-1])
+    assert page.channel_select.visible
+    page.channel = "R"                            # the red channel is flat (4000) in the fixture
+    np.testing.assert_array_equal(page._plane, rgb[..., 0])
+    assert "channel R" in page.frame_info.object
+    page.channel = "G"
+    np.testing.assert_array_equal(page._plane, rgb[..., 1])
+    page.channel = "L"
+    np.testing.assert_allclose(page._plane, rgb[..., :3].astype(np.float32)
+                               @ np.float32(plots.LUMINANCE_WEIGHTS), rtol=1e-6)
+    # the user narrows the range; Auto restores the percentile range
+    auto = page.clim_slider.value
+    page.clim_slider.value = (page.clim_slider.start, page.clim_slider.start + 1)
+    page._on_auto()
+    assert page.clim_slider.value == auto
+
+
+def test_pointer_readout_reports_the_exact_pixel(state, small_session):
+    page = SessionPage(state)
+    state.load(small_session)
+    _show(page, "ptc/p1.tif")
+    plane = state.session.read(state.session.frames[3])
+    page._on_pointer(x=5.2, y=7.8)                 # nearest pixel centre: column 5, row 8
+    assert page.readout.object == f"x = 5, y = 8: **{plane[8, 5]} DN**"
+    before = page.readout.object
+    page._on_pointer(x=500.0, y=2.0)               # outside the frame: unchanged
+    assert page.readout.object == before
+
+
+def test_unreadable_frame_then_a_good_one(state, unreadable_session):
+    page = SessionPage(state)
+    state.load(unreadable_session)
+    # the open already names the bad file as a problem
+    assert any("bad.tif" in a.object and a.alert_type == "danger" for a in page.problem_alerts)
+    _show(page, "scene/bad.tif")
+    assert page.preview_alert.visible and "scene/bad.tif" in page.preview_alert.object
+    assert page.image_pane.object is None
+    _show(page, "dark/d1.tif")
+    assert not page.preview_alert.visible and page.image_pane.object is not None
+
+
+def test_plain_folder_warnings_are_yellow_and_inference_is_listed(state, plain_folder):
+    page = SessionPage(state)
+    assert state.load(plain_folder)
+    kinds = {a.alert_type for a in page.problem_alerts}
+    assert kinds == {"warning"}, [a.object for a in page.problem_alerts]
+    summary = dict((k, n) for k, n, _ in inferred_summary(state.session))
+    assert summary["role"] == 4 and summary["exposure"] == 4
+    assert "**role** for 4 of 4 frames, from folder names" in page.inferred_pane.object
+    assert page.draft_button.visible and "```toml" in page.draft_pane.object
+    page._on_draft()
+    draft = plain_folder / "session.toml.draft"
+    assert page.notice_alert.visible and "session.toml.draft" in page.notice_alert.object
+    # the draft is a manifest giving back the same frames and roles
+    assert not (plain_folder / "session.toml").exists() and draft.is_file()
+    draft.rename(plain_folder / "session.toml")
+    reopened = open_session(plain_folder)
+    assert reopened.source == "manifest"
+    assert [(r.relpath, r.role, r.exposure) for r in reopened.frames] == \
+        [(r.relpath, r.role, r.exposure) for r in state.session.frames]
+
+
+def test_bad_inputs_are_alerts_and_the_page_keeps_its_session(state, healey94, broken_manifest,
+                                                              tmp_path):
+    page = SessionPage(state)
+    state.load(healey94)
+    frames_before = page.frames_table.value.copy()
+    page.path_input.value = str(broken_manifest)
+    _run(page._on_open_path())
+    assert page.error_alert.visible and "session.toml" in page.error_alert.object
+    page.path_input.value = str(tmp_path / "nope")
+    _run(page._on_open_path())
+    assert page.error_alert.visible and "nope: does not exist" in page.error_alert.object
+    page.path_input.value = "/etc"
+    _run(page._on_open_path())
+    assert "outside the folders" in page.error_alert.object
+    assert page.frames_table.value.equals(frames_before)
+    assert state.session_path == str(healey94.resolve())
+    # the next good open clears the alert
+    page.path_input.value = str(healey94)
+    _run(page._on_open_path())
+    assert not page.error_alert.visible
+
+
+def test_problem_alerts_are_capped(state, small_session):
+    extra = "".join(f'\n[[frames]]\npath = "dark/missing{i}.tif"\nrole = "dark"\n'
+                    for i in range(MAX_ALERTS + 5))
+    with (small_session / "session.toml").open("a") as f:
+        f.write(extra)
+    page = SessionPage(state)
+    state.load(small_session)
+    alerts = page.problem_alerts
+    assert len(alerts) == MAX_ALERTS + 1
+    assert "more problems" in alerts[-1].object
+
+
+def test_file_browser_is_restricted_to_the_allowed_roots(state, healey94, tmp_path):
+    page = SessionPage(state)
+    assert set(page.root_select.options.values()) == {str(r) for r in state.allowed_roots}
+    page.root_select.value = str(healey94.parent.resolve())
+    assert page.file_selector.root_directory == str(healey94.parent.resolve())
+    _run(page._on_open_selected())                 # nothing selected: an alert
+    assert page.error_alert.visible and "Nothing selected" in page.error_alert.object
+    page.file_selector.value = [str(healey94 / "session.toml")]
+    _run(page._on_open_selected())
+    assert state.session is not None and not page.error_alert.visible
+    assert is_allowed(healey94, state.allowed_roots) and not is_allowed("/etc", state.allowed_roots)
+
+
+def test_shell_navigation_and_coming_pages(state):
+    shell = AppShell(state)
+    page = shell.page_view("session")
+    assert shell.page == "session" and isinstance(page, SessionPage)
+    assert shell.main.objects[0] is page.__panel__()
+    coming = [p for p in PAGES if not is_available(p)]
+    for spec in coming:
+        shell.page = spec.slug
+        view = shell.main.objects[0]
+        text = " ".join(getattr(o, "object", "") or "" for o in view.objects)
+        assert "Not built yet" in text and spec.planned in text
+        assert shell.buttons[spec.slug].color == "primary"
+    shell.page = "session"
+    assert shell.page_view("session") is page                     # kept, not rebuilt
+    assert shell.main.objects[0] is page.__panel__()
+    assert [p.slug for p in PAGES][:1] == ["session"] and len(PAGES) == 7
+    with pytest.raises(KeyError, match="known"):
+        get_page("nope")
+    assert build_page(get_page("session"), state).state is state
+
+
+def test_create_app_opens_the_given_session_and_shows_it_in_the_header(healey94):
+    template = create_app(healey94)
+    st = template.app_state
+    assert st.session is not None and st.session.root == healey94.resolve()
+    assert is_allowed(healey94, st.allowed_roots)
+    assert "healey94" in _session_header(st.session_path, st.status, st.busy)
+    assert "No session loaded" in _session_header("", "", False)
+    bad = create_app("/nonexistent/session")
+    assert bad.app_state.session is None and "does not exist" in bad.app_state.error
+
+
+def test_serve_entry_point_answers_on_localhost(warmed):
+    import panel as pn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"http://127.0.0.1:{port}"
+    try:
+        app.main.serve(None, port=port, threaded=True)
+        for _ in range(200):                       # wait for /liveness (at most ~20 s)
+            try:
+                with urllib.request.urlopen(url + "/liveness", timeout=2) as r:
+                    if r.status == 200:
+                        break
+            except OSError:
+                time.sleep(0.1)
+        with urllib.request.urlopen(url + "/", timeout=20) as r:
+            body = r.read().decode()
+        assert r.status == 200 and "ccdcore" in body
+    finally:
+        pn.state.kill_all_servers()
+
+
+def test_python_dash_m_app_help():
+    out = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True,
+                         cwd=Path(app.__file__).parents[1], timeout=60)
+    assert out.returncode == 0 and "--port" in out.stdout and "SESSION" in out.stdout.upper()
