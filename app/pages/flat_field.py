@@ -272,12 +272,12 @@ class FlatFieldPage(pn.viewable.Viewer):
         self.recommend_alert = pn.pane.Alert("", alert_type="info", visible=False,
                                              sizing_mode="stretch_width", margin=(5, 5, 0, 5))
 
-        self.setting_select = pn.widgets.Select(name="Offset setting", options=[], width=180)
-        self.base_select = pn.widgets.Select(name="Base image (level \u00b7 exposure)",
+        self.setting_select = pn.widgets.Select(label="Offset setting", options=[], width=180)
+        self.base_select = pn.widgets.Select(label="Base image (level \u00b7 exposure)",
                                              options={}, sizing_mode="stretch_width",
                                              min_width=320)
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
-            self.param.channel, name="Channel", button_type="default", align="end", width=220,
+            self.param.channel, label="Channel", color="default", align="end", width=220,
             sizing_mode="fixed")
         self.setting_select.param.watch(self._on_setting, "value")
         self.base_select.param.watch(self._on_base, "value")
@@ -289,7 +289,7 @@ class FlatFieldPage(pn.viewable.Viewer):
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
 
         # before / after
-        self.frame_select = pn.widgets.Select(name="Frame (any flat of the setting)", options=[],
+        self.frame_select = pn.widgets.Select(label="Frame (any flat of the setting)", options=[],
                                               sizing_mode="stretch_width")
         self.frame_select.param.watch(self._on_frame, "value")
         self.snup_title = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
@@ -327,7 +327,7 @@ class FlatFieldPage(pn.viewable.Viewer):
                                             linked_axes=False, css_classes=["ccd-flat-study"])
         self.study_table = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=True, show_index=False, sizing_mode="stretch_width",
-            layout="fit_data_fill", selectable=False, name="base study", height=360,
+            layout="fit_data_fill", selectable=False, height=360,
             frozen_columns=["corrected group"])
         self.study_alert = pn.pane.Alert("", alert_type="warning", visible=False,
                                          sizing_mode="stretch_width")

@@ -340,7 +340,7 @@ class MapsPage(pn.viewable.Viewer):
     # ====================================================================== building ========
     def _build_header(self) -> None:
         self.compute_button = pn.widgets.Button(
-            name="Compute maps", button_type="primary", width=170,
+            label="Compute maps", color="primary", width=170,
             description="D̂_D, K̂, the acquisition plan and V_S from this session's frames "
                         "(the same estimates as `ccdcore calibrate`)")
         self.compute_button.on_click(self._on_compute)
@@ -351,31 +351,31 @@ class MapsPage(pn.viewable.Viewer):
 
     def _build_maps_tab(self) -> None:
         self.shown_select = pn.widgets.MultiChoice(
-            name="Maps shown (linked zoom)", options={}, value=[], sizing_mode="stretch_width",
+            label="Maps shown (linked zoom)", options={}, value=[], sizing_mode="stretch_width",
             min_width=320)
         self.shown_select.param.watch(self._on_shown, "value")
-        self.active_select = pn.widgets.Select(name="Selected map", options={}, width=280)
+        self.active_select = pn.widgets.Select(label="Selected map", options={}, width=280)
         self.active_select.param.watch(self._on_active, "value")
         self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
-        self.auto_button = pn.widgets.Button(name="Auto (0.5–99.5 %)", align="end", width=150)
+        self.auto_button = pn.widgets.Button(label="Auto (0.5–99.5 %)", align="end", width=150)
         self.auto_button.on_click(self._on_auto)
-        self.row_slider = pn.widgets.IntSlider(name="Profile row y", start=0, end=1, value=0,
+        self.row_slider = pn.widgets.IntSlider(label="Profile row y", start=0, end=1, value=0,
                                                sizing_mode="stretch_width")
-        self.col_slider = pn.widgets.IntSlider(name="Profile column x", start=0, end=1,
+        self.col_slider = pn.widgets.IntSlider(label="Profile column x", start=0, end=1,
                                                value=0, sizing_mode="stretch_width")
         self.row_slider.param.watch(self._update_profiles, "value")
         self.col_slider.param.watch(self._update_profiles, "value")
         self.download_exr = pn.widgets.FileDownload(
             callback=lambda: self._download("exr"), filename="map.exr", label="EXR",
-            button_type="default", embed=False, width=90,
+            color="default", embed=False, width=90,
             description="The selected map as float32 OpenEXR (values, bit-exact)")
         self.download_fits = pn.widgets.FileDownload(
             callback=lambda: self._download("fits"), filename="map.fits", label="FITS",
-            button_type="default", embed=False, width=90,
+            color="default", embed=False, width=90,
             description="The selected map as float32 FITS (values, bit-exact)")
         self.download_png = pn.widgets.FileDownload(
             callback=lambda: self._download("png"), filename="map.png", label="PNG",
-            button_type="default", embed=False, width=90,
+            color="default", embed=False, width=90,
             description="A 16-bit greyscale picture of the selected map scaled to the current "
                         "colour range (low end 0, high end 65535) — not the values")
         # fixed size: the GridPlot's own (a stretching pane lays fixed-size plots out at zero
@@ -415,10 +415,10 @@ class MapsPage(pn.viewable.Viewer):
         self.maps_empty = pn.pane.Markdown("No maps yet.", sizing_mode="stretch_width")
 
     def _build_scene_tab(self) -> None:
-        self.patch_table = _table(name="patches")
-        self.patch_select = pn.widgets.Select(name="Patch", options=[], width=260)
+        self.patch_table = _table()
+        self.patch_select = pn.widgets.Select(label="Patch", options=[], width=260)
         self.patch_select.param.watch(self._update_patch, "value")
-        self.level_table = _table(name="levels")
+        self.level_table = _table()
         self.fit_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=380,
                                           linked_axes=False, css_classes=["ccd-scene-fit"])
         self.budget_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=380,
@@ -433,32 +433,32 @@ class MapsPage(pn.viewable.Viewer):
 
     def _build_planning_tab(self) -> None:
         p = PAPER_PLAN_INPUTS
-        self.plan_A = pn.widgets.FloatInput(name="A (DN per electron)", value=p["A"], step=1e-4,
+        self.plan_A = pn.widgets.FloatInput(label="A (DN per electron)", value=p["A"], step=1e-4,
                                             start=0.0, width=170)
-        self.plan_sigma_c2 = pn.widgets.FloatInput(name="σ²_C (DN²)", value=p["sigma_c2"],
+        self.plan_sigma_c2 = pn.widgets.FloatInput(label="σ²_C (DN²)", value=p["sigma_c2"],
                                                    step=0.01, start=0.0, width=170)
-        self.plan_bits = pn.widgets.IntInput(name="bits b", value=p["bits"], start=1, end=32,
+        self.plan_bits = pn.widgets.IntInput(label="bits b", value=p["bits"], start=1, end=32,
                                              width=120)
-        self.plan_sigma_hat = pn.widgets.FloatInput(name="σ̂ (slope std)", value=p["sigma_hat"],
+        self.plan_sigma_hat = pn.widgets.FloatInput(label="σ̂ (slope std)", value=p["sigma_hat"],
                                                     step=1e-4, start=0.0, width=170)
-        self.plan_p = pn.widgets.FloatInput(name="p (rejection width)", value=p["p"], step=0.1,
+        self.plan_p = pn.widgets.FloatInput(label="p (rejection width)", value=p["p"], step=0.1,
                                             start=0.1, width=150)
-        self.plan_worst = pn.widgets.FloatInput(name="worst ratio n1/n̂_1",
+        self.plan_worst = pn.widgets.FloatInput(label="worst ratio n1/n̂_1",
                                                 value=p["worst_ratio"], step=0.05, start=1.0,
                                                 width=170)
-        self.plan_black = pn.widgets.FloatInput(name="black level b0 (DN)",
+        self.plan_black = pn.widgets.FloatInput(label="black level b0 (DN)",
                                                 value=p["black_level"], step=1.0, width=150)
-        self.plan_reading = pn.widgets.Select(name="n2 reading", options=_READINGS,
+        self.plan_reading = pn.widgets.Select(label="n2 reading", options=_READINGS,
                                               value=p["n2_reading"], width=330)
         self._plan_inputs = (self.plan_A, self.plan_sigma_c2, self.plan_bits,
                              self.plan_sigma_hat, self.plan_p, self.plan_worst,
                              self.plan_black, self.plan_reading)
         for w in self._plan_inputs:
             w.param.watch(self._update_plan, "value")
-        self.paper_button = pn.widgets.Button(name="Paper's values", width=150)
+        self.paper_button = pn.widgets.Button(label="Paper's values", width=150)
         self.paper_button.on_click(self._on_paper_inputs)
         self.session_inputs_button = pn.widgets.Button(
-            name="This session's estimates", width=200, disabled=True,
+            label="This session's estimates", width=200, disabled=True,
             description="A, σ²_C and b0 from photon transfer; σ̂ and the worst ratio from K̂")
         self.session_inputs_button.on_click(self._on_session_inputs)
         self.plan_source = pn.pane.Markdown("", sizing_mode="stretch_width",
@@ -467,7 +467,7 @@ class MapsPage(pn.viewable.Viewer):
                                          css_classes=["ccd-plan-numbers"])
         self.plan_formulas = pn.pane.Markdown("", sizing_mode="stretch_width",
                                               css_classes=["ccd-formula"], stylesheets=[_CSS])
-        self.plan_alternatives = _table(name="n2 alternatives")
+        self.plan_alternatives = _table()
         self.plan_error = _alert("", "danger")
         self._update_plan()
 
@@ -531,8 +531,8 @@ class MapsPage(pn.viewable.Viewer):
         # at zero size; swapping the content also renders each view only when it is shown)
         self._tab_views = {"Maps": maps_tab, "Scene": scene_tab, "Planning": planning_tab}
         self.tab_bar = pn.widgets.RadioButtonGroup(
-            options=list(self._tab_views), value="Maps", button_type="primary",
-            button_style="outline", css_classes=["ccd-maps-tabs"], margin=(10, 10, 0, 10))
+            options=list(self._tab_views), value="Maps", color="primary",
+            variant="outline", css_classes=["ccd-maps-tabs"], margin=(10, 10, 0, 10))
         self.tab_content = pn.Column(maps_tab, sizing_mode="stretch_width")
         self.tab_bar.param.watch(self._on_tab, "value")
         return pn.Column(
@@ -687,7 +687,7 @@ class MapsPage(pn.viewable.Viewer):
                 end = start + 1.0
             step = 0.5 if layer.integer else (end - start) / 1000
             self._sliders[key] = pn.widgets.EditableRangeSlider(
-                name=f"Colour range of {layer.symbol}" + (f" ({layer.unit})" if layer.unit
+                label=f"Colour range of {layer.symbol}" + (f" ({layer.unit})" if layer.unit
                                                           else ""),
                 start=start, end=end, value=(lo, hi), step=step, sizing_mode="stretch_width",
                 disabled=layer.kind == "flags", format="0.[00000]")

@@ -220,14 +220,14 @@ class PhotonTransferPage(pn.viewable.Viewer):
             sizing_mode="stretch_width", name="parameters", css_classes=["ccd-ptc-parameters"],
             stylesheets=[_TABLE_CSS])
 
-        self.level_select = pn.widgets.CheckBoxGroup(name="Levels in the fit", options={},
+        self.level_select = pn.widgets.CheckBoxGroup(label="Levels in the fit", options={},
                                                      value=[], inline=False)
         self.level_select.param.watch(self._on_levels, "value")
         self.robust_checkbox = pn.widgets.Checkbox.from_param(
-            self.param.robust, name=f"Robust mode (drop levels beyond {ROBUST_Z:g}\u03c3, one at "
+            self.param.robust, label=f"Robust mode (drop levels beyond {ROBUST_Z:g}\u03c3, one at "
                                     "a time)")
         self.param.watch(self._on_robust, "robust")
-        self.all_levels_button = pn.widgets.Button(name="Use all levels", button_type="light")
+        self.all_levels_button = pn.widgets.Button(label="Use all levels", color="light")
         self.all_levels_button.on_click(self._on_all_levels)
         self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
                                             styles={"font-size": "0.9em"})
@@ -250,16 +250,16 @@ class PhotonTransferPage(pn.viewable.Viewer):
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
 
         # ---- ROI
-        self.frame_select = pn.widgets.Select(name="Preview frame", options=[],
+        self.frame_select = pn.widgets.Select(label="Preview frame", options=[],
                                               sizing_mode="stretch_width")
         self.frame_select.param.watch(self._on_frame, "value")
-        self.x_input = pn.widgets.IntInput(name="X (column)", value=0, start=0, width=110)
-        self.y_input = pn.widgets.IntInput(name="Y (row)", value=0, start=0, width=110)
-        self.w_input = pn.widgets.IntInput(name="W (px)", value=1, start=1, width=110)
-        self.h_input = pn.widgets.IntInput(name="H (px)", value=1, start=1, width=110)
-        self.apply_roi_button = pn.widgets.Button(name="Apply ROI", button_type="primary")
+        self.x_input = pn.widgets.IntInput(label="X (column)", value=0, start=0, width=110)
+        self.y_input = pn.widgets.IntInput(label="Y (row)", value=0, start=0, width=110)
+        self.w_input = pn.widgets.IntInput(label="W (px)", value=1, start=1, width=110)
+        self.h_input = pn.widgets.IntInput(label="H (px)", value=1, start=1, width=110)
+        self.apply_roi_button = pn.widgets.Button(label="Apply ROI", color="primary")
         self.apply_roi_button.on_click(self._on_apply_roi)
-        self.full_frame_button = pn.widgets.Button(name="Full frame", button_type="light")
+        self.full_frame_button = pn.widgets.Button(label="Full frame", color="light")
         self.full_frame_button.on_click(self._on_full_frame)
         self.roi_status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
