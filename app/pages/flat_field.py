@@ -62,6 +62,7 @@ from ccdcore.uniformity import (channel_names, dark_groups, flat_groups, session
 
 from .. import flat_plots, plots
 from ..state import AppState
+from ._messages import PageMessages
 
 __all__ = ["FlatFieldPage", "create_page", "FrameView", "frame_view", "kmap_comparison",
            "default_frame",
@@ -225,7 +226,7 @@ def _table(df: pd.DataFrame, css_class: str, **kw: Any) -> pn.pane.DataFrame:
 
 
 # ----------------------------------------------------------------------------- the page -------
-class FlatFieldPage(pn.viewable.Viewer):
+class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     """Flat-field correction of the loaded session (de Lasarte et al. 2007)."""
 
     state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
@@ -399,21 +400,6 @@ class FlatFieldPage(pn.viewable.Viewer):
             sizing_mode="stretch_width", name="Flat field")
 
     # ============================================================ messages =================
-    def _show_empty(self) -> None:
-        if self.state.session is None:
-            self._info("No session loaded: open one on the **Session** page.")
-
-    def _info(self, text: str) -> None:
-        self.info_alert.object = text
-        self.info_alert.visible = bool(text)
-        if text:
-            self.content.visible = False
-
-    def _set_error(self, text: str) -> None:
-        self.error = text
-        self.error_alert.object = f"**Error:** {text}" if text else ""
-        self.error_alert.visible = bool(text)
-
     # ============================================================ widget events ============
     def _schedule(self, step: Any) -> None:
         if self.auto and not self._syncing:

@@ -49,6 +49,7 @@ from ccdcore.session import FrameRecord, Session
 
 from .. import plots, ptc_plots
 from ..state import AppState
+from ._messages import PageMessages
 
 __all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "format_value",
            "verdict_message", "NO_PTC_MESSAGE"]
@@ -168,7 +169,7 @@ def _level_label(p: PtcPoint) -> str:
     return f"Level {p.level} (\u03bc {p.mu:.4g} DN)"
 
 
-class PhotonTransferPage(pn.viewable.Viewer):
+class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     """Photon transfer of the loaded session: points, fit, verdict, parameters, toggles, ROI."""
 
     state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
@@ -313,21 +314,6 @@ class PhotonTransferPage(pn.viewable.Viewer):
             sizing_mode="stretch_width", name="Photon transfer")
 
     # ============================================================ session and computing =====
-    def _show_empty(self) -> None:
-        if self.state.session is None:
-            self._info("No session loaded: open one on the **Session** page.")
-
-    def _info(self, text: str) -> None:
-        self.info_alert.object = text
-        self.info_alert.visible = bool(text)
-        if text:
-            self.content.visible = False
-
-    def _set_error(self, text: str) -> None:
-        self.error = text
-        self.error_alert.object = f"**Error:** {text}" if text else ""
-        self.error_alert.visible = bool(text)
-
     def _on_session(self, *events: Any) -> None:
         """A new session: forget the old one's points, ROI and choices; compute again."""
         self._session = None

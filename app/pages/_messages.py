@@ -1,0 +1,34 @@
+"""The info and error alerts that the analysis pages share.
+
+A page using :class:`PageMessages` has ``state`` (the :class:`~app.state.AppState`),
+``info_alert`` and ``error_alert`` (``pn.pane.Alert``), ``content`` (what the info message
+hides) and an ``error`` string that tests and the header read.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+
+class PageMessages:
+    """Mixin: one info line (hides the page content) and one error alert per page."""
+
+    state: Any
+    info_alert: Any
+    error_alert: Any
+    content: Any
+    error: str
+
+    def _show_empty(self) -> None:
+        if self.state.session is None:
+            self._info("No session loaded: open one on the **Session** page.")
+
+    def _info(self, text: str) -> None:
+        self.info_alert.object = text
+        self.info_alert.visible = bool(text)
+        if text:
+            self.content.visible = False
+
+    def _set_error(self, text: str) -> None:
+        self.error = text
+        self.error_alert.object = f"**Error:** {text}" if text else ""
+        self.error_alert.visible = bool(text)
