@@ -224,8 +224,8 @@ class PhotonTransfer:
     read_noise_e, read_noise_e_err
         σ_R = √(σ²_C − q²/12)/A (eq. 27), electrons (NaN when σ²_C < q²/12), with the error
         propagated from ``cov``.
-    read_noise_dn
-        A·σ_R = √(σ²_C − q²/12), DN.
+    read_noise_dn, read_noise_dn_err
+        A·σ_R = √(σ²_C − q²/12), DN, with the error σ(σ²_C)/(2·A·σ_R) from ``cov``.
     quantisation_dn2
         q²/12, DN².
     black_level_dn, black_level_source
@@ -254,6 +254,7 @@ class PhotonTransfer:
     read_noise_e: float
     read_noise_e_err: float
     read_noise_dn: float
+    read_noise_dn_err: float
     quantisation_dn2: float
     black_level_dn: float
     black_level_source: str
@@ -299,7 +300,8 @@ class PhotonTransfer:
         out.update(chi2=_jsonable(self.chi2), dof=self.dof, Q=_jsonable(self.Q),
                    verdict=self.verdict, points=[p.to_dict() for p in self.points])
         for key in ("conversion_gain_e_per_dn", "conversion_gain_e_per_dn_err", "read_noise_e",
-                    "read_noise_e_err", "read_noise_dn", "quantisation_dn2", "black_level_dn"):
+                    "read_noise_e_err", "read_noise_dn", "read_noise_dn_err", "quantisation_dn2",
+                    "black_level_dn"):
             out[key] = _jsonable(getattr(self, key))
         out.update(black_level_source=self.black_level_source,
                    roi=None if self.roi is None else list(self.roi), bits=self.bits,
@@ -827,6 +829,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         all_notes.append(f"{_FIT_NOTE}fit: slope A = {a:.4g} is not positive; no conversion "
                          "gain or read noise in electrons")
     rn_dn = math.sqrt(c - q2) if c > q2 else float("nan")
+    rn_dn_err = c_err / (2.0 * rn_dn) if c > q2 else float("nan")   # d√(σ²_C − q²/12)/dσ²_C
     if a > 0 and c > q2:
         rn_e = rn_dn / a
         jac = np.array([-rn_e / a, 1.0 / (2.0 * a * rn_dn)])  # d sigma_R / d(A, sigma_c2), eq. 27
@@ -840,7 +843,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         A=a, A_err=a_err, sigma_c2=c, sigma_c2_err=c_err, cov=cov, chi2=fit.chi2, dof=fit.dof,
         Q=fit.Q, points=out_points, conversion_gain_e_per_dn=gain,
         conversion_gain_e_per_dn_err=gain_err, read_noise_e=rn_e, read_noise_e_err=rn_err,
-        read_noise_dn=rn_dn, quantisation_dn2=q2, black_level_dn=b0,
+        read_noise_dn=rn_dn, read_noise_dn_err=rn_dn_err, quantisation_dn2=q2, black_level_dn=b0,
         black_level_source=black_level_source,
         roi=None if roi is None else tuple(int(v) for v in roi), bits=bits,
         robust_dropped=tuple(dropped), notes=tuple(all_notes), verdict=_verdict(fit.Q),

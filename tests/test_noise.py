@@ -53,6 +53,8 @@ def check_against_truth(pt: PhotonTransfer, truth: dict, sigma_c2: float | None 
     assert within(pt.sigma_c2, c_true, pt.sigma_c2_err), (pt.sigma_c2, c_true, pt.sigma_c2_err)
     if sigma_c2 is None:
         assert within(pt.read_noise_e, truth["read_noise_e"], pt.read_noise_e_err)
+        rn_dn_true = math.sqrt(c_true - pt.quantisation_dn2)       # A·σ_R of eq. 27, in DN
+        assert within(pt.read_noise_dn, rn_dn_true, pt.read_noise_dn_err)
 
 
 def edit_manifest(root: Path, edit) -> None:
@@ -145,6 +147,10 @@ def test_photon_transfer_recovers_the_truth(healey) -> None:
     assert within(pt.conversion_gain_e_per_dn, 1 / truth["A"], pt.conversion_gain_e_per_dn_err)
     assert pt.quantisation_dn2 == pytest.approx(1 / 12)
     assert pt.read_noise_dn == pytest.approx(math.sqrt(pt.sigma_c2 - 1 / 12))
+    # the propagated error is the numerical derivative of √(σ²_C − q²/12) times σ(σ²_C)
+    h = 1e-6
+    slope = (math.sqrt(pt.sigma_c2 + h - 1 / 12) - math.sqrt(pt.sigma_c2 - h - 1 / 12)) / (2 * h)
+    assert pt.read_noise_dn_err == pytest.approx(slope * pt.sigma_c2_err, rel=1e-6)
     # chi2 ~ dof: Q not tiny
     assert pt.dof == 6 and pt.Q > 0.001 and pt.verdict in ("acceptable", "poor")
     m = 96 * 64
