@@ -56,12 +56,23 @@ _SOURCES = {"manifest": "manifest", "folder": "plain folder (no manifest)",
 _FROM = {"role": "folder names", "level": "sub-folder names", "config": "sub-folder names",
          "exposure": "file headers", "gain": "file headers", "temperature": "file headers"}
 # frames-table columns always shown; the other metadata columns only when some frame sets them
-_ALWAYS = ("relpath", "role", "exposure", "shape", "dtype", "bits")
+_ALWAYS = ("relpath", "role", "exposure", "size (W×H)", "dtype", "bits")
 
 
 def _code(text: Any) -> str:
     """``text`` as a Markdown code span (paths keep their underscores and asterisks)."""
     return "`" + str(text).replace("`", "'") + "`"
+
+
+def size_text(shape: Any) -> str:
+    """ccdcore's shape text ``"HxW"`` or ``"HxWxC"`` (NumPy order) as ``"W × H"`` or
+    ``"W × H × C"``, the way cameras and the CLI's ``--size WxH`` state sizes; others unchanged."""
+    if not isinstance(shape, str):
+        return "" if shape is None else str(shape)
+    parts = shape.split("x")
+    if len(parts) in (2, 3) and all(p.isdigit() for p in parts):
+        return " × ".join([parts[1], parts[0]] + parts[2:])
+    return shape
 
 
 def groups_frame(session: Session) -> pd.DataFrame:
@@ -72,10 +83,11 @@ def groups_frame(session: Session) -> pd.DataFrame:
         rows.append({"role": row["role"],
                      "key": "" if row.get("key") is None else str(row["key"]),
                      "count": int(row["count"]),
-                     "shape": row.get("shape") or "unreadable",
+                     "size (W×H)": size_text(row.get("shape") or "unreadable"),
                      "dtype": row.get("dtype") or "unreadable",
                      "exposure (s)": ", ".join(f"{e:g}" for e in exposures)})
-    return pd.DataFrame(rows, columns=["role", "key", "count", "shape", "dtype", "exposure (s)"])
+    return pd.DataFrame(rows, columns=["role", "key", "count", "size (W×H)", "dtype",
+                                       "exposure (s)"])
 
 
 def frames_frame(session: Session) -> pd.DataFrame:
@@ -91,6 +103,9 @@ def frames_frame(session: Session) -> pd.DataFrame:
         if col in df.columns:
             df[col] = df[col].map(lambda v: "" if v is None or v is np.nan
                                   or isinstance(v, float) and np.isnan(v) else str(v))
+    if "shape" in df.columns:
+        df = df.rename(columns={"shape": "size (W×H)"})
+        df["size (W×H)"] = df["size (W×H)"].map(size_text)
     keep = [c for c in df.columns
             if c in _ALWAYS or c == "inferred" and (df[c] != "").any()
             or c not in _ALWAYS and c != "inferred" and df[c].notna().any()
@@ -475,7 +490,7 @@ class SessionPage(pn.viewable.Viewer):
         self.frame_info.object = (
             f"{_code(rec.relpath)} \u2014 {rec.role}"
             + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
-            + f", {'x'.join(map(str, array.shape))} {array.dtype}{channel}; "
+            + f", {size_text('x'.join(map(str, array.shape)))} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
         image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
                                        title=Path(rec.relpath).name)

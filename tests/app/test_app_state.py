@@ -10,7 +10,7 @@ import pytest
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from app import plots
 from app.pages import PAGES, build_page, is_available
-from app.pages.session import SessionPage, frames_frame, groups_frame
+from app.pages.session import SessionPage, frames_frame, groups_frame, size_text
 from app.state import AppState, demo_sessions
 
 
@@ -99,8 +99,19 @@ def test_tables_of_a_demo(healey94):
     from ccdcore.session import open_session
 
     s = open_session(healey94)
-    assert groups_frame(s)["count"].sum() == len(s.frames)
-    assert len(frames_frame(s)) == len(s.frames)
+    groups, frames = groups_frame(s), frames_frame(s)
+    assert groups["count"].sum() == len(s.frames)
+    assert len(frames) == len(s.frames)
+    # sizes read width x height (the demo is 256 px wide, 192 px tall), as the CLI's --size WxH
+    height, width = s.header(s.frames[0]).shape[:2]
+    assert (width, height) == (256, 192)
+    assert set(groups["size (W×H)"]) == set(frames["size (W×H)"]) == {"256 × 192"}
+
+
+def test_size_text():
+    assert size_text("192x256") == "256 × 192"
+    assert size_text("4x6x3") == "6 × 4 × 3"
+    assert size_text("mixed") == "mixed" and size_text(None) == ""
 
 
 def test_every_page_builds(state):
