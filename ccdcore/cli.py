@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -70,7 +71,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _cmd_session(args: argparse.Namespace) -> int:
-    from .session import draft_manifest, open_session
+    from .session import draft_manifest, open_session, size_text
 
     session = open_session(args.session)
     draft = draft_manifest(session) if args.draft else None
@@ -84,6 +85,8 @@ def _cmd_session(args: argparse.Namespace) -> int:
         print(f"session {session.root} ({session.source}), camera '{cam.name}', "
               f"{cam.bits} bits, {cam.layout}")
         for row in session.groups_table():
+            row = {("size" if k == "shape" else k): (size_text(v) if k == "shape" else v)
+                   for k, v in row.items()}                       # sizes read WxH, like --size
             desc = ", ".join(f"{k}={v}" for k, v in row.items() if k not in ("role",) and v not in (None, ""))
             print(f"  {row['role']:<14} {desc}")
         for problem in session.problems:
@@ -306,10 +309,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, inside the handler below
+        return code
     except CcdError as err:
         print(f"ccdcore {args.verb}: error: {err}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:
+        # the reader went away (``ccdcore session ... | head``): stop quietly, as Unix tools do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
     except (OSError, PermissionError) as err:
         where = getattr(err, "filename", None) or ""
         print(f"ccdcore {args.verb}: error: {where}{': ' if where else ''}{err.strerror or err}",

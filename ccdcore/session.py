@@ -163,6 +163,24 @@ def _shape_text(shape: tuple[int, ...] | None) -> str | None:
     return None if shape is None else "x".join(str(n) for n in shape)
 
 
+def size_text(shape: tuple[int, ...] | str | None, sep: str = "x") -> str | None:
+    """A frame size as people state it, width first: ``(H, W)`` or ``(H, W, C)`` (NumPy order,
+    or the ``"HxW"`` text of :meth:`Session.groups_table`) -> ``"WxH"`` or ``"WxHxC"``.
+    Other text (``"mixed"``) is returned unchanged."""
+    if shape is None:
+        return None
+    if isinstance(shape, str):
+        parts = shape.split("x")
+        if not (len(parts) in (2, 3) and all(p.isdigit() for p in parts)):
+            return shape
+        dims = [int(p) for p in parts]
+    else:
+        dims = [int(n) for n in shape]
+    if len(dims) < 2:
+        return sep.join(map(str, dims))
+    return sep.join(str(n) for n in [dims[1], dims[0], *dims[2:]])
+
+
 def _sort_key(value: Any) -> tuple:
     """Sort None last and keep ints, floats and strings apart without comparing across types."""
     if value is None:
@@ -502,7 +520,7 @@ def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageH
                 if sig == common:
                     continue
                 diffs = [f"{name} {fmt(a)} differs from {fmt(b)}"
-                         for name, a, b, fmt in (("shape", sig[0], common[0], _shape_text),
+                         for name, a, b, fmt in (("size (WxH)", sig[0], common[0], size_text),
                                                  ("dtype", sig[1], common[1], str),
                                                  ("bit depth", sig[2], common[2], str))
                          if a != b]

@@ -129,3 +129,20 @@ def test_console_script_bad_input_has_no_traceback(tmp_path):
                           capture_output=True, text=True, cwd=ROOT)
     assert proc.returncode == 2
     assert "session.toml" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_session_text_states_sizes_width_first(capsys):
+    code, out, err = run(capsys, "session", str(ROOT / "assets" / "healey94"))
+    assert code == 0, err
+    assert "size=256x192" in out and "shape=" not in out   # the demo is 256 px wide, 192 tall
+
+
+def test_closed_pipe_stops_quietly():
+    """``ccdcore session ... | head -1``: the reader goes away; no traceback, no error line."""
+    proc = subprocess.Popen([sys.executable, "-m", "ccdcore.cli", "session",
+                             str(ROOT / "assets" / "healey94")], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()                                    # nothing will ever be read
+    err = proc.stderr.read().decode()
+    assert proc.wait() == 141, err
+    assert err == ""

@@ -133,7 +133,7 @@ def test_descriptor_problems_are_reported(tmp_path: Path) -> None:
         ("emva.txt line 15", "bad number in 'b 3000000.0 oops'"),
         ("emva.txt line 18", "point has no 'i' image lines"),
         ("img/missing.tif", "file not found"),
-        ("img/small.tif", "shape 8x10 differs from 12x16 of the other ptc frames (3 frames)"),
+        ("img/small.tif", "size (WxH) 10x8 differs from 16x12 of the other ptc frames (3 frames)"),
         ("ptc level 2", "only one frame (img/d1.tif); a photon-transfer level needs at least two"),
         ("img/small.tif", "image is 10x8 but the descriptor's n line says 16x12"),
     ]

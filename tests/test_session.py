@@ -308,7 +308,7 @@ def test_shape_mismatch_within_a_role(tmp_path: Path) -> None:
     put(root, "scene/small.tif")
     s = manifest(root, '[[groups]]\nglob = "dark/*.tif"\nrole = "dark"\n'
                        '[[groups]]\nglob = "scene/*.tif"\nrole = "scene"')
-    assert errors(s) == [("dark/d1.tif", "shape 13x16 differs from 12x16 of the other dark "
+    assert errors(s) == [("dark/d1.tif", "size (WxH) 16x13 differs from 16x12 of the other dark "
                                          "frames (2 frames)")]
 
 
@@ -329,7 +329,7 @@ def test_ptc_shapes_are_compared_across_levels(tmp_path: Path) -> None:
             put(root, f"ptc/L{level}{k}.tif", shape=shape)
     s = manifest(root, "".join(f'[[groups]]\nglob = "ptc/L{n}*.tif"\nrole = "ptc"\nlevel = {n}\n'
                                for n in (1, 2, 3)))
-    assert errors(s) == [(f"ptc/L3{k}.tif", "shape 12x18 differs from 12x16 of the other ptc "
+    assert errors(s) == [(f"ptc/L3{k}.tif", "size (WxH) 18x12 differs from 16x12 of the other ptc "
                                             "frames (4 frames)") for k in "ab"]
 
 

@@ -34,7 +34,7 @@ import panel as pn
 import param
 
 from ccdcore.errors import CcdError
-from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
+from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest, size_text
 
 from .. import plots
 from ..state import AppState, assets_dir, demo_sessions
@@ -64,15 +64,9 @@ def _code(text: Any) -> str:
     return "`" + str(text).replace("`", "'") + "`"
 
 
-def size_text(shape: Any) -> str:
-    """ccdcore's shape text ``"HxW"`` or ``"HxWxC"`` (NumPy order) as ``"W × H"`` or
-    ``"W × H × C"``, the way cameras and the CLI's ``--size WxH`` state sizes; others unchanged."""
-    if not isinstance(shape, str):
-        return "" if shape is None else str(shape)
-    parts = shape.split("x")
-    if len(parts) in (2, 3) and all(p.isdigit() for p in parts):
-        return " × ".join([parts[1], parts[0]] + parts[2:])
-    return shape
+def _size(shape: Any) -> str:
+    """Shape text ``"HxW"`` as ``"W × H"`` (:func:`ccdcore.session.size_text`), "" for none."""
+    return size_text(shape, " \u00d7 ") or ""
 
 
 def groups_frame(session: Session) -> pd.DataFrame:
@@ -83,7 +77,7 @@ def groups_frame(session: Session) -> pd.DataFrame:
         rows.append({"role": row["role"],
                      "key": "" if row.get("key") is None else str(row["key"]),
                      "count": int(row["count"]),
-                     "size (W×H)": size_text(row.get("shape") or "unreadable"),
+                     "size (W×H)": _size(row.get("shape") or "unreadable"),
                      "dtype": row.get("dtype") or "unreadable",
                      "exposure (s)": ", ".join(f"{e:g}" for e in exposures)})
     return pd.DataFrame(rows, columns=["role", "key", "count", "size (W×H)", "dtype",
@@ -105,7 +99,7 @@ def frames_frame(session: Session) -> pd.DataFrame:
                                   or isinstance(v, float) and np.isnan(v) else str(v))
     if "shape" in df.columns:
         df = df.rename(columns={"shape": "size (W×H)"})
-        df["size (W×H)"] = df["size (W×H)"].map(size_text)
+        df["size (W×H)"] = df["size (W×H)"].map(_size)
     keep = [c for c in df.columns
             if c in _ALWAYS or c == "inferred" and (df[c] != "").any()
             or c not in _ALWAYS and c != "inferred" and df[c].notna().any()
@@ -490,7 +484,7 @@ class SessionPage(pn.viewable.Viewer):
         self.frame_info.object = (
             f"{_code(rec.relpath)} \u2014 {rec.role}"
             + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
-            + f", {size_text('x'.join(map(str, array.shape)))} px {array.dtype}{channel}; "
+            + f", {_size(array.shape)} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
         image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
                                        title=Path(rec.relpath).name)

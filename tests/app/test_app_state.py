@@ -10,7 +10,7 @@ import pytest
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from app import plots
 from app.pages import PAGES, build_page, is_available
-from app.pages.session import SessionPage, frames_frame, groups_frame, size_text
+from app.pages.session import SessionPage, frames_frame, groups_frame
 from app.state import AppState, demo_sessions
 
 
@@ -109,9 +109,11 @@ def test_tables_of_a_demo(healey94):
 
 
 def test_size_text():
-    assert size_text("192x256") == "256 × 192"
-    assert size_text("4x6x3") == "6 × 4 × 3"
-    assert size_text("mixed") == "mixed" and size_text(None) == ""
+    from ccdcore.session import size_text
+
+    assert size_text("192x256") == size_text((192, 256)) == "256x192"
+    assert size_text((4, 6, 3), " × ") == "6 × 4 × 3"
+    assert size_text("mixed") == "mixed" and size_text(None) is None
 
 
 def test_every_page_builds(state):
