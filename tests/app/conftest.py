@@ -13,6 +13,15 @@ import numpy as np
 import pytest
 
 from app.state import assets_dir
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # Two deprecations inside third-party code, not ours: bokeh calls pandas' reset_index(inplace=)
+    # and pytest-base-url defines its session fixture as a method.  Our own warnings still show.
+    config.addinivalue_line("filterwarnings",
+                            "ignore:The inplace keyword in DataFrame.reset_index is deprecated")
+    config.addinivalue_line("filterwarnings",
+                            "ignore:Session-scoped fixtures defined as instance methods")
 from ccdcore.io import write_image
 
 CHROMIUM = Path("/usr/bin/chromium")
