@@ -92,8 +92,8 @@ def map_view(plane: NDArray, title: str, vdim: str = "DN", cmap: str = "viridis"
              frame_width: int | None = None) -> hv.DynamicMap:
     """The rasterised, zoomable view of a 2-D map or channel with hover (x, y, value).
 
-    ``frame_width`` fixes the plot's width (the height follows the map's aspect); ``None`` (the
-    default) stretches it to its container. Views of the same pixel grid shown in panes with
+    ``frame_width`` fixes the frame's width and gives square pixels (:func:`app.plots.fixed_size`);
+    ``None`` (the default) stretches it to its container. Views of the same pixel grid shown in panes with
     ``linked_axes=True`` share their x and y ranges (Panel links plots whose axes carry the
     same dimensions), so zooming one zooms the others.
     """
@@ -101,7 +101,7 @@ def map_view(plane: NDArray, title: str, vdim: str = "DN", cmap: str = "viridis"
     clim = plots.auto_clim(plane) if clim is None else clim
     view = plots.rasterized_image(image, clim, title=title).opts(cmap=cmap, clabel=vdim)
     if frame_width is not None:
-        view = view.opts(responsive=False, frame_width=int(frame_width))
+        view = view.opts(**plots.fixed_size(image, frame_width))
     return view
 
 

@@ -221,12 +221,7 @@ def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
     opts: dict[str, Any] = dict(cmap=layer.cmap, title=layer.title,
                                 clim=tuple(float(c) for c in clim), clabel=layer.label)
     if frame_width is not None:
-        (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-        frame_height = frame_width * (y1 - y0) / max(x1 - x0, 1e-9)
-        # plot size = frame + axes, title and colour bar (a fixed frame_width with an aspect
-        # is laid out at zero size inside nested stretching Panel layouts)
-        opts.update(responsive=False, aspect=None, data_aspect=None,
-                    width=int(frame_width) + 150, height=int(frame_height) + 80)
+        opts.update(plots.fixed_size(image, frame_width))
     if layer.kind == "flags":
         from bokeh.models import FixedTicker
 

@@ -176,9 +176,13 @@ def default_frame(rec: BaseRecommendation | None, groups: dict) -> str | None:
     return groups[key][0].relpath
 
 
+#: frame width of the side-by-side images (px); the height follows the image, pixels are square
+IMAGE_WIDTH = 400
+
+
 def _image_pane(css_class: str) -> pn.pane.HoloViews:
     """A pane for one zoomable image whose axes Panel links with the page's other image panes."""
-    return pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=300, max_height=560,
+    return pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=200,
                              linked_axes=True, css_classes=[css_class])
 
 
@@ -702,9 +706,10 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         G = self._plane(flat.G, flat.layout)
         O = self._plane(flat.O, flat.layout)
         flags = self._plane(flat.flags, flat.layout)
-        g_view = flat_plots.map_view(G, f"G \u2014 channel {self.channel}", "G", "viridis")
+        g_view = flat_plots.map_view(G, f"G \u2014 channel {self.channel}", "G", "viridis",
+                                     frame_width=IMAGE_WIDTH)
         o_view = flat_plots.map_view(O, f"O \u2014 channel {self.channel} (DN)", "O",
-                                     "magma")
+                                     "magma", frame_width=IMAGE_WIDTH)
         if flags.any():
             g_view = g_view * flat_plots.flag_points(flags)
         self.g_pane.object = g_view
@@ -736,8 +741,10 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         raw = self._plane(view.raw, flat.layout)
         cor = self._plane(view.corrected, flat.layout)
         clim = plots.auto_clim(np.concatenate([np.ravel(raw), np.ravel(cor)]))
-        before = flat_plots.map_view(raw, f"Before \u2014 {self.channel}", "DN", "gray", clim)
-        after = flat_plots.map_view(cor, f"After \u2014 {self.channel}", "DN", "gray", clim)
+        before = flat_plots.map_view(raw, f"Before \u2014 {self.channel}", "DN", "gray", clim,
+                                     frame_width=IMAGE_WIDTH)
+        after = flat_plots.map_view(cor, f"After \u2014 {self.channel}", "DN", "gray", clim,
+                                    frame_width=IMAGE_WIDTH)
         for source in (before, after):
             stream = hv.streams.PointerXY(x=None, y=None, source=source)
             stream.add_subscriber(self._on_pointer)
