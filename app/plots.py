@@ -162,15 +162,16 @@ def fixed_size(image: hv.Image, frame_width: int, max_frame_height: int = 560) -
     """Plot options giving ``image`` square pixels in a fixed frame ``frame_width`` wide (narrower
     when the frame would be taller than ``max_frame_height``).
 
-    The plot's size is the frame plus room for the axes, title and colour bar: a fixed
-    ``frame_width`` with an ``aspect`` is laid out at zero size inside nested stretching Panel
-    layouts, and a stretching pane with a minimum height squeezes the pixels instead.
+    Both frame sizes are fixed (the axes, title and colour bar come on top); show it in a pane
+    with ``sizing_mode="fixed"``: a stretching pane stretches the plot and its pixels, and a
+    ``frame_width`` with an ``aspect`` is laid out at zero size inside nested stretching
+    Panel layouts.
     """
     (x0, x1), (y0, y1) = image.range("x"), image.range("y")
     ratio = (y1 - y0) / max(x1 - x0, 1e-9)
     width = min(float(frame_width), max_frame_height / max(ratio, 1e-9))
     return dict(responsive=False, aspect=None, data_aspect=None,
-                width=int(round(width)) + 150, height=int(round(width * ratio)) + 80)
+                frame_width=int(round(width)), frame_height=int(round(width * ratio)))
 
 
 def histogram_edges(values: NDArray, bins: int = 256) -> NDArray:

@@ -182,8 +182,8 @@ IMAGE_WIDTH = 400
 
 def _image_pane(css_class: str) -> pn.pane.HoloViews:
     """A pane for one zoomable image whose axes Panel links with the page's other image panes."""
-    return pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=200,
-                             linked_axes=True, css_classes=[css_class])
+    return pn.pane.HoloViews(None, sizing_mode="fixed", linked_axes=True,
+                             css_classes=[css_class])
 
 
 def _in_document(doc: Any, callback: Any) -> None:

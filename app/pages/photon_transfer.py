@@ -266,8 +266,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.roi_status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                            sizing_mode="stretch_width")
-        self.preview_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=300,
-                                              max_height=560, linked_axes=False,
+        self.preview_pane = pn.pane.HoloViews(None, sizing_mode="fixed", linked_axes=False,
                                               css_classes=["ccd-ptc-preview"])
         self.bounds_stream: hv.streams.BoundsXY | None = None
 
@@ -616,10 +615,10 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             return
         self.preview_alert.visible = False
         plane = plots.channel_data(array, "L")
-        image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
-                                       plots.auto_clim(plane), title=rec.relpath)
-        image = image.opts(tools=["hover", "box_select"],
-                           active_tools=["box_select", "wheel_zoom"])
+        element = plots.image_element(plane, label=rec.relpath)
+        image = plots.rasterized_image(element, plots.auto_clim(plane), title=rec.relpath)
+        image = image.opts(tools=["hover", "box_select"], active_tools=["box_select", "wheel_zoom"],
+                           **plots.fixed_size(element, 560))             # square pixels
         self.bounds_stream = hv.streams.BoundsXY(source=image, bounds=None)
         self.bounds_stream.add_subscriber(lambda bounds: self._on_bounds(bounds))
         box = hv.DynamicMap(pn.bind(ptc_plots.roi_box, self.x_input, self.y_input, self.w_input,

@@ -246,8 +246,7 @@ class SessionPage(pn.viewable.Viewer):
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                            sizing_mode="stretch_width",
                                            css_classes=["ccd-preview-error"])
-        self.image_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=300,
-                                            max_height=640, css_classes=["ccd-image"],
+        self.image_pane = pn.pane.HoloViews(None, sizing_mode="fixed", css_classes=["ccd-image"],
                                             linked_axes=False)
         self.hist_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=240,
                                            css_classes=["ccd-histogram"], linked_axes=False)
@@ -486,8 +485,9 @@ class SessionPage(pn.viewable.Viewer):
             + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
             + f", {_size(array.shape)} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
-        image = plots.rasterized_image(plots.image_element(plane, label=rec.relpath),
-                                       title=Path(rec.relpath).name)
+        element = plots.image_element(plane, label=rec.relpath)
+        image = plots.rasterized_image(element, title=Path(rec.relpath).name)
+        image = image.opts(**plots.fixed_size(element, 760, max_frame_height=640))  # square pixels
         image = image.apply.opts(clim=self.clim_slider.param.value)
         pointer = hv.streams.PointerXY(x=None, y=None, source=image)
         pointer.add_subscriber(self._on_pointer)
