@@ -92,10 +92,10 @@ def map_view(plane: NDArray, title: str, vdim: str = "DN", cmap: str = "viridis"
              frame_width: int | None = None) -> hv.DynamicMap:
     """The rasterised, zoomable view of a 2-D map or channel with hover (x, y, value).
 
-    ``frame_width`` fixes the frame's width and gives square pixels (:func:`app.plots.fixed_size`);
-    ``None`` (the default) stretches it to its container. Views of the same pixel grid shown in panes with
-    ``linked_axes=True`` share their x and y ranges (Panel links plots whose axes carry the
-    same dimensions), so zooming one zooms the others.
+    ``frame_width`` fixes the frame's width and gives square pixels
+    (:func:`app.plots.fixed_size`); ``None`` (the default) stretches it to its container. Views
+    of the same pixel grid shown in panes with ``linked_axes=True`` share their x and y ranges
+    (Panel links plots whose axes carry the same dimensions), so zooming one zooms the others.
     """
     image = plots.image_element(np.asarray(plane), label=title, vdim=vdim)
     clim = plots.auto_clim(plane) if clim is None else clim

@@ -176,9 +176,7 @@ def size_text(shape: tuple[int, ...] | str | None, sep: str = "x") -> str | None
         dims = [int(p) for p in parts]
     else:
         dims = [int(n) for n in shape]
-    if len(dims) < 2:
-        return sep.join(map(str, dims))
-    return sep.join(str(n) for n in [dims[1], dims[0], *dims[2:]])
+    return sep.join(map(str, dims[1::-1] + dims[2:]))      # (H, W, ...) -> W, H, ...
 
 
 def _sort_key(value: Any) -> tuple:

@@ -403,7 +403,6 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self.info_alert, self.error_alert, self.content,
             sizing_mode="stretch_width", name="Flat field")
 
-    # ============================================================ messages =================
     # ============================================================ widget events ============
     def _schedule(self, step: Any) -> None:
         if self.auto and not self._syncing:
