@@ -28,6 +28,10 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
     expect(page.get_by_text("XC-77-like simulated CCD")).to_be_visible()
     expect(page.get_by_text("No problems found: the session is valid.")).to_be_visible()
 
+    # the first frame is previewed once the session loads
+    expect(page.get_by_text(re.compile(r"dark_000\.tif.*dark, exposure 0\.033 s"))).to_be_visible(
+        timeout=TIMEOUT)
+
     # select another frame in the table: the preview follows
     page.get_by_role("gridcell", name="dark/dark_003.tif").first.click()
     info = page.locator(".ccd-image").first
