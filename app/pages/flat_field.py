@@ -282,8 +282,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                                              options={}, sizing_mode="stretch_width",
                                              min_width=320)
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
-            self.param.channel, label="Channel", color="default", align="end", width=220,
-            sizing_mode="fixed")
+            self.param.channel, label="Channel", color="default", align="end", width=220)
         self.setting_select.param.watch(self._on_setting, "value")
         self.base_select.param.watch(self._on_base, "value")
         self.param.watch(self._on_channel, "channel")

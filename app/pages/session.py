@@ -157,18 +157,18 @@ class SessionPage(pn.viewable.Viewer):
             disabled=not demos, css_classes=["ccd-demo"])
         self.open_demo_button = pn.widgets.Button(
             label="Open demo", color="primary", disabled=not demos, align="end",
-            width=140, sizing_mode="fixed")
+            width=140)
         self.path_input = pn.widgets.TextInput(
             label="Session folder, session.toml, folder of images or EMVA1288 descriptor",
             placeholder="/path/to/session", sizing_mode="stretch_width", min_width=300)
         self.open_path_button = pn.widgets.Button(label="Open", color="primary",
-                                                  align="end", width=140, sizing_mode="fixed")
+                                                  align="end", width=140)
         roots = {self._root_label(r): str(r) for r in self.state.allowed_roots if r.is_dir()}
         self.root_select = pn.widgets.Select(label="Browse in", options=roots, width=320)
         self.file_selector = self._file_selector(self.root_select.value)
         self.browse_holder = pn.Column(self.file_selector, sizing_mode="stretch_width")
         self.open_selected_button = pn.widgets.Button(label="Open selected", color="primary",
-                                                      width=140, sizing_mode="fixed")
+                                                      width=140)
         self.progress = pn.indicators.Progress(active=False, visible=False,
                                                value=-1, bar_color="primary",
                                                sizing_mode="stretch_width", height=12)
@@ -215,8 +215,7 @@ class SessionPage(pn.viewable.Viewer):
         self.frames_table.param.watch(self._on_table_selection, "selection")
         self.inferred_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.draft_button = pn.widgets.Button(
-            label=f"Write manifest draft ({DRAFT_NAME})", color="success", width=300,
-            sizing_mode="fixed")
+            label=f"Write manifest draft ({DRAFT_NAME})", color="success", width=300)
         self.draft_button.on_click(self._on_draft)
         self.draft_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.draft_card = pn.Card(
@@ -238,7 +237,7 @@ class SessionPage(pn.viewable.Viewer):
             label="Colour range (DN)", start=0, end=1, value=(0, 1), step=1,
             sizing_mode="stretch_width", css_classes=["ccd-clim"])
         self.auto_button = pn.widgets.Button(label="Auto (0.5\u201399.5 %)", align="end",
-                                             width=150, sizing_mode="fixed")
+                                             width=150)
         self.auto_button.on_click(self._on_auto)
         self.frame_info = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.readout = pn.pane.Markdown("Move the cursor over the image to read pixel values.",

@@ -149,3 +149,31 @@ def test_fixed_size_gives_square_pixels():
     o = plots.fixed_size(tall, 400, max_frame_height=560)   # 400 wide would be 1600 tall
     assert (o["frame_width"], o["frame_height"]) == (140, 560)
     assert not o["responsive"]
+
+
+@pytest.mark.parametrize("demo", ["healey94", "delasarte07"])
+def test_every_page_lays_out_without_bokeh_validation_issues(demo, assets):
+    """Bokeh validates each document it serves and logs a warning per bad layout (e.g. a fixed
+    sizing mode without a height); a served page should give none."""
+    import panel as pn
+    from bokeh.core.validation.check import check_integrity
+    from bokeh.models import GridPlot, Plot
+
+    def framed(model) -> bool:  # sized by its frame(s), as plots.fixed_size makes image views
+        if isinstance(model, GridPlot):
+            return all(framed(child[0]) for child in model.children)
+        return (isinstance(model, Plot) and model.frame_width is not None
+                and model.frame_height is not None)
+
+    state = AppState(allowed_roots=[assets.resolve()])
+    state.load(assets / demo)
+    for spec in PAGES:
+        models = pn.panel(build_page(spec, state)).get_root().references()
+        found = check_integrity(models)
+        # a plot (or grid of plots) with fixed frame sizes has a fixed size, though bokeh's
+        # W-1005 asks for width and height regardless
+        exempt = {f"id='{m.id}'" for m in models if framed(m)}
+        # (an empty holder, W-1002, is filled when results arrive)
+        issues = [str(i) for i in (*found.error, *found.warning) if i.code != 1002
+                  and not (i.code == 1005 and any(e in i.extra for e in exempt))]
+        assert issues == [], spec.slug
