@@ -190,8 +190,33 @@ def open_app(page) -> Callable[[str], None]:
     is idle. Widgets are drawn from the page's HTML before the connection opens; a click or a
     choice made earlier can be lost, so interact only after this returns."""
 
-    def go(url: str, timeout: float = 30_000) -> None:
+    def go(url: str, timeout: float = 60_000) -> None:
         with page.expect_console_message(lambda m: "document idle" in m.text, timeout=timeout):
             page.goto(url)
 
     return go
+
+
+@pytest.fixture
+def settled_box(page) -> Callable[..., dict]:
+    """``settled_box(locator) -> box``: scroll the element into view and return its bounding
+    box once it stays attached and in place. A plot that is re-rendered replaces its element,
+    so a box read mid-render would point at a detached element."""
+    from playwright.sync_api import Error
+
+    def get(locator, timeout: float = 30.0) -> dict:
+        deadline = time.monotonic() + timeout
+        last = None
+        while time.monotonic() < deadline:
+            try:
+                locator.scroll_into_view_if_needed(timeout=5_000)
+                box = locator.bounding_box(timeout=5_000)
+            except Error:  # detached while re-rendering: look it up again
+                box = None
+            if box is not None and box == last:
+                return box
+            last = box
+            page.wait_for_timeout(300)
+        raise AssertionError(f"{locator} did not settle within {timeout} s")
+
+    return get

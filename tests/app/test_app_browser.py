@@ -5,7 +5,7 @@ import re
 
 from playwright.sync_api import Page, expect
 
-TIMEOUT = 30_000
+TIMEOUT = 60_000  # generous: a busy CI machine draws slowly; passing runs do not wait
 
 
 def _outside(requests: list[str]) -> list[str]:
@@ -14,7 +14,7 @@ def _outside(requests: list[str]) -> list[str]:
 
 
 def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, serve_app, open_app,
-                                                                  healey94):
+                                                                  healey94, settled_box):
     requests: list[str] = []
     page.on("request", lambda r: requests.append(r.url))
     url = serve_app(healey94)
@@ -34,8 +34,6 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
 
     # select another frame in the table: the preview follows
     page.get_by_role("gridcell", name="dark/dark_003.tif").first.click()
-    info = page.locator(".ccd-image").first
-    info.scroll_into_view_if_needed()
     expect(page.get_by_text(re.compile(r"dark_003\.tif.*dark, exposure 0\.033 s"))).to_be_visible(
         timeout=TIMEOUT)
     # the rasterised image and its histogram are drawn (bokeh canvases)
@@ -45,11 +43,7 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
 
     # hovering the image reports the pixel value under the cursor
     page.wait_for_timeout(1500)  # let the re-rendered plot settle before moving the mouse
-    canvas = page.locator(".ccd-image canvas").first
-    canvas.scroll_into_view_if_needed()
-    page.wait_for_timeout(500)
-    box = canvas.bounding_box()
-    assert box is not None
+    box = settled_box(page.locator(".ccd-image canvas").first)
     for dx in (0.3, 0.4, 0.5, 0.6):
         page.mouse.move(box["x"] + box["width"] * dx, box["y"] + box["height"] * 0.5)
         page.wait_for_timeout(400)
@@ -87,7 +81,7 @@ def test_coming_pages_are_marked_and_honest(page: Page, serve_app, open_app):
 
 
 def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_app, open_app,
-                                                            assets):
+                                                            assets, settled_box):
     """RGB frames: channel buttons, the auto colour range reaches the browser intact, and the
     hover tooltip shows the exact DN of the pixel under the cursor."""
     import numpy as np
@@ -119,11 +113,7 @@ def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_a
 
     # the bokeh hover tooltip: x, y and the DN of that pixel of the R plane
     page.wait_for_timeout(1500)  # let the re-rendered plot settle before moving the mouse
-    canvas = page.locator(".ccd-image canvas").first
-    canvas.scroll_into_view_if_needed()
-    page.wait_for_timeout(500)
-    box = canvas.bounding_box()
-    assert box is not None
+    box = settled_box(page.locator(".ccd-image canvas").first)
     tooltip = page.locator(".bk-tooltip-content").filter(has_text="DN")
     for dx in (0.35, 0.45, 0.55):
         page.mouse.move(box["x"] + box["width"] * dx, box["y"] + box["height"] * 0.5)
