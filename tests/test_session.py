@@ -13,7 +13,7 @@ import ccdcore.session as session_mod
 from ccdcore.errors import CcdError, ImageReadError, SessionError
 from ccdcore.io import read_header, read_image, write_image
 from ccdcore.session import (LAYOUTS, ROLES, FrameRecord, Problem, Session, draft_manifest,
-                             open_session)
+                             open_session, size_text)
 
 H, W = 12, 16
 
@@ -644,3 +644,9 @@ def test_empty_folder_is_an_error_not_an_exception(tmp_path: Path) -> None:
     s = open_session(tmp_path / "empty")
     assert not s.ok and s.frames == ()
     assert s.problems[0].message.startswith("no image files found")
+
+
+def test_size_text():
+    assert size_text("192x256") == size_text((192, 256)) == "256x192"
+    assert size_text((4, 6, 3), " × ") == "6 × 4 × 3"
+    assert size_text("mixed") == "mixed" and size_text(None) is None

@@ -108,14 +108,6 @@ def test_tables_of_a_demo(healey94):
     assert set(groups["size (W×H)"]) == set(frames["size (W×H)"]) == {"256 × 192"}
 
 
-def test_size_text():
-    from ccdcore.session import size_text
-
-    assert size_text("192x256") == size_text((192, 256)) == "256x192"
-    assert size_text((4, 6, 3), " × ") == "6 × 4 × 3"
-    assert size_text("mixed") == "mixed" and size_text(None) is None
-
-
 def test_every_page_builds(state):
     for spec in PAGES:
         view = build_page(spec, state)
