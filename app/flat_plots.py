@@ -2,8 +2,9 @@
 
 Everything shown comes from ccdcore's result objects (:mod:`ccdcore.flatfield`,
 :mod:`ccdcore.uniformity`); nothing here estimates anything, it only arranges numbers and arrays
-for display. Every function returns a HoloViews element, a layout, a DataFrame or a string, so
-the pipeline is tested without a browser.
+for display ("value ± error" text is :func:`ccdcore.common.format_pm`'s). Every function returns
+a HoloViews element, a layout, a DataFrame or a string, so the pipeline is tested without a
+browser.
 
 Public objects
 --------------
@@ -11,8 +12,6 @@ CHANNEL_COLORS
     Line colour per channel name (``R``, ``G``, ``B``, ``L``, ``G1``, ``G2``).
 group_label(key)
     ``(level, exposure)`` of a flat group as a short label: ``"L3 · 40 ms"``.
-format_pm(value, error=None, digits=2)
-    ``"value ± error"`` with the error to two significant digits.
 map_view(plane, title, vdim, cmap="viridis", clim=None)
     A rasterised, zoomable map (G, O, a frame's channel) with hover.
 flag_points(flags)
@@ -40,12 +39,13 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from ccdcore.common import format_pm
 from ccdcore.flatfield import BaseStudy, KMapComparison, SettingsComparison, ZeroDark
 from ccdcore.uniformity import AveragingResult, Linearity, SnupResult
 
 from . import plots
 
-__all__ = ["CHANNEL_COLORS", "group_label", "format_pm", "map_view",
+__all__ = ["CHANNEL_COLORS", "group_label", "map_view",
            "flag_points", "snup_frame", "averaging_plot", "averaging_frame", "linearity_plot",
            "linearity_frame", "study_heatmap", "study_frame", "zero_dark_frame",
            "settings_frame", "kmap_frame", "LEVEL_COLORS"]
@@ -73,17 +73,6 @@ def group_label(key: Sequence[Any] | None) -> str:
     t = float(exposure)
     text = f"{t * 1000:g} ms" if t < 1 else f"{t:g} s"
     return f"{lv} \u00b7 {text}"
-
-
-def format_pm(value: Any, error: Any = None, digits: int = 2) -> str:
-    """``"value ± error"``: the error to ``digits`` significant digits, the value to the same
-    decimal place; the value alone (4 significant digits) without a usable error."""
-    if not _finite(value):
-        return "n/a"
-    if not _finite(error) or error <= 0:
-        return f"{value:.4g}"
-    decimals = max(digits - 1 - int(math.floor(math.log10(error))), 0)
-    return f"{value:.{decimals}f} \u00b1 {error:.{decimals}f}"
 
 
 # ------------------------------------------------------------------------------ images --------

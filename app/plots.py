@@ -5,12 +5,17 @@ the plotting pipeline is tested without a browser and the page classes stay thin
 
 Public objects
 --------------
-CHANNELS
-    Channel choices for colour frames: ``"R"``, ``"G"``, ``"B"`` and ``"L"`` (luminance).
-channel_names(array)
-    The channel choices that make sense for a frame (``()`` for a mono frame).
-channel_data(array, channel)
-    One 2-D plane of a frame: a colour channel, the luminance, or the frame itself when mono.
+LUMINANCE, LUMINANCE_WEIGHTS
+    The name (``"L"``) and Rec. 709 weights of the luminance a colour frame also offers.
+frame_layout(shape, layout=None)
+    The colour layout a preview reads a frame with: the camera's when the frame fits it, else
+    the one its shape shows (:func:`ccdcore.channels.check_layout`).
+channel_planes(array, layout=None)
+    The channel choices of a frame and their 2-D planes: none for mono, the CFA planes ``R``,
+    ``G1``, ``G2``, ``B`` for Bayer, ``R``, ``G``, ``B`` and the luminance ``L`` for colour
+    (:func:`ccdcore.channels.split_channels`).
+channel_data(array, channel=None, layout=None)
+    One 2-D plane of a frame: a channel, the luminance, or the frame itself when mono.
 auto_clim(values, lower=0.5, upper=99.5)
     Colour range from percentiles of the finite values.
 image_element(plane, ...)
@@ -36,12 +41,16 @@ import numpy as np
 from holoviews.operation.datashader import rasterize
 from numpy.typing import NDArray
 
-__all__ = ["CHANNELS", "LUMINANCE_WEIGHTS", "channel_names", "channel_data", "auto_clim",
+from ccdcore.channels import check_layout, split_channels
+from ccdcore.errors import CcdError
+
+__all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
+           "auto_clim",
            "image_element", "rasterized_image", "histogram_edges", "histogram_element",
            "clim_span", "warm_up"]
 
-#: channel choices of a colour frame: label -> index (``"L"`` is the luminance)
-CHANNELS: dict[str, int | None] = {"R": 0, "G": 1, "B": 2, "L": None}
+#: the name of the luminance plane a colour frame also offers
+LUMINANCE = "L"
 
 #: Rec. 709 luminance weights applied to linear R, G, B digital numbers
 LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
@@ -50,19 +59,55 @@ LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
 _PERCENTILE_SAMPLES = 1_000_000
 
 
-def channel_names(array: NDArray) -> tuple[str, ...]:
-    """The channel choices for ``array``: ``()`` for mono, ``("R", "G", "B", "L")`` for colour.
+def frame_layout(shape: tuple[int, ...], layout: str | None = None) -> str:
+    """The layout a preview reads a frame of ``shape`` with (one of ``ccdcore.channels.LAYOUTS``).
 
-    Frames with more than three channels (RGBA) offer R, G, B and L; the extra channels are ignored.
+    The camera's ``layout`` when the frame fits it; otherwise (a colour scene in a mono session,
+    odd sizes on a Bayer camera) the layout the shape shows: ``mono`` for ``(H, W)`` and
+    ``(H, W, 1)``, ``rgb`` for ``(H, W, C >= 3)`` (channels past the third are ignored).
+
+    Raises
+    ------
+    ValueError
+        The shape is no image (not 2-D, nor ``(H, W, C)`` with C = 1 or C >= 3).
     """
-    if array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 1):
-        return ()
-    if array.ndim == 3 and array.shape[2] >= 3:
-        return tuple(CHANNELS)
-    raise ValueError(f"array: expected (H, W) or (H, W, C>=3) frame, got shape {array.shape}")
+    shape = tuple(int(n) for n in shape)
+    if layout is not None:
+        try:
+            return check_layout(shape, layout)
+        except CcdError:
+            pass
+    if len(shape) == 2 or (len(shape) == 3 and shape[2] == 1):
+        return "mono"
+    if len(shape) == 3 and shape[2] >= 3:
+        return "rgb"
+    raise ValueError(f"array: expected (H, W) or (H, W, C) frame, got shape {shape}")
 
 
-def channel_data(array: NDArray, channel: str | None = None) -> NDArray:
+def _luminance(rgb: NDArray) -> NDArray:
+    w = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
+    return rgb[:, :, :3].astype(np.float32) @ w
+
+
+def channel_planes(array: NDArray, layout: str | None = None) -> dict[str, NDArray]:
+    """The channel choices of a frame, name -> 2-D plane (views, as stored; ``L`` is float32).
+
+    ``{}`` for a mono frame (the frame itself is shown); the four CFA planes ``R``, ``G1``,
+    ``G2``, ``B`` (half size, :func:`ccdcore.channels.split_channels`) for a Bayer frame;
+    ``R``, ``G``, ``B`` and the Rec. 709 luminance ``L`` of the linear digital numbers for a
+    colour frame. ``layout`` is the camera's (see :func:`frame_layout`).
+    """
+    name = frame_layout(array.shape, layout)
+    if name == "mono":
+        return {}
+    if name == "rgb":
+        planes = split_channels(array[:, :, :3], "rgb")
+        return {**planes, LUMINANCE: _luminance(array)}
+    return split_channels(array, name)
+
+
+def channel_data(array: NDArray, channel: str | None = None,
+                 layout: str | None = None) -> NDArray:
     """Return one 2-D plane of a frame.
 
     Parameters
@@ -70,27 +115,24 @@ def channel_data(array: NDArray, channel: str | None = None) -> NDArray:
     array
         A frame, ``(H, W)`` or ``(H, W, C)``, dtype as stored.
     channel
-        ``"R"``, ``"G"``, ``"B"`` (the channel as stored, same dtype) or ``"L"`` (Rec. 709
-        luminance of the linear digital numbers, float32). Ignored for mono frames; ``None``
-        means ``"L"`` for colour frames.
+        One of :func:`channel_planes`' names; ``None`` means ``"L"`` for colour frames and the
+        first CFA plane for Bayer frames. Ignored for mono frames.
+    layout
+        The camera's colour layout (see :func:`frame_layout`); ``None`` reads the shape.
 
     Returns
     -------
     numpy.ndarray
-        ``(H, W)`` plane.
+        ``(H, W)`` plane (``(H/2, W/2)`` for a CFA plane).
     """
-    names = channel_names(array)
-    if not names:
+    planes = channel_planes(array, layout)
+    if not planes:
         return array if array.ndim == 2 else array[:, :, 0]
-    channel = "L" if channel is None else channel
-    if channel not in CHANNELS:
-        raise ValueError(f"channel: expected one of {', '.join(CHANNELS)}, got {channel!r}")
-    index = CHANNELS[channel]
-    if index is not None:
-        return array[:, :, index]
-    rgb = array[:, :, :3].astype(np.float32)
-    w = np.asarray(LUMINANCE_WEIGHTS, dtype=np.float32)
-    return rgb @ w
+    if channel is None:
+        channel = LUMINANCE if LUMINANCE in planes else next(iter(planes))
+    if channel not in planes:
+        raise ValueError(f"channel: expected one of {', '.join(planes)}, got {channel!r}")
+    return planes[channel]
 
 
 def _sample(values: NDArray) -> NDArray:
@@ -198,7 +240,7 @@ def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim
     """``hv.Histogram`` of all values of a plane (non-finite values are left out).
 
     ``framewise=True`` makes the axes follow each new frame or channel (otherwise the first
-    range sticks, see NOTES.md). With ``log`` the counts axis is logarithmic.
+    range sticks, see docs/notes.md). With ``log`` the counts axis is logarithmic.
     """
     flat = np.ravel(values)
     if flat.dtype.kind == "f":
@@ -220,7 +262,7 @@ def clim_span(clim: tuple[float, float]) -> hv.VSpan:
 def warm_up() -> float:
     """Rasterise a small image of each common dtype once and return the seconds it took.
 
-    datashader compiles its numba kernels on first use (about 2–3 s, NOTES.md); calling this at
+    datashader compiles its numba kernels on first use (about 2–3 s, docs/notes.md); calling this at
     server start moves that cost out of the first user's click.
     """
     start = time.perf_counter()

@@ -6,6 +6,12 @@ AppState
     The loaded capture session, the computed results and the user-facing status: ``load(path)``
     (and its off-the-UI-thread twin ``load_async``) opens a session and turns any bad input into
     an ``error`` message instead of an exception.
+Results
+    The results the pages compute and share, as typed attributes (``ptc``, ``ptc_points``,
+    ``estimates`` and its parts ``dark``, ``fixed_pattern``, ``plan``, ``scene``,
+    ``correction_check``; the Flat field page's caches in ``flat``), cleared on a new session.
+FlatResults
+    The Flat field page's results, cached by offset setting and base group.
 assets_dir()
     The bundled demo sessions folder (``<repo>/assets``).
 demo_sessions(assets=None)
@@ -26,10 +32,18 @@ from typing import Any, Callable, Iterable
 
 import param
 
+from ccdcore.darkframe import DarkReference
 from ccdcore.errors import CcdError
+from ccdcore.fixedpattern import CorrectionCheck, FixedPattern
+from ccdcore.flatfield import SettingsComparison
+from ccdcore.noise import PhotonTransfer
+from ccdcore.planning import AcquisitionPlan
+from ccdcore.product import Estimates
+from ccdcore.scene import SceneVariation
 from ccdcore.session import MANIFEST_NAME, Session, open_session
 
-__all__ = ["AppState", "ASSETS_ENV", "assets_dir", "demo_sessions", "default_roots", "is_allowed"]
+__all__ = ["AppState", "Results", "FlatResults", "ASSETS_ENV", "assets_dir", "demo_sessions",
+           "default_roots", "is_allowed"]
 
 log = logging.getLogger(__name__)
 
@@ -76,10 +90,98 @@ def is_allowed(path: str | Path, roots: Iterable[Path]) -> bool:
     return any(p == r or p.is_relative_to(r) for r in roots)
 
 
+class FlatResults(param.Parameterized):
+    """The Flat field page's results for the loaded session (de Lasarte et al. 2007).
+
+    Each cache is keyed by what the result depends on: the offset setting (``None`` when the
+    session names none) and, for results of one base image, the base group's
+    ``(level, exposure)`` key. The page fills them as it computes; a new session starts empty.
+    """
+
+    recommendations = param.Dict(default={}, doc=(
+        "setting -> BaseRecommendation (ccdcore.flatfield.recommend_base): the recommended base "
+        "image, with the linearity analysis."))
+    fields = param.Dict(default={}, doc=(
+        "(setting, base key) -> FlatField (ccdcore.flatfield.flat_field_from_session): the "
+        "gain and offset maps G, O for that base image."))
+    averaging = param.Dict(default={}, doc=(
+        "(setting, base key) -> AveragingResult (ccdcore.uniformity.snup_vs_averaging) of the "
+        "base group's frames (Table 1)."))
+    zero_dark = param.Dict(default={}, doc=(
+        "setting -> ZeroDark (ccdcore.flatfield.zero_dark) of the setting's dark frames."))
+    studies = param.Dict(default={}, doc=(
+        "setting -> BaseStudy (ccdcore.flatfield.base_image_study): Fig. 3, Tables 3-5."))
+    kmaps = param.Dict(default={}, doc=(
+        "setting -> (KMapComparison, with_truth): ccdcore.flatfield.compare_with_k_map and "
+        "whether the simulator's true flat field was compared too."))
+    settings = param.ClassSelector(class_=SettingsComparison, default=None, allow_None=True,
+                                   doc="Table 2 (ccdcore.flatfield.compare_dark_settings), "
+                                       "when the session has several offset settings.")
+
+
+class Results(param.Parameterized):
+    """The results the pages compute and share, for the loaded session only.
+
+    Pages read and write the attributes; :meth:`clear` (called when another session is opened)
+    resets every one. ``dark``, ``fixed_pattern``, ``plan``, ``scene`` and ``correction_check``
+    are read-only views of ``estimates``.
+    """
+
+    ptc = param.ClassSelector(class_=PhotonTransfer, default=None, allow_None=True, doc=(
+        "The photon-transfer fit the pages share (ccdcore.noise.photon_transfer): the Photon "
+        "transfer page's, with the user's excluded levels, robust mode and ROI; else the one "
+        "the Maps page's estimate_all made."))
+    ptc_points = param.ClassSelector(class_=tuple, default=None, allow_None=True, doc=(
+        "The measured photon-transfer levels (a tuple of ccdcore.noise.PtcPoint) over the "
+        "Photon transfer page's ROI; also set when too few levels allow a fit."))
+    estimates = param.ClassSelector(class_=Estimates, default=None, allow_None=True, doc=(
+        "ccdcore.product.estimate_all on the session (the Maps page): the dark reference, K̂, "
+        "the acquisition plan, the scene variation, the correction check (computed once, on "
+        "the max-intensity frame) and what was skipped, with why."))
+    flat = param.ClassSelector(class_=FlatResults, doc="The Flat field page's results.")
+
+    def __init__(self, **params: Any):
+        params.setdefault("flat", FlatResults())
+        super().__init__(**params)
+
+    def clear(self) -> None:
+        """Forget every result (one batch of events)."""
+        self.param.update(ptc=None, ptc_points=None, estimates=None, flat=FlatResults())
+
+    def _part(self, name: str) -> Any:
+        return None if self.estimates is None else getattr(self.estimates, name)
+
+    @property
+    def dark(self) -> DarkReference | None:
+        """The dark reference D̂_D (``estimates.dark``)."""
+        return self._part("dark")
+
+    @property
+    def fixed_pattern(self) -> FixedPattern | None:
+        """The fixed-pattern map K̂ (``estimates.fixed_pattern``)."""
+        return self._part("fixed_pattern")
+
+    @property
+    def plan(self) -> AcquisitionPlan | None:
+        """The acquisition plan n1, n2 (``estimates.plan``)."""
+        return self._part("plan")
+
+    @property
+    def scene(self) -> dict[str, SceneVariation] | None:
+        """The scene variation V_S per patch (``estimates.scene``)."""
+        return self._part("scene")
+
+    @property
+    def correction_check(self) -> CorrectionCheck | None:
+        """The sec. VII-A correction check (``estimates.correction_check``)."""
+        return self._part("correction_check")
+
+
 class AppState(param.Parameterized):
     """State shared by the pages of one browser session.
 
-    Pages read ``session`` and ``results`` and watch ``session`` to refresh; they report long work
+    Pages read ``session`` and ``results`` and watch ``session`` (and the attributes of
+    ``results``) to refresh; they report long work
     through ``busy``/``progress`` and problems through ``error`` (shown as a red alert), never by
     raising.
     """
@@ -87,7 +189,9 @@ class AppState(param.Parameterized):
     session = param.ClassSelector(class_=Session, default=None, allow_None=True,
                                   doc="The loaded capture session, or None.")
     session_path = param.String(default="", doc="Path the current session was opened from.")
-    results = param.Dict(default={}, doc="Computed results by name (cleared on a new session).")
+    results = param.ClassSelector(class_=Results, constant=True, doc=(
+        "The results computed for the loaded session (one object per browser session, "
+        "cleared when another session is opened)."))
     status = param.String(default="No session loaded.", doc="Last status message for the user.")
     error = param.String(default="", doc="Last error message for the user ('' when none).")
     busy = param.Boolean(default=False, doc="True while a long task runs.")
@@ -98,6 +202,7 @@ class AppState(param.Parameterized):
 
     def __init__(self, **params: Any):
         params.setdefault("allowed_roots", default_roots())
+        params.setdefault("results", Results())
         super().__init__(**params)
 
     # ---- opening sessions ---------------------------------------------------------------------
@@ -140,7 +245,7 @@ class AppState(param.Parameterized):
                 self.status = "Could not open the session." if self.session is None else \
                     f"Could not open the session; still showing {self.session_path}."
                 return False
-            self.results = {}
+            self.results.clear()
             self.session_path = str(path)
             self.session = session
             self.error = ""
@@ -184,20 +289,21 @@ class AppState(param.Parameterized):
                       traceback.format_exc())
             return None, f"unexpected error: {type(err).__name__}: {err}"
 
-    async def compute(self, name: str, func: Callable[..., Any], *args: Any,
-                      label: str | None = None, **kwargs: Any) -> Any | None:
-        """Run ``func(*args, **kwargs)`` off the UI thread and store it as ``results[name]``.
+    async def compute(self, func: Callable[..., Any], *args: Any, label: str = "results",
+                      **kwargs: Any) -> Any | None:
+        """Run ``func(*args, **kwargs)`` off the UI thread and return its result.
 
-        While it runs ``busy`` is set and ``status`` says what is computed; a :class:`CcdError`
-        (bad input: too few levels, missing frames ...) becomes ``error`` and ``None`` is
-        returned. Results are dropped when another session is opened.
+        While it runs ``busy`` is set and ``status`` says what is computed (``label``); a
+        :class:`CcdError` (bad input: too few levels, missing frames ...) becomes ``error`` and
+        ``None`` is returned, as it is when another session was opened meanwhile. The caller
+        stores the result in :attr:`results`.
         """
         session = self.session
         with param.parameterized.batch_call_watchers(self):
             self.error = ""
             self.busy = True
             self.progress = -1
-            self.status = f"Computing {label or name} ..."
+            self.status = f"Computing {label} ..."
         result, error = await asyncio.to_thread(self._run_safely, func, args, kwargs)
         with param.parameterized.batch_call_watchers(self):
             self.busy = False
@@ -205,28 +311,25 @@ class AppState(param.Parameterized):
                 return None
             if error:
                 self.error = error
-                self.status = f"Could not compute {label or name}."
+                self.status = f"Could not compute {label}."
                 return None
-            self.results = {**self.results, name: result}
-            self.status = f"Computed {label or name}."
+            self.status = f"Computed {label}."
         return result
 
-    def compute_now(self, name: str, func: Callable[..., Any], *args: Any,
-                    label: str | None = None, **kwargs: Any) -> Any | None:
+    def compute_now(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any | None:
         """:meth:`compute` in this thread (for scripts and tests)."""
+        kwargs.pop("label", None)
         result, error = self._run_safely(func, args, kwargs)
         if error:
             self.error = error
             return None
-        self.results = {**self.results, name: result}
         return result
 
     @staticmethod
     def summary(session: Session) -> str:
         """One line describing a session: name, frame count per role, problem counts."""
         roles = ", ".join(f"{n} {role}" for role, n in session.roles().items()) or "no frames"
-        n_err = sum(p.severity == "error" for p in session.problems)
-        n_warn = len(session.problems) - n_err
+        n_err, n_warn = len(session.errors), len(session.warnings)
         checks = "valid" if not session.problems else \
             f"{n_err} error(s), {n_warn} warning(s)"
         return f"Loaded {session.root.name}: {len(session.frames)} frames ({roles}); {checks}."

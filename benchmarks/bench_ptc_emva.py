@@ -18,7 +18,7 @@ uniform dither U(−½, ½) DN *before* rounding, so its frames carry the quanti
 (≈ 2·q²/12); both tools remove q²/12 once, so the read noise they can recover is
 √(σ²_d0 + q²/(12 K²)) e ("effective" below).
 
-Note (NOTES.md): emva1288's automatic saturation search can stop on the plateau after saturation;
+Note (docs/notes.md): emva1288's automatic saturation search can stop on the plateau after saturation;
 ccdcore excludes the clipped and non-linear levels with stated reasons (listed below the table).
 
 Run by hand (not part of the tests)::
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-# emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (NOTES.md)
+# emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (docs/notes.md)
 np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E731
 
 HERE = Path(__file__).resolve().parent

@@ -1,4 +1,4 @@
-"""The ``ccdcore`` command line (contract in DESIGN.md).
+"""The ``ccdcore`` command line (the contract is in ``docs/cli.md``).
 
 Every analysis verb prints a human summary, or with ``--json`` one JSON object on stdout. Bad input
 exits with code 2 and one line on stderr naming the file and the problem, never a traceback.
@@ -9,10 +9,16 @@ import argparse
 import json
 import os
 import sys
+import textwrap
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from . import __version__
+import numpy as np
+
+from .channels import LAYOUTS
+from .common import Roi, format_pm, format_size
 from .errors import CcdError
 
 __all__ = ["main", "build_parser"]
@@ -37,19 +43,53 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _roi(text: str) -> tuple[int, int, int, int]:
+def _roi(text: str) -> Roi:
     try:
         x, y, w, h = (int(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"ROI '{text}' is not X,Y,W,H, e.g. 10,10,100,100") from None
     if w < 1 or h < 1 or x < 0 or y < 0:
-        raise argparse.ArgumentTypeError(f"ROI '{text}' needs x, y >= 0 and w, h >= 1")
-    return x, y, w, h
+        raise argparse.ArgumentTypeError(f"ROI '{text}' needs X, Y >= 0 and W, H >= 1")
+    return Roi(x, y, w, h)
 
 
 def _print_json(obj: Any) -> None:
     json.dump(obj, sys.stdout, indent=2, sort_keys=False, allow_nan=False, default=str)
     sys.stdout.write("\n")
+
+
+# --------------------------------------------------------------------------------------------
+# printing
+# --------------------------------------------------------------------------------------------
+_WIDTH = 100
+
+
+def _say(label: str, text: str, *, file: Any = None, indent: str = "  ") -> None:
+    """Print ``label: text`` wrapped at 100 characters, continuation lines indented."""
+    lines = textwrap.wrap(f"{label}: {text}" if label else text, width=_WIDTH,
+                          initial_indent=indent, subsequent_indent=indent + "    ",
+                          break_long_words=False, break_on_hyphens=False)
+    print("\n".join(lines), file=file or sys.stdout)
+
+
+def _print_problems(problems: Sequence[Any], label: str, limit: int = 3) -> None:
+    """Each problem on its own line; beyond ``limit`` of one kind (code), the first ``limit``
+    and a count of the rest, so a thousand-frame session stays readable."""
+    shown: dict[str, int] = {}
+    for p in problems:
+        shown[p.code] = shown.get(p.code, 0) + 1
+        if shown[p.code] <= limit:
+            _say(label, str(p))
+    for code, n in shown.items():
+        if n > limit:
+            _say(label, f"… and {n - limit} more of the same kind ({code}); "
+                        "--json lists every one")
+
+
+def _get(d: dict, key: str) -> float:
+    """A number of a JSON summary (``None`` -> NaN so the formatter says n/a)."""
+    v = d.get(key)
+    return float("nan") if v is None else v
 
 
 # --------------------------------------------------------------------------------------------
@@ -70,8 +110,26 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _group_text(row: dict) -> str:
+    parts = [f"{row['count']} frame{'s' if row['count'] != 1 else ''}"]
+    key_name = {"ptc": "level", "fixed_pattern": "config", "dark": "exposure",
+                "bracket": "stack", "reference": "stack", "target": "stack"}.get(row["role"], "key")
+    if row["key"] is not None:
+        unit = " s" if key_name == "exposure" else ""
+        parts.insert(0, f"{key_name} {row['key']}{unit}")
+    parts.append("size " + ("mixed" if "shape" in row["mixed"] else format_size(row["shape"], "x")))
+    parts.append("dtype " + ("mixed" if "dtype" in row["mixed"] else str(row["dtype"])))
+    if row["unreadable"]:
+        parts.append(f"{row['unreadable']} unreadable")
+    if row["exposures"] and row["role"] != "dark":
+        exps = row["exposures"]
+        parts.append("exposure " + (f"{exps[0]:g} s" if len(exps) == 1 else
+                                    f"{exps[0]:g} to {exps[-1]:g} s ({len(exps)} values)"))
+    return ", ".join(parts)
+
+
 def _cmd_session(args: argparse.Namespace) -> int:
-    from .session import draft_manifest, open_session, size_text
+    from .session import draft_manifest, open_session
 
     session = open_session(args.session)
     draft = draft_manifest(session) if args.draft else None
@@ -82,17 +140,20 @@ def _cmd_session(args: argparse.Namespace) -> int:
         _print_json(out)
     else:
         cam = session.camera
-        print(f"session {session.root} ({session.source}), camera '{cam.name}', "
-              f"{cam.bits} bits, {cam.layout}")
+        bits = f"{cam.bits}-bit" if cam.bits else "unknown bit depth"
+        print(f"session {session.label} ({session.source}): camera '{cam.name}', {bits}, "
+              f"{cam.layout}, {len(session.frames)} frames")
         for row in session.groups_table():
-            row = {("size" if k == "shape" else k): (size_text(v) if k == "shape" else v)
-                   for k, v in row.items()}                       # sizes read WxH, like --size
-            desc = ", ".join(f"{k}={v}" for k, v in row.items() if k not in ("role",) and v not in (None, ""))
-            print(f"  {row['role']:<14} {desc}")
-        for problem in session.problems:
-            print(f"  {problem.severity}: {problem}")
+            print(f"  {row['role']:<14} {_group_text(row)}")
+        _print_problems(session.errors, "error")
+        _print_problems(session.warnings, "warning")
         if draft is not None:
-            print(f"manifest draft written to {draft}")
+            print(f"manifest draft written to {draft}: check it, then rename it session.toml")
+        n = len(session.errors)
+        print("valid" + (f" ({len(session.warnings)} warning"
+                         f"{'s' if len(session.warnings) != 1 else ''})" if session.warnings
+                         else "") if session.ok else
+              f"invalid: {n} error{'s' if n != 1 else ''}")
     session.raise_if_invalid()  # exit 2 with the first error and the count of the others
     return 0
 
@@ -105,24 +166,68 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(res.to_dict())
         return 0
-    print(f"photon transfer of {args.session}" + (f", ROI {args.roi}" if args.roi else ""))
-    print(f"{'level':>5} {'mu [DN]':>10} {'var [DN2]':>11} {'+/-':>9}  used")
+    print(f"photon transfer of {res.source or args.session}, "
+          + (f"ROI {Roi(*res.roi)} (X,Y,W,H)" if res.roi else "whole frame"))
+    print(f"{'level':>5} {'mean [DN]':>10} {'var [DN²]':>11} {'± err':>9}  used")
     for p in res.points:
-        used = "yes" if p.used else f"no: {p.reason}"
+        used = "yes" if p.used else f"no ({p.exclusion})"
         print(f"{p.level:>5} {p.mu:>10.3f} {p.var:>11.4f} {p.var_err:>9.4f}  {used}")
-    print(f"A        = {res.A:.6g} +/- {res.A_err:.2g} DN/e   "
-          f"(conversion gain {res.conversion_gain_e_per_dn:.4g} +/- "
-          f"{res.conversion_gain_e_per_dn_err:.2g} e/DN)")
-    print(f"sigma_C2 = {res.sigma_c2:.5g} +/- {res.sigma_c2_err:.2g} DN2  "
-          f"(read noise {res.read_noise_e:.4g} +/- {res.read_noise_e_err:.2g} e, "
-          f"quantisation q2/12 = {res.quantisation_dn2:.4g} DN2)")
-    print(f"chi2 = {res.chi2:.4g} with {res.dof} dof, Q = {res.Q:.4g}: {res.verdict}")
-    print(f"black level {res.black_level_dn:.4g} DN ({res.black_level_source})")
+    print(f"gain        A = {format_pm(res.A, res.A_err, unit='DN/e⁻')} (DN per electron; "
+          f"conversion gain {format_pm(res.conversion_gain_e_per_dn, res.conversion_gain_e_per_dn_err, unit='e⁻/DN')})")
+    print(f"signal-independent noise σ²_C = {format_pm(res.sigma_c2, res.sigma_c2_err, unit='DN²')}"
+          f" (read noise {format_pm(res.read_noise_dn, res.read_noise_dn_err, unit='DN')} = "
+          f"{format_pm(res.read_noise_e, res.read_noise_e_err, unit='e⁻')}; quantisation "
+          f"q²/12 = {res.quantisation_dn2:.4g} DN²)")
+    print(f"fit         χ² = {res.chi2:.4g} with {res.dof} degrees of freedom, Q = {res.Q:.3g}: "
+          f"{res.verdict}")
+    print(f"black level b0 = {res.black_level_dn:.4g} DN ({res.black_level_source})")
     if res.robust_dropped:
         print(f"robust mode dropped levels {', '.join(map(str, res.robust_dropped))}")
     for note in res.notes:
-        print(f"note: {note}")
+        _say("note", note, indent="")
     return 0
+
+
+def _print_product(product: Any, folder: Path) -> None:
+    est = product.estimates
+    print(f"calibration product written to {folder}")
+    if "noise" in est:
+        n = est["noise"]
+        print(f"  noise model    A = {format_pm(_get(n, 'A'), _get(n, 'A_err'), unit='DN/e⁻')}, "
+              f"σ²_C = {format_pm(_get(n, 'sigma_c2'), _get(n, 'sigma_c2_err'), unit='DN²')}, "
+              f"fit Q = {_get(n, 'Q'):.3g} ({n['verdict']})")
+    if "dark" in est:
+        d = est["dark"]
+        print(f"  dark D̂_D       {d['s']} frames, mean {format_pm(_get(d, 'mean'), _get(d, 'mean_sem'), unit='DN')}, "
+              f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels")
+    if "fixed_pattern" in est:
+        k = est["fixed_pattern"]
+        bound = "infinite" if k["var_bound"] is None else format(k["var_bound"], ".3g")
+        print(f"  fixed pattern  K̂ from n1 = {k['n1']} card/lamp positions × n2 = {k['n2']} "
+              f"frames: mean {_get(k, 'mean'):.6g}, spatial std {_get(k, 'spatial_std'):.4g}, "
+              f"error variance {_get(k, 'K_var_mean'):.3g} (eq. 50 bound {bound})")
+    if "correction_check" in est:
+        c = est["correction_check"]
+        print(f"  correction     eq. 51 on the max-intensity frame changes "
+              f"{100 * c['frac_gt_1q']:.1f} % of pixels by more than 1 quantisation step, "
+              f"{100 * c['frac_gt_2q']:.1f} % by more than 2, at most {c['max_change_q']:.2f}")
+    if "flat_field" in est:
+        ff = est["flat_field"]
+        ks = ", ".join(f"{c['name']} {c['k']:.4g} DN" for c in ff["channels"])
+        print(f"  flat field     G, O from base {ff['base']} ({ff['n_base']} frames) and "
+              f"{ff['n_dark']} darks; k per channel: {ks}; {ff['n_flagged']} pixels flagged")
+    if "plan" in est:
+        pl = est["plan"]
+        print(f"  plan           n1 = {pl['n1_required']} card/lamp positions needed, "
+              f"n2 = {pl['n2_required']} frames per position")
+    for name, sv in est.get("scene", {}).items():
+        print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
+              "(relative variance of the surface)")
+    print(f"  maps           {', '.join(sorted(product.maps))}")
+    for warning in product.warnings:
+        _say("warning", warning)
+    for note in product.notes:
+        _say("note", note)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -134,40 +239,10 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         out = product.to_dict()
         out["folder"] = str(folder)
         _print_json(out)
-        return 0
-    est = product.estimates
-    print(f"calibration product written to {folder}")
-    if "noise" in est:
-        n = est["noise"]
-        print(f"  noise model   A = {n['A']:.6g} +/- {n['A_err']:.2g} DN/e, sigma_C2 = "
-              f"{n['sigma_c2']:.5g} +/- {n['sigma_c2_err']:.2g} DN2, Q = {n['Q']:.3g} ({n['verdict']})")
-    if "dark" in est:
-        d = est["dark"]
-        print(f"  dark          s = {d['s']}, mean {d['mean']:.4g} DN, spatial std "
-              f"{d['spatial_std']:.4g} DN, {d['n_hot']} hot, {d['n_dead']} dead")
-    if "fixed_pattern" in est:
-        k = est["fixed_pattern"]
-        print(f"  fixed pattern n1 = {k['n1']}, n2 = {k['n2']}, K mean {k['mean']:.6g}, "
-              f"spatial std {k['spatial_std']:.4g}, error var {k['K_var_mean']:.3g} "
-              f"(eq. 50 bound {'infinite' if k['var_bound'] is None else format(k['var_bound'], '.3g')})")
-    if "correction_check" in est:
-        c = est["correction_check"]
-        print(f"  correction    eq. 51 on the max-intensity frame changes {100 * c['frac_gt_1q']:.1f} % "
-              f"of pixels by > 1 q, {100 * c['frac_gt_2q']:.1f} % by > 2 q, at most "
-              f"{c['max_change_q']:.2f} q")
-    if "flat_field" in est:
-        ff = est["flat_field"]
-        ks = ", ".join(f"{c['name']} {c['k']:.4g}" for c in ff["channels"])
-        print(f"  flat field    base {ff['base']} ({ff['n_base']} frames), {ff['n_dark']} darks, "
-              f"k: {ks}; {ff['n_flagged']} pixels flagged")
-    if "plan" in est:
-        pl = est["plan"]
-        print(f"  plan          n1 >= {pl['n1_required']}, n2 >= {pl['n2_required']}")
-    for name, sv in est.get("scene", {}).items():
-        print(f"  scene {name:<8} V_S = {sv['V_S']:.4g} +/- {sv['V_S_err']:.2g}")
-    for note in product.notes:
-        print(f"  note: {note}")
-    print(f"  maps: {', '.join(sorted(product.maps))}")
+    else:
+        _print_product(product, folder)
+    for skip in product.skipped:  # on stderr, so --json stays one object on stdout
+        _say(f"skipped {skip.estimate}", skip.reason, file=sys.stderr)
     return 0
 
 
@@ -188,8 +263,8 @@ def _cmd_snup(args: argparse.Namespace) -> int:
     for img in images:
         print(f"{img['path']} ({img['layout']})" + (f", ROI {args.roi}" if args.roi else ""))
         for ch in img["channels"]:
-            print(f"  {ch['name']:<3} mean {ch['mean']:10.3f} DN   SNUP {ch['snup']:.4f} "
-                  f"+/- {ch['snup_err']:.4f} %")
+            print(f"  {ch['name']:<3} mean {_get(ch, 'mean'):10.3f} DN   SNUP "
+                  f"{format_pm(_get(ch, 'snup'), _get(ch, 'snup_err'), unit='%')}")
     return 0
 
 
@@ -214,7 +289,7 @@ def _cmd_app(args: argparse.Namespace) -> int:
 
 def _not_built(verb: str, what: str) -> Callable[[argparse.Namespace], int]:
     def run(args: argparse.Namespace) -> int:
-        raise CcdError(f"ccdcore {verb}", f"{what} is not built yet in this version")
+        raise CcdError(None, f"{what} is not built yet in this version")
 
     return run
 
@@ -222,94 +297,125 @@ def _not_built(verb: str, what: str) -> Callable[[argparse.Namespace], int]:
 # --------------------------------------------------------------------------------------------
 # parser
 # --------------------------------------------------------------------------------------------
+_SESSION_HELP = ("a session folder (with session.toml), a session.toml, a plain folder of images "
+                 "or an EMVA1288 descriptor file")
+_ROI_HELP = "region of interest X,Y,W,H in pixels (left, top, width, height), e.g. 10,10,100,80"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="ccdcore", description="Radiometric camera calibration toolkit.")
+    parser = _Parser(prog="ccdcore", description="Radiometric camera calibration toolkit.",
+                     epilog="Each verb's --help says what it needs. Bad input exits with code 2 "
+                            "and one line naming the file and the problem.")
     parser.add_argument("--version", action="version", version=f"ccdcore {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
     sub.required = True
 
-    def verb(name: str, help_: str, func: Callable[[argparse.Namespace], int]) -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_, description=help_)
+    def verb(name: str, help_: str, func: Callable[[argparse.Namespace], int],
+             needs: str = "") -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_, description=help_ + (f". Needs: {needs}" if needs
+                                                                   else ""))
         p.set_defaults(func=func)
         return p
+
+    def json_flag(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--json", action="store_true",
+                       help="print one JSON object on stdout instead of the summary")
 
     from .simulate import PRESETS
 
     p = verb("simulate", "write a simulated capture session and its truth.json", _cmd_simulate)
-    p.add_argument("preset", choices=sorted(PRESETS))
-    p.add_argument("out_dir", type=Path)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--size", type=_size, default=None, help="frame size WxH")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("preset", choices=sorted(PRESETS), help="which paper's capture procedure")
+    p.add_argument("out_dir", type=Path, help="folder to write (created)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--size", type=_size, default=None,
+                   help="frame size WxH in pixels (default: the preset's)")
+    json_flag(p)
 
-    p = verb("session", "inspect and validate a capture session", _cmd_session)
-    p.add_argument("session", type=Path)
+    p = verb("session", "inspect and validate a capture session", _cmd_session,
+             needs="any session; exits 2 when it has errors")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--draft", action="store_true",
-                   help="write session.toml.draft (for a plain folder or descriptor)")
-    p.add_argument("--json", action="store_true")
+                   help="write session.toml.draft beside the frames (a manifest to review, e.g. "
+                        "for a plain folder or a descriptor)")
+    json_flag(p)
 
     p = verb("ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
-             _cmd_ptc)
-    p.add_argument("session", type=Path)
-    p.add_argument("--roi", type=_roi)
+             _cmd_ptc, needs="ptc frames at 3 or more light levels (two or more frames each); "
+                             "dark frames give the black level")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--roi", type=_roi, help=_ROI_HELP)
     p.add_argument("--robust", action="store_true",
                    help="drop levels whose residual is beyond 3 sigma, one at a time")
     p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
                    help="exclude a light level from the fit (repeatable)")
-    p.add_argument("--json", action="store_true")
+    json_flag(p)
 
     p = verb("calibrate", "every estimate the session allows, saved as a calibration product",
-             _cmd_calibrate)
-    p.add_argument("session", type=Path)
-    p.add_argument("--roi", type=_roi, help="ROI for the photon-transfer statistics")
-    p.add_argument("-o", "--out", type=Path, required=True)
-    p.add_argument("--json", action="store_true")
+             _cmd_calibrate, needs="any of: ptc frames (noise model), dark frames (dark "
+                                   "reference), fixed_pattern and dark frames (K map), flat and "
+                                   "dark frames (flat field); what cannot be made is listed")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--roi", type=_roi, help="ROI X,Y,W,H for the photon-transfer statistics")
+    p.add_argument("-o", "--out", type=Path, required=True,
+                   help="product folder to write (new, empty, or an earlier product)")
+    json_flag(p)
 
-    p = verb("apply", "correct images with a calibration product (eq. 51), float32 out",
-             _cmd_apply)
-    p.add_argument("calib", type=Path)
-    p.add_argument("images", type=Path, nargs="+")
-    p.add_argument("-o", "--out-dir", type=Path, required=True)
+    p = verb("apply", "correct images with a calibration product, float32 out", _cmd_apply,
+             needs="a product with a flat field (de Lasarte: O + G·DL) or a dark map "
+                   "(Healey & Kondepudy eq. 51: (D − D̂_D)/K̂)")
+    p.add_argument("calib", type=Path, help="a calibration product folder (ccdcore calibrate)")
+    p.add_argument("images", type=Path, nargs="+", help="images of the calibrated camera")
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for the corrected images (same base names)")
 
     p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
-                     "(de Lasarte et al. 2007)", _cmd_snup)
-    p.add_argument("images", type=Path, nargs="+")
-    p.add_argument("--roi", type=_roi)
-    p.add_argument("--layout", choices=["mono", "rgb", "bayer-rggb", "bayer-bggr", "bayer-grbg",
-                                        "bayer-gbrg"],
+                     "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
+    p.add_argument("images", type=Path, nargs="+", help="image files")
+    p.add_argument("--roi", type=_roi, help=_ROI_HELP + " (even values on Bayer data)")
+    p.add_argument("--layout", choices=list(LAYOUTS),
                    help="channel layout (default: from the file; give it for mosaicked raw data)")
-    p.add_argument("--json", action="store_true")
+    json_flag(p)
 
     p = verb("response", "inverse camera response per channel",
-             _not_built("response", "response-curve estimation"))
-    p.add_argument("session", type=Path)
-    p.add_argument("--method", choices=["tsin", "debevec", "robertson", "mitsunaga"], default="tsin")
-    p.add_argument("--json", action="store_true")
+             _not_built("response", "response-curve estimation"), needs="bracket frames")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--method", choices=["tsin", "debevec", "robertson", "mitsunaga"],
+                   default="tsin", help="estimation method (default tsin)")
+    json_flag(p)
 
-    p = verb("hdr", "HDR radiance map and its sigma map", _not_built("hdr", "HDR radiance"))
-    p.add_argument("session", type=Path)
-    p.add_argument("--calib", type=Path)
-    p.add_argument("-o", "--out-dir", type=Path, required=True)
+    p = verb("hdr", "HDR radiance map and its sigma map", _not_built("hdr", "HDR radiance"),
+             needs="bracket frames")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--calib", type=Path, help="a calibration product with response curves")
+    p.add_argument("-o", "--out-dir", type=Path, required=True, help="folder for the outputs")
 
     p = verb("change", "illumination-invariant change and shadow masks",
-             _not_built("change", "change detection"))
-    p.add_argument("session", type=Path)
-    p.add_argument("--pfa", type=float, default=0.01)
-    p.add_argument("-o", "--out-dir", type=Path, required=True)
-    p.add_argument("--json", action="store_true")
+             _not_built("change", "change detection"), needs="reference and target brackets")
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--pfa", type=float, default=0.01,
+                   help="false-alarm probability per background pixel (default 0.01)")
+    p.add_argument("-o", "--out-dir", type=Path, required=True, help="folder for the outputs")
+    json_flag(p)
 
     p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)
-    p.add_argument("session", nargs="?", default=None)
-    p.add_argument("--port", type=int, default=5006)
+    p.add_argument("session", nargs="?", default=None,
+                   help="session to open (default: the bundled demo)")
+    p.add_argument("--port", type=int, default=5006, help="port (default 5006)")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 2 bad input)."""
+    """Run the command line; returns the exit code (0 ok, 2 bad input).
+
+    NumPy's RuntimeWarnings (invalid values met while estimating) are not printed: every
+    estimator reports bad input as one error line, so a warning would only precede it.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        code = int(args.func(args) or 0)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, inside the handler below
         return code
     except CcdError as err:
@@ -320,7 +426,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 141
-    except (OSError, PermissionError) as err:
+    except OSError as err:
         where = getattr(err, "filename", None) or ""
         print(f"ccdcore {args.verb}: error: {where}{': ' if where else ''}{err.strerror or err}",
               file=sys.stderr)

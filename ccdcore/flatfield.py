@@ -86,12 +86,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter
 
+from .channels import channel_names, channel_slices, check_layout, split_channels
+from .common import named_frames
 from .darkframe import DarkReference
 from .errors import CcdError
 from .stats import MomentsResult, PixelMoments
-from .uniformity import (Linearity, _named, channel_names, channel_slices, check_layout,
-                         dark_groups, flat_groups, linearity, resolve_setting, snup,
-                         split_channels)
+from .uniformity import Linearity, linearity, snup
 
 __all__ = ["FlatChannel", "FlatField", "flat_field", "flat_field_from_session", "correct",
            "BaseRecommendation", "recommend_base", "BaseStudy", "base_image_study", "ZeroDark",
@@ -244,7 +244,7 @@ def _moments(src: Any, what: str, counts: dict | None = None,
     acc = PixelMoments()
     first = None
     lay = layout
-    for name, arr in _named(src, what):
+    for name, arr in named_frames(src, what):
         first = first or name
         acc.add(arr, name=name)
         if counts is not None:
@@ -377,11 +377,11 @@ def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
 
 def _pick_darks(session: Any, setting: str | None, gain: float | None,
                 exposure: float | None) -> tuple[tuple, float | None, list[str]]:
-    groups = dark_groups(session, setting=setting, gain=gain)
+    groups = session.dark_groups(setting=setting, gain=gain)
     where = str(session.root)
     if not groups:
         raise CcdError(where, "no dark frames (role = 'dark')"
-                       + (f" with setting={setting}" if setting else "")
+                       + (f" with setting = {setting!r}" if setting else "")
                        + ": the flat-field correction needs the dark image DL_0")
     if exposure is not None:
         for t, recs in groups.items():
@@ -407,7 +407,7 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
     session
         A :class:`~ccdcore.session.Session` with dark and flat frames.
     setting
-        Offset setting (frames with ``note = "setting=<name>"``); ``None`` takes the first of
+        Offset setting (manifest key ``setting``); ``None`` takes the first of
         several (noted) or all frames when none is named.
     base
         ``(level, exposure)`` of the flat group used as the base image, or ``"auto"``: the
@@ -420,11 +420,11 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
     **options
         ``k``, ``noise_limit``, ``window`` of :func:`flat_field`.
     """
-    setting, notes = resolve_setting(session, setting)
-    groups = flat_groups(session, setting=setting, gain=gain)
+    setting, notes = session.resolve_setting(setting)
+    groups = session.flat_groups(setting=setting, gain=gain)
     if not groups:
         raise CcdError(str(session.root), "no flat frames (role = 'flat')"
-                       + (f" with setting={setting}" if setting else ""))
+                       + (f" with setting = {setting!r}" if setting else ""))
     if isinstance(base, str):
         if base != "auto":
             raise CcdError("base", f"give (level, exposure) or 'auto', got {base!r}")
@@ -498,9 +498,9 @@ def recommend_base(session: Any, *, setting: str | None = None, gain: float | No
     **linearity_options
         ``tolerance`` ... of :func:`~ccdcore.uniformity.linearity`.
     """
-    setting, _ = resolve_setting(session, setting)
+    setting, _ = session.resolve_setting(setting)
     lin = linearity_result or linearity(session, setting=setting, gain=gain, **linearity_options)
-    groups = flat_groups(session, setting=setting, gain=gain)
+    groups = session.flat_groups(setting=setting, gain=gain)
     rows = []
     for key, recs in groups.items():
         pts = lin.group_points(key, gain)
@@ -606,8 +606,8 @@ def base_image_study(session: Any, *, setting: str | None = None, gain: float | 
     **options
         Passed to :func:`flat_field`.
     """
-    setting, _ = resolve_setting(session, setting)
-    groups = flat_groups(session, setting=setting, gain=gain)
+    setting, _ = session.resolve_setting(setting)
+    groups = session.flat_groups(setting=setting, gain=gain)
     cands = list(groups) if candidates is None else [tuple(c) for c in candidates]
     imgs = list(groups) if images is None else [tuple(c) for c in images]
     for key in cands + imgs:
@@ -714,7 +714,7 @@ def zero_dark(darks: Any, *, layout: str | None = None, limit: float = ZERO_LIMI
                                                                   darks.shape[2] == 3)):
             add(darks, layout)
         else:
-            for _, arr in _named(darks, "dark"):
+            for _, arr in named_frames(darks, "dark"):
                 layout = add(arr, layout)
         if not counts:
             raise CcdError("dark", "no dark frames")
@@ -751,16 +751,15 @@ def compare_dark_settings(session: Any, *, settings: Sequence[str] | None = None
     judged on the same radiance levels and exposures) corrected; mean and std of their SNUP per
     channel.
     """
-    from .uniformity import session_settings
-    names = list(settings) if settings is not None else list(session_settings(session))
+    names = list(settings) if settings is not None else list(session.settings())
     if not names:
         raise CcdError(str(session.root), "the session names no offset settings "
-                                          "(note = 'setting=...')")
+                                          "(manifest key setting)")
     rows, zd = [], {}
     recs_by = {s: recommend_base(session, setting=s, gain=gain) for s in names}
     common = None   # the same image groups for every setting: inside each linear range
     for s, rec in recs_by.items():
-        keys = {k for k in flat_groups(session, setting=s, gain=gain)
+        keys = {k for k in session.flat_groups(setting=s, gain=gain)
                 if rec.linearity.in_range(k, gain) and k != rec.key}
         common = keys if common is None else common & keys
     for s in names:
@@ -768,7 +767,7 @@ def compare_dark_settings(session: Any, *, settings: Sequence[str] | None = None
         ff = flat_field_from_session(session, setting=s, gain=gain, base=rec.key, **options)
         zd[s] = zero_dark(ff)
         per: dict[str, list[float]] = {}
-        for key, recs in flat_groups(session, setting=s, gain=gain).items():
+        for key, recs in session.flat_groups(setting=s, gain=gain).items():
             if key not in common:
                 continue
             for r, frame in session.iter_frames(recs):
@@ -857,9 +856,9 @@ def compare_with_k_map(session: Any, *, setting: str | None = None, gain: float 
     from .fixedpattern import correct as k_correct
     from .fixedpattern import fixed_pattern_map
 
-    setting, _ = resolve_setting(session, setting)
+    setting, _ = session.resolve_setting(setting)
     rec = recommend_base(session, setting=setting, gain=gain)
-    groups = flat_groups(session, setting=setting, gain=gain)
+    groups = session.flat_groups(setting=setting, gain=gain)
     inside = [k for k in groups if rec.linearity.in_range(k, gain)]
     if evaluate is None:
         others = [k for k in inside if k != rec.key]

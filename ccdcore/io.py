@@ -8,6 +8,11 @@ Public objects
 :func:`read_header`, :func:`read_image`, :func:`read_frame`
     Read a frame through OpenImageIO (TIFF, OpenEXR, PNG, PNM, ...), FITS through astropy, camera
     raw (DNG, CR2, NEF, ...) through rawpy (optional ``raw`` extra) as undemosaiced CFA data.
+:func:`read_region`
+    Read a rectangle of a frame, decoding only the strips, tiles or rows it covers.
+:data:`MAX_PIXELS`
+    The largest image (width x height x channels) read without being asked; see
+    :func:`pixel_limit`.
 :func:`write_image`, :func:`write_map`
     Atomic writes (temporary file in the same folder, then rename) with deterministic bytes.
 :func:`atomic_path`, :func:`atomic_write_text`, :func:`atomic_write_bytes`
@@ -16,6 +21,12 @@ Public objects
 Policy: integers stay integers of the stored width (no rescaling to [0, 1], no gamma); a single
 channel comes back as a 2-D ``(H, W)`` array, several as ``(H, W, C)``.
 
+The file boundary is checked: every OpenImageIO call's result and error text is looked at, a
+failed write never replaces the previous file (the temporary file is removed and the error names
+the target), an image whose header declares more than :data:`MAX_PIXELS` values is refused before
+its pixels are decoded, and bad input gives one :class:`~ccdcore.errors.ImageReadError` line rather
+than warnings on stderr.
+
 FITS goes through :mod:`astropy.io.fits` rather than OpenImageIO because OpenImageIO's FITS plugin
 ignores ``BZERO``/``BSCALE``: the standard unsigned 16-bit FITS frame of astronomical cameras
 (``BITPIX = 16``, ``BZERO = 32768``) would be read as signed and wrong.
@@ -23,8 +34,11 @@ ignores ``BZERO``/``BSCALE``: the standard unsigned 16-bit FITS frame of astrono
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import sys
 import tempfile
+import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,12 +46,13 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .errors import ImageReadError, ImageWriteError, MethodNotAvailable
+from .errors import CcdError, ImageReadError, ImageWriteError, MethodNotAvailable
 
 __all__ = [
-    "ImageHeader", "read_header", "read_image", "read_frame", "write_image", "write_map",
-    "atomic_path", "atomic_write_text", "atomic_write_bytes", "IMAGE_EXTENSIONS",
-    "RAW_EXTENSIONS", "FITS_EXTENSIONS", "is_image_path",
+    "ImageHeader", "read_header", "read_image", "read_frame", "read_region", "write_image",
+    "write_map", "atomic_path", "atomic_write_text", "atomic_write_bytes", "IMAGE_EXTENSIONS",
+    "RAW_EXTENSIONS", "FITS_EXTENSIONS", "is_image_path", "MAX_PIXELS", "MAX_PIXELS_ENV",
+    "pixel_limit",
 ]
 
 FITS_EXTENSIONS = frozenset({".fits", ".fit", ".fts"})
@@ -55,6 +70,28 @@ _OIIO_TYPES = {"uint8": "uint8", "int8": "int8", "uint16": "uint16", "int16": "i
                "float64": "double"}
 # Fixed TIFF DateTime so that the same pixels give the same bytes.
 _FIXED_DATETIME = "2000:01:01 00:00:00"
+
+#: Largest image :func:`read_image`, :func:`read_frame` and :func:`read_region` decode unless told
+#: otherwise, counted in pixel values: width x height x channels. 2**30 (1.07 G values) lets every
+#: single-shot sensor through (a 151 MP medium-format or a 16k x 16k scientific frame as raw/mono,
+#: RGB or RGBA; a 240 MP pixel-shift RGB composite) while a 40000 x 40000 "decompression bomb" is
+#: refused; the largest image allowed takes 2 GiB as uint16 and 8 GiB once a caller makes it
+#: float64, which still fits the 24 GiB machines this project targets.
+MAX_PIXELS = 2**30
+#: Environment variable that overrides :data:`MAX_PIXELS` (a positive whole number).
+MAX_PIXELS_ENV = "CCDCORE_MAX_PIXELS"
+# Longest OpenImageIO/OS message quoted in an error line.
+_MESSAGE_CHARS = 300
+# A write is not started with less free space than this in the target's folder.
+_MIN_FREE_BYTES = 1 << 20
+# What OpenImageIO (3.2) reports on closing every TIFF file that has no EXIF fields, although the
+# file is complete; a real failure there is still caught by reading the file back and by the
+# free-space check.
+_OIIO_NOT_ERRORS = ("failed TIFFWriteCustomDirectory() of the Exif data",)
+# The bytes every complete file of a format ends with, checked after writing: a PNG file missing
+# only its closing IEND chunk still reads back.
+_FILE_ENDS = {".png": b"\x00\x00\x00\x00IEND\xaeB`\x82", ".jpg": b"\xff\xd9",
+              ".jpeg": b"\xff\xd9"}
 
 
 @dataclass(frozen=True)
@@ -111,7 +148,7 @@ def _check_file(path: Path) -> None:
 def _float_or_none(value: Any) -> float | None:
     try:
         v = float(value)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         return None
     return v if np.isfinite(v) else None
 
@@ -123,52 +160,284 @@ def _float32_value(value: Any) -> float | None:
     shortest decimal that maps to the same float32 (``0.01``) is what the camera wrote.
     """
     v = _float_or_none(value)
-    return None if v is None else float(np.format_float_positional(np.float32(v), unique=True))
+    if v is None:
+        return None
+    with np.errstate(over="ignore"):
+        v32 = np.float32(v)
+    return float(np.format_float_positional(v32, unique=True)) if np.isfinite(v32) else None
 
 
+def _int_or(value: Any, default: int) -> int:
+    """``value`` as an int, or ``default`` when a header holds something else there."""
+    try:
+        return int(value)
+    except (TypeError, ValueError, OverflowError):
+        return default
+
+
+# ---- the pixel limit ------------------------------------------------------------------------
+def _whole_number(value: Any) -> int | None:
+    """``value`` (int, integral float, or such a number as text) as an int; None otherwise."""
+    if isinstance(value, bool):
+        return None
+    with contextlib.suppress(TypeError, ValueError, OverflowError):
+        number = float(value) if isinstance(value, (str, float)) else value
+        if int(number) == number:
+            return int(number)
+    return None
+
+
+def pixel_limit(max_pixels: int | None = None) -> int:
+    """The largest image, in pixel values (width x height x channels), that a read decodes.
+
+    Parameters
+    ----------
+    max_pixels
+        Limit for this call; ``None`` takes the environment variable ``CCDCORE_MAX_PIXELS`` when
+        set, else the module default :data:`MAX_PIXELS`.
+
+    Returns
+    -------
+    int
+        The limit in force.
+
+    Raises
+    ------
+    CcdError
+        ``max_pixels`` or the environment variable is not a positive whole number.
+    """
+    if max_pixels is not None:
+        where, value = "max_pixels", max_pixels
+    elif os.environ.get(MAX_PIXELS_ENV, "").strip():
+        where, value = MAX_PIXELS_ENV, os.environ[MAX_PIXELS_ENV].strip()
+    else:
+        return int(MAX_PIXELS)
+    limit = _whole_number(value)
+    if limit is None or limit <= 0:
+        raise CcdError(where, f"{value!r} is not a positive whole number "
+                              "(the largest image to read, in pixel values)")
+    return limit
+
+
+def _refuse_over_limit(path: Path, width: int, height: int, channels: int, limit: int,
+                       what: str = "image is") -> None:
+    """Raise :class:`ImageReadError` when ``width x height x channels`` exceeds ``limit``.
+
+    Called with the header's numbers, before any pixel is decoded, so that a small file declaring
+    a huge image (a decompression bomb, or a corrupt header) cannot exhaust memory.
+    """
+    values = int(width) * int(height) * int(channels)
+    if values > limit:
+        raise ImageReadError(
+            path, f"{what} {width}x{height} pixels x {channels} channel(s) = {values:,} values, "
+                  f"over the limit of {limit:,} (a guard against decompression bombs); to read "
+                  f"it anyway pass max_pixels={values} or set {MAX_PIXELS_ENV}={values}")
+
+
+# ---- OpenImageIO ----------------------------------------------------------------------------
 def _oiio():
     import OpenImageIO as oiio  # imported lazily: it is heavy and only needed for I/O
 
     return oiio
 
 
-def _oiio_error(oiio, inp=None) -> str:
-    msg = (inp.geterror() if inp is not None else "") or oiio.geterror() or "unreadable image"
-    return " ".join(msg.split())
+def _one_line(*messages: str | None, tmp: Path | None = None, path: Path | None = None) -> str:
+    """Messages as one line: distinct lines joined by ``; ``, whitespace collapsed, cut short.
+
+    With ``tmp`` and ``path``, the hidden temporary file's name is replaced by the target's, so
+    that an error about a failed write names the file the user asked for.
+    """
+    lines: list[str] = []
+    for message in messages:
+        for line in str(message or "").splitlines():
+            line = " ".join(line.split())
+            if tmp is not None and path is not None:
+                line = line.replace(str(tmp), str(path)).replace(tmp.name, path.name)
+            if line and line not in lines:
+                lines.append(line)
+    text = "; ".join(lines)
+    return text if len(text) <= _MESSAGE_CHARS else text[:_MESSAGE_CHARS - 3] + "..."
+
+
+def _oiio_messages(oiio, obj=None, **names) -> str:
+    """Retrieve -- and so clear -- the pending OpenImageIO errors of ``obj`` and of this thread.
+
+    Retrieving them also keeps OpenImageIO from printing them on stderr at exit.
+    """
+    own = obj.geterror() if obj is not None else ""
+    return _one_line(own, oiio.geterror(), **names)
+
+
+_STDERR_LOCK = threading.Lock()
+
+
+def _stderr_to(sink) -> int | None:
+    """Point file descriptor 2 at ``sink``; return a duplicate of the old one (None: left as is)."""
+    with contextlib.suppress(AttributeError, ValueError, OSError):
+        sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all
+        return None
+    os.dup2(sink.fileno(), 2)
+    return saved
+
+
+def _stderr_back(saved: int | None, sink) -> None:
+    """Restore file descriptor 2 and pass on what was written meanwhile, less libpng's lines."""
+    if saved is None:
+        return
+    os.dup2(saved, 2)
+    os.close(saved)
+    sink.seek(0)
+    rest = b"".join(line for line in sink if not line.startswith(b"libpng "))
+    if rest:
+        with contextlib.suppress(OSError):
+            os.write(2, rest)
+
+
+@contextlib.contextmanager
+def _libpng_quiet(path: Path) -> Iterator[None]:
+    """Keep libpng's own ``libpng error: ...`` lines off stderr while OpenImageIO reads a PNG.
+
+    libpng prints them straight to file descriptor 2, then OpenImageIO reports the same problem
+    through ``geterror()``, which goes into the :class:`ImageReadError`. Whatever else reaches
+    stderr meanwhile (another thread's output) is passed on afterwards; other formats are left
+    alone.
+    """
+    if path.suffix.lower() != ".png":
+        yield
+        return
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        saved = _stderr_to(sink)
+        try:
+            yield
+        finally:
+            _stderr_back(saved, sink)
+
+
+def _oiio_open(oiio, path: Path):
+    """Open ``path`` with OpenImageIO, or raise :class:`ImageReadError` naming it."""
+    try:
+        inp = oiio.ImageInput.open(str(path))
+    except Exception as exc:  # the bindings raise for names they cannot pass on (bad UTF-8)
+        raise ImageReadError(path, f"cannot read image: {_one_line(str(exc))}") from None
+    if inp is None:
+        problem = _oiio_messages(oiio) or "no reader for this file"
+        raise ImageReadError(path, f"cannot read image: {problem}")
+    oiio.geterror()  # drop what the readers tried before the right one left behind
+    return inp
+
+
+def _oiio_close(oiio, inp) -> None:
+    """Close a reader and drop its pending messages (the pixels were already checked)."""
+    inp.close()
+    _oiio_messages(oiio, inp)
+
+
+def _check_pixels(oiio, inp, data, path: Path) -> None:
+    """Raise :class:`ImageReadError` unless a read gave pixels and no error."""
+    problem = _oiio_messages(oiio, inp)
+    if data is None or problem:
+        raise ImageReadError(path, "truncated or corrupt image data "
+                                   f"({problem or 'OpenImageIO gave no pixels'})")
 
 
 def _oiio_header(path: Path) -> ImageHeader:
     oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ImageReadError(path, f"cannot read image: {_oiio_error(oiio)}")
+    inp = _oiio_open(oiio, path)
     try:
-        spec = inp.spec()
-        dtype = np.dtype(_dtype_from_typedesc(spec.format))
-        bits = spec.get_int_attribute("oiio:BitsPerSample", 0) or dtype.itemsize * 8
-        attrs = {a.name: a.value for a in spec.extra_attribs
-                 if isinstance(a.value, (str, int, float))}
-        exposure = _float32_value(attrs.get("ExposureTime"))
-        gain = _float_or_none(attrs.get("Exif:Gain", attrs.get("Gain")))
-        return ImageHeader(path=path, width=spec.width, height=spec.height,
-                           channels=spec.nchannels, dtype=dtype, bits=int(bits),
-                           layout=_LAYOUTS.get(spec.nchannels, f"{spec.nchannels}-channel"),
-                           exposure=exposure, gain=gain, temperature=None,
-                           format=inp.format_name(), attributes=attrs)
+        return _header_from_spec(path, inp.spec(), inp.format_name())
     finally:
-        inp.close()
+        _oiio_close(oiio, inp)
 
 
-def _dtype_from_typedesc(td) -> str:
+def _header_from_spec(path: Path, spec, format_name: str) -> ImageHeader:
+    dtype = np.dtype(_dtype_from_typedesc(spec.format, path))
+    bits = spec.get_int_attribute("oiio:BitsPerSample", 0) or dtype.itemsize * 8
+    attrs = {a.name: a.value for a in spec.extra_attribs
+             if isinstance(a.value, (str, int, float))}
+    exposure = _float32_value(attrs.get("ExposureTime"))
+    gain = _float_or_none(attrs.get("Exif:Gain", attrs.get("Gain")))
+    return ImageHeader(path=path, width=spec.width, height=spec.height,
+                       channels=spec.nchannels, dtype=dtype, bits=int(bits),
+                       layout=_LAYOUTS.get(spec.nchannels, f"{spec.nchannels}-channel"),
+                       exposure=exposure, gain=gain, temperature=None,
+                       format=format_name, attributes=attrs)
+
+
+def _dtype_from_typedesc(td, path: Path | None = None) -> str:
     name = str(td)
     table = {"uint8": "uint8", "int8": "int8", "uint16": "uint16", "int16": "int16",
              "uint": "uint32", "uint32": "uint32", "int": "int32", "int32": "int32",
              "half": "float16", "float": "float32", "double": "float64"}
     if name not in table:
-        raise ImageReadError(None, f"unsupported sample type {name}")
+        raise ImageReadError(path, f"unsupported sample type {name}")
     return table[name]
 
 
+def _read_oiio(path: Path, header: ImageHeader) -> np.ndarray:
+    oiio = _oiio()
+    inp = _oiio_open(oiio, path)
+    try:
+        data = inp.read_image(format=oiio.UNKNOWN)
+        _check_pixels(oiio, inp, data, path)
+    finally:
+        _oiio_close(oiio, inp)
+    return np.ascontiguousarray(data).astype(header.dtype, copy=False)
+
+
+def _round_up(n: int, step: int) -> int:
+    return -(-n // step) * step
+
+
+def _read_oiio_rows(oiio, inp, spec, box, path: Path, limit: int):
+    """The full-width rows holding ``box`` in a scanline image, and where the box starts in them.
+
+    In a TIFF file whole strips are read: they are decoded whole anyway, and OpenImageIO (3.2)
+    reads a range ending inside a strip by decoding the file from its start.
+    """
+    x, y, w, h = box
+    rows = spec.get_int_attribute("tiff:RowsPerStrip", 0) or 1
+    y0, y1 = y - y % rows, min(_round_up(y + h, rows), spec.height)
+    _refuse_over_limit(path, spec.width, y1 - y0, spec.nchannels, limit,
+                       what="the rows holding this region are")
+    data = inp.read_scanlines(0, 0, spec.y + y0, spec.y + y1, spec.z, 0, spec.nchannels,
+                              oiio.UNKNOWN)
+    return data, (x, y - y0)
+
+
+def _read_oiio_tiles(oiio, inp, spec, box, path: Path, limit: int):
+    """The tiles covering ``box`` of a tiled image, and where the box starts in them."""
+    x, y, w, h = box
+    tw, th = spec.tile_width, spec.tile_height
+    x0, y0 = x - x % tw, y - y % th
+    x1, y1 = min(_round_up(x + w, tw), spec.width), min(_round_up(y + h, th), spec.height)
+    _refuse_over_limit(path, x1 - x0, y1 - y0, spec.nchannels, limit,
+                       what="the tiles holding this region are")
+    data = inp.read_tiles(0, 0, spec.x + x0, spec.x + x1, spec.y + y0, spec.y + y1,
+                          spec.z, spec.z + max(spec.depth, 1), 0, spec.nchannels, oiio.UNKNOWN)
+    return data, (x - x0, y - y0)
+
+
+def _read_oiio_region(path: Path, header: ImageHeader, box, limit: int) -> np.ndarray:
+    oiio = _oiio()
+    inp = _oiio_open(oiio, path)
+    try:
+        spec = inp.spec()
+        read = _read_oiio_tiles if spec.tile_width else _read_oiio_rows
+        data, (dx, dy) = read(oiio, inp, spec, box, path, limit)
+        _check_pixels(oiio, inp, data, path)
+    finally:
+        _oiio_close(oiio, inp)
+    _, _, w, h = box
+    data = np.asarray(data)
+    if data.ndim == 4:  # (depth, rows, columns, channels) of a volume image: its first slice
+        data = data[0]
+    return np.ascontiguousarray(data[dy:dy + h, dx:dx + w]).astype(header.dtype, copy=False)
+
+
+# ---- FITS -----------------------------------------------------------------------------------
 def _fits_hdu(path: Path):
     """Open a FITS file and return ``(hdul, hdu)`` for the first HDU holding an image."""
     from astropy.io import fits
@@ -178,16 +447,16 @@ def _fits_hdu(path: Path):
             warnings.simplefilter("ignore")
             hdul = fits.open(path, memmap=False, lazy_load_hdus=False)
     except Exception as exc:  # astropy raises OSError/ValueError/TypeError for bad files
-        raise ImageReadError(path, f"cannot read FITS file: {exc}") from None
+        raise ImageReadError(path, f"cannot read FITS file: {_one_line(str(exc))}") from None
     for hdu in hdul:
-        if getattr(hdu, "is_image", False) and hdu.header.get("NAXIS", 0) >= 2:
+        if getattr(hdu, "is_image", False) and _int_or(hdu.header.get("NAXIS"), 0) >= 2:
             return hdul, hdu
     hdul.close()
     raise ImageReadError(path, "FITS file holds no 2-D image")
 
 
-def _fits_dtype(header) -> np.dtype:
-    bitpix = int(header["BITPIX"])
+def _fits_dtype(header, path: Path | None = None) -> np.dtype:
+    bitpix = _int_or(header.get("BITPIX"), 0)
     bzero = header.get("BZERO", 0)
     bscale = header.get("BSCALE", 1)
     if bscale == 1 and bitpix == 16 and bzero == 32768:
@@ -196,21 +465,25 @@ def _fits_dtype(header) -> np.dtype:
         return np.dtype("uint32")
     if bscale == 1 and bitpix == 8:
         return np.dtype("uint8")
+    table = {16: "int16", 32: "int32", 64: "int64", -32: "float32", -64: "float64"}
+    if bitpix not in table and bitpix != 8:
+        raise ImageReadError(path, f"FITS BITPIX = {header.get('BITPIX')!r} is not a FITS "
+                                   "sample type")
     if bscale != 1 or bzero != 0:
         return np.dtype("float32")
-    return np.dtype({16: "int16", 32: "int32", 64: "int64", -32: "float32", -64: "float64"}[bitpix])
+    return np.dtype(table[bitpix])
 
 
 def _fits_header(path: Path) -> ImageHeader:
     hdul, hdu = _fits_hdu(path)
     try:
         h = hdu.header
-        naxis = int(h["NAXIS"])
-        width, height = int(h["NAXIS1"]), int(h["NAXIS2"])
-        channels = int(h["NAXIS3"]) if naxis >= 3 else 1
-        dtype = _fits_dtype(h)
+        naxis = _int_or(h.get("NAXIS"), 0)
+        width, height = _int_or(h.get("NAXIS1"), 0), _int_or(h.get("NAXIS2"), 0)
+        channels = _int_or(h.get("NAXIS3"), 0) if naxis >= 3 else 1
+        dtype = _fits_dtype(h, path)
         exposure = _float_or_none(h.get("EXPTIME", h.get("EXPOSURE")))
-        bits = int(h.get("BITDEPTH", h.get("ADCBITS", dtype.itemsize * 8)))
+        bits = _int_or(h.get("BITDEPTH", h.get("ADCBITS")), dtype.itemsize * 8)
         attrs = {k: v for k, v in h.items() if isinstance(v, (str, int, float)) and k}
         return ImageHeader(path=path, width=width, height=height, channels=channels, dtype=dtype,
                            bits=bits, layout=_LAYOUTS.get(channels, f"{channels}-channel"),
@@ -221,6 +494,49 @@ def _fits_header(path: Path) -> ImageHeader:
         hdul.close()
 
 
+@contextlib.contextmanager
+def _fits_data(path: Path) -> Iterator[None]:
+    """Quietly read FITS pixels: any failure becomes one :class:`ImageReadError` naming ``path``."""
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            yield
+    except CcdError:
+        raise
+    except Exception as exc:  # astropy/numpy raise many kinds for short or corrupt data
+        raise ImageReadError(path, f"truncated or corrupt FITS data ({_one_line(str(exc))})"
+                             ) from None
+
+
+def _fits_to_hwc(data, header: ImageHeader) -> np.ndarray:
+    data = np.asarray(data)
+    if data.ndim == 3:  # FITS cubes are (C, H, W)
+        data = np.moveaxis(data, 0, -1)
+    return np.ascontiguousarray(data).astype(header.dtype, copy=False)
+
+
+def _read_fits(path: Path, header: ImageHeader) -> np.ndarray:
+    hdul, hdu = _fits_hdu(path)
+    try:
+        with _fits_data(path):
+            return _fits_to_hwc(hdu.data, header)
+    finally:
+        hdul.close()
+
+
+def _read_fits_region(path: Path, header: ImageHeader, box) -> np.ndarray:
+    """Read ``box`` through astropy's ``section``, which reads only the rows it needs."""
+    x, y, w, h = box
+    hdul, hdu = _fits_hdu(path)
+    try:
+        lead = (slice(None),) * (_int_or(hdu.header.get("NAXIS"), 2) - 2)
+        with _fits_data(path):
+            return _fits_to_hwc(hdu.section[lead + (slice(y, y + h), slice(x, x + w))], header)
+    finally:
+        hdul.close()
+
+
+# ---- camera raw -----------------------------------------------------------------------------
 def _rawpy(path: Path):
     try:
         import rawpy
@@ -235,7 +551,7 @@ def _raw_open(path: Path):
     try:
         return rawpy.imread(str(path))
     except Exception as exc:  # LibRawError subclasses
-        raise ImageReadError(path, f"cannot read camera raw file: {exc}") from None
+        raise ImageReadError(path, f"cannot read camera raw file: {_one_line(str(exc))}") from None
 
 
 def _raw_pattern(raw) -> str:
@@ -260,8 +576,21 @@ def _raw_header(path: Path) -> ImageHeader:
                        bits=bits, layout=layout, exposure=exposure, format="raw")
 
 
+def _read_raw(path: Path) -> np.ndarray:
+    with _raw_open(path) as raw:
+        try:
+            return np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
+        except Exception as exc:
+            raise ImageReadError(path, f"cannot decode camera raw data: {_one_line(str(exc))}"
+                                 ) from None
+
+
+# ---- public readers -------------------------------------------------------------------------
 def read_header(path: str | os.PathLike) -> ImageHeader:
     """Read what a file says about its pixels and capture, without reading the pixels.
+
+    No pixel limit applies here: the header of a huge image can be listed; reading its pixels is
+    what :data:`MAX_PIXELS` guards.
 
     Raises
     ------
@@ -275,11 +604,43 @@ def read_header(path: str | os.PathLike) -> ImageHeader:
         return _fits_header(path)
     if suffix in RAW_EXTENSIONS:
         return _raw_header(path)
-    return _oiio_header(path)
+    with _libpng_quiet(path):
+        return _oiio_header(path)
 
 
-def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, ImageHeader]:
+def _read_pixels(path: Path, header: ImageHeader) -> np.ndarray:
+    suffix = path.suffix.lower()
+    if suffix in FITS_EXTENSIONS:
+        return _read_fits(path, header)
+    if suffix in RAW_EXTENSIONS:
+        return _read_raw(path)
+    with _libpng_quiet(path):
+        return _read_oiio(path, header)
+
+
+def _checked(path: Path, data: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``data`` with a single channel squeezed, once it has the ``shape`` the header promised."""
+    if data.ndim == 3 and data.shape[2] == 1:
+        data = data[:, :, 0]
+    if data.shape != shape:
+        raise ImageReadError(path, f"pixel data has shape {data.shape}, header says {shape}")
+    if data.size == 0:
+        raise ImageReadError(path, "image has no pixels")
+    return data
+
+
+def read_frame(path: str | os.PathLike, *,
+               max_pixels: int | None = None) -> tuple[np.ndarray, ImageHeader]:
     """Read one frame and its header.
+
+    Parameters
+    ----------
+    path
+        The image file.
+    max_pixels
+        Refuse, before decoding, an image of more pixel values (width x height x channels) than
+        this; ``None`` takes ``CCDCORE_MAX_PIXELS`` or :data:`MAX_PIXELS` (see
+        :func:`pixel_limit`).
 
     Returns
     -------
@@ -291,102 +652,209 @@ def read_frame(path: str | os.PathLike) -> tuple[np.ndarray, ImageHeader]:
     Raises
     ------
     ImageReadError
-        Missing, empty, truncated or unreadable file (the message names the file).
+        Missing, empty, truncated, unreadable or too large file (the message names the file).
     """
     path = Path(path)
+    limit = pixel_limit(max_pixels)
     header = read_header(path)
+    _refuse_over_limit(path, header.width, header.height, header.channels, limit)
+    return _checked(path, _read_pixels(path, header), header.shape), header
+
+
+def read_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.ndarray:
+    """Read one frame's pixels (see :func:`read_frame`, which takes the same arguments)."""
+    return read_frame(path, max_pixels=max_pixels)[0]
+
+
+def _region_box(path: Path, header: ImageHeader, x, y, width, height) -> tuple[int, int, int, int]:
+    """``(x, y, width, height)`` as ints, once they are known to lie inside the image."""
+    box = tuple(_whole_number(v) for v in (x, y, width, height))
+    inside = (None not in box and box[0] >= 0 and box[1] >= 0 and box[2] >= 1 and box[3] >= 1
+              and box[0] + box[2] <= header.width and box[1] + box[3] <= header.height)
+    if not inside:
+        raise ImageReadError(path, f"region x={x!r}, y={y!r}, width={width!r}, "
+                                   f"height={height!r} is not inside the "
+                                   f"{header.width}x{header.height} image")
+    return box  # type: ignore[return-value]
+
+
+def read_region(path: str | os.PathLike, x: int, y: int, width: int, height: int, *,
+                max_pixels: int | None = None) -> np.ndarray:
+    """Read the rectangle ``[y:y+height, x:x+width]`` of a frame without decoding all of it.
+
+    Tiled TIFF/EXR files decode only the tiles the rectangle touches, scanline files only its rows
+    (TIFF: the strips holding them), FITS only its rows (astropy ``section``). Camera raw files are
+    decoded whole and cropped. The result equals ``read_image(path)[y:y+height, x:x+width]``.
+
+    Parameters
+    ----------
+    path
+        The image file.
+    x, y
+        Column and row of the rectangle's top-left pixel (0-based, from the image's top-left).
+    width, height
+        Size of the rectangle in pixels (at least 1; it must lie inside the image).
+    max_pixels
+        Refuse when what has to be decoded (the rectangle, or the rows/strips/tiles holding it)
+        exceeds this many pixel values; ``None`` takes ``CCDCORE_MAX_PIXELS`` or
+        :data:`MAX_PIXELS`.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(height, width)`` for one channel, ``(height, width, C)`` otherwise, in the stored dtype.
+
+    Raises
+    ------
+    ImageReadError
+        Unreadable, truncated or too large file, or a rectangle outside the image.
+    """
+    path = Path(path)
+    limit = pixel_limit(max_pixels)
+    header = read_header(path)
+    box = _region_box(path, header, x, y, width, height)
+    _refuse_over_limit(path, box[2], box[3], header.channels, limit, what="the region is")
+    x, y, w, h = box
+    shape = (h, w) if header.channels == 1 else (h, w, header.channels)
     suffix = path.suffix.lower()
     if suffix in FITS_EXTENSIONS:
-        data = _read_fits(path, header)
-    elif suffix in RAW_EXTENSIONS:
-        with _raw_open(path) as raw:
-            try:
-                data = np.array(raw.raw_image_visible, dtype=np.uint16, copy=True)
-            except Exception as exc:
-                raise ImageReadError(path, f"cannot decode camera raw data: {exc}") from None
-    else:
-        data = _read_oiio(path, header)
-    if data.ndim == 3 and data.shape[2] == 1:
-        data = data[:, :, 0]
-    if data.shape != header.shape:
-        raise ImageReadError(path, f"pixel data has shape {data.shape}, header says {header.shape}")
-    if data.size == 0:
-        raise ImageReadError(path, "image has no pixels")
-    return data, header
-
-
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read one frame's pixels (see :func:`read_frame`)."""
-    return read_frame(path)[0]
-
-
-def _read_oiio(path: Path, header: ImageHeader) -> np.ndarray:
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ImageReadError(path, f"cannot read image: {_oiio_error(oiio)}")
-    try:
-        data = inp.read_image(format=oiio.UNKNOWN)
-        err = inp.geterror()
-    finally:
-        inp.close()
-    if data is None or (err and "truncat" in err.lower()) or err:
-        detail = " ".join((err or "no pixel data").split())
-        raise ImageReadError(path, f"truncated or corrupt image data ({detail})")
-    return np.ascontiguousarray(data).astype(header.dtype, copy=False)
-
-
-def _read_fits(path: Path, header: ImageHeader) -> np.ndarray:
-    hdul, hdu = _fits_hdu(path)
-    try:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                data = np.asarray(hdu.data)
-        except Exception as exc:
-            raise ImageReadError(path, f"truncated or corrupt FITS data ({exc})") from None
-        if data.ndim == 3:  # FITS cubes are (C, H, W)
-            data = np.moveaxis(data, 0, -1)
-        return np.ascontiguousarray(data).astype(header.dtype, copy=False)
-    finally:
-        hdul.close()
+        return _checked(path, _read_fits_region(path, header, box), shape)
+    if suffix in RAW_EXTENSIONS:
+        _refuse_over_limit(path, header.width, header.height, 1, limit,
+                           what="a camera raw file is decoded whole; the image is")
+        return _checked(path, _read_raw(path)[y:y + h, x:x + w], shape)
+    with _libpng_quiet(path):
+        return _checked(path, _read_oiio_region(path, header, box, limit), shape)
 
 
 # --------------------------------------------------------------------------------------------
 # writing
 # --------------------------------------------------------------------------------------------
+def _os_problem(exc: OSError, tmp: Path | None = None, path: Path | None = None) -> str:
+    """An OS error in words (``No space left on device``), naming the target, not the temp file."""
+    return _one_line(exc.strerror or str(exc), tmp=tmp, path=path) or type(exc).__name__
+
+
+def _free_bytes(folder: Path) -> int | None:
+    """Bytes an ordinary user may still write in ``folder``'s file system (None: unknown)."""
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):  # no statvfs on Windows
+        return None
+    return st.f_bavail * st.f_frsize
+
+
+def _new_temp(path: Path) -> Path:
+    """Create an empty hidden temporary file beside ``path``, creating the folder if needed.
+
+    A disk that is already full is refused here, before a writer is started on it.
+    """
+    try:
+        if path.is_dir():
+            raise ImageWriteError(path, "is a folder, not a file name")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        free = _free_bytes(path.parent)
+        if free is not None and free < _MIN_FREE_BYTES:
+            raise ImageWriteError(path, f"the disk is full ({free:,} bytes free in "
+                                        f"{path.parent}); nothing was written")
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}",
+                                   dir=path.parent)
+    except OSError as exc:
+        raise ImageWriteError(path, f"cannot create a file in {path.parent}: "
+                                    f"{_os_problem(exc)}") from None
+    os.close(fd)
+    return Path(tmp)
+
+
+def _check_not_full(tmp: Path) -> None:
+    """Raise ENOSPC when no space is left after a write: the writer may have lost data silently.
+
+    OpenImageIO does not report every failed write (an OpenEXR or PNG file, or the metadata at the
+    end of a TIFF file); a file system with no space left after the write is taken as one that
+    refused some of it.
+    """
+    if _free_bytes(tmp.parent) == 0:
+        raise OSError(errno.ENOSPC, "the disk became full while writing, the file may be "
+                                    "incomplete")
+
+
+def _sync_file(tmp: Path) -> None:
+    """Flush ``tmp`` to the disk: a delayed write error (full disk, I/O error) is raised here."""
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _sync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable where the system allows it (best effort)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _discard(tmp: Path) -> None:
+    with contextlib.suppress(OSError):
+        tmp.unlink()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path`` (same extension); rename it onto ``path`` on success.
+    """Yield a temporary path beside ``path`` (same extension); move it onto ``path`` on success.
 
-    The parent folder is created. If the body raises, the temporary file is removed and ``path`` is
-    left as it was.
+    The parent folder is created; a disk that is already full is refused before the body runs. On
+    success the temporary file is flushed to the disk (so that a full disk is noticed) and renamed
+    onto ``path``; if no space is left by then, the file is taken as incomplete. If the body
+    raises, or flushing or renaming fails, the temporary file is removed and ``path`` is left as
+    it was.
+
+    Raises
+    ------
+    ImageWriteError
+        The file cannot be created, written, flushed or renamed (full disk, no permission, a
+        folder in the way): the message names ``path`` and the system's reason. An
+        :class:`OSError` raised by the body becomes this error too; other exceptions pass as they
+        are.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}",
-                               dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
+    tmp = _new_temp(path)
     try:
-        yield tmp_path
-        os.chmod(tmp_path, 0o644)
-        os.replace(tmp_path, path)
+        yield tmp
+        os.chmod(tmp, 0o644)
+        _sync_file(tmp)
+        _check_not_full(tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        _discard(tmp)
+        raise ImageWriteError(path, f"cannot write the file: {_os_problem(exc, tmp, path)}"
+                              ) from None
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
+        _discard(tmp)
         raise
+    _sync_folder(path.parent)
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically."""
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_path`).
+
+    Raises
+    ------
+    ImageWriteError
+        The bytes could not all be written and flushed; ``path`` keeps its previous content.
+    """
     with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
     return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write UTF-8 ``text`` to ``path`` atomically."""
+    """Write UTF-8 ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`)."""
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
@@ -397,7 +865,117 @@ def _as_hwc(array: np.ndarray, path: Path) -> np.ndarray:
     if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0 or not 1 <= a.shape[2] <= 4:
         raise ImageWriteError(path, f"cannot write an array of shape {np.shape(array)}; "
                                     "expected (H, W) or (H, W, C) with 1-4 channels")
+    if a.dtype.kind not in "iuf":
+        raise ImageWriteError(path, f"unsupported sample type {a.dtype}")
     return np.ascontiguousarray(a)
+
+
+def _oiio_samples(path: Path, a: np.ndarray, suffix: str) -> np.ndarray:
+    """``a`` in a sample type the format stores, or :class:`ImageWriteError`."""
+    if suffix not in OIIO_EXTENSIONS:
+        raise ImageWriteError(path, f"cannot write '{suffix}' files; use .tif, .png, .pgm, .exr "
+                                    "or .fits")
+    if suffix == ".exr" and a.dtype not in (np.float16, np.float32):
+        with np.errstate(over="ignore"):  # beyond float32 becomes inf, which EXR keeps
+            a = a.astype(np.float32)
+    if suffix in (".png", ".pgm", ".ppm", ".pnm") and a.dtype not in (np.uint8, np.uint16):
+        raise ImageWriteError(path, f"{suffix} stores only uint8 or uint16 samples, got {a.dtype}")
+    if str(a.dtype) not in _OIIO_TYPES:
+        raise ImageWriteError(path, f"unsupported sample type {a.dtype}")
+    return a
+
+
+def _oiio_spec(oiio, path: Path, a: np.ndarray, suffix: str, exposure, attributes):
+    spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], _OIIO_TYPES[str(a.dtype)])
+    if suffix in (".tif", ".tiff", ".exr"):
+        spec.attribute("DateTime", _FIXED_DATETIME)
+        spec.attribute("compression", "zip")
+    if exposure is not None and suffix not in (".pgm", ".ppm", ".pnm"):
+        spec.attribute("ExposureTime", float(exposure))
+    for key, value in (attributes or {}).items():
+        try:
+            spec.attribute(key, value)
+        except (TypeError, ValueError) as exc:
+            raise ImageWriteError(path, f"cannot store attribute {key!r} = {value!r}: "
+                                        f"{_one_line(str(exc))}") from None
+    return spec
+
+
+def _oiio_step(oiio, out, ok: bool, what: str, tmp: Path, path: Path) -> None:
+    """Raise :class:`ImageWriteError` unless an ImageOutput call succeeded and left no error.
+
+    Both are looked at because OpenImageIO reports some failures only through ``geterror()``: on a
+    full disk a PNG write returns True, and a TIFF close returns True after failing to write its
+    directory. Messages in ``_OIIO_NOT_ERRORS`` are not taken as failures.
+    """
+    lines = [line for line in out.geterror().splitlines() if line.strip() not in _OIIO_NOT_ERRORS]
+    own = _one_line(*lines, tmp=tmp, path=path)
+    other = _oiio_messages(oiio, tmp=tmp, path=path)
+    if not ok or own:
+        raise ImageWriteError(path, f"{what}: {own or other or 'OpenImageIO gave no reason'}")
+
+
+def _oiio_write(oiio, tmp: Path, path: Path, spec, a: np.ndarray) -> None:
+    """Write ``a`` to ``tmp`` through OpenImageIO, checking open, write and close.
+
+    ``write_image`` is never called after a failed ``open``: OpenImageIO 3.2 crashes on that.
+    """
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None:
+        problem = _oiio_messages(oiio, tmp=tmp, path=path) or "unknown format"
+        raise ImageWriteError(path, f"no writer for this format: {problem}")
+    try:
+        _oiio_step(oiio, out, out.open(str(tmp), spec), "cannot create the file", tmp, path)
+        _oiio_step(oiio, out, out.write_image(a), "cannot write the pixels", tmp, path)
+    except BaseException:
+        out.close()
+        _oiio_messages(oiio, out)  # the first failure is the one reported
+        raise
+    _oiio_step(oiio, out, out.close(), "cannot finish the file", tmp, path)
+    _verify_written(oiio, tmp, path, spec)
+
+
+def _ends_whole(tmp: Path) -> bool:
+    """False when ``tmp`` lacks the closing bytes its format always ends with (``_FILE_ENDS``)."""
+    end = _FILE_ENDS.get(tmp.suffix.lower())
+    if end is None:
+        return True
+    with open(tmp, "rb") as f:
+        size = f.seek(0, os.SEEK_END)
+        f.seek(max(size - len(end), 0))
+        return f.read() == end
+
+
+def _verify_written(oiio, tmp: Path, path: Path, spec) -> None:
+    """Read back the header, the last row and the closing bytes of a file just written.
+
+    OpenImageIO does not report every failed write: on a full disk an OpenEXR or PNG file, or a
+    TIFF file cut short in its closing directory, comes back as a success. The writers write in
+    order, so a file cut short lacks its end: its header or its last row does not read back, or
+    its closing bytes are missing.
+    """
+    if not _ends_whole(tmp):
+        raise ImageWriteError(path, "the written file is cut short (its closing bytes are "
+                                    "missing); is the disk full?")
+    with _libpng_quiet(tmp):
+        inp = oiio.ImageInput.open(str(tmp))
+        if inp is None:
+            problem = _oiio_messages(oiio, tmp=tmp, path=path) or "unreadable"
+            raise ImageWriteError(path, f"the written file does not read back ({problem}); "
+                                        "is the disk full?")
+        try:
+            got = inp.spec()
+            row = inp.read_scanlines(0, 0, got.y + got.height - 1, got.y + got.height, got.z,
+                                     0, got.nchannels, oiio.UNKNOWN)
+            problem = _oiio_messages(oiio, inp, tmp=tmp, path=path)
+        finally:
+            inp.close()
+            _oiio_messages(oiio, inp)
+    size = (got.width, got.height, got.nchannels)
+    if row is None or problem or size != (spec.width, spec.height, spec.nchannels):
+        raise ImageWriteError(path, "the written file does not read back "
+                                    f"({problem or f'got {size[0]}x{size[1]}x{size[2]}'}); "
+                                    "is the disk full?")
 
 
 def write_image(path: str | os.PathLike, array: np.ndarray, *, exposure: float | None = None,
@@ -421,66 +999,83 @@ def write_image(path: str | os.PathLike, array: np.ndarray, *, exposure: float |
         ``BITDEPTH``).
     attributes
         Extra header attributes (OpenImageIO names, or FITS keywords).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ImageWriteError
+        The array cannot be stored in this format, or writing failed (full disk, no permission,
+        an OpenImageIO or astropy error): the message names ``path``, which keeps its previous
+        content, and no temporary file is left behind.
     """
     path = Path(path)
     a = _as_hwc(array, path)
     suffix = path.suffix.lower()
-    if not np.all(np.isfinite(a)) and a.dtype.kind == "f" and suffix not in (".exr", ".tif", ".tiff", ".fits"):
+    if (a.dtype.kind == "f" and suffix not in (".exr", ".tif", ".tiff", ".fits")
+            and not np.all(np.isfinite(a))):
         raise ImageWriteError(path, "non-finite values cannot be stored in this format")
     if suffix in FITS_EXTENSIONS:
         _write_fits(path, a, exposure=exposure, bits=bits, attributes=attributes)
         return path
-    if suffix not in OIIO_EXTENSIONS:
-        raise ImageWriteError(path, f"cannot write '{suffix}' files; use .tif, .png, .pgm, .exr or .fits")
-    if suffix == ".exr" and a.dtype not in (np.float16, np.float32):
-        a = a.astype(np.float32)
-    if suffix in (".png", ".pgm", ".ppm", ".pnm") and a.dtype not in (np.uint8, np.uint16):
-        raise ImageWriteError(path, f"{suffix} stores only uint8 or uint16 samples, got {a.dtype}")
-    if str(a.dtype) not in _OIIO_TYPES:
-        raise ImageWriteError(path, f"unsupported sample type {a.dtype}")
+    a = _oiio_samples(path, a, suffix)
     oiio = _oiio()
-    spec = oiio.ImageSpec(a.shape[1], a.shape[0], a.shape[2], _OIIO_TYPES[str(a.dtype)])
-    if suffix in (".tif", ".tiff", ".exr"):
-        spec.attribute("DateTime", _FIXED_DATETIME)
-        spec.attribute("compression", "zip")
-    if exposure is not None and suffix not in (".pgm", ".ppm", ".pnm"):
-        spec.attribute("ExposureTime", float(exposure))
-    for key, value in (attributes or {}).items():
-        spec.attribute(key, value)
+    spec = _oiio_spec(oiio, path, a, suffix, exposure, attributes)
     with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None:
-            raise ImageWriteError(path, f"no writer: {_oiio_error(oiio)}")
-        ok = out.open(str(tmp), spec) and out.write_image(a)
-        err = out.geterror()
-        out.close()
-        if not ok:
-            raise ImageWriteError(path, f"cannot write image: {' '.join(err.split())}")
+        _oiio_write(oiio, tmp, path, spec, a)
     return path
 
 
-def _write_fits(path: Path, a: np.ndarray, *, exposure, bits, attributes) -> None:
+def _fits_to_write(path: Path, a: np.ndarray, *, exposure, bits, attributes):
+    """The FITS HDU for ``a`` and its keywords, or :class:`ImageWriteError`."""
     from astropy.io import fits
 
     data = a[:, :, 0] if a.shape[2] == 1 else np.moveaxis(a, -1, 0)
     if data.dtype == np.float16:
         data = data.astype(np.float32)
-    hdu = fits.PrimaryHDU(np.ascontiguousarray(data))
-    if exposure is not None:
-        hdu.header["EXPTIME"] = (float(exposure), "exposure time [s]")
-    if bits is not None:
-        hdu.header["BITDEPTH"] = (int(bits), "significant ADC bits")
-    for key, value in (attributes or {}).items():
-        hdu.header[str(key)[:8].upper()] = value
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            hdu = fits.PrimaryHDU(np.ascontiguousarray(data))
+            if exposure is not None:
+                hdu.header["EXPTIME"] = (float(exposure), "exposure time [s]")
+            if bits is not None:
+                hdu.header["BITDEPTH"] = (int(bits), "significant ADC bits")
+            for key, value in (attributes or {}).items():
+                hdu.header[str(key)[:8].upper()] = value
+    except Exception as exc:  # astropy raises ValueError/TypeError/KeyError for bad keywords
+        raise ImageWriteError(path, f"cannot make the FITS header: {_one_line(str(exc))}"
+                              ) from None
+    return hdu
+
+
+def _write_fits(path: Path, a: np.ndarray, *, exposure, bits, attributes) -> None:
+    hdu = _fits_to_write(path, a, exposure=exposure, bits=bits, attributes=attributes)
     with atomic_path(path) as tmp:
-        hdu.writeto(tmp, overwrite=True, output_verify="exception")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                hdu.writeto(tmp, overwrite=True, output_verify="exception")
+        except OSError:
+            raise  # atomic_path names the target and the system's reason
+        except Exception as exc:  # astropy's VerifyError and the like
+            raise ImageWriteError(path, "cannot write FITS file: "
+                                        f"{_one_line(str(exc), tmp=tmp, path=path)}") from None
 
 
 def write_map(path: str | os.PathLike, array: np.ndarray) -> Path:
     """Write a float32 map as OpenEXR (``.exr``) or FITS (``.fits``), atomically.
 
     Reading it back with :func:`read_image` gives the same bits (EXR is written uncompressed-lossless
-    ``zip``; NaNs and infinities are kept).
+    ``zip``; NaNs and infinities are kept; values beyond float32 become infinities).
+
+    Raises
+    ------
+    ImageWriteError
+        Not ``.exr``/``.fits``, not a numeric array, or writing failed (see :func:`write_image`).
     """
     path = Path(path)
     if path.suffix.lower() not in {".exr"} | FITS_EXTENSIONS:
@@ -488,5 +1083,7 @@ def write_map(path: str | os.PathLike, array: np.ndarray) -> Path:
     a = np.asarray(array)
     if a.dtype.kind not in "fiub":
         raise ImageWriteError(path, f"cannot write a map of dtype {a.dtype}")
-    return write_image(path, a.astype(np.float32, copy=False),
+    with np.errstate(over="ignore"):
+        a = a.astype(np.float32, copy=False)
+    return write_image(path, a,
                        attributes={"compression": "zip"} if path.suffix.lower() == ".exr" else None)

@@ -35,7 +35,7 @@ Exclusions (each excluded level keeps its reason in :attr:`PtcPoint.reason`; nev
 * clipped: more than :data:`CLIP_LIMIT` (10⁻⁴) of the ROI pixel values of the level's frames are
   at 0 or at the full scale 2^bits − 1;
 * zero variance (identical frames);
-* user exclusions (``exclude_levels``): reason ``"excluded by user"``;
+* user exclusions (``exclude_levels``): reason ``"excluded by user"`` (exclusion ``"user"``);
 * beyond the linear range (saturation): the photon-transfer curve turns down past saturation;
   the level of largest σ̂²_N marks it (the EMVA 1288 convention), and a level of higher μ̂ whose
   σ̂²_N is below that peak by more than :data:`LINEARITY_Z` combined standard errors and by more
@@ -83,13 +83,15 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy import stats
 
-from .errors import CcdError, SessionError
+from .common import check_roi, crop, json_safe
+from .errors import CcdError
 from .session import FrameRecord, Session, open_session
 from .stats import PixelMoments
 
 __all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
            "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
-           "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP"]
+           "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP",
+           "EXCLUSIONS", "USER_EXCLUDED"]
 
 #: a level is clipped when more than this fraction of its ROI pixel values is at 0 or full scale
 CLIP_LIMIT = 1e-4
@@ -105,17 +107,13 @@ QUANTISATION_STEP = 1.0
 _TOP_FRACTION = 0.10
 
 
-def _jsonable(x: Any) -> Any:
-    """float (None for NaN/inf) for numbers; recursive for lists and tuples."""
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    return x
+#: the kinds of photon-transfer exclusion (:attr:`PtcPoint.exclusion`), each with its rule in the
+#: module docstring: clipped pixels, zero variance, excluded by the user, past saturation,
+#: beyond the linear range, dropped by the robust mode
+EXCLUSIONS: tuple[str, ...] = ("clipped", "zero-variance", "user", "saturation", "nonlinear",
+                               "robust")
+#: the reason text of a level the user excluded
+USER_EXCLUDED = "excluded by user"
 
 
 # --------------------------------------------------------------------------------------------
@@ -138,8 +136,9 @@ class PtcPoint:
         of ``n_pairs`` independent pair estimates.
     n_pairs, n_pixels
         Number of disjoint pairs (frames 0-1, 2-3, ...) and pixels M per frame (the ROI).
-    used, reason
-        Whether the fit used the level, and why not (``None`` when used).
+    used, reason, exclusion
+        Whether the fit used the level, why not for a person (``None`` when used), and the kind
+        of exclusion for programs (:data:`EXCLUSIONS`; ``None`` when used).
     exposure
         The level's exposure time (s), when known.
     mu_raw
@@ -162,11 +161,12 @@ class PtcPoint:
     mu_raw: float
     clipped_fraction: float
     photons: float | None = None
+    exclusion: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: _jsonable(getattr(self, k)) for k in (
-            "level", "mu", "var", "var_err", "used", "reason", "n_pairs", "n_pixels", "exposure",
-            "mu_raw", "clipped_fraction", "photons")}
+        return {k: json_safe(getattr(self, k)) for k in (
+            "level", "mu", "var", "var_err", "used", "reason", "exclusion", "n_pairs",
+            "n_pixels", "exposure", "mu_raw", "clipped_fraction", "photons")}
 
 
 @dataclass(frozen=True)
@@ -196,9 +196,9 @@ class LineFit:
         return value, std
 
     def to_dict(self) -> dict[str, Any]:
-        return {"A": _jsonable(self.A), "sigma_c2": _jsonable(self.sigma_c2),
-                "cov": _jsonable(self.cov.tolist()), "chi2": _jsonable(self.chi2),
-                "dof": self.dof, "Q": _jsonable(self.Q)}
+        return {"A": json_safe(self.A), "sigma_c2": json_safe(self.sigma_c2),
+                "cov": json_safe(self.cov.tolist()), "chi2": json_safe(self.chi2),
+                "dof": self.dof, "Q": json_safe(self.Q)}
 
 
 @dataclass(frozen=True)
@@ -235,9 +235,12 @@ class PhotonTransfer:
     robust_dropped
         Levels dropped by the robust mode, in the order dropped.
     notes
-        Plain-language remarks (black-level rule, exclusions, unpaired frames ...).
+        Plain-language remarks (black-level rule, exclusions, unpaired frames ...): those of the
+        measurement (:attr:`measure_notes`) first, then those of the fit.
     source
         The session the points came from, when known.
+    measure_notes
+        The remarks of the measurement alone (kept by :meth:`refit`).
     """
 
     A: float
@@ -265,6 +268,7 @@ class PhotonTransfer:
     verdict: str
     linearity_tolerance: float = LINEARITY_TOLERANCE
     source: str | None = None
+    measure_notes: tuple[str, ...] = ()
 
     @property
     def fit(self) -> LineFit:
@@ -283,35 +287,31 @@ class PhotonTransfer:
         return fit_points(self.points, exclude_levels=exclude_levels, robust=robust,
                           bits=self.bits, black_level_dn=self.black_level_dn,
                           black_level_source=self.black_level_source, roi=self.roi,
-                          notes=tuple(n for n in self.notes if not n.startswith(_FIT_NOTE)),
+                          notes=self.measure_notes,
                           linearity_tolerance=(self.linearity_tolerance
                                                if linearity_tolerance is None
                                                else linearity_tolerance),
                           source=self.source)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly values (NaN becomes ``None``); the keys of DESIGN.md's ``ptc`` verb
+        """JSON-friendly values (NaN becomes ``None``); the keys of the ``ptc`` verb in docs/cli.md
         (``A``, ``sigma_c2``, ``cov``, ``chi2``, ``dof``, ``Q``, ``points``,
         ``conversion_gain_e_per_dn``, ``read_noise_e``) plus errors and diagnostics."""
         out: dict[str, Any] = {}
         for key in ("A", "A_err", "sigma_c2", "sigma_c2_err"):
-            out[key] = _jsonable(getattr(self, key))
-        out["cov"] = _jsonable(self.cov.tolist())
-        out.update(chi2=_jsonable(self.chi2), dof=self.dof, Q=_jsonable(self.Q),
+            out[key] = json_safe(getattr(self, key))
+        out["cov"] = json_safe(self.cov.tolist())
+        out.update(chi2=json_safe(self.chi2), dof=self.dof, Q=json_safe(self.Q),
                    verdict=self.verdict, points=[p.to_dict() for p in self.points])
         for key in ("conversion_gain_e_per_dn", "conversion_gain_e_per_dn_err", "read_noise_e",
                     "read_noise_e_err", "read_noise_dn", "read_noise_dn_err", "quantisation_dn2",
                     "black_level_dn"):
-            out[key] = _jsonable(getattr(self, key))
+            out[key] = json_safe(getattr(self, key))
         out.update(black_level_source=self.black_level_source,
                    roi=None if self.roi is None else list(self.roi), bits=self.bits,
                    robust_dropped=list(self.robust_dropped), notes=list(self.notes),
                    linearity_tolerance=self.linearity_tolerance, source=self.source)
         return out
-
-
-# notes added by fit_points start with this (so refit can replace them)
-_FIT_NOTE = "level "
 
 
 # --------------------------------------------------------------------------------------------
@@ -411,51 +411,6 @@ def _as_session(session_or_path: Session | str | PathLike) -> Session:
     return open_session(session_or_path)
 
 
-def _label(session: Session) -> str:
-    return str(session.manifest_path or session.root)
-
-
-def _check_session(session: Session) -> None:
-    """Raise SessionError for the session errors that concern the PTC or dark frames."""
-    used = {r.relpath for r in session.frames if r.role in ("ptc", "dark")}
-    relevant = tuple(p for p in session.errors
-                     if p.where in used or p.where.startswith(("ptc level", "camera"))
-                     or "ptc" in p.message)
-    if relevant:
-        first = relevant[0]
-        more = f" (and {len(relevant) - 1} more)" if len(relevant) > 1 else ""
-        raise SessionError(first.where, first.message + more, problems=relevant)
-
-
-def _check_roi(roi: Sequence[int] | None, shape: tuple[int, ...], where: str
-               ) -> tuple[int, int, int, int] | None:
-    """Validate ``roi`` = (x, y, w, h) against a frame of ``shape`` = (H, W)."""
-    if roi is None:
-        return None
-    h_img, w_img = shape[:2]
-    try:
-        x, y, w, h = (int(v) for v in roi)
-        ok_ints = all(float(v) == int(v) for v in roi)
-    except (TypeError, ValueError):
-        raise CcdError(f"roi {roi!r}", "must be four integers (x, y, w, h)") from None
-    if not ok_ints:
-        raise CcdError(f"roi {list(roi)}", "must be four integers (x, y, w, h)")
-    if x < 0 or y < 0 or w < 1 or h < 1 or x + w > w_img or y + h > h_img:
-        raise CcdError(f"roi {[x, y, w, h]}", f"does not fit inside the {w_img}x{h_img} frames "
-                                              f"of {where} (need x, y >= 0, w, h >= 1, "
-                                              f"x + w <= {w_img}, y + h <= {h_img})")
-    if w * h < 2:
-        raise CcdError(f"roi {[x, y, w, h]}", "needs at least two pixels")
-    return (x, y, w, h)
-
-
-def _crop(frame: np.ndarray, roi: tuple[int, int, int, int] | None) -> np.ndarray:
-    if roi is None:
-        return frame
-    x, y, w, h = roi
-    return frame[y:y + h, x:x + w]
-
-
 def _same(a: float | None, b: float | None) -> bool:
     if a is None or b is None:
         return a is b
@@ -464,7 +419,7 @@ def _same(a: float | None, b: float | None) -> bool:
 
 def _check_level_metadata(session: Session, level: int, recs: Sequence[FrameRecord]) -> None:
     """Frames of one level must share their exposure time and photon count."""
-    where = f"{_label(session)}: ptc level {level}"
+    where = f"{session.label}: ptc level {level}"
     for key, unit in (("exposure", " s"), ("photons", " photons")):
         first = recs[0]
         for rec in recs[1:]:
@@ -490,7 +445,7 @@ def _checked_pixels(rec: FrameRecord, frame: np.ndarray,
         raise CcdError(rec.relpath, f"colour frames ({'x'.join(map(str, frame.shape))}): photon "
                                     "transfer reads mono (or raw CFA) frames; per channel support "
                                     "comes with the flat-field work")
-    pix = _crop(frame, roi)
+    pix = crop(frame, roi)
     if pix.dtype.kind == "f":
         bad = int(np.count_nonzero(~np.isfinite(pix)))
         if bad:
@@ -517,7 +472,10 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
         t = np.array(sorted(timed))
         m = np.array([timed[k] for k in sorted(timed)])
         slope, intercept = np.polyfit(t, m, 1)
-        table = ", ".join(f"{k:g} s: {timed[k]:.4g} DN" for k in sorted(timed))
+        keys = sorted(timed)
+        table = (", ".join(f"{k:g} s: {timed[k]:.4g} DN" for k in keys) if len(keys) <= 4 else
+                 f"{len(keys)} exposures from {keys[0]:g} to {keys[-1]:g} s, dark means "
+                 f"{min(m):.4g} to {max(m):.4g} DN")
         return float(intercept), "dark_extrapolated", (
             f"black level b0 = {intercept:.4g} DN: dark mean extrapolated to zero exposure "
             f"({table}; dark signal {slope:.4g} DN/s); the dark signal stays in mu with its "
@@ -533,8 +491,8 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
 def _measure(session: Session, roi: Sequence[int] | None, black_level: float | None
              ) -> tuple[tuple[PtcPoint, ...], dict[str, Any]]:
     """One streamed pass over the PTC (and dark) frames: the points and the fit context."""
-    _check_session(session)
-    label = _label(session)
+    session.raise_if_invalid(roles=("ptc", "dark"))
+    label = session.label
     levels = session.ptc_levels()
     if not levels:
         raise CcdError(label, "no ptc frames: photon transfer needs two or more frames "
@@ -545,7 +503,7 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
         raise CcdError(first.relpath, f"colour frames ({hdr.channels} channels): photon transfer "
                                       "reads mono (or raw CFA) frames; per channel support comes "
                                       "with the flat-field work")
-    roi_t = _check_roi(roi, hdr.shape, label)
+    roi_t = check_roi(roi, hdr.shape, label, min_pixels=2)
     for level, recs in levels.items():
         _check_level_metadata(session, level, recs)
     bits = _bits(session, first)
@@ -597,8 +555,9 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
                       exposure=recs[0].exposure, mu_raw=mu_raw,
                       clipped_fraction=clipped / count if count else 0.0,
                       photons=recs[0].photons)
-        reason = _data_reason(pt, bits)
-        points.append(replace(pt, used=reason is None, reason=reason))
+        why = _data_reason(pt, bits)
+        points.append(replace(pt, used=why is None, exclusion=why and why[0],
+                              reason=why and why[1]))
     context = {"bits": bits, "black_level_dn": b0, "black_level_source": source,
                "roi": roi_t, "notes": tuple(notes), "source": label}
     return tuple(points), context
@@ -619,14 +578,14 @@ def ptc_points(session: Session | str | PathLike, *, roi: Sequence[int] | None =
 # --------------------------------------------------------------------------------------------
 # exclusions and the fit
 # --------------------------------------------------------------------------------------------
-def _data_reason(p: PtcPoint, bits: int | None) -> str | None:
-    """Why the data of a level cannot be used (clipping, zero variance), or None."""
+def _data_reason(p: PtcPoint, bits: int | None) -> tuple[str, str] | None:
+    """Why the data of a level cannot be used (clipping, zero variance): (code, text), or None."""
     if p.clipped_fraction > CLIP_LIMIT:
         top = f"{2 ** bits - 1}" if bits is not None else "full scale"
-        return (f"clipped: {100 * p.clipped_fraction:.3g}% of the ROI pixel values at 0 or "
-                f"{top} (limit {100 * CLIP_LIMIT:g}%)")
+        return "clipped", (f"clipped: {100 * p.clipped_fraction:.3g}% of the ROI pixel values at "
+                           f"0 or {top} (limit {100 * CLIP_LIMIT:g}%)")
     if not (p.var > 0 and math.isfinite(p.var)):
-        return "zero variance: the frames of the pair are identical"
+        return "zero-variance", "zero variance: the frames of the pair are identical"
     return None
 
 
@@ -642,7 +601,7 @@ def _light_quantity(points: Sequence[PtcPoint]) -> tuple[str, np.ndarray] | None
     return None
 
 
-def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]:
+def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tuple[str, str]]:
     """Levels past saturation: the saturation point is the level of largest σ̂²_N (the EMVA 1288
     convention: the photon-transfer curve turns down there); a level of higher μ̂ whose σ̂²_N is
     below that peak by more than :data:`LINEARITY_Z` combined standard errors and by more than
@@ -657,15 +616,16 @@ def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str
         drop = peak.var - p.var
         z = drop / math.hypot(peak.var_err, p.var_err)
         if z > LINEARITY_Z and drop > tol * peak.var:
-            out[p.level] = (f"beyond the linear range (saturation): variance {p.var:.4g} DN² is "
-                            f"{100 * drop / peak.var:.3g}% ({z:.0f} sigma) below the peak "
-                            f"{peak.var:.4g} DN² of level {peak.level} at a lower mean")
+            out[p.level] = "saturation", (
+                f"beyond the linear range (saturation): variance {p.var:.4g} DN² is "
+                f"{100 * drop / peak.var:.3g}% ({z:.0f} sigma) below the peak "
+                f"{peak.var:.4g} DN² of level {peak.level} at a lower mean")
     return out
 
 
-def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]:
-    """Levels beyond the linear range (see the module docstring), level -> reason."""
-    out: dict[int, str] = {}
+def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tuple[str, str]]:
+    """Levels beyond the linear range (see the module docstring), level -> (code, reason)."""
+    out: dict[int, tuple[str, str]] = {}
     if len(points) < 3:
         return out
     light = _light_quantity(points)
@@ -683,7 +643,7 @@ def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]
             signal = a * x[i]
             dev = mu[i] - (signal + c)
             if signal != 0 and abs(dev) > tol * abs(signal):
-                out[points[i].level] = (
+                out[points[i].level] = "nonlinear", (
                     f"beyond the linear range: mean {mu[i]:.4g} DN is {100 * dev / signal:+.3g}% "
                     f"off the line of mean against {unit} fitted on the lower "
                     f"{n_fit} levels (tolerance {100 * tol:g}%)")
@@ -703,10 +663,11 @@ def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, str]
         z = (p.var - pred) / math.hypot(p.var_err, pred_std)
         rel = (p.var - pred) / pred if pred > 0 else float("inf")
         if abs(z) > LINEARITY_Z and abs(rel) > tol:
-            out[p.level] = (f"beyond the linear range: variance {p.var:.4g} DN² is {z:+.1f} sigma "
-                            f"({100 * rel:+.3g}%) from the line fitted on the {len(lower)} lower "
-                            f"levels, and its mean is in the top {100 * _TOP_FRACTION:g}% of the "
-                            "range (no exposure or photon counts to test linearity directly)")
+            out[p.level] = "nonlinear", (
+                f"beyond the linear range: variance {p.var:.4g} DN² is {z:+.1f} sigma "
+                f"({100 * rel:+.3g}%) from the line fitted on the {len(lower)} lower "
+                f"levels, and its mean is in the top {100 * _TOP_FRACTION:g}% of the "
+                "range (no exposure or photon counts to test linearity directly)")
     return out
 
 
@@ -737,7 +698,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
     points
         Levels from :func:`ptc_points` (or a previous result's ``points``).
     exclude_levels
-        Level ids to leave out (reason ``"excluded by user"``).
+        Level ids to leave out (exclusion ``"user"``, reason ``"excluded by user"``).
     robust
         Drop, one at a time, the level with the largest |residual|/σ while it exceeds 3, keeping
         at least three levels; :attr:`PhotonTransfer.robust_dropped` lists them in order.
@@ -767,13 +728,13 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
             raise CcdError("exclude_levels", f"no ptc level {lv!r} (levels: "
                                              f"{', '.join(map(str, sorted(known)))})")
         user.add(lv)
-    reasons: dict[int, str] = {}
+    reasons: dict[int, tuple[str, str]] = {}   # level -> (exclusion code, reason)
     for p in pts:
         why = _data_reason(p, bits)
         if why is not None:
             reasons[p.level] = why
         elif p.level in user:
-            reasons[p.level] = "excluded by user"
+            reasons[p.level] = "user", USER_EXCLUDED
     candidates = [p for p in pts if p.level not in reasons]
     reasons.update(_saturation_reasons(candidates, float(linearity_tolerance)))
     candidates = [p for p in pts if p.level not in reasons]
@@ -783,7 +744,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         return [p for p in pts if p.level not in reasons]
 
     def too_few(used: list[PtcPoint]) -> CcdError:
-        why = "; ".join(f"level {lv}: {r}" for lv, r in reasons.items())
+        why = "; ".join(f"level {lv}: {r}" for lv, (_, r) in reasons.items())
         return CcdError(source or "photon transfer",
                         f"{len(used)} usable ptc level{'s' if len(used) != 1 else ''} "
                         f"({', '.join(str(p.level) for p in used) or 'none'}) of {len(pts)}; "
@@ -806,27 +767,26 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
             if r[worst] <= ROBUST_Z:
                 break
             lv = used[worst].level
-            reasons[lv] = f"robust mode: residual {r[worst]:.1f} sigma > {ROBUST_Z:g}"
+            reasons[lv] = "robust", f"robust mode: residual {r[worst]:.1f} sigma > {ROBUST_Z:g}"
             dropped.append(lv)
             used = usable()
             fit = fit_of(used)
 
     b0 = (float(np.median([p.mu_raw - p.mu for p in pts])) if black_level_dn is None
           else float(black_level_dn))
-    out_points = tuple(replace(p, used=p.level not in reasons, reason=reasons.get(p.level))
+    out_points = tuple(replace(p, used=p.level not in reasons,
+                               exclusion=reasons[p.level][0] if p.level in reasons else None,
+                               reason=reasons[p.level][1] if p.level in reasons else None)
                        for p in pts)
     q2 = QUANTISATION_STEP ** 2 / 12.0
     a, c, cov = fit.A, fit.sigma_c2, fit.cov
     a_err, c_err = math.sqrt(max(cov[0, 0], 0.0)), math.sqrt(max(cov[1, 1], 0.0))
-    all_notes = list(notes)
-    for p in out_points:
-        if not p.used:
-            all_notes.append(f"{_FIT_NOTE}{p.level} not used: {p.reason}")
+    all_notes = list(notes) + _exclusion_notes(out_points)
     if a > 0:
         gain, gain_err = 1.0 / a, a_err / (a * a)
     else:
         gain, gain_err = float("nan"), float("nan")
-        all_notes.append(f"{_FIT_NOTE}fit: slope A = {a:.4g} is not positive; no conversion "
+        all_notes.append(f"fit: slope A = {a:.4g} is not positive; no conversion "
                          "gain or read noise in electrons")
     rn_dn = math.sqrt(c - q2) if c > q2 else float("nan")
     rn_dn_err = c_err / (2.0 * rn_dn) if c > q2 else float("nan")   # d√(σ²_C − q²/12)/dσ²_C
@@ -837,7 +797,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
     else:
         rn_e = rn_err = float("nan")
         if c <= q2:
-            all_notes.append(f"{_FIT_NOTE}fit: sigma_c2 = {c:.4g} DN² is not above q²/12 = "
+            all_notes.append(f"fit: sigma_c2 = {c:.4g} DN² is not above q²/12 = "
                              f"{q2:.4g} DN²: the read noise is not resolved")
     return PhotonTransfer(
         A=a, A_err=a_err, sigma_c2=c, sigma_c2_err=c_err, cov=cov, chi2=fit.chi2, dof=fit.dof,
@@ -847,7 +807,24 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         black_level_source=black_level_source,
         roi=None if roi is None else tuple(int(v) for v in roi), bits=bits,
         robust_dropped=tuple(dropped), notes=tuple(all_notes), verdict=_verdict(fit.Q),
-        linearity_tolerance=float(linearity_tolerance), source=source)
+        linearity_tolerance=float(linearity_tolerance), source=source,
+        measure_notes=tuple(notes))
+
+
+def _exclusion_notes(points: Sequence[PtcPoint], limit: int = 5) -> list[str]:
+    """One note per level not used; beyond ``limit`` levels, one note per kind of exclusion
+    (count, range of levels, the first reason), so a 100-level set stays readable."""
+    out = [p for p in points if not p.used]
+    if len(out) <= limit:
+        return [f"level {p.level} not used: {p.reason}" for p in out]
+    notes = []
+    for code in dict.fromkeys(p.exclusion for p in out):
+        same = [p for p in out if p.exclusion == code]
+        levels = (", ".join(str(p.level) for p in same) if len(same) <= 4
+                  else f"{same[0].level} … {same[-1].level}")
+        notes.append(f"{len(same)} level{'s' if len(same) > 1 else ''} not used ({code}: "
+                     f"{levels}); e.g. level {same[0].level}: {same[0].reason}")
+    return notes
 
 
 def photon_transfer(session_or_path: Session | str | PathLike, *,

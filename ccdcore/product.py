@@ -19,29 +19,51 @@ target (an existing product is replaced only once the new one is complete).
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import math
 import os
 import shutil
+import signal
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Iterator, Mapping, Union
 
 import numpy as np
 
 from . import __version__
+from .common import json_safe
+from .darkframe import DarkReference
 from .errors import CcdError
+from .fixedpattern import CorrectionCheck, FixedPattern
+from .flatfield import FlatField
 from .io import (FITS_EXTENSIONS, atomic_write_text, read_frame, read_header, read_image,
                  write_image, write_map)
-from .session import Session, open_session
+from .noise import PhotonTransfer
+from .planning import AcquisitionPlan
+from .scene import SceneVariation
+from .session import MAX_INTENSITY, Camera, Session, open_session
 
-__all__ = ["CalibrationProduct", "Estimates", "estimate_all", "scene_error_terms", "calibrate",
-           "load_product", "apply_product", "PRODUCT_FILE"]
+__all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
+           "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
+           "calibrate", "load_product", "apply_product", "PRODUCT_FILE"]
 
 PRODUCT_FILE = "calibration.json"
 PRODUCT_SCHEMA = 1
+#: the prefix of the temporary folders a save writes into (removed on failure, on SIGTERM and
+#: by the next save into the same parent folder)
+TEMP_PREFIX = ".ccdcore-tmp-"
 
+#: a value of ``calibration.json`` (strict JSON: no NaN)
+JsonValue = Union[None, bool, int, float, str, list["JsonValue"], dict[str, "JsonValue"]]
+JsonDict = dict[str, JsonValue]
 Progress = Callable[[str, float], None]
+
+#: maps whose values must be finite and > 0 (they divide)
+_POSITIVE_MAPS = ("K",)
+#: maps that must be finite everywhere
+_FINITE_MAPS = ("dark", "dark_var", "K_var", "flat_G", "flat_O")
 
 
 def _no_progress(step: str, fraction: float) -> None:
@@ -60,54 +82,68 @@ class CalibrationProduct:
         per-pixel error variance), ``n1_used`` (n'_1); flat field (frame-shaped, colour or
         mosaic): ``flat_G``, ``flat_O``, ``flat_flags``, ``flat_dark`` (DL_0), ``flat_base`` (DL_B).
     estimates
-        Name -> JSON summary of each estimate: ``noise`` (photon transfer), ``dark``,
-        ``fixed_pattern``, ``plan``, ``scene``.
+        Name -> JSON summary of each estimate made: ``noise`` (photon transfer), ``dark``,
+        ``fixed_pattern``, ``plan``, ``correction_check``, ``scene``, ``flat_field``.
     camera
-        The session's camera table.
+        The session's camera.
     provenance
         ``ccdcore`` version, the session, and per step its parameters.
+    skipped
+        Every estimate that was not made, with its reason.
+    warnings
+        What the session lacks against the acquisition plan (fewer configurations or frames).
     notes
-        Why an estimate was skipped, and warnings (e.g. fewer configurations than planned).
+        Remarks on the product as a whole (each estimate keeps its own notes).
     """
 
     maps: dict[str, np.ndarray]
-    estimates: dict[str, Any]
-    camera: dict[str, Any] = field(default_factory=dict)
-    provenance: dict[str, Any] = field(default_factory=dict)
+    estimates: dict[str, JsonDict]
+    camera: Camera = field(default_factory=Camera)
+    provenance: JsonDict = field(default_factory=dict)
+    skipped: tuple[Skipped, ...] = ()
+    warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 
     # -------------------------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> JsonDict:
         """The content of ``calibration.json`` (maps by file name)."""
-        return {"schema": PRODUCT_SCHEMA, "camera": self.camera,
+        return {"schema": PRODUCT_SCHEMA, "camera": self.camera.to_dict(),
                 "maps": {name: f"maps/{name}.exr" for name in sorted(self.maps)},
-                "estimates": self.estimates, "provenance": self.provenance,
+                "estimates": self.estimates, "skipped": [s.to_dict() for s in self.skipped],
+                "provenance": self.provenance, "warnings": list(self.warnings),
                 "notes": list(self.notes)}
 
     def save(self, folder: str | os.PathLike) -> Path:
-        """Write ``calibration.json`` and the maps into ``folder`` atomically; return the folder."""
-        folder = Path(folder)
+        """Write ``calibration.json`` and the maps into ``folder`` atomically; return the folder.
+
+        Everything is written into a temporary sibling folder first, which becomes ``folder``
+        only once complete (an earlier product in ``folder`` is replaced file by file, the
+        description last, so the folder can be the current directory); a failure, Ctrl+C or
+        SIGTERM removes it, and leftovers of a killed save are removed by the next save.
+        """
+        folder = Path(os.path.abspath(folder))
+        if folder.exists() and not folder.is_dir():
+            raise CcdError(folder, "exists and is not a folder; choose a new or empty folder")
         if folder.exists() and not (folder / PRODUCT_FILE).exists() and any(folder.iterdir()):
             raise CcdError(folder, "exists and is not a calibration product; "
                                    "choose an empty or new folder")
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
         try:
+            folder.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CcdError(folder.parent, f"cannot create the folder: {exc.strerror}") from None
+        _remove_stale_temporaries(folder.parent)
+        if folder.is_dir():
+            _remove_stale_temporaries(folder)
+        with _temporary_folder(folder.parent) as tmp:
             for name, m in self.maps.items():
                 write_map(tmp / "maps" / f"{name}.exr", m)
-            text = json.dumps(self.to_dict(), indent=2, allow_nan=False, default=_json_default)
+            text = json.dumps(self.to_dict(), indent=2, allow_nan=False)
             atomic_write_text(tmp / PRODUCT_FILE, text + "\n")
             os.chmod(tmp, 0o755)
             if folder.exists():
-                old = folder.with_name(f".{folder.name}.old-{os.getpid()}")
-                os.replace(folder, old)
-                os.replace(tmp, folder)
-                shutil.rmtree(old, ignore_errors=True)
+                _replace_contents(folder, tmp)
             else:
                 os.replace(tmp, folder)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
         return folder
 
     # -------------------------------------------------------------------------------------
@@ -138,7 +174,8 @@ class CalibrationProduct:
 
             return flat_correct(frame, self.maps["flat_G"], self.maps["flat_O"], where=name)
         if "dark" not in self.maps:
-            raise CcdError(name, "the calibration product has no dark reference to correct with")
+            raise CcdError(name, "the calibration product has no dark reference or flat field "
+                                 "to correct with")
         d = np.asarray(frame)
         if d.shape != self.maps["dark"].shape:
             raise CcdError(name, f"image shape {d.shape} differs from the calibration maps' "
@@ -149,74 +186,291 @@ class CalibrationProduct:
         return out.astype(np.float32)
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+# ---------------------------------------------------------------------------------------------
+# the folder: temporary folders, signals, validation on load
+# ---------------------------------------------------------------------------------------------
+def _remove_stale_temporaries(parent: Path) -> None:
+    """Remove temporary folders a killed save left in ``parent`` (not those of live saves)."""
+    for p in parent.glob(f"{TEMP_PREFIX}*"):
+        pid = p.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
 
 
-def _clean(obj: Any) -> Any:
-    """Replace NaN/inf by None so calibration.json is strict JSON."""
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
+def _replace_contents(folder: Path, new: Path) -> None:
+    """Replace the product in ``folder`` by the one in ``new`` (which is removed): the old
+    description goes first (the folder is then not a product, never a mix of two), the new one
+    comes last."""
+    old = folder / f"{TEMP_PREFIX}old-{os.getpid()}"
+    old.mkdir()
+    for name in (PRODUCT_FILE, "maps"):
+        if (folder / name).exists():
+            os.replace(folder / name, old / name)
+    os.replace(new / "maps", folder / "maps") if (new / "maps").exists() else None
+    os.replace(new / PRODUCT_FILE, folder / PRODUCT_FILE)
+    shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(new, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class _Terminated(BaseException):
+    """SIGTERM during a save: unwinds like KeyboardInterrupt so the temporary folder goes."""
+
+
+@contextlib.contextmanager
+def _temporary_folder(parent: Path) -> Iterator[Path]:
+    """A new temporary folder in ``parent``, removed unless the body moved it away; SIGTERM
+    (in the main thread) raises inside the body so the folder is removed too."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}", suffix=f"-{os.getpid()}", dir=parent))
+    previous = None
+
+    def on_term(signum: int, frame: Any) -> None:
+        raise _Terminated()
+
+    try:
+        previous = signal.signal(signal.SIGTERM, on_term)
+    except ValueError:  # not the main thread: signals cannot be handled here
+        previous = None
+    try:
+        yield tmp
+    except _Terminated:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise SystemExit(128 + signal.SIGTERM) from None
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
+    """Every map has the frame shape of its family; K is finite and > 0; others finite."""
+    frame_maps = {n: m for n, m in maps.items() if not n.startswith("flat_")}
+    flat_maps = {n: m for n, m in maps.items() if n.startswith("flat_")}
+    for family in (frame_maps, flat_maps):
+        shapes = {m.shape for m in family.values()}
+        if len(shapes) > 1:
+            listing = ", ".join(f"{n} {m.shape}" for n, m in family.items())
+            raise CcdError(manifest, f"maps of different shapes ({listing}); the product is "
+                                     "damaged: calibrate again")
+    for name, m in maps.items():
+        if m.dtype.kind not in "fiu" or m.ndim not in (2, 3):
+            raise CcdError(manifest, f"map '{name}' is not a numeric image (shape {m.shape}, "
+                                     f"{m.dtype})")
+        if name in _POSITIVE_MAPS:
+            bad = int(np.count_nonzero(~(np.isfinite(m) & (m > 0))))
+            if bad:
+                raise CcdError(manifest, f"map '{name}' has {bad} pixel(s) that are not finite "
+                                         "and > 0 (it divides); the product is damaged")
+        elif name in _FINITE_MAPS:
+            bad = int(np.count_nonzero(~np.isfinite(m)))
+            if bad:
+                raise CcdError(manifest, f"map '{name}' has {bad} non-finite pixel(s); the "
+                                         "product is damaged")
+
+
+def _camera_from(doc: Any, manifest: Path) -> Camera:
+    if not isinstance(doc, dict):
+        raise CcdError(manifest, "'camera' must be an object")
+    bits, layout = doc.get("bits"), doc.get("layout", "mono")
+    if bits is not None and not (isinstance(bits, int) and 1 <= bits <= 32):
+        raise CcdError(manifest, f"camera bits must be an integer from 1 to 32, got {bits!r}")
+    black = doc.get("black_level")
+    if black is not None and not (isinstance(black, (int, float)) and math.isfinite(black)):
+        raise CcdError(manifest, f"camera black_level must be a number, got {black!r}")
+    return Camera(name=str(doc.get("name", "")), bits=bits, layout=str(layout),
+                  black_level=None if black is None else float(black))
 
 
 def load_product(folder: str | os.PathLike) -> CalibrationProduct:
-    """Load a product folder written by :meth:`CalibrationProduct.save` (maps bit-exact)."""
+    """Load a product folder written by :meth:`CalibrationProduct.save` (maps bit-exact).
+
+    The description is validated before anything is used: its types, that every map is inside
+    the folder and readable, that maps of one family share a shape, that K̂ is finite and
+    positive and the other maps finite.
+
+    Raises
+    ------
+    CcdError
+        Not a product, or a damaged one (the message names the file and the problem).
+    """
     folder = Path(folder)
     manifest = folder / PRODUCT_FILE if folder.is_dir() else folder
-    if not manifest.exists():
+    if not manifest.is_file():
         raise CcdError(folder, f"not a calibration product (no {PRODUCT_FILE})")
     root = manifest.parent
     try:
-        doc = json.loads(manifest.read_text())
+        doc = json.loads(manifest.read_bytes().decode("utf-8-sig"))
     except (OSError, ValueError) as exc:
         raise CcdError(manifest, f"cannot read the product description: {exc}") from None
+    if not isinstance(doc, dict):
+        raise CcdError(manifest, f"must hold a JSON object, not a {type(doc).__name__}")
     if doc.get("schema") != PRODUCT_SCHEMA:
-        raise CcdError(manifest, f"unsupported product schema {doc.get('schema')!r}")
+        raise CcdError(manifest, f"unsupported product schema {doc.get('schema')!r}; this "
+                                 f"version reads schema {PRODUCT_SCHEMA}")
+    for key, kind in (("maps", dict), ("estimates", dict), ("provenance", dict),
+                      ("skipped", list), ("warnings", list), ("notes", list)):
+        if not isinstance(doc.get(key, kind()), kind):
+            raise CcdError(manifest, f"'{key}' must be a JSON {kind.__name__.replace('dict', 'object')}")
+    estimates = doc.get("estimates", {})
+    if not all(isinstance(v, dict) for v in estimates.values()):
+        raise CcdError(manifest, "every entry of 'estimates' must be an object")
+    try:
+        skipped = tuple(Skipped.from_dict(d) for d in doc.get("skipped", ()))
+    except (KeyError, TypeError, AttributeError):
+        raise CcdError(manifest, "'skipped' entries need 'estimate' and 'reason'") from None
     maps: dict[str, np.ndarray] = {}
     for name, rel in doc.get("maps", {}).items():
+        if not isinstance(rel, str):
+            raise CcdError(manifest, f"map '{name}' must be a relative path, got {rel!r}")
         path = (root / rel).resolve()
         if root.resolve() not in path.parents:
             raise CcdError(manifest, f"map '{name}' points outside the product folder: {rel}")
         maps[name] = read_image(path)
-    return CalibrationProduct(maps=maps, estimates=doc.get("estimates", {}),
-                              camera=doc.get("camera", {}), provenance=doc.get("provenance", {}),
-                              notes=tuple(doc.get("notes", ())))
+    _check_maps(maps, manifest)
+    return CalibrationProduct(maps=maps, estimates=estimates,
+                              camera=_camera_from(doc.get("camera", {}), manifest),
+                              provenance=doc.get("provenance", {}), skipped=skipped,
+                              warnings=tuple(str(n) for n in doc.get("warnings", ())),
+                              notes=tuple(str(n) for n in doc.get("notes", ())))
 
 
 # ---------------------------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
-class Estimates:
-    """The result objects of :func:`estimate_all` (``None`` where the session lacks the frames).
+# what each estimate needs
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Requirement:
+    """What one estimate needs from a session.
 
-    ``notes`` say why an estimate is missing; ``plan_warnings`` list what the session lacks
-    compared with the acquisition plan (sec. V-B).
+    ``roles`` are the frame roles it reads; ``capture`` says, for a person, what to capture when
+    they are missing; ``flag`` names a frame flag it needs (``max-intensity``); ``patches``: it
+    needs scene frames that name a patch or an ROI.
     """
 
-    noise: Any = None
-    dark: Any = None
-    fixed_pattern: Any = None
-    plan: Any = None
+    estimate: str
+    roles: tuple[str, ...]
+    purpose: str
+    capture: str
+    flag: str | None = None
+    patches: bool = False
+
+
+#: every estimate :func:`calibrate` makes, in order, and what it needs
+REQUIREMENTS: tuple[Requirement, ...] = (
+    Requirement("noise", ("ptc",), "the noise model A, σ²_C (photon transfer, eqs. 37–42)",
+                "pairs of frames at several light levels (role = ptc, level = 1, 2, …)"),
+    Requirement("dark", ("dark",), "the dark reference D̂_D with hot/dead flags (sec. V-A)",
+                "16 or more lens-capped frames at the exposure of the other frames "
+                "(role = dark)"),
+    Requirement("fixed_pattern", ("fixed_pattern", "dark"),
+                "the fixed-pattern map K̂ (eqs. 45–50)",
+                "n1 configurations × n2 frames of a uniform card, moving card and lamp between "
+                "configurations (role = fixed_pattern, config = 1 … n1), and dark frames"),
+    Requirement("plan", ("ptc", "fixed_pattern"), "the acquisition plan n1, n2 (sec. V-B)",
+                "photon-transfer pairs and fixed-pattern frames, and the camera bit depth"),
+    Requirement("correction_check", ("scene", "fixed_pattern", "dark"),
+                "the check of eq. 51 on a maximum-intensity image (sec. VII-A)",
+                "a scene frame of a card at maximum intensity (role = scene, "
+                "flags = [\"max-intensity\"])", flag=MAX_INTENSITY),
+    Requirement("scene", ("scene", "ptc", "fixed_pattern", "dark"),
+                "the scene variation V_S of uniform patches (sec. VI)",
+                "uniform surface patches at several light levels (role = scene, patch = NAME "
+                "or an roi)", patches=True),
+    Requirement("flat_field", ("flat", "dark"),
+                "the flat-field gain/offset maps G, O (de Lasarte et al. 2007)",
+                "flat fields of a uniform source (role = flat, level, exposure) and dark frames "
+                "at their exposure"),
+)
+
+
+def requirement(estimate: str) -> Requirement:
+    """The :class:`Requirement` of one estimate name (see :data:`REQUIREMENTS`)."""
+    for req in REQUIREMENTS:
+        if req.estimate == estimate:
+            return req
+    raise KeyError(estimate)
+
+
+def missing_frames(session: Session, estimates: Iterable[str] | None = None
+                   ) -> list[tuple[Requirement, tuple[str, ...]]]:
+    """The estimates (all, or those named) whose frames the session lacks, each with the roles
+    (or the flag) it is missing, in :data:`REQUIREMENTS` order."""
+    have = session.roles()
+    out = []
+    for req in REQUIREMENTS:
+        if estimates is not None and req.estimate not in estimates:
+            continue
+        lacking = tuple(r for r in req.roles if not have.get(r))
+        if not lacking and req.flag is not None and not session.flagged(req.flag, req.roles[0]):
+            lacking = (f"{req.roles[0]} frame with flags = [\"{req.flag}\"]",)
+        if not lacking and req.patches and not session.scene_patches():
+            lacking = (f"{req.roles[0]} frames with a patch or an roi",)
+        if lacking:
+            out.append((req, lacking))
+    return out
+
+
+@dataclass(frozen=True)
+class Skipped:
+    """An estimate :func:`estimate_all` did not make: ``code`` is ``"missing-frames"`` (the
+    session lacks ``roles``), ``"failed"`` (its frames are there but the method refused them,
+    ``reason`` says why) or ``"needs"`` (an estimate it builds on was not made)."""
+
+    estimate: str
+    code: str
+    reason: str
+    roles: tuple[str, ...] = ()
+
+    def to_dict(self) -> JsonDict:
+        return {"estimate": self.estimate, "code": self.code, "reason": self.reason,
+                "roles": list(self.roles)}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Skipped:
+        return cls(estimate=str(d["estimate"]), code=str(d.get("code", "failed")),
+                   reason=str(d["reason"]), roles=tuple(d.get("roles", ())))
+
+
+@dataclass(frozen=True, eq=False)
+class Estimates:
+    """The result objects of :func:`estimate_all` (``None`` where not made; ``skipped`` says why).
+
+    ``plan_warnings`` list what the session lacks compared with the acquisition plan (sec. V-B);
+    ``notes`` hold the remarks of the estimates that were made.
+    """
+
+    noise: PhotonTransfer | None = None
+    dark: DarkReference | None = None
+    fixed_pattern: FixedPattern | None = None
+    plan: AcquisitionPlan | None = None
     plan_warnings: tuple[str, ...] = ()
-    scene: dict[str, Any] | None = None
-    correction_check: Any = None
-    flat: Any = None
+    scene: dict[str, SceneVariation] | None = None
+    correction_check: CorrectionCheck | None = None
+    flat: FlatField | None = None
+    skipped: tuple[Skipped, ...] = ()
     notes: tuple[str, ...] = ()
 
+    @property
+    def made(self) -> tuple[str, ...]:
+        """The names of the estimates that were made (:data:`REQUIREMENTS` names)."""
+        have = {"noise": self.noise, "dark": self.dark, "fixed_pattern": self.fixed_pattern,
+                "plan": self.plan, "correction_check": self.correction_check,
+                "scene": self.scene, "flat_field": self.flat}
+        return tuple(k for k, v in have.items() if v is not None)
 
-def scene_error_terms(dark: Any, fixed_pattern: Any) -> dict[str, Any]:
+
+def scene_error_terms(dark: DarkReference, fixed_pattern: FixedPattern) -> dict[str, Any]:
     """The calibration maps' own errors for :func:`ccdcore.scene.scene_variations`.
 
     D̂_D's error variance σ²_N/s per pixel (sec. V-A), K̂'s measured error variance
@@ -228,11 +482,39 @@ def scene_error_terms(dark: Any, fixed_pattern: Any) -> dict[str, Any]:
             "fp_level": float(1.0 / np.mean(1.0 / levels))}
 
 
-def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
-                 window: int = 9, p: float = 1.5, noise: Any = None,
-                 progress: Progress | None = None) -> Estimates:
-    """Every Healey–Kondepudy estimate the session's frames allow (see :func:`calibrate`).
+def budget_inputs(dark: DarkReference, fp: FixedPattern, noise: PhotonTransfer,
+                  variation: SceneVariation, bits: int | None) -> dict[str, Any]:
+    """Inputs of :func:`ccdcore.scene.variance_budget` for one patch (Fig. 4 of Healey &
+    Kondepudy 1994).
 
+    ``dark_spatial_var``: D̂_D's spatial variance without the averaging noise
+    (``DarkReference.spatial_std_signal²``); ``sigma_K2``: K̂'s spatial variance less its mean
+    estimation variance (``mean(FixedPattern.K_var)``), clamped at 0; ``V_S``: the patch's fit,
+    clamped at 0; black level from the noise model; μ from the dark mean to full scale
+    (2^bits − 1, 255 when the bit depth is unknown).
+    """
+    full = float(2 ** int(bits) - 1) if bits else 255.0
+    k_var = float(np.mean(fp.K_var)) if fp.K_var is not None else 0.0
+    dark_sig = dark.spatial_std_signal
+    b0 = noise.black_level_dn
+    b0 = 0.0 if b0 is None or not math.isfinite(b0) else float(b0)
+    dbar = max(float(dark.mean), b0)
+    return {"mu": np.linspace(dbar, max(full, dbar + 1.0), 200),
+            "A": float(noise.A), "sigma_c2": max(float(noise.sigma_c2), 0.0),
+            "dark_spatial_var": dark_sig ** 2 if math.isfinite(dark_sig) else 0.0,
+            "sigma_K2": max(fp.spatial_std ** 2 - k_var, 0.0),
+            "V_S": max(float(variation.V_S), 0.0) if math.isfinite(variation.V_S) else 0.0,
+            "black_level": b0, "dark_mean": dbar}
+
+
+def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
+                 window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
+                 progress: Progress | None = None) -> Estimates:
+    """Every estimate the session's frames allow (see :func:`calibrate`).
+
+    An estimate whose frames are missing, or whose frames the method refuses (a
+    :class:`CcdError`, e.g. one fixed-pattern configuration where eq. 49 needs several), is
+    skipped and listed in :attr:`Estimates.skipped` with its reason; the others are still made.
     ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
     excluded in the app) instead of computing it here.
     """
@@ -244,77 +526,79 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     from .scene import scene_variations
 
     report = progress or _no_progress
+    made: dict[str, Any] = {}
+    skipped: list[Skipped] = []
     notes: list[str] = []
-    roles = session.roles()
-    dark = fp = plan = scene = None
-    warnings: list[str] = []
+    lacking = dict((req.estimate, roles) for req, roles in missing_frames(session))
 
-    report("photon transfer", 0.0)
-    if noise is None and roles.get("ptc"):
-        noise = photon_transfer(session, roi=roi)
-    elif noise is None:
-        notes.append("no ptc frames: noise model not estimated")
+    def attempt(name: str, needs: tuple[str, ...], run: Callable[[], Any]) -> None:
+        if name in lacking:
+            roles = lacking[name]
+            what = " and no ".join(r if " " in r else f"{r} frames" for r in roles)
+            req = requirement(name)
+            skipped.append(Skipped(name, "missing-frames", f"no {what}: {req.purpose} needs "
+                                                           f"{req.capture}", roles))
+            return
+        absent = [n for n in needs if made.get(n) is None]
+        if absent:
+            skipped.append(Skipped(name, "needs", f"needs the {', '.join(absent)} estimate"
+                                   f"{'s' if len(absent) > 1 else ''}, which was not made"))
+            return
+        try:
+            made[name] = run()
+        except CcdError as err:
+            skipped.append(Skipped(name, "failed", str(err)))
 
-    report("dark reference", 0.25)
-    mono = session.camera.layout == "mono"
-    if roles.get("dark") and not mono and not roles.get("fixed_pattern"):
-        notes.append(f"{session.camera.layout} camera: the dark reference D̂_D of sec. V-A is "
-                     "made for mono frames; the flat-field DL_0 serves instead")
-    elif roles.get("dark"):
+    def dark_run() -> DarkReference:
         fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
         dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
         dark_exposures = {r.exposure for r in session.dark_frames()}
-        dark = dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None)
+        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None)
+
+    def plan_run() -> AcquisitionPlan:
+        if not session.camera.bits:
+            raise CcdError("camera.bits", "the plan needs the camera bit depth")
+        return plan_acquisition(made["noise"], bits=session.camera.bits,
+                                fixed_pattern=made["fixed_pattern"])
+
+    def check_run() -> CorrectionCheck:
+        rec = session.max_intensity_frame()
+        assert rec is not None  # missing_frames checked the flag
+        return correction_check(session.read(rec), made["dark"], made["fixed_pattern"])
+
+    report("photon transfer", 0.0)
+    if noise is not None:
+        made["noise"] = noise
     else:
-        notes.append("no dark frames: dark reference not estimated")
-
-    report("fixed pattern", 0.5)
-    if roles.get("fixed_pattern"):
-        if dark is None:
-            raise CcdError(session.root, "fixed_pattern frames need dark frames for D̂_D (eq. 46); "
-                                         "add dark frames to the session")
-        fp = fixed_pattern_map(session, dark, window=window, p=p)
+        attempt("noise", (), lambda: photon_transfer(session, roi=roi))
+    report("dark reference", 0.2)
+    roles = session.roles()
+    if roles.get("dark") and session.camera.layout != "mono":
+        skipped.append(Skipped("dark", "failed", f"{session.camera.layout} camera: the dark "
+                               "reference D̂_D of sec. V-A is made for mono frames; the "
+                               "flat-field DL_0 serves instead"))
     else:
-        notes.append("no fixed_pattern frames: K map not estimated")
-
-    report("planning", 0.75)
-    if noise is not None and session.camera.bits and fp is not None:
-        try:
-            plan = plan_acquisition(noise, bits=session.camera.bits, fixed_pattern=fp)
-        except CcdError as err:
-            notes.append(f"acquisition plan not computed: {err}")
-        else:
-            warnings = list(check_session_plan(session, plan))
-    elif noise is not None:
-        notes.append("acquisition plan needs the fixed-pattern slope spread σ̂ (fixed_pattern "
-                     "frames) and the camera bit depth")
-
-    if roles.get("scene") and noise is not None and fp is not None and dark is not None:
-        report("scene variation", 0.85)
-        try:
-            scene = scene_variations(session, dark, fp, noise, **scene_error_terms(dark, fp))
-        except CcdError as err:
-            notes.append(f"scene variation not estimated: {err}")
-    flat = None
-    if roles.get("flat"):
-        report("flat field", 0.9)
-        if not roles.get("dark"):
-            raise CcdError(session.root, "flat frames need dark frames for DL_0 (de Lasarte et "
-                                         "al. 2007); add dark frames to the session")
-        flat = flat_field_from_session(session, base="auto")
-
-    check = None
-    brightest = [r for r in session.scenes() if (r.note or "").strip() == "max-intensity"]
-    if brightest and dark is not None and fp is not None:
-        # the paper's check of eq. 51 on a maximum-intensity image (sec. VII-A)
-        check = correction_check(session.read(brightest[0]), dark, fp)
-    elif fp is not None:
-        notes.append("no scene frame with note = \"max-intensity\": the correction check of "
-                     "sec. VII-A (pixels changed by more than 1 and 2 quantisation steps) skipped")
+        attempt("dark", (), dark_run)
+    report("fixed pattern", 0.4)
+    attempt("fixed_pattern", ("dark",),
+            lambda: fixed_pattern_map(session, made["dark"], window=window, p=p))
+    report("planning", 0.6)
+    attempt("plan", ("noise", "fixed_pattern"), plan_run)
+    report("correction check", 0.7)
+    attempt("correction_check", ("dark", "fixed_pattern"), check_run)
+    report("scene variation", 0.8)
+    attempt("scene", ("noise", "dark", "fixed_pattern"),
+            lambda: scene_variations(session, made["dark"], made["fixed_pattern"], made["noise"],
+                                     **scene_error_terms(made["dark"], made["fixed_pattern"])))
+    report("flat field", 0.9)
+    attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto"))
+    plan = made.get("plan")
+    warnings = tuple(check_session_plan(session, plan)) if plan is not None else ()
     report("done", 1.0)
-    return Estimates(noise=noise, dark=dark, fixed_pattern=fp, plan=plan,
-                     plan_warnings=tuple(warnings), scene=scene, correction_check=check,
-                     flat=flat, notes=tuple(notes))
+    return Estimates(noise=made.get("noise"), dark=made.get("dark"),
+                     fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
+                     scene=made.get("scene"), correction_check=made.get("correction_check"),
+                     flat=made.get("flat_field"), skipped=tuple(skipped), notes=tuple(notes))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -325,22 +609,35 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
     - ``dark`` frames: dark reference D̂_D with hot/dead flags (sec. V-A);
     - ``fixed_pattern`` configurations and darks: K̂ (eqs. 45–50, ``window``, ``p``);
-    - noise model: acquisition plan n1, n2 (sec. V-B), with warnings if the session has fewer;
-    - ``scene`` frames with patches/ROIs, K̂ and the noise model: scene variation V_S (sec. VI).
+    - noise model and K̂: acquisition plan n1, n2 (sec. V-B), with warnings if the session has
+      fewer frames;
+    - a ``max-intensity`` scene frame: the correction check (sec. VII-A);
+    - ``scene`` frames with patches/ROIs, K̂ and the noise model: scene variation V_S (sec. VI);
+    - ``flat`` frames and darks: flat-field G/O maps (de Lasarte et al. 2007).
 
-    An estimate whose frames are absent is skipped with a note; an estimate whose frames are there
-    but bad raises :class:`CcdError` (naming the file or level), so nothing is silently dropped.
+    The product holds every estimate that could be made; each one that could not is listed in
+    :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
+    refused).
+
+    Raises
+    ------
+    CcdError
+        The session has errors (every error is listed), or no estimate at all could be made
+        ("nothing to calibrate", naming the roles that would be needed).
     """
     session = session_or_path if isinstance(session_or_path, Session) \
         else open_session(session_or_path)
     session.raise_if_invalid()
-    if not session.frames:
-        raise CcdError(session.root, "the session has no frames")
     e = estimate_all(session, roi=roi, window=window, p=p, progress=progress)
+    if not e.made:
+        failed = [s for s in e.skipped if s.code == "failed"]
+        why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (
+            "the session has none of the frames an estimate needs: " + "; ".join(
+                f"{req.estimate} needs {'/'.join(req.roles)}" for req in REQUIREMENTS))
+        raise CcdError(session.label, f"nothing to calibrate ({why})")
     maps: dict[str, np.ndarray] = {}
-    est: dict[str, Any] = {}
-    steps: dict[str, Any] = {}
-    notes = list(e.notes) + list(e.plan_warnings)
+    est: dict[str, JsonDict] = {}
+    steps: dict[str, JsonDict] = {}
     if e.noise is not None:
         est["noise"] = e.noise.to_dict()
         steps["noise"] = {"method": "photon transfer, Healey & Kondepudy 1994 eqs. 37-42, 59-67",
@@ -375,10 +672,11 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     if e.scene is not None:
         est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
         steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
-    provenance = {"ccdcore": __version__, "session": str(session.manifest_path or session.root),
+    provenance = {"ccdcore": __version__, "session": session.label,
                   "source": session.source, "n_frames": len(session.frames), "steps": steps}
-    return CalibrationProduct(maps=maps, estimates=_clean(est), camera=session.camera.to_dict(),
-                              provenance=provenance, notes=tuple(notes))
+    return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
+                              provenance=json_safe(provenance), skipped=e.skipped,
+                              warnings=e.plan_warnings, notes=e.notes)
 
 
 # ---------------------------------------------------------------------------------------------

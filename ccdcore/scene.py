@@ -85,7 +85,7 @@ fit_scene_variation(measurements, *, noise_cov=None, name="")
 scene_variation(frames_with_meta, dark, K, noise, *, name=None, ...)
     Measure and fit the frames of one patch (duck-typed calibration results accepted).
 scene_variations(session, dark, K, noise, ...)
-    Every patch of a session's ``scene`` frames, grouped by ``note = "patch=NAME"`` or by ROI.
+    Every patch of a session's ``scene`` frames (manifest key ``patch``, else the ROI).
 variance_budget(mu, *, A, sigma_c2, dark_spatial_var, sigma_K2, V_S, black_level=0.0, ...)
     The Fig. 4 budget.
 
@@ -97,7 +97,6 @@ References
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -106,6 +105,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2 as _chi2
 
+from .common import Roi, check_roi, json_safe
 from .errors import CcdError
 
 __all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "scene_measurement",
@@ -115,14 +115,6 @@ __all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "scene_measur
 #: names of the variance-budget components, in the order of Fig. 4's legend
 BUDGET_COMPONENTS = ("dark spatial", "sigma_C^2", "shot noise", "K variation", "scene")
 
-_PATCH_RE = re.compile(r"(?:^|[\s;,])patch\s*=\s*([^\s;,]+)")
-_MAX_NOTE = "max-intensity"
-
-
-def _jsonable(x: float) -> float | None:
-    """A float for JSON: NaN and infinities become ``None``."""
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 # --------------------------------------------------------------------------------------------
@@ -200,8 +192,8 @@ class SceneMeasurement:
                 "E_invK2": self.E_invK2, "dark_mean": self.dark_mean,
                 "black_level": self.black_level, "sigma_N2": self.sigma_N2,
                 "sigma_KN2": self.sigma_KN2, "sigma_cal2": self.sigma_cal2, "y": self.y,
-                "V_S": _jsonable(self.V_S), "V_S_err": _jsonable(self.V_S_err),
-                "V_S_err_population": _jsonable(self.V_S_err_population),
+                "V_S": json_safe(self.V_S), "V_S_err": json_safe(self.V_S_err),
+                "V_S_err_population": json_safe(self.V_S_err_population),
                 "n_clipped": int(self.n_clipped)}
 
 
@@ -241,8 +233,8 @@ class SceneVariation:
     notes: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "V_S": _jsonable(self.V_S), "V_S_err": _jsonable(self.V_S_err),
-                "chi2": _jsonable(self.chi2), "dof": int(self.dof), "Q": _jsonable(self.Q),
+        return {"name": self.name, "V_S": json_safe(self.V_S), "V_S_err": json_safe(self.V_S_err),
+                "chi2": json_safe(self.chi2), "dof": int(self.dof), "Q": json_safe(self.Q),
                 "measurements": [dict(m.to_dict(), used=bool(u))
                                  for m, u in zip(self.measurements, self.used)],
                 "excluded": list(self.excluded), "notes": list(self.notes)}
@@ -315,21 +307,11 @@ def _map(a: Any, shape: tuple[int, int], where: str) -> NDArray[np.float64]:
     return arr
 
 
-def _roi_slices(roi: Any, shape: tuple[int, int], where: str) -> tuple[tuple[int, ...], tuple]:
-    h_img, w_img = shape
-    if roi is None:
-        roi = (0, 0, w_img, h_img)
-    try:
-        x, y, w, h = (int(v) for v in roi)
-    except (TypeError, ValueError):
-        raise CcdError(where, f"roi must be [x, y, w, h] integers, got {roi!r}") from None
-    if w < 1 or h < 1:
-        raise CcdError(where, f"roi {[x, y, w, h]} is empty (w and h must be >= 1)")
-    if x < 0 or y < 0 or x + w > w_img or y + h > h_img:
-        raise CcdError(where, f"roi {[x, y, w, h]} lies outside the {w_img}x{h_img} frame")
-    if w * h < 3:
-        raise CcdError(where, f"roi {[x, y, w, h]} has {w * h} pixels; need at least 3")
-    return (x, y, w, h), (slice(y, y + h), slice(x, x + w))
+def _roi_slices(roi: Any, shape: tuple[int, int], where: str) -> tuple[Roi, tuple]:
+    """The checked ROI (the whole frame for ``None``) and its slices; at least 3 pixels."""
+    box = check_roi(roi if roi is not None else (0, 0, shape[1], shape[0]), shape, where,
+                    min_pixels=3)
+    return box, box.slices
 
 
 def _correct(frame: NDArray, dark: NDArray, K: NDArray) -> NDArray[np.float64]:
@@ -557,7 +539,7 @@ def _frame_meta(item: Any) -> tuple[Any, NDArray, dict[str, Any]]:
         rec = a
         meta = {"roi": getattr(rec, "roi", None), "level": getattr(rec, "level", None),
                 "path": getattr(rec, "relpath", None) or getattr(rec, "path", None),
-                "note": getattr(rec, "note", None)}
+                "patch": getattr(rec, "patch", None)}
         return rec, np.asarray(b), meta
     return None, np.asarray(item), {}
 
@@ -583,7 +565,7 @@ def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: A
         Photon-transfer result (``A``, ``sigma_c2``, optional ``cov`` of (A, σ²_C) and
         ``black_level_dn``) or a mapping with those keys.
     name
-        Patch name (default: from the first frame's note, else ``"roi=x,y,w,h"``).
+        Patch name (default: the first frame's ``patch``, else ``"roi=x,y,w,h"``).
     roi
         ROI for every frame, overriding the frames' own; frames without one use the whole frame.
     black_level
@@ -604,9 +586,7 @@ def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: A
                               level=meta.get("level"), full_scale=full_scale,
                               dark_var=dark_var, K_var=K_var, fp_level=fp_level)
         if name is None:
-            note = meta.get("note") or ""
-            hit = _PATCH_RE.search(note)
-            name = hit.group(1) if hit else "roi=" + ",".join(str(v) for v in m.roi)
+            name = meta.get("patch") or "roi=" + ",".join(str(v) for v in m.roi)
         ms.append(m)
     notes = [f"eq. 58 with black level b0 = {b0:g} DN: sigma_N^2 = A(mu_D + mean dark - b0) "
              "+ sigma_C^2"]
@@ -616,29 +596,16 @@ def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: A
     return fit_scene_variation(ms, noise_cov=cov, name=name or "scene patch", notes=notes)
 
 
-def _patch_key(rec: Any) -> str | None:
-    note = getattr(rec, "note", None) or ""
-    if note.strip() == _MAX_NOTE:
-        return None
-    hit = _PATCH_RE.search(note)
-    if hit:
-        return hit.group(1)
-    roi = getattr(rec, "roi", None)
-    if roi is not None:
-        return "roi=" + ",".join(str(int(v)) for v in roi)
-    return None
-
-
 def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
                      black_level: float | None = None, dark_var: ArrayLike | float = 0.0,
                      K_var: float = 0.0,
                      fp_level: float | None = None) -> dict[str, SceneVariation]:
     """Scene variation of every patch among a session's ``scene`` frames.
 
-    Frames are grouped by ``note = "patch=NAME"`` (as the ``healey94`` simulator writes), else by
-    their ROI (``"roi=x,y,w,h"``).  A patch frame without an ROI is measured over the whole frame.
-    Frames with neither a patch note nor an ROI (general scene images) and the ``max-intensity``
-    frame (sec. VII-A correction check) are not scene-variation measurements and are skipped.
+    Frames are grouped by :meth:`ccdcore.session.Session.scene_patches`: by the manifest key
+    ``patch`` (as the ``healey94`` simulator writes), else by their ROI (``"roi=x,y,w,h"``).  A
+    patch frame without an ROI is measured over the whole frame.  Frames with neither (general
+    scene images) and the ``max-intensity`` frame (sec. VII-A correction check) are skipped.
     Frames are read one at a time.
 
     Parameters
@@ -661,7 +628,7 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
     Raises
     ------
     CcdError
-        No scene frame with a patch note or ROI; colour sessions; any bad frame.
+        No scene frame with a patch or ROI; colour sessions; any bad frame.
     """
     camera = getattr(session, "camera", None)
     layout = getattr(camera, "layout", "mono") or "mono"
@@ -673,14 +640,10 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
     if black_level is None:
         _, _, _, b0n = _noise_params(noise)
         black_level = b0n if b0n is not None else getattr(camera, "black_level", None)
-    groups: dict[str, list[Any]] = {}
-    for rec in session.scenes():
-        key = _patch_key(rec)
-        if key is not None:
-            groups.setdefault(key, []).append(rec)
+    groups = session.scene_patches()
     if not groups:
-        raise CcdError(getattr(session, "root", "session"),
-                       "no scene frames with a 'patch=NAME' note or an roi to measure V_S on")
+        raise CcdError(session.label, "no scene frames with a 'patch' or an 'roi' to measure "
+                                      "V_S on")
     return {name: scene_variation(session.iter_frames(recs), dark, K, noise, name=name,
                                   black_level=black_level, full_scale=full_scale,
                                   dark_var=dark_var, K_var=K_var, fp_level=fp_level)

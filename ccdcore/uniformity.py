@@ -48,17 +48,13 @@ linear in every channel and its pixels (0.1–99.9 % percentiles) lie in [lo, up
 The saturation onset is the first exposure where more than ``saturated_fraction`` (default 0.1 %)
 of the pixel values reach full scale 2^bits − 1.
 
-Sessions with several offset settings (``note = "setting=NZDI"`` ...) or gains are analysed one
-setting and gain at a time.
+Sessions with several offset settings (manifest key ``setting = "NZDI"`` ...) or gains are
+analysed one setting and gain at a time (the groups come from
+:meth:`~ccdcore.session.Session.flat_groups` and :meth:`~ccdcore.session.Session.dark_groups`).
+Channels of each layout come from :mod:`ccdcore.channels`.
 
 Public objects
 --------------
-CHANNEL_NAMES, channel_names(layout), check_layout(shape, layout), channel_slices(shape, layout),
-split_channels(image, layout)
-    Channels of a frame layout, as views (no copies, no interpolation).
-setting_of(record), session_settings(session), resolve_setting(session, setting),
-flat_groups(session, ...), dark_groups(session, ...)
-    Frames of a session by offset setting, gain, radiance level and exposure.
 ChannelSnup, SnupResult, snup(image, ...)
     SNUP per channel with its standard error (eq. 5).
 AveragingRow, AveragingResult, snup_vs_averaging(frames, ...)
@@ -69,26 +65,21 @@ LinearityPoint, LinearityFit, Linearity, linearity(session_or_groups, ...)
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import cfa
+from .channels import CHANNEL_NAMES, channel_names, channel_slices, check_layout, split_channels
+from .common import check_roi, crop, named_frames, sort_key
 from .errors import CcdError
 from .stats import PixelMoments
 
-__all__ = ["CHANNEL_NAMES", "channel_names", "check_layout", "channel_slices", "split_channels",
-           "setting_of", "session_settings", "resolve_setting", "flat_groups", "dark_groups",
-           "ChannelSnup", "SnupResult", "snup", "AveragingRow", "AveragingResult",
+__all__ = ["ChannelSnup", "SnupResult", "snup", "AveragingRow", "AveragingResult",
            "snup_vs_averaging", "LinearityPoint", "LinearityFit", "Linearity", "linearity",
            "TOLERANCE", "ABS_TOLERANCE", "SATURATED_FRACTION"]
 
-#: channel names per layout family
-CHANNEL_NAMES: dict[str, tuple[str, ...]] = {"mono": ("L",), "rgb": ("R", "G", "B"),
-                                             "bayer": cfa.PLANES}
 #: default relative tolerance of the linear range (2 %)
 TOLERANCE = 0.02
 #: absolute floor of the linearity tolerance, DN (half a quantisation step)
@@ -97,163 +88,6 @@ ABS_TOLERANCE = 0.5
 SATURATED_FRACTION = 1e-3
 
 Frames = Iterable[Any]
-
-
-# --------------------------------------------------------------------------------------------
-# channels of a layout
-# --------------------------------------------------------------------------------------------
-def _normal_layout(layout: str) -> str:
-    if not isinstance(layout, str):
-        raise CcdError("layout", f"expected a layout name, got {type(layout).__name__}")
-    name = layout.strip().lower()
-    if name in ("mono", "rgb"):
-        return name
-    return "bayer-" + cfa.check_pattern(name)
-
-
-def channel_names(layout: str) -> tuple[str, ...]:
-    """``("L",)`` for mono, ``("R", "G", "B")`` for rgb, ``("R", "G1", "G2", "B")`` for Bayer."""
-    name = _normal_layout(layout)
-    return CHANNEL_NAMES["bayer" if name.startswith("bayer") else name]
-
-
-def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image") -> str:
-    """Normalised layout for frames of ``shape``; ``None`` infers mono (2-D) or rgb (H, W, 3).
-
-    Raises
-    ------
-    CcdError
-        The shape does not fit the layout (a colour frame for a mono or Bayer layout, a 2-D
-        frame for rgb, odd Bayer dimensions ...).
-    """
-    shape = tuple(shape)
-    if layout is None:
-        if len(shape) == 2:
-            return "mono"
-        if len(shape) == 3 and shape[2] == 3:
-            return "rgb"
-        raise CcdError(where, f"cannot tell the colour layout of frames of shape {shape}; "
-                              "pass layout='mono', 'rgb' or 'bayer-rggb' ...")
-    name = _normal_layout(layout)
-    if name == "rgb":
-        if len(shape) != 3 or shape[2] != 3:
-            raise CcdError(where, f"layout 'rgb' needs (H, W, 3) frames, got shape {shape}")
-    elif len(shape) != 2:
-        raise CcdError(where, f"layout '{name}' needs 2-D frames, got shape {shape}"
-                              + (" (a colour image: use layout='rgb')" if len(shape) == 3 else ""))
-    elif name.startswith("bayer") and (shape[0] % 2 or shape[1] % 2):
-        raise CcdError(where, f"Bayer frames need even height and width, got {shape}")
-    return name
-
-
-def channel_slices(shape: tuple[int, ...], layout: str | None) -> dict[str, tuple]:
-    """Channel name -> index tuple giving that channel as a view: ``image[idx]``.
-
-    mono: the whole frame; rgb: ``[:, :, c]``; Bayer: the plane ``[r::2, c::2]`` of each CFA site.
-    """
-    name = check_layout(shape, layout)
-    full = slice(None)
-    if name == "mono":
-        return {"L": (full, full)}
-    if name == "rgb":
-        return {c: (full, full, i) for i, c in enumerate(CHANNEL_NAMES["rgb"])}
-    return {p: (slice(r, None, 2), slice(c, None, 2))
-            for p, (r, c) in cfa.plane_offsets(name).items()}
-
-
-def split_channels(image: ArrayLike, layout: str | None = None) -> dict[str, NDArray]:
-    """Channel name -> view of ``image`` (see :func:`channel_slices`)."""
-    arr = np.asarray(image)
-    return {n: arr[idx] for n, idx in channel_slices(arr.shape, layout).items()}
-
-
-# --------------------------------------------------------------------------------------------
-# sessions: settings, gains, groups
-# --------------------------------------------------------------------------------------------
-_SETTING = re.compile(r"setting\s*=\s*([\w.+-]+)")
-
-
-def setting_of(record: Any) -> str | None:
-    """The offset setting of a frame, from its manifest ``note`` (``"setting=NZDI"``), or None."""
-    note = getattr(record, "note", None)
-    found = _SETTING.search(note) if isinstance(note, str) else None
-    return found.group(1) if found else None
-
-
-def session_settings(session: Any) -> tuple[str, ...]:
-    """The offset settings named in the session's notes, in session order (may be empty)."""
-    out: list[str] = []
-    for rec in session.frames:
-        s = setting_of(rec)
-        if s is not None and s not in out:
-            out.append(s)
-    return tuple(out)
-
-
-def resolve_setting(session: Any, setting: str | None) -> tuple[str | None, list[str]]:
-    """The setting to analyse and notes: ``None`` picks the first of several (noted)."""
-    have = session_settings(session)
-    if setting is not None:
-        if setting not in have:
-            raise CcdError(str(session.root), f"no frames with note 'setting={setting}'"
-                           + (f"; the session has {', '.join(have)}" if have else
-                              "; the session names no settings (omit setting=)"))
-        return setting, []
-    if len(have) > 1:
-        return have[0], [f"the session has offset settings {', '.join(have)}; used {have[0]} "
-                         "(pass setting=)"]
-    return (have[0] if have else None), []
-
-
-def _select(session: Any, role: str, setting: str | None, gain: float | None) -> list:
-    return [r for r in session.by_role(role)
-            if (setting is None or setting_of(r) == setting)
-            and (gain is None or r.gain is None or math.isclose(r.gain, gain))]
-
-
-def _key_sort(key: tuple) -> tuple:
-    return tuple((1, 0) if v is None else (0, v) for v in key)
-
-
-def flat_groups(session: Any, *, setting: str | None = None, gain: float | None = None
-                ) -> dict[tuple[Any, Any], tuple]:
-    """Flat frames of one setting (and gain) keyed by ``(level, exposure)``, sorted.
-
-    Raises
-    ------
-    CcdError
-        The selection mixes several gains and ``gain`` is not given.
-    """
-    recs = _select(session, "flat", setting, gain)
-    gains = {r.gain for r in recs if r.gain is not None}
-    if gain is None and len(gains) > 1:
-        raise CcdError(str(session.root), f"flat frames at several gains {sorted(gains)}: "
-                                          "pass gain=")
-    groups: dict[tuple, list] = {}
-    for r in recs:
-        groups.setdefault((r.level, r.exposure), []).append(r)
-    return {k: tuple(groups[k]) for k in sorted(groups, key=_key_sort)}
-
-
-def dark_groups(session: Any, *, setting: str | None = None, gain: float | None = None
-                ) -> dict[Any, tuple]:
-    """Dark frames of one setting (and gain) keyed by exposure (``None`` when unknown)."""
-    groups: dict[Any, list] = {}
-    for r in _select(session, "dark", setting, gain):
-        groups.setdefault(r.exposure, []).append(r)
-    return {k: tuple(groups[k]) for k in sorted(groups, key=lambda e: _key_sort((e,)))}
-
-
-def _named(frames: Frames, what: str):
-    """Yield ``(name, array)`` from arrays or ``(record, array)`` pairs, checking for NaN/inf."""
-    for i, item in enumerate(frames):
-        rec, arr = item if isinstance(item, tuple) else (None, item)
-        name = getattr(rec, "relpath", None) or (str(rec) if rec is not None
-                                                 else f"{what} frame {i}")
-        arr = np.asarray(arr)
-        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
-            raise CcdError(name, f"{int((~np.isfinite(arr)).sum())} NaN or infinite pixel values")
-        yield name, arr
 
 
 # --------------------------------------------------------------------------------------------
@@ -326,30 +160,6 @@ def _snup_values(v: NDArray, name: str, where: Any) -> ChannelSnup:
                        snup_err=100.0 * math.sqrt(var_cv), n=n)
 
 
-def _check_roi(roi: Sequence[int] | None, shape: tuple[int, ...], layout: str,
-               where: Any) -> tuple[int, int, int, int] | None:
-    if roi is None:
-        return None
-    try:
-        x, y, w, h = (int(v) for v in roi)
-    except (TypeError, ValueError):
-        raise CcdError(where, f"ROI must be x, y, w, h (integers), got {roi!r}") from None
-    H, W = shape[0], shape[1]
-    if w <= 0 or h <= 0 or x < 0 or y < 0 or x + w > W or y + h > H:
-        raise CcdError(where, f"ROI {x},{y},{w},{h} (x,y,w,h) is not inside the {W}x{H} frame")
-    if layout.startswith("bayer") and (x % 2 or y % 2 or w % 2 or h % 2):
-        raise CcdError(where, f"on Bayer data the ROI must have even x, y, w, h (whole 2x2 "
-                              f"cells), got {x},{y},{w},{h}")
-    return x, y, w, h
-
-
-def _crop(a: NDArray, roi: tuple[int, int, int, int] | None) -> NDArray:
-    if roi is None:
-        return a
-    x, y, w, h = roi
-    return a[y:y + h, x:x + w]
-
-
 def snup(image: ArrayLike, *, roi: Sequence[int] | None = None, layout: str | None = None,
          mask: ArrayLike | None = None, where: Any = "image") -> SnupResult:
     """SNUP = 100·σ/mean per channel (eq. 5 of de Lasarte et al. 2007) with its standard error.
@@ -387,15 +197,15 @@ def snup(image: ArrayLike, *, roi: Sequence[int] | None = None, layout: str | No
     """
     arr = np.asarray(image)
     name = check_layout(arr.shape, layout, where)
-    box = _check_roi(roi, arr.shape, name, where)
-    arr = _crop(arr, box)
+    box = check_roi(roi, arr.shape, where, even=name.startswith("bayer"))
+    arr = crop(arr, box)
     m = None
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
         if m.shape[:2] != tuple(np.shape(image))[:2]:
             raise CcdError(where, f"mask shape {m.shape} differs from the image's "
                                   f"{np.shape(image)}")
-        m = _crop(m, box)
+        m = crop(m, box)
         if m.ndim == 2 and arr.ndim == 3:
             m = np.broadcast_to(m[..., None], arr.shape)
     bad = ~np.isfinite(arr) if arr.dtype.kind == "f" else None
@@ -487,13 +297,13 @@ def snup_vs_averaging(frames: Frames, Ns: Sequence[int] | None = None, *,
     snups: dict[int, SnupResult] = {}
     name = None
     box = None
-    for fname, arr in _named(frames, "averaging"):
+    for fname, arr in named_frames(frames, "averaging"):
         if correct is not None:
             arr = correct(arr)
         if name is None:
             name = check_layout(arr.shape, layout, fname)
-            box = _check_roi(roi, arr.shape, name, fname)
-        arr = _crop(arr, box)
+            box = check_roi(roi, arr.shape, fname, even=name.startswith("bayer"))
+        arr = crop(arr, box)
         acc.add(arr, name=fname)
         total = arr.astype(np.float64) if total is None else total + arr
         if (acc.n & (acc.n - 1)) == 0 if want is None else acc.n in want:
@@ -525,11 +335,11 @@ def snup_vs_averaging(frames: Frames, Ns: Sequence[int] | None = None, *,
 
 
 def _crop_mask(mask: ArrayLike | None, box) -> NDArray | None:
-    return None if mask is None else _crop(np.asarray(mask, dtype=bool), box)
+    return None if mask is None else crop(np.asarray(mask, dtype=bool), box)
 
 
 def _mask_full(mask: ArrayLike, box, shape: tuple[int, ...]) -> NDArray:
-    m = _crop(np.asarray(mask, dtype=bool), box)
+    m = crop(np.asarray(mask, dtype=bool), box)
     return np.broadcast_to(m[..., None], shape) if m.ndim == 2 and len(shape) == 3 else m
 
 
@@ -646,7 +456,7 @@ def _channel_means(frames: Frames, layout: str | None, what: str) -> tuple[dict,
     sums: dict[str, float] = {}
     n = 0
     name = layout
-    for fname, arr in _named(frames, what):
+    for fname, arr in named_frames(frames, what):
         name = check_layout(arr.shape, layout if n == 0 else name, fname)
         for c, v in split_channels(arr, name).items():
             sums[c] = sums.get(c, 0.0) + float(v.mean(dtype=np.float64))
@@ -658,7 +468,7 @@ def _group_stats(frames: Frames, layout: str | None, full_scale: float | None, w
     acc = PixelMoments()
     at_fs: dict[str, int] = {}
     name = layout
-    for fname, arr in _named(frames, what):
+    for fname, arr in named_frames(frames, what):
         name = check_layout(arr.shape, layout, fname)
         acc.add(arr, name=fname)
         if full_scale is not None:
@@ -704,8 +514,8 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
         With a mapping: dark frames (one iterable, used for every exposure) or a mapping
         ``exposure -> frames``; None subtracts nothing (the fitted intercept absorbs the dark).
     setting, gain
-        Offset setting (``note = "setting=..."``) and gain to analyse; see
-        :func:`resolve_setting`.  Without ``gain``, every gain of the setting is fitted.
+        Offset setting (manifest key ``setting``) and gain to analyse; see
+        :meth:`~ccdcore.session.Session.resolve_setting`.  Without ``gain``, every gain of the setting is fitted.
     tolerance, abs_tolerance
         A point is linear while |signal − fit| <= max(tolerance·fit, abs_tolerance); defaults
         2 % and 0.5 DN.
@@ -726,17 +536,17 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
     dark_src: dict[tuple[float | None, Any], Frames] = {}
     if hasattr(session_or_groups, "by_role"):
         session = session_or_groups
-        setting, notes = resolve_setting(session, setting)
+        setting, notes = session.resolve_setting(setting)
         layout = layout or session.camera.layout
         bits = bits or session.camera.bits
-        recs = _select(session, "flat", setting, gain)
+        recs = session.select("flat", setting=setting, gain=gain)
         if not recs:
             raise CcdError(str(session.root), "no flat frames (role = 'flat')"
-                           + (f" with setting={setting}" if setting else ""))
-        for g in sorted({r.gain for r in recs}, key=lambda v: _key_sort((v,))):
-            for (lv, t), rs in flat_groups(session, setting=setting, gain=g).items():
+                           + (f" with setting = {setting!r}" if setting else ""))
+        for g in sorted({r.gain for r in recs}, key=sort_key):
+            for (lv, t), rs in session.flat_groups(setting=setting, gain=g).items():
                 groups.append((g, lv, t, session.iter_frames(rs)))
-            for t, rs in dark_groups(session, setting=setting, gain=g).items():
+            for t, rs in session.dark_groups(setting=setting, gain=g).items():
                 dark_src[(g, t)] = session.iter_frames(rs)
         if not dark_src:
             notes.append("no dark frames: signal is the raw mean (the intercept holds the dark)")

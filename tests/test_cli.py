@@ -134,7 +134,7 @@ def test_console_script_bad_input_has_no_traceback(tmp_path):
 def test_session_text_states_sizes_width_first(capsys):
     code, out, err = run(capsys, "session", str(ROOT / "assets" / "healey94"))
     assert code == 0, err
-    assert "size=256x192" in out and "shape=" not in out   # the demo is 256 px wide, 192 tall
+    assert "size 256x192" in out and "shape" not in out   # the demo is 256 px wide, 192 tall
 
 
 def test_closed_pipe_stops_quietly():

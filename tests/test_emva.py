@@ -1,4 +1,4 @@
-"""Tests of ccdcore.emva: EMVA1288 descriptors, checked against the reference implementation."""
+"""Tests of ccdcore.session.emva: EMVA1288 descriptors, checked against the reference implementation."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,14 +6,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-# emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (see NOTES.md)
+# emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (see docs/notes.md)
 np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E731
 
 from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 from emva1288.process.parser import ParseEmvaDescriptorFile  # noqa: E402
 from PIL import Image  # noqa: E402  (Pillow wrote the images; read them back with it)
 
-from ccdcore.emva import open_emva_descriptor  # noqa: E402
+from ccdcore.session import open_emva_descriptor  # noqa: E402
 from ccdcore.io import write_image  # noqa: E402
 from ccdcore.session import draft_manifest, open_session  # noqa: E402
 
@@ -130,10 +130,10 @@ def test_descriptor_problems_are_reported(tmp_path: Path) -> None:
         ("emva.txt line 5", "image line before any 'b' or 'd' point"),
         ("emva.txt line 13", "should be 'b <exposure_ns> <photons>'"),
         ("emva.txt line 14", "unknown line type 'x' (expected v, n, b, d or i)"),
-        ("emva.txt line 15", "bad number in 'b 3000000.0 oops'"),
+        ("emva.txt line 15", "photons per pixel 'oops' is not a number"),
         ("emva.txt line 18", "point has no 'i' image lines"),
         ("img/missing.tif", "file not found"),
-        ("img/small.tif", "size (WxH) 10x8 differs from 16x12 of the other ptc frames (3 frames)"),
+        ("img/small.tif", "size 10 × 8 differs from 16 × 12 of the other ptc frames (3 frames)"),
         ("ptc level 2", "only one frame (img/d1.tif); a photon-transfer level needs at least two"),
         ("img/small.tif", "image is 10x8 but the descriptor's n line says 16x12"),
     ]

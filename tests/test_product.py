@@ -106,7 +106,9 @@ def test_calibrate_without_fixed_pattern_notes_what_is_missing(tmp_path):
     (root / "session.toml").write_text(blocks[0] + "".join("[[frames]]" + b for b in keep))
     prod = calibrate(root)
     assert "fixed_pattern" not in prod.estimates and "K" not in prod.maps
-    assert any("K map not estimated" in n for n in prod.notes)
+    skipped = {s.estimate: s for s in prod.skipped}
+    assert skipped["fixed_pattern"].code == "missing-frames"
+    assert skipped["fixed_pattern"].roles == ("fixed_pattern",)
     d = read_image(root / "ptc" / "L01_a.tif")
     np.testing.assert_array_equal(prod.correct(d), (d - prod.maps["dark"]).astype(np.float32))
 

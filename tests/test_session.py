@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ccdcore.session as session_mod
+import ccdcore.session.records as session_mod
 from ccdcore.errors import CcdError, ImageReadError, SessionError
 from ccdcore.io import read_header, read_image, write_image
 from ccdcore.session import (LAYOUTS, ROLES, FrameRecord, Problem, Session, draft_manifest,
-                             open_session, size_text)
+                             open_session)
+from ccdcore.common import format_size
 
 H, W = 12, 16
 
@@ -194,11 +195,11 @@ def test_tables_and_dicts(full_session: Path) -> None:
         ("scene", None): 1, ("reference", None): 1, ("target", None): 1}
     bracket = next(r for r in rows if r["role"] == "bracket")
     assert (bracket["shape"], bracket["dtype"], bracket["exposures"]) == (
-        "12x16", "uint16", [0.01, 0.02, 0.04])
+        (12, 16), "uint16", [0.01, 0.02, 0.04])
     table = s.frames_table()
     assert len(table) == len(s.frames)
-    assert table[9]["relpath"] == "scene/s0.tif" and table[9]["roi"] == "2,3,8,6"
-    assert (table[0]["shape"], table[0]["dtype"], table[0]["bits"]) == ("12x16", "uint16", 16)
+    assert table[9]["relpath"] == "scene/s0.tif" and table[9]["roi"] == [2, 3, 8, 6]
+    assert (table[0]["shape"], table[0]["dtype"], table[0]["bits"]) == ((12, 16), "uint16", 16)
     d = s.to_dict()
     assert d["ok"] and d["source"] == "manifest" and len(d["frames"]) == 19
     assert s.frames[9].to_dict()["roi"] == [2, 3, 8, 6]
@@ -308,7 +309,7 @@ def test_shape_mismatch_within_a_role(tmp_path: Path) -> None:
     put(root, "scene/small.tif")
     s = manifest(root, '[[groups]]\nglob = "dark/*.tif"\nrole = "dark"\n'
                        '[[groups]]\nglob = "scene/*.tif"\nrole = "scene"')
-    assert errors(s) == [("dark/d1.tif", "size (WxH) 16x13 differs from 16x12 of the other dark "
+    assert errors(s) == [("dark/d1.tif", "size 16 × 13 differs from 16 × 12 of the other dark "
                                          "frames (2 frames)")]
 
 
@@ -329,7 +330,7 @@ def test_ptc_shapes_are_compared_across_levels(tmp_path: Path) -> None:
             put(root, f"ptc/L{level}{k}.tif", shape=shape)
     s = manifest(root, "".join(f'[[groups]]\nglob = "ptc/L{n}*.tif"\nrole = "ptc"\nlevel = {n}\n'
                                for n in (1, 2, 3)))
-    assert errors(s) == [(f"ptc/L3{k}.tif", "size (WxH) 18x12 differs from 16x12 of the other ptc "
+    assert errors(s) == [(f"ptc/L3{k}.tif", "size 18 × 12 differs from 16 × 12 of the other ptc "
                                             "frames (4 frames)") for k in "ab"]
 
 
@@ -646,7 +647,7 @@ def test_empty_folder_is_an_error_not_an_exception(tmp_path: Path) -> None:
     assert s.problems[0].message.startswith("no image files found")
 
 
-def test_size_text():
-    assert size_text("192x256") == size_text((192, 256)) == "256x192"
-    assert size_text((4, 6, 3), " × ") == "6 × 4 × 3"
-    assert size_text("mixed") == "mixed" and size_text(None) is None
+def test_format_size():
+    assert format_size((192, 256)) == "256 × 192"
+    assert format_size((4, 6, 3), "x") == "6x4x3"
+    assert format_size(None) == "?"

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import ndimage, stats
 
-from ccdcore import cfa
+from ccdcore import channels
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image
 from ccdcore.simulate import simulate as simulate_preset
@@ -207,7 +207,7 @@ def _interpolated_variance(var_site, pattern):
     out = np.empty(var_site.shape + (3,))
     kg = np.array([[0, 0.25, 0], [0.25, 1, 0.25], [0, 0.25, 0]]) ** 2
     krb = np.array([[0.25, 0.5, 0.25], [0.5, 1, 0.5], [0.25, 0.5, 0.25]]) ** 2
-    for i, (m, k) in enumerate(zip(cfa.channel_masks(var_site.shape, pattern), (krb, kg, krb))):
+    for i, (m, k) in enumerate(zip(channels.channel_masks(var_site.shape, pattern), (krb, kg, krb))):
         out[..., i] = ndimage.convolve(np.where(m, var_site, 0.0), k, mode="mirror")
         out[..., i][m] = var_site[m]
     return out
@@ -219,9 +219,9 @@ def test_bayer_session_adds_noise_per_site_then_interpolates(tmp_path):
     assert truth["radiance_map"] == "E_effective"
     E = read_image(tmp_path / "truth/E.exr").astype(float)
     Ee = read_image(tmp_path / "truth/E_effective.exr").astype(float)
-    np.testing.assert_allclose(Ee, cfa.demosaic_bilinear(cfa.mosaic(E, "rggb"), "rggb"),
+    np.testing.assert_allclose(Ee, channels.demosaic_bilinear(channels.mosaic(E, "rggb"), "rggb"),
                                rtol=1e-6)
-    green = cfa.channel_masks((64, 64), "rggb")[1]
+    green = channels.channel_masks((64, 64), "rggb")[1]
     inner = np.zeros((64, 64), bool)
     inner[1:-1, 1:-1] = True                  # mirror borders double a weight: leave them out
     chis = {"sampled": [], "interpolated": []}
@@ -229,7 +229,7 @@ def test_bayer_session_adds_noise_per_site_then_interpolates(tmp_path):
         z = read_image(tmp_path / entry["path"])
         assert entry["a"] == [entry["exposure"]] * 3      # no white balance: a = t per channel
         a = entry["exposure"]
-        var_site = 0.015 ** 2 * a * cfa.mosaic(E, "rggb") + 0.01 ** 2
+        var_site = 0.015 ** 2 * a * channels.mosaic(E, "rggb") + 0.01 ** 2
         var_v = _interpolated_variance(var_site, "rggb")
         zscore, chi, n = check_frame(z[inner], a * Ee[inner], var_v[inner], min_n=100)
         assert abs(zscore) < 4.5 and abs(chi - 1.0) < 5 * math.sqrt(2.0 / n)

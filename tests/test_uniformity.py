@@ -14,8 +14,8 @@ import pytest
 from ccdcore.errors import CcdError
 from ccdcore.session import open_session
 from ccdcore.simulate import simulate
-from ccdcore.uniformity import (channel_names, flat_groups, linearity, session_settings,
-                                snup, snup_vs_averaging, split_channels)
+from ccdcore.channels import channel_names, split_channels
+from ccdcore.uniformity import linearity, snup, snup_vs_averaging
 
 SIZE = (64, 48)
 
@@ -110,7 +110,7 @@ def test_snup_bad_input():
 # ---- averaging (Table 1) -------------------------------------------------------------------
 def test_snup_of_averages_falls_like_one_over_sqrt_n(flat_sim):
     session, truth = flat_sim
-    frames = flat_groups(session, setting="NZDI")[(1, 0.04)]
+    frames = session.flat_groups(setting="NZDI")[(1, 0.04)]
     assert len(frames) == 16
     res = snup_vs_averaging(session.iter_frames(frames))
     assert [r.N for r in res.channel("G")] == [1, 2, 4, 8, 16]
@@ -149,7 +149,7 @@ def test_averaging_bad_input():
 # ---- linear range (Fig. 2) -----------------------------------------------------------------
 def test_linearity_against_truth(sim):
     session, truth = sim
-    assert session_settings(session) == ("NZDI", "ZDI")
+    assert session.settings() == ("NZDI", "ZDI")
     lin = linearity(session, setting="NZDI")
     assert lin.channels == ("R", "G", "B") and lin.tolerance == 0.02
     for c, ch in enumerate(lin.channels):

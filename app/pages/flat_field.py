@@ -24,14 +24,14 @@ default_frame(recommendation, groups)
 kmap_comparison(session, setting)
     :func:`ccdcore.flatfield.compare_with_k_map`, with the true flat field of ``truth.json`` when
     the session folder holds one.
-result_key(kind, setting, base=None)
-    The ``state.results`` key of a flat-field result: ``"flat:NZDI:3:0.04"`` ...
 NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE
     What the page says without flat frames, and above a zero-clipped dark image.
 
-Every number comes from :mod:`ccdcore.flatfield` and :mod:`ccdcore.uniformity`; computing runs
-off the UI thread through :meth:`app.state.AppState.compute`, results are cached in
-``state.results`` under string keys (:func:`result_key`), the plots come from
+Every number comes from :mod:`ccdcore.flatfield` and :mod:`ccdcore.uniformity`; the frames are
+grouped by the session (:meth:`ccdcore.session.Session.flat_groups`, ``dark_groups``,
+``settings``) and the channels named by :mod:`ccdcore.channels`. Computing runs off the UI thread
+through :meth:`app.state.AppState.compute`; results are cached in ``state.results.flat``
+(:class:`app.state.FlatResults`, by offset setting and base group); the plots come from
 :mod:`app.flat_plots` and :mod:`app.plots`.
 """
 from __future__ import annotations
@@ -51,22 +51,21 @@ import panel as pn
 import param
 from panel.io.state import set_curdoc
 
+from ccdcore.channels import channel_names, split_channels
 from ccdcore.errors import CcdError
 from ccdcore.flatfield import (BaseRecommendation, FlatField, KMapComparison,
                                base_image_study, compare_dark_settings, compare_with_k_map,
                                flat_field_from_session, recommend_base, zero_dark)
 from ccdcore.io import read_image
 from ccdcore.session import FrameRecord, Session
-from ccdcore.uniformity import (channel_names, dark_groups, flat_groups, session_settings,
-                                snup, snup_vs_averaging, split_channels, SnupResult)
+from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
 from ..state import AppState
 from ._messages import PageMessages
 
 __all__ = ["FlatFieldPage", "create_page", "FrameView", "frame_view", "kmap_comparison",
-           "default_frame",
-           "result_key", "NO_FLAT_MESSAGE", "ZERO_DARK_MESSAGE"]
+           "default_frame", "NO_FLAT_MESSAGE", "ZERO_DARK_MESSAGE"]
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +77,7 @@ NO_FLAT_MESSAGE = (
     "`level = N` (one N per radiance level) and `exposure` in seconds; take 8 or more frames at "
     "the exposure you mean to use as the base image. Add **dark frames** (`role = \"dark\"`) at "
     "the same exposure times. With several camera offset settings, tag every frame with "
-    "`note = \"setting=NAME\"` (e.g. NZDI, ZDI).")
+    "`setting = \"NAME\"` (e.g. NZDI, ZDI).")
 
 #: the headline of the zero-dark warning
 ZERO_DARK_MESSAGE = ("The offset setting clips the dark image at zero; information is lost "
@@ -93,16 +92,6 @@ tr:nth-child(even) td { background: #f8f9fa; }
 """
 
 _MUTED = {"font-size": "0.88em", "color": "#6c757d"}
-
-
-def result_key(kind: str, setting: str | None, base: Sequence[Any] | None = None) -> str:
-    """``state.results`` key: ``"flat:NZDI:3:0.04"`` (kind ``"flat"`` with a base),
-    ``"flat_base:NZDI"`` ... (setting ``None`` is written as an empty field)."""
-    key = f"{kind}:{setting or ''}"
-    if base is not None:
-        key += ":" + ":".join("" if v is None else f"{v:g}" if isinstance(v, float) else str(v)
-                              for v in base)
-    return key
 
 
 # ----------------------------------------------------------------------------- computing ------
@@ -133,10 +122,10 @@ def _averaging(session: Session, records: Sequence[FrameRecord], layout: str):
 
 
 def _zero_dark(session: Session, setting: str | None):
-    recs = [r for group in dark_groups(session, setting=setting).values() for r in group]
+    recs = [r for group in session.dark_groups(setting=setting).values() for r in group]
     if not recs:
-        raise CcdError(str(session.root), "no dark frames (role = 'dark')"
-                       + (f" with setting={setting}" if setting else ""))
+        raise CcdError(session.label, "no dark frames (role = 'dark')"
+                       + (f" with setting = {setting!r}" if setting else ""))
     return zero_dark(session.iter_frames(recs), layout=session.camera.layout)
 
 
@@ -441,21 +430,28 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self._syncing = False
 
     # ============================================================ computing ================
-    async def _get(self, name: str, func: Any, *args: Any, label: str, optional: bool = False,
-                   **kwargs: Any) -> tuple[Any, str]:
-        """``state.results[name]``, computed off the UI thread when missing; the result and the
-        error message. ``optional`` failures do not stay in the app-wide ``state.error``."""
-        cached = self.state.results.get(name)
+    async def _get(self, cache: dict, key: Any, func: Any, *args: Any, label: str,
+                   optional: bool = False, **kwargs: Any) -> tuple[Any, str]:
+        """``cache[key]`` (a cache of ``state.results.flat``), computed off the UI thread and
+        stored when missing; the result and the error message. ``optional`` failures do not
+        stay in the app-wide ``state.error``."""
+        cached = cache.get(key)
         if cached is not None:
             return cached, ""
         before = self.state.error
-        result = await self.state.compute(name, func, *args, label=label, **kwargs)
+        result = await self.state.compute(func, *args, label=label, **kwargs)
         if result is None:
             error = self.state.error or "the computation did not finish (session changed?)"
             if optional:
                 self.state.error = before
             return None, error
+        cache[key] = result
         return result, ""
+
+    @property
+    def _cache(self) -> Any:
+        """The flat-field results of the loaded session (:class:`app.state.FlatResults`)."""
+        return self.state.results.flat
 
     def _current(self, session: Session, generation: int | None = None,
                  base_generation: int | None = None) -> bool:
@@ -479,7 +475,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self._info(NO_FLAT_MESSAGE)
             return
         self._info("")
-        settings = list(session_settings(session))
+        settings = list(session.settings())
         self._set_quietly(self.setting_select, options=settings,
                           value=settings[0] if settings else None)
         self.setting_select.visible = bool(settings)
@@ -505,16 +501,16 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self._study = None
         self._in_document(self._render_study)
         try:
-            groups = flat_groups(session, setting=setting)
+            groups = session.flat_groups(setting=setting)
         except CcdError as err:
             self._set_error(str(err))
             return
         if not groups:
-            self._info(f"No flat frames with setting={setting}. " + NO_FLAT_MESSAGE)
+            self._info(f"No flat frames with setting = {setting!r}. " + NO_FLAT_MESSAGE)
             return
         self.content.loading = True
         try:
-            rec, error = await self._get(result_key("flat_base", setting), recommend_base,
+            rec, error = await self._get(self._cache.recommendations, setting, recommend_base,
                                          session, setting=setting,
                                          label="base image recommendation")
             if not self._current(session, generation):
@@ -528,7 +524,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                 else default_frame(rec, groups)
             self._set_quietly(self.frame_select, options=list(self._records), value=frame)
             self._in_document(self._render_linearity)
-            zero, zerr = await self._get(result_key("flat_zero", setting), _zero_dark, session,
+            zero, zerr = await self._get(self._cache.zero_dark, setting, _zero_dark, session,
                                          setting, label="zero-dark check", optional=True)
             if not self._current(session, generation):
                 return
@@ -577,7 +573,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         setting = self.setting
         self.content.loading = True
         try:
-            flat, error = await self._get(result_key("flat", setting, key),
+            flat, error = await self._get(self._cache.fields, (setting, tuple(key)),
                                           flat_field_from_session, session, setting=setting,
                                           base=key, label="flat-field maps G, O")
             if not self._current(session, base_generation=generation):
@@ -596,9 +592,9 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         await self.show_frame()
         if not self._current(session, base_generation=generation):
             return
-        records = flat_groups(session, setting=setting).get(tuple(key), ())
-        avg, aerr = await self._get(result_key("flat_avg", setting, key), _averaging, session,
-                                    records, session.camera.layout,
+        records = session.flat_groups(setting=setting).get(tuple(key), ())
+        avg, aerr = await self._get(self._cache.averaging, (setting, tuple(key)), _averaging,
+                                    session, records, session.camera.layout,
                                     label="SNUP against averaging", optional=True)
         if self._current(session, base_generation=generation):
             self._in_document(partial(self._render_averaging, avg, aerr, key))
@@ -612,9 +608,9 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         generation = self._generation
         self.pair_pane.loading = True
         try:
-            # one frame view at a time in the shared results (always recomputed: it is cheap)
+            # the page's own (always recomputed: it is cheap)
             before = self.state.error
-            view = await self.state.compute("flat_view", frame_view, session, rec, flat,
+            view = await self.state.compute(frame_view, session, rec, flat,
                                             label="before/after correction")
             error = self.state.error
             if view is None:
@@ -635,7 +631,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     async def _show_studies(self, session: Session, setting: str | None,
                             generation: int) -> None:
         """Setting-wide results: base-image study, Table 2, K̂ comparison (after the rest)."""
-        study, serr = await self._get(result_key("flat_study", setting), base_image_study,
+        study, serr = await self._get(self._cache.studies, setting, base_image_study,
                                       session, setting=setting, label="base-image study",
                                       optional=True)
         if not self._current(session):
@@ -644,10 +640,18 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.study_alert.param.update(object=f"**Base-image study not available:** {serr}",
                                       visible=study is None)
         self._in_document(self._render_study)
-        settings = session_settings(session)
-        if len(settings) > 1:
-            comp, cerr = await self._get("flat_settings", compare_dark_settings, session,
-                                         label="dark settings comparison", optional=True)
+        if len(session.settings()) > 1:
+            cache = self._cache
+            comp, cerr = cache.settings, ""
+            if comp is None:
+                before = self.state.error
+                comp = await self.state.compute(compare_dark_settings, session,
+                                                label="dark settings comparison")
+                if comp is None:
+                    cerr = self.state.error or "the computation did not finish"
+                    self.state.error = before
+                elif self._current(session):
+                    cache.settings = comp
             if not self._current(session):
                 return
             self._render_settings(comp, cerr)
@@ -655,7 +659,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self._render_settings(None, "the session has one offset setting: capture flats "
                                         "and darks at a second setting (e.g. a zero and a "
                                         "non-zero dark image) to compare them")
-        kmap, kerr = await self._get(result_key("flat_kmap", setting), kmap_comparison, session,
+        kmap, kerr = await self._get(self._cache.kmaps, setting, kmap_comparison, session,
                                      setting, label="K\u0302 against G", optional=True)
         if self._current(session):
             self._render_kmap(kmap, kerr)
@@ -801,7 +805,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                 alert_type="warning", visible=True)
         else:
             self.zero_alert.visible = False
-        if self.state.results.get("flat_settings") is None:
+        if self._cache.settings is None:
             self.zero_table.object = flat_plots.zero_dark_frame({self.setting or "": zero})
 
     def _render_averaging(self, avg: Any, error: str, key: Sequence[Any]) -> None:

@@ -28,19 +28,21 @@ scene_patch_frame(scene), scene_level_frame(variation)
     The scene tables (DataFrames).
 export_bytes(layer, fmt, clim)
     A map as the bytes of an EXR, FITS or 16-bit PNG file.
-max_intensity_frame(session)
-    The session's max-intensity scene frame (``note = "max-intensity"``) or ``None``.
-missing_frames(session)
-    What the session lacks for this page, as sentences saying what to capture.
-budget_inputs(dark, fp, noise, variation, bits)
-    The inputs of :func:`ccdcore.scene.variance_budget` for one patch.
+missing_sentences(session)
+    What the session lacks for this page's estimates, as Markdown sentences made of ccdcore's
+    :class:`~ccdcore.product.Requirement` texts (:func:`ccdcore.product.missing_frames`).
+MAPS_ESTIMATES
+    The estimates of :func:`ccdcore.product.estimate_all` this page shows.
 
 Every number comes from ccdcore: :func:`ccdcore.product.estimate_all` (the same estimates, with
-the same parameters, as ``calibrate()`` and the ``ccdcore calibrate`` verb),
-:func:`ccdcore.planning.plan_acquisition`, :func:`ccdcore.planning.check_session_plan`,
-:func:`ccdcore.fixedpattern.correction_check` and :func:`ccdcore.scene.variance_budget`.
-Results are shared with the other pages through ``state.results`` (``ptc``, ``dark``,
-``fixed_pattern``, ``plan``, ``scene``, plus ``correction_check``).
+the same parameters, as ``calibrate()`` and the ``ccdcore calibrate`` verb: D̂_D, K̂, the plan and
+its warnings, V_S and the correction check on the session's max-intensity frame),
+:func:`ccdcore.planning.plan_acquisition`, :func:`ccdcore.product.budget_inputs` and
+:func:`ccdcore.scene.variance_budget`. Results are shared with the other pages through
+``state.results`` (``estimates``; ``ptc``, the noise model, is read and, when missing, filled).
+The page's own state (maps shown and selected, the patch, the planning inputs) is declared with
+``param``; watchers (``@param.depends(..., watch=True)``) redraw what depends on it, once per
+batch of changes.
 """
 from __future__ import annotations
 
@@ -58,13 +60,13 @@ import pandas as pd
 import panel as pn
 import param
 
+from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
-from ccdcore.fixedpattern import correction_check
 from ccdcore.io import write_image, write_map
-from ccdcore.planning import (DEFAULT_WORST_RATIO, N2_READINGS, check_session_plan,
-                              plan_acquisition)
-from ccdcore.product import estimate_all
+from ccdcore.planning import DEFAULT_WORST_RATIO, plan_acquisition
+from ccdcore.product import budget_inputs, estimate_all, missing_frames, requirement
 from ccdcore.scene import variance_budget
+from ccdcore.session import ROLES, Session
 
 from .. import map_plots, plots
 from ..map_plots import MapLayer
@@ -72,7 +74,7 @@ from ..state import AppState
 
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
            "correction_summary", "scene_patch_frame", "scene_level_frame", "export_bytes",
-           "max_intensity_frame", "missing_frames", "budget_inputs", "PAPER_PLAN_INPUTS",
+           "missing_sentences", "MAPS_ESTIMATES", "PAPER_PLAN_INPUTS", "PLAN_INPUTS",
            "DEFAULT_SHOWN", "EXPORT_FORMATS"]
 
 log = logging.getLogger(__name__)
@@ -85,10 +87,14 @@ PAPER_PLAN_INPUTS: dict[str, Any] = {"A": 0.003384, "sigma_c2": 1.1196, "bits": 
                                      "n2_reading": "paper"}
 #: maps shown in the grid when they exist
 DEFAULT_SHOWN = ("K", "dark", "n_rejected", "flags")
+#: the inputs of :func:`ccdcore.planning.plan_acquisition` the Planning tab asks for
+PLAN_INPUTS = ("A", "sigma_c2", "bits", "sigma_hat", "p", "worst_ratio", "black_level",
+               "n2_reading")
 #: export format -> file extension
 EXPORT_FORMATS = {"exr": ".exr", "fits": ".fits", "png": ".png"}
-#: the note of the sec. VII-A maximum-intensity frame (as the healey94 simulator writes it)
-MAX_INTENSITY_NOTE = "max-intensity"
+#: the estimates of ccdcore.product.estimate_all shown on this page (in REQUIREMENTS order);
+#: the flat field has its own page
+MAPS_ESTIMATES = ("noise", "dark", "fixed_pattern", "plan", "correction_check", "scene")
 
 _READINGS = {"paper (σ²_N/n2 ≤ 0.2 q², the literal text)": "paper",
              "with the dark reference's error": "with_dark",
@@ -126,7 +132,7 @@ def dark_summary(dark: Any) -> pd.DataFrame:
     (sec. VII-A: mean 10.74, spatial std 0.555)."""
     d = dark.to_dict()
     rows = [
-        ("D̂_D mean (DN)", f"{_fmt(d['mean'], '.4f')} ± {_fmt(d['mean_sem'], '.2g')}", "10.74"),
+        ("D̂_D mean (DN)", format_pm(d["mean"], d["mean_sem"]), "10.74"),
         ("D̂_D spatial std (DN)", _fmt(d["spatial_std"], ".4g"), "0.555"),
         ("  without the averaging noise σ²_N/s", _fmt(d["spatial_std_signal"], ".4g"), ""),
         ("dark frames averaged s", str(d["s"]), ""),
@@ -216,60 +222,25 @@ def export_bytes(layer: MapLayer, fmt: str, clim: tuple[float, float] | None = N
         return path.read_bytes()
 
 
-def max_intensity_frame(session: Any) -> Any | None:
-    """The record of the session's maximum-intensity scene frame (sec. VII-A), if any."""
-    for rec in session.scenes():
-        if (getattr(rec, "note", None) or "").strip() == MAX_INTENSITY_NOTE:
-            return rec
-    return None
+def _lacking(what: tuple[str, ...]) -> str:
+    """``("fixed_pattern", "dark")`` -> "`fixed_pattern` frames and no `dark` frames"."""
+    return " and no ".join(f"`{r}` frames" if r in ROLES else r for r in what)
 
 
-def missing_frames(session: Any) -> list[str]:
-    """What the session lacks for the Maps page, each as a sentence saying what to capture."""
-    roles = session.roles()
-    out = []
-    if not roles.get("dark"):
-        out.append("**No dark frames**: capture lens-capped frames (role = `dark`, 16 or more, "
-                   "at the exposure of the other frames) for the dark reference D̂_D, the "
-                   "hot/dead flags and K̂ (sec. V-A).")
-    if not roles.get("fixed_pattern"):
-        out.append("**No fixed-pattern frames**: capture n1 configurations × n2 frames of a "
-                   "uniform card, moving card and lamp between configurations (role = "
-                   "`fixed_pattern`, config = 1 … n1) for K̂ (eqs. 45–50); the Planning tab "
-                   "says how many.")
-    if not roles.get("ptc"):
-        out.append("**No photon-transfer frames**: capture pairs of frames at several light "
-                   "levels (role = `ptc`, level = …) for the noise model A, σ²_C that the "
-                   "session's plan and V_S need; the Planning tab takes typed values meanwhile.")
-    if not roles.get("scene"):
-        out.append("**No scene frames**: image uniform surface patches at several light levels "
-                   "(role = `scene`, note = \"patch=NAME\" or an roi) for V_S (sec. VI), and a "
-                   "card at maximum intensity (note = \"max-intensity\") for the correction "
-                   "check (sec. VII-A).")
-    return out
+def missing_sentences(session: Session) -> list[str]:
+    """What the session lacks for this page's estimates (:data:`MAPS_ESTIMATES`), one Markdown
+    sentence per estimate: what is missing, what it is for and what to capture, all in the words
+    of ccdcore's requirements (:func:`ccdcore.product.missing_frames`)."""
+    return [f"**No {_lacking(lacking)}** for {req.purpose}: capture {req.capture}."
+            for req, lacking in missing_frames(session, MAPS_ESTIMATES)]
 
 
-def budget_inputs(dark: Any, fp: Any, noise: Any, variation: Any, bits: int | None
-                  ) -> dict[str, Any]:
-    """Inputs of :func:`ccdcore.scene.variance_budget` for one patch (Fig. 4).
-
-    ``dark_spatial_var``: D̂_D's spatial variance without the averaging noise
-    (``DarkReference.spatial_std_signal²``); ``sigma_K2``: K̂'s spatial variance less its mean
-    estimation variance (``mean(FixedPattern.K_var)``), clamped at 0; ``V_S``: the patch's fit,
-    clamped at 0; black level from the noise model; μ from the dark mean to full scale.
-    """
-    full = float(2 ** int(bits) - 1) if bits else 255.0
-    k_var = float(np.mean(fp.K_var)) if fp.K_var is not None else 0.0
-    dark_sig = dark.spatial_std_signal
-    b0 = getattr(noise, "black_level_dn", None)
-    b0 = 0.0 if b0 is None or not math.isfinite(b0) else float(b0)
-    dbar = max(float(dark.mean), b0)
-    return {"mu": np.linspace(dbar, max(full, dbar + 1.0), 200),
-            "A": float(noise.A), "sigma_c2": max(float(noise.sigma_c2), 0.0),
-            "dark_spatial_var": dark_sig ** 2 if math.isfinite(dark_sig) else 0.0,
-            "sigma_K2": max(fp.spatial_std ** 2 - k_var, 0.0),
-            "V_S": max(float(variation.V_S), 0.0) if math.isfinite(variation.V_S) else 0.0,
-            "black_level": b0, "dark_mean": dbar}
+def _purpose(estimate: str) -> str:
+    """What an estimate of estimate_all is, for a person (its requirement's purpose)."""
+    try:
+        return requirement(estimate).purpose
+    except KeyError:
+        return estimate
 
 
 def _alert(text: str, kind: str, **kw: Any) -> pn.pane.Alert:
@@ -314,26 +285,54 @@ class MapsPage(pn.viewable.Viewer):
     state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
     auto_compute = param.Boolean(default=True, doc=(
         "Compute the maps when the page is shown and the session has dark frames but no "
-        "maps yet."))
+        "estimates yet."))
+    computing = param.Boolean(default=False, precedence=-1, doc=(
+        "True while the page computes the estimates (a second request waits for it)."))
+    # ---- the Maps tab
+    layers = param.Dict(default={}, precedence=-1, doc=(
+        "The maps on the page: key -> app.map_plots.MapLayer, from the dark reference and K̂."))
+    shown = param.ListSelector(default=[], objects=[], doc=(
+        "Keys of the maps shown in the grid (linked zoom), in display order."))
+    active = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "Key of the selected map: its colour range, profiles and export."))
+    # ---- the Scene tab
+    scene = param.Dict(default=None, allow_None=True, precedence=-1, doc=(
+        "The scene variation per patch shown (state.results.scene), or None."))
+    patch = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "The scene patch whose light levels and variance budget (Fig. 4) are shown."))
+    # ---- the Planning tab: the inputs of ccdcore.planning.plan_acquisition
+    A = param.Number(default=PAPER_PLAN_INPUTS["A"], allow_None=True,
+                     doc="A: the gain in DN per electron (photon transfer).")
+    sigma_c2 = param.Number(default=PAPER_PLAN_INPUTS["sigma_c2"], allow_None=True,
+                            doc="σ²_C: the noise intercept in DN² (photon transfer).")
+    bits = param.Integer(default=PAPER_PLAN_INPUTS["bits"], allow_None=True,
+                         doc="b: the ADC bit depth.")
+    sigma_hat = param.Number(default=PAPER_PLAN_INPUTS["sigma_hat"], allow_None=True,
+                             doc="σ̂: the standard deviation of the fixed-pattern slopes m_i.")
+    p = param.Number(default=PAPER_PLAN_INPUTS["p"], allow_None=True,
+                     doc="p: the width of the slope rejection (eq. 48).")
+    worst_ratio = param.Number(default=PAPER_PLAN_INPUTS["worst_ratio"], allow_None=True,
+                               doc="n1/n̂_1 at the worst pixel (slopes rejected there).")
+    black_level = param.Number(default=PAPER_PLAN_INPUTS["black_level"], allow_None=True,
+                               doc="b0: the black level in DN.")
+    n2_reading = param.Selector(default=PAPER_PLAN_INPUTS["n2_reading"], objects=_READINGS,
+                                doc="Which reading of the paper's n2 rule to plan with.")
 
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
-        self._layers: dict[str, MapLayer] = {}
         self._sliders: dict[str, pn.widgets.EditableRangeSlider] = {}
-        self._shown_objects: tuple = ()      # (dark, fp) the maps were built from
-        self._scene_object: Any = None
-        self._computing = False
-        self._quiet = False                   # True while the page sets its own widgets
-        self._notes: tuple[str, ...] = ()
+        self._shown_objects: tuple = (None, None)   # (dark, fp) the maps were built from
         self.plan_result: Any = None          # the planning panel's AcquisitionPlan
+        self.budget: Any = None               # the chosen patch's variance budget
         self._build_header()
         self._build_maps_tab()
         self._build_scene_tab()
         self._build_planning_tab()
         self._layout: pn.viewable.Viewable | None = None
         self.state.param.watch(self._on_session, "session")
-        self.state.param.watch(self._on_results, "results")
+        self.state.results.param.watch(self._on_results, ["ptc", "estimates"])
         self.state.param.watch(self._on_state_message, ["error", "status", "busy"])
+        self._update_plan()
         self._on_session()
         self._on_state_message()
 
@@ -350,12 +349,11 @@ class MapsPage(pn.viewable.Viewer):
         self.info_alert = _alert("", "info", css_classes=["ccd-maps-info"])
 
     def _build_maps_tab(self) -> None:
-        self.shown_select = pn.widgets.MultiChoice(
-            label="Maps shown (linked zoom)", options={}, value=[], sizing_mode="stretch_width",
+        self.shown_select = pn.widgets.MultiChoice.from_param(
+            self.param.shown, label="Maps shown (linked zoom)", sizing_mode="stretch_width",
             min_width=320)
-        self.shown_select.param.watch(self._on_shown, "value")
-        self.active_select = pn.widgets.Select(label="Selected map", options={}, width=280)
-        self.active_select.param.watch(self._on_active, "value")
+        self.active_select = pn.widgets.Select.from_param(self.param.active,
+                                                          label="Selected map", width=280)
         self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
         self.auto_button = pn.widgets.Button(label="Auto (0.5–99.5 %)", align="end", width=150)
         self.auto_button.on_click(self._on_auto)
@@ -382,6 +380,7 @@ class MapsPage(pn.viewable.Viewer):
         # size when nested in stretching columns)
         self.grid_pane = pn.pane.HoloViews(None, sizing_mode="fixed", css_classes=["ccd-maps"],
                                            linked_axes=False)
+        self.grid_views: list = []
         self.readout = pn.pane.Markdown(
             "Move the cursor over a map to read the values of every map; tap to set the "
             "profile row and column.", css_classes=["ccd-readout"], stylesheets=[_CSS],
@@ -416,8 +415,8 @@ class MapsPage(pn.viewable.Viewer):
 
     def _build_scene_tab(self) -> None:
         self.patch_table = _table()
-        self.patch_select = pn.widgets.Select(label="Patch", options=[], width=260)
-        self.patch_select.param.watch(self._update_patch, "value")
+        self.patch_select = pn.widgets.Select.from_param(self.param.patch, label="Patch",
+                                                         width=260)
         self.level_table = _table()
         self.fit_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=380,
                                           linked_axes=False, css_classes=["ccd-scene-fit"])
@@ -427,34 +426,29 @@ class MapsPage(pn.viewable.Viewer):
                                             styles={"font-size": "0.88em", "color": "#495057"})
         self.scene_alert = _alert("", "danger")
         self.scene_empty = pn.pane.Markdown(
-            "No scene variation yet: compute the maps with a session holding scene frames of "
-            "uniform patches (note = \"patch=NAME\" or an roi) and photon-transfer frames.",
-            sizing_mode="stretch_width")
+            "No scene variation yet: compute the maps with a session holding photon-transfer "
+            f"frames and {requirement('scene').capture}.", sizing_mode="stretch_width")
 
     def _build_planning_tab(self) -> None:
-        p = PAPER_PLAN_INPUTS
-        self.plan_A = pn.widgets.FloatInput(label="A (DN per electron)", value=p["A"], step=1e-4,
-                                            start=0.0, width=170)
-        self.plan_sigma_c2 = pn.widgets.FloatInput(label="σ²_C (DN²)", value=p["sigma_c2"],
-                                                   step=0.01, start=0.0, width=170)
-        self.plan_bits = pn.widgets.IntInput(label="bits b", value=p["bits"], start=1, end=32,
-                                             width=120)
-        self.plan_sigma_hat = pn.widgets.FloatInput(label="σ̂ (slope std)", value=p["sigma_hat"],
-                                                    step=1e-4, start=0.0, width=170)
-        self.plan_p = pn.widgets.FloatInput(label="p (rejection width)", value=p["p"], step=0.1,
-                                            start=0.1, width=150)
-        self.plan_worst = pn.widgets.FloatInput(label="worst ratio n1/n̂_1",
-                                                value=p["worst_ratio"], step=0.05, start=1.0,
-                                                width=170)
-        self.plan_black = pn.widgets.FloatInput(label="black level b0 (DN)",
-                                                value=p["black_level"], step=1.0, width=150)
-        self.plan_reading = pn.widgets.Select(label="n2 reading", options=_READINGS,
-                                              value=p["n2_reading"], width=330)
+        self.plan_A = pn.widgets.FloatInput.from_param(self.param.A, label="A (DN per electron)",
+                                                       step=1e-4, start=0.0, width=170)
+        self.plan_sigma_c2 = pn.widgets.FloatInput.from_param(
+            self.param.sigma_c2, label="σ²_C (DN²)", step=0.01, start=0.0, width=170)
+        self.plan_bits = pn.widgets.IntInput.from_param(self.param.bits, label="bits b", start=1,
+                                                        end=32, width=120)
+        self.plan_sigma_hat = pn.widgets.FloatInput.from_param(
+            self.param.sigma_hat, label="σ̂ (slope std)", step=1e-4, start=0.0, width=170)
+        self.plan_p = pn.widgets.FloatInput.from_param(self.param.p, label="p (rejection width)",
+                                                       step=0.1, start=0.1, width=150)
+        self.plan_worst = pn.widgets.FloatInput.from_param(
+            self.param.worst_ratio, label="worst ratio n1/n̂_1", step=0.05, start=1.0, width=170)
+        self.plan_black = pn.widgets.FloatInput.from_param(
+            self.param.black_level, label="black level b0 (DN)", step=1.0, width=150)
+        self.plan_reading = pn.widgets.Select.from_param(self.param.n2_reading,
+                                                         label="n2 reading", width=330)
         self._plan_inputs = (self.plan_A, self.plan_sigma_c2, self.plan_bits,
                              self.plan_sigma_hat, self.plan_p, self.plan_worst,
                              self.plan_black, self.plan_reading)
-        for w in self._plan_inputs:
-            w.param.watch(self._update_plan, "value")
         self.paper_button = pn.widgets.Button(label="Paper's values", width=150)
         self.paper_button.on_click(self._on_paper_inputs)
         self.session_inputs_button = pn.widgets.Button(
@@ -469,7 +463,6 @@ class MapsPage(pn.viewable.Viewer):
                                               css_classes=["ccd-formula"], stylesheets=[_CSS])
         self.plan_alternatives = _table()
         self.plan_error = _alert("", "danger")
-        self._update_plan()
 
     # ======================================================================== layout =======
     def __panel__(self) -> pn.viewable.Viewable:
@@ -548,95 +541,98 @@ class MapsPage(pn.viewable.Viewer):
     # ===================================================================== computing ========
     def _wants_auto_compute(self) -> bool:
         s = self.state.session
-        return (s is not None and not self._computing and bool(s.roles().get("dark"))
-                and self.state.results.get("dark") is None and not self.state.busy)
+        return (s is not None and not self.computing and bool(s.roles().get("dark"))
+                and self.state.results.estimates is None and not self.state.busy)
 
     async def _on_compute(self, event: Any = None) -> None:
         await self.compute()
 
     async def compute(self) -> None:
-        """Compute D̂_D, K̂, the plan and V_S (``estimate_all``, off the UI thread), publish them
-        in ``state.results`` and run the correction check on the max-intensity frame."""
+        """Compute D̂_D, K̂, the plan, V_S and the correction check (``estimate_all``, off the
+        UI thread) and publish them as ``state.results.estimates`` (the noise model, when the
+        Photon transfer page has not made it, as ``state.results.ptc``)."""
         session = self.state.session
-        if session is None or self._computing:
+        if session is None or self.computing:
             return
-        self._computing = True
-        self.compute_button.loading = True
+        self.computing = True
         try:
+            results = self.state.results
             est = await self.state.compute(
-                "estimates", estimate_all, session, noise=self.state.results.get("ptc"),
-                label="dark reference, K̂, plan and scene variation")
-            if est is None or self.state.session is not session:
-                return
-            self._notes = tuple(est.notes)
-            new = {name: value for name, value in (
-                ("ptc", est.noise), ("dark", est.dark), ("fixed_pattern", est.fixed_pattern),
-                ("plan", est.plan), ("scene", est.scene)) if value is not None}
-            self.state.results = {**self.state.results, **new}
-            rec = max_intensity_frame(session)
-            if rec is not None and est.dark is not None and est.fixed_pattern is not None:
-                await self.state.compute(
-                    "correction_check", self._correction_check, session, rec, est.dark,
-                    est.fixed_pattern, label="the correction check (sec. VII-A)")
+                estimate_all, session, noise=results.ptc,
+                label="dark reference, K̂, plan, scene variation and correction check")
+            if est is not None and self.state.session is session:
+                results.param.update(estimates=est,
+                                     ptc=est.noise if est.noise is not None else results.ptc)
         finally:
-            self._computing = False
-            self.compute_button.loading = False
-            self._refresh()
+            self.computing = False
 
-    @staticmethod
-    def _correction_check(session: Any, rec: Any, dark: Any, fp: Any) -> Any:
-        return correction_check(session.read(rec), dark, fp, q=1.0)
+    @param.depends("computing", watch=True)
+    def _on_computing(self) -> None:
+        self.compute_button.loading = self.computing
+        self._update_info(self.state.session)
 
     # ===================================================================== watchers =========
     def _on_session(self, event: Any = None) -> None:
-        self._notes = ()
         self.compute_button.disabled = self.state.session is None
         self._refresh()
         if event is not None and self._layout is not None and self.auto_compute \
                 and self._wants_auto_compute():
             pn.state.execute(self.compute)
 
-    def _on_results(self, event: Any = None) -> None:
-        if not self._computing:
-            self._refresh()
+    def _on_results(self, *events: Any) -> None:
+        self._refresh()
 
     def _on_state_message(self, *events: Any) -> None:
-        self.error_alert.object = f"**Error:** {html.escape(self.state.error)}" \
-            if self.state.error else ""
-        self.error_alert.visible = bool(self.state.error)
         self.status_pane.object = self.state.status if self.state.busy else ""
+        self._update_errors()
         self._update_info(self.state.session)
 
     # ====================================================================== refresh =========
     def _refresh(self) -> None:
         """Bring every tab in line with ``state.session`` and ``state.results``."""
         session, results = self.state.session, self.state.results
-        dark, fp = results.get("dark"), results.get("fixed_pattern")
-        if (dark, fp) != self._shown_objects:
+        dark, fp = results.dark, results.fixed_pattern
+        if dark is not self._shown_objects[0] or fp is not self._shown_objects[1]:
             self._shown_objects = (dark, fp)
             self._set_layers(map_plots.map_layers(dark, fp))
-        self._update_stats(results)
+        self._update_stats(session, results)
+        self._update_errors()
         self._update_info(session)
-        self._update_plan_warnings(session, results.get("plan"))
-        self._update_scene(results.get("scene"))
+        self._update_plan_warnings(results.estimates)
+        self._set_scene(results.scene)
         self._prefill_plan(results)
 
-    def _update_info(self, session: Any) -> None:
+    def _update_errors(self) -> None:
+        """The app's error and the estimates whose frames the method refused (``failed``)."""
+        parts = [f"**Error:** {html.escape(self.state.error)}"] if self.state.error else []
+        est = self.state.results.estimates
+        if est is not None:
+            parts += [f"**Not estimated — {html.escape(_purpose(s.estimate))}:** "
+                      f"{html.escape(s.reason)}" for s in est.skipped if s.code == "failed"]
+        text = "\n\n".join(parts)
+        self.error_alert.object = text
+        self.error_alert.visible = bool(text)
+
+    def _update_info(self, session: Session | None) -> None:
         if session is None:
             text = "Open a session on the Session page; the Planning tab works without one."
         else:
-            # estimate_all's "no ... frames" notes repeat what missing_frames says
-            lines = missing_frames(session) + [f"Note: {n}" for n in self._notes
-                                               if not n.startswith("no ")]
-            if not self._layers and session.roles().get("dark") and not self._computing \
-                    and not self.state.error:
+            # estimates skipped for missing frames say so in missing_sentences; those skipped
+            # because an estimate they build on is missing, and the remarks, are notes
+            est = self.state.results.estimates
+            lines = missing_sentences(session)
+            if est is not None:
+                lines += [f"Note: {_purpose(s.estimate)} not made: {s.reason}"
+                          for s in est.skipped if s.code == "needs"]
+                lines += [f"Note: {n}" for n in est.notes]
+            elif session.roles().get("dark") and not self.computing and not self.state.error:
                 lines.insert(0, "Press **Compute maps** to estimate D̂_D, K̂, the plan and V_S.")
             text = "\n\n".join(lines)
         self.info_alert.object = text
         self.info_alert.visible = bool(text)
 
-    def _update_plan_warnings(self, session: Any, plan: Any) -> None:
-        warnings = check_session_plan(session, plan) if session is not None and plan else []
+    def _update_plan_warnings(self, est: Any) -> None:
+        warnings = est.plan_warnings if est is not None and est.plan is not None else ()
         if warnings:
             items = "\n".join(f"- {html.escape(w)}" for w in warnings)
             text = ("**This session has fewer frames than the acquisition plan requires "
@@ -646,8 +642,8 @@ class MapsPage(pn.viewable.Viewer):
         self.plan_alert.object = text
         self.plan_alert.visible = bool(text)
 
-    def _update_stats(self, results: dict) -> None:
-        dark, fp, check = (results.get(k) for k in ("dark", "fixed_pattern", "correction_check"))
+    def _update_stats(self, session: Session | None, results: Any) -> None:
+        dark, fp, check = results.dark, results.fixed_pattern, results.correction_check
         self.dark_card.visible = dark is not None
         if dark is not None:
             self.dark_table.object = dark_summary(dark)
@@ -656,8 +652,7 @@ class MapsPage(pn.viewable.Viewer):
         self.fp_card.visible = fp is not None
         if fp is not None:
             self.fp_table.object = fixed_pattern_summary(fp)
-        session = self.state.session
-        rec = max_intensity_frame(session) if session is not None else None
+        rec = session.max_intensity_frame() if session is not None else None
         self.check_card.visible = fp is not None
         if check is not None and fp is not None:
             self.check_table.object = correction_summary(check)
@@ -667,14 +662,16 @@ class MapsPage(pn.viewable.Viewer):
         elif fp is not None:
             self.check_table.visible = False
             self.check_note.object = (
-                "No maximum-intensity scene frame (role = `scene`, note = \"max-intensity\"): "
-                "capture a uniform card just below saturation to check how much K̂ changes it."
-                if rec is None else "Not computed yet: press **Compute maps**.")
+                f"No maximum-intensity scene frame: capture "
+                f"{requirement('correction_check').capture}, just below saturation, to check "
+                "how much K̂ changes it." if rec is None
+                else "Not computed yet: press **Compute maps**.")
 
     # ========================================================================= maps =========
     def _set_layers(self, layers: dict[str, MapLayer]) -> None:
-        self._layers = layers
-        self._sliders = {}
+        """Show ``layers``: new colour-range sliders, the choices, then (one batch of events)
+        the grid and the selected map once each."""
+        sliders = {}
         for key, layer in layers.items():
             lo, hi = map_plots.default_clim(layer)
             finite = layer.data[np.isfinite(layer.data)]
@@ -686,48 +683,36 @@ class MapsPage(pn.viewable.Viewer):
             if not end > start:
                 end = start + 1.0
             step = 0.5 if layer.integer else (end - start) / 1000
-            self._sliders[key] = pn.widgets.EditableRangeSlider(
+            sliders[key] = pn.widgets.EditableRangeSlider(
                 label=f"Colour range of {layer.symbol}" + (f" ({layer.unit})" if layer.unit
                                                           else ""),
                 start=start, end=end, value=(lo, hi), step=step, sizing_mode="stretch_width",
                 disabled=layer.kind == "flags", format="0.[00000]")
+        self._sliders = sliders
         options = {l.title: k for k, l in layers.items()}
-        shown = [k for k in self.shown_select.value if k in layers] or \
+        shown = [k for k in self.shown if k in layers] or \
             [k for k in DEFAULT_SHOWN if k in layers]
-        active = self.active_select.value if self.active_select.value in layers else \
-            next(iter(shown), None)
-        self._quiet = True  # widget values change below; rebuild once at the end
-        try:
-            self.shown_select.param.update(options=options, value=shown)
-            self.active_select.param.update(options=options, value=active)
-        finally:
-            self._quiet = False
-        self.maps_empty.visible = not layers
-        if hasattr(self, "maps_body"):
-            self.maps_body.visible = bool(layers)
-        if layers:
-            h, w = next(iter(layers.values())).data.shape
-            self.row_slider.param.update(end=max(h - 1, 1), value=h // 2)
-            self.col_slider.param.update(end=max(w - 1, 1), value=w // 2)
-        self._build_grid()
-        self._on_active()
-
-    @property
-    def layers(self) -> dict[str, MapLayer]:
-        """The maps on the page (key -> :class:`~app.map_plots.MapLayer`)."""
-        return self._layers
+        active = self.active if self.active in layers else next(iter(shown), None)
+        with param.parameterized.batch_call_watchers(self):
+            self.param.shown.objects = options
+            self.param.active.objects = options
+            self.param.update(layers=layers, shown=shown, active=active)
+            self.maps_empty.visible = not layers
+            if hasattr(self, "maps_body"):
+                self.maps_body.visible = bool(layers)
+            if layers:
+                h, w = next(iter(layers.values())).data.shape
+                self.row_slider.param.update(end=max(h - 1, 1), value=h // 2)
+                self.col_slider.param.update(end=max(w - 1, 1), value=w // 2)
 
     @property
     def active_layer(self) -> MapLayer | None:
         """The selected map (colour range, profiles and export apply to it)."""
-        return self._layers.get(self.active_select.value)
+        return self.layers.get(self.active)
 
-    def _on_shown(self, event: Any = None) -> None:
-        if not self._quiet:
-            self._build_grid()
-
+    @param.depends("layers", "shown", watch=True)
     def _build_grid(self) -> None:
-        keys = [k for k in self.shown_select.value if k in self._layers]
+        keys = [k for k in self.shown if k in self.layers]
         if not keys:
             self.grid_pane.object = None
             self.hist_row.objects = []
@@ -738,7 +723,7 @@ class MapsPage(pn.viewable.Viewer):
         views, hists = [], []
         frame_width = 640 if len(keys) == 1 else 380
         for key in keys:
-            layer, slider = self._layers[key], self._sliders[key]
+            layer, slider = self.layers[key], self._sliders[key]
             view = map_plots.map_view(layer, slider.value, frame_width=frame_width).apply.opts(
                 clim=slider.param.value)
             pointer = hv.streams.PointerXY(x=None, y=None, source=view)
@@ -759,9 +744,8 @@ class MapsPage(pn.viewable.Viewer):
         self.grid_pane.object = map_plots.map_grid(views, cols=cols)
         self.hist_row.objects = hists
 
-    def _on_active(self, event: Any = None) -> None:
-        if self._quiet:
-            return
+    @param.depends("layers", "active", watch=True)
+    def _on_active(self) -> None:
         layer = self.active_layer
         if layer is None:
             self.clim_holder.objects = []
@@ -785,19 +769,19 @@ class MapsPage(pn.viewable.Viewer):
         self.col_profile_pane.object = map_plots.column_profile(layer, self.col_slider.value)
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
-        hit = map_plots.pixel_values(self._layers, x, y)
+        hit = map_plots.pixel_values(self.layers, x, y)
         if hit is None:
             return
         col, row, values = hit
         parts = []
         for key, text in values.items():
-            layer = self._layers[key]
+            layer = self.layers[key]
             unit = f" {layer.unit}" if layer.unit and text != "NaN" else ""
             parts.append(f"{layer.symbol} = **{text}**{unit}")
         self.readout.object = f"x = {col}, y = {row}: " + " · ".join(parts)
 
     def _on_tap(self, x: float | None = None, y: float | None = None) -> None:
-        hit = map_plots.pixel_values(self._layers, x, y)
+        hit = map_plots.pixel_values(self.layers, x, y)
         if hit is not None:
             col, row, _ = hit
             self.row_slider.value, self.col_slider.value = row, col
@@ -825,39 +809,36 @@ class MapsPage(pn.viewable.Viewer):
             return None
 
     # ======================================================================== scene =========
-    def _update_scene(self, scene: dict | None) -> None:
+    def _set_scene(self, scene: dict | None) -> None:
+        """Show ``scene`` (V_S per patch): its patches to choose from, keeping the chosen one."""
+        if scene is self.scene:
+            return
+        names = list(scene or {})
+        patch = self.patch if self.patch in names else next(iter(names), None)
+        with param.parameterized.batch_call_watchers(self):
+            self.param.patch.objects = names
+            self.param.update(scene=scene, patch=patch)
+
+    @param.depends("scene", watch=True)
+    def _show_scene(self) -> None:
+        scene = self.scene
         has = bool(scene)
         self.scene_empty.visible = not has
         for w in (self.patch_table, self.fit_pane, self.patch_select, self.level_table,
                   self.budget_pane, self.budget_note):
             w.visible = has
-        if scene is self._scene_object:
-            return
-        self._scene_object = scene
-        if not has:
-            self.patch_select.options = []
-            return
-        self.patch_table.value = _display(scene_patch_frame(scene))
-        self.fit_pane.object = map_plots.scene_fit_plot(scene)
-        current = self.patch_select.value
-        self._quiet = True
-        try:
-            self.patch_select.param.update(
-                options=list(scene), value=current if current in scene else next(iter(scene)))
-        finally:
-            self._quiet = False
-        self._update_patch()
+        if has:
+            self.patch_table.value = _display(scene_patch_frame(scene))
+            self.fit_pane.object = map_plots.scene_fit_plot(scene)
 
-    def _update_patch(self, event: Any = None) -> None:
-        if self._quiet:
-            return
-        scene = self.state.results.get("scene") or {}
-        variation = scene.get(self.patch_select.value)
+    @param.depends("scene", "patch", watch=True)
+    def _update_patch(self) -> None:
+        variation = (self.scene or {}).get(self.patch)
         if variation is None:
             return
         self.level_table.value = _display(scene_level_frame(variation))
         results = self.state.results
-        dark, fp, noise = (results.get(k) for k in ("dark", "fixed_pattern", "ptc"))
+        dark, fp, noise = results.dark, results.fixed_pattern, results.ptc
         self.scene_alert.visible = False
         if dark is None or fp is None or noise is None:
             self.budget_pane.object = None
@@ -882,16 +863,13 @@ class MapsPage(pn.viewable.Viewer):
             "Below the crossing the sensor noise dominates; above it K and the scene texture do.")
 
     # ===================================================================== planning =========
-    def _plan_kwargs(self) -> dict[str, Any]:
-        return {"A": self.plan_A.value, "sigma_c2": self.plan_sigma_c2.value,
-                "bits": self.plan_bits.value, "sigma_hat": self.plan_sigma_hat.value,
-                "p": self.plan_p.value, "worst_ratio": self.plan_worst.value,
-                "black_level": self.plan_black.value, "n2_reading": self.plan_reading.value}
+    def plan_inputs(self) -> dict[str, Any]:
+        """The Planning tab's inputs, as keyword arguments of ``plan_acquisition``."""
+        return {k: getattr(self, k) for k in PLAN_INPUTS}
 
-    def _update_plan(self, event: Any = None) -> None:
-        if self._quiet:
-            return
-        kw = self._plan_kwargs()
+    @param.depends(*PLAN_INPUTS, watch=True)
+    def _update_plan(self) -> None:
+        kw = self.plan_inputs()
         try:
             if any(v is None for v in kw.values()):
                 raise CcdError("planning", "fill in every input")
@@ -923,25 +901,18 @@ class MapsPage(pn.viewable.Viewer):
             columns=["reading", "n2", "chosen"])
 
     def _set_plan_inputs(self, values: dict[str, Any], source: str) -> None:
-        widgets = dict(zip(("A", "sigma_c2", "bits", "sigma_hat", "p", "worst_ratio",
-                            "black_level", "n2_reading"), self._plan_inputs))
-        self._quiet = True  # one plan update at the end, not one per input
-        try:
-            for key, value in values.items():
-                if key in widgets and value is not None:
-                    widgets[key].value = value
-        finally:
-            self._quiet = False
+        """Set the planning inputs (one plan update for all of them)."""
+        self.param.update(**{k: v for k, v in values.items()
+                             if k in PLAN_INPUTS and v is not None})
         self.plan_source.object = source
-        self._update_plan()
 
     def session_plan_inputs(self) -> dict[str, Any] | None:
         """Planning inputs from the session's results (``None`` without a noise model)."""
         results, session = self.state.results, self.state.session
-        noise, fp = results.get("ptc"), results.get("fixed_pattern")
+        noise, fp = results.ptc, results.fixed_pattern
         if noise is None:
             return None
-        b0 = getattr(noise, "black_level_dn", None)
+        b0 = noise.black_level_dn
         values: dict[str, Any] = {"A": _round(noise.A), "sigma_c2": _round(noise.sigma_c2),
                                   "black_level": float(b0) if b0 is not None else 0.0}
         bits = getattr(getattr(session, "camera", None), "bits", None)
@@ -954,8 +925,8 @@ class MapsPage(pn.viewable.Viewer):
             values["p"] = float(fp.p)
         return values
 
-    def _prefill_plan(self, results: dict) -> None:
-        key = (id(results.get("ptc")), id(results.get("fixed_pattern")))
+    def _prefill_plan(self, results: Any) -> None:
+        key = (id(results.ptc), id(results.fixed_pattern))
         if key == getattr(self, "_prefilled", None):
             return
         self._prefilled = key
@@ -976,7 +947,7 @@ class MapsPage(pn.viewable.Viewer):
         values = self.session_plan_inputs()
         if values is None:
             return
-        has_fp = self.state.results.get("fixed_pattern") is not None
+        has_fp = self.state.results.fixed_pattern is not None
         self._set_plan_inputs(values, "Inputs: this session's photon transfer (A, σ²_C, b0)"
                               + (" and fixed pattern (σ̂, worst ratio, p)." if has_fp else
                                  "; σ̂ and the worst ratio are the paper's / the default until "

@@ -15,16 +15,15 @@ create_page(state)
     The registry entry point.
 parameter_frame(result)
     The fitted parameters of a :class:`~ccdcore.noise.PhotonTransfer` as a display-ready
-    DataFrame (quantity, symbol, value ± error, unit).
-format_value(value, error=None)
-    ``"value ± error"`` with the error to two significant digits (the value to the same place).
+    DataFrame (quantity, symbol, value ± error (:func:`ccdcore.common.format_pm`), unit).
 verdict_message(result)
     The alert type and plain-language text for the fit's Q.
 
 Every number comes from :mod:`ccdcore.noise`: the page calls ``photon_transfer`` (one streamed
 pass over the frames, off the UI thread), then ``PhotonTransfer.refit`` (i.e. ``fit_points`` with
 the same black level, bit depth, ROI and notes) for every toggle; when too few levels are usable
-for a fit it still shows the levels measured by ``ptc_points``. The plots come from
+for a fit it still shows the levels measured by ``ptc_points``. The fit and the points are shared
+through ``state.results.ptc`` and ``state.results.ptc_points``. The plots come from
 :mod:`app.ptc_plots` and :mod:`app.plots`.
 """
 from __future__ import annotations
@@ -42,17 +41,18 @@ import pandas as pd
 import panel as pn
 import param
 
+from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
-from ccdcore.noise import ROBUST_Z, PhotonTransfer, PtcPoint, photon_transfer, ptc_points
-from ccdcore.planning import check_session_plan
+from ccdcore.noise import (ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint, photon_transfer,
+                           ptc_points)
 from ccdcore.session import FrameRecord, Session
 
 from .. import plots, ptc_plots
 from ..state import AppState
 from ._messages import PageMessages
 
-__all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "format_value",
-           "verdict_message", "NO_PTC_MESSAGE"]
+__all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "verdict_message",
+           "NO_PTC_MESSAGE"]
 
 log = logging.getLogger(__name__)
 
@@ -98,29 +98,11 @@ _NAV_NOTE = ("Levels the estimator leaves out (clipped, beyond the linear range)
              "whatever their tick; the points table says why.")
 
 
-def _finite(x: Any) -> bool:
-    return x is not None and isinstance(x, (int, float, np.floating)) and math.isfinite(x)
-
-
-def format_value(value: float, error: float | None = None) -> str:
-    """``"value ± error"``, the error rounded to two significant digits and the value to the same
-    decimal place; ``"n/a"`` for a non-finite value; the value alone (5 significant digits) when
-    the error is missing or not positive."""
-    if not _finite(value):
-        return "n/a"
-    if not _finite(error) or error <= 0:
-        return f"{value:.5g}"
-    decimals = 1 - int(math.floor(math.log10(error)))
-    if decimals > 0:
-        return f"{value:.{decimals}f} \u00b1 {error:.{decimals}f}"
-    return f"{round(value, decimals):.0f} \u00b1 {round(error, decimals):.0f}"
-
-
 def _roi_text(roi: Sequence[int] | None, shape: tuple[int, int] | None) -> str:
     if roi is None:
-        return "full frame" + ("" if shape is None else f" ({shape[1]} \u00d7 {shape[0]} px)")
+        return "full frame" + ("" if shape is None else f" ({format_size(shape)} px)")
     x, y, w, h = roi
-    return f"x = {x}, y = {y}, {w} \u00d7 {h} px"
+    return f"x = {x}, y = {y}, {format_size((h, w))} px"
 
 
 def parameter_frame(result: PhotonTransfer, shape: tuple[int, int] | None = None
@@ -133,21 +115,21 @@ def parameter_frame(result: PhotonTransfer, shape: tuple[int, int] | None = None
     pixels = used[0].n_pixels if used else (result.points[0].n_pixels if result.points else 0)
     source = _BLACK_SOURCES.get(result.black_level_source, result.black_level_source)
     rows = [
-        ("Gain (slope, eq. 41)", "A", format_value(result.A, result.A_err), "DN/e\u207b"),
-        ("Conversion gain", "1/A", format_value(result.conversion_gain_e_per_dn,
+        ("Gain (slope, eq. 41)", "A", format_pm(result.A, result.A_err), "DN/e\u207b"),
+        ("Conversion gain", "1/A", format_pm(result.conversion_gain_e_per_dn,
                                                 result.conversion_gain_e_per_dn_err),
          "e\u207b/DN"),
         ("Noise intercept (eq. 27)", "\u03c3\u00b2_C",
-         format_value(result.sigma_c2, result.sigma_c2_err), "DN\u00b2"),
-        ("Read noise", "\u03c3_R", format_value(result.read_noise_e, result.read_noise_e_err),
+         format_pm(result.sigma_c2, result.sigma_c2_err), "DN\u00b2"),
+        ("Read noise", "\u03c3_R", format_pm(result.read_noise_e, result.read_noise_e_err),
          "e\u207b"),
-        ("Read noise in DN", "A\u00b7\u03c3_R", format_value(result.read_noise_dn,
+        ("Read noise in DN", "A\u00b7\u03c3_R", format_pm(result.read_noise_dn,
                                                                result.read_noise_dn_err), "DN"),
-        ("Quantisation noise", "q\u00b2/12", format_value(result.quantisation_dn2), "DN\u00b2"),
-        ("Black level", "b\u2080", f"{format_value(result.black_level_dn)} ({source})", "DN"),
-        ("Chi-square (eq. 42)", "\u03c7\u00b2", format_value(result.chi2), ""),
+        ("Quantisation noise", "q\u00b2/12", format_pm(result.quantisation_dn2), "DN\u00b2"),
+        ("Black level", "b\u2080", f"{format_pm(result.black_level_dn)} ({source})", "DN"),
+        ("Chi-square (eq. 42)", "\u03c7\u00b2", format_pm(result.chi2), ""),
         ("Degrees of freedom", "\u03bd", str(result.dof), ""),
-        ("Goodness of fit (eq. 67)", "Q", format_value(result.Q), ""),
+        ("Goodness of fit (eq. 67)", "Q", format_pm(result.Q), ""),
         ("Levels used", "P", f"{len(used)} of {len(result.points)}", ""),
         ("Region", "ROI", f"{_roi_text(result.roi, shape)}; M = {pixels} px per frame", ""),
     ]
@@ -157,7 +139,7 @@ def parameter_frame(result: PhotonTransfer, shape: tuple[int, int] | None = None
 def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
     """``(alert_type, markdown)`` reading the fit's Q (``PhotonTransfer.verdict``) for a person:
     acceptable → success, poor → warning, model rejected → danger, untested → info."""
-    stats = (f"Q = {format_value(result.Q)} (\u03c7\u00b2 = {format_value(result.chi2)} on "
+    stats = (f"Q = {format_pm(result.Q)} (\u03c7\u00b2 = {format_pm(result.chi2)} on "
              f"{result.dof} degree{'s' if result.dof != 1 else ''} of freedom)")
     if result.verdict in _VERDICTS:
         kind, head, text = _VERDICTS[result.verdict]
@@ -201,7 +183,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self._records: dict[str, FrameRecord] = {}
         self._build_widgets()
         self.state.param.watch(self._on_session, "session")
-        self.state.param.watch(self._on_results, "results")
+        self.state.results.param.watch(self._on_results, "estimates")
         self._show_empty()
         if auto and self.state.session is not None:
             pn.state.execute(self.refresh)
@@ -332,7 +314,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
     async def refresh(self) -> None:
         """Show the current session: its ptc frames' geometry, then the points and the fit (from
-        ``state.results["ptc"]`` when another page already computed them for the full frame)."""
+        ``state.results.ptc`` when another page already computed them for the full frame)."""
         session = self.state.session
         if session is None:
             self._show_empty()
@@ -366,14 +348,14 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         finally:
             self._syncing = False
         self._show_plan()
-        cached = self.state.results.get("ptc")
-        if isinstance(cached, PhotonTransfer) and cached.roi is None:
+        results = self.state.results
+        cached = results.ptc
+        if cached is not None and cached.roi is None:
             # another page's fit of the full frame: reuse its points, without its choices
-            chosen = cached.robust_dropped or any(p.reason == "excluded by user"
-                                                  for p in cached.points)
+            chosen = cached.robust_dropped or any(p.exclusion == "user" for p in cached.points)
             self._adopt(cached.refit() if chosen else cached, cached.points, None)
-            if "ptc_points" not in self.state.results:
-                self.state.results = {**self.state.results, "ptc_points": cached.points}
+            if results.ptc_points is None:
+                results.ptc_points = cached.points
         else:
             await self._measure(None)
         if self.state.session is session:
@@ -390,20 +372,22 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             return False
         self.content.loading = True
         try:
-            base = await self.state.compute("ptc", photon_transfer, session, roi=roi,
+            base = await self.state.compute(photon_transfer, session, roi=roi,
                                             label="photon transfer")
             if self.state.session is not session:
                 return False
             if base is not None:
-                self.state.results = {**self.state.results, "ptc_points": base.points}
+                self.state.results.param.update(ptc=base, ptc_points=base.points)
                 self._adopt(base, base.points, base.roi)
                 return True
             error = self.state.error
-            points = await self.state.compute("ptc_points", ptc_points, session, roi=roi,
+            points = await self.state.compute(ptc_points, session, roi=roi,
                                               label="photon-transfer points")
             if self.state.session is not session:
                 return False
             self.state.error = error
+            if points is not None:
+                self.state.results.ptc_points = points
             if points is None:  # nothing measurable (bad ROI, unreadable frames ...): keep view
                 self._set_error(error)
                 return False
@@ -451,7 +435,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.result = result
         self._set_error(error)
         if result is not None:
-            self.state.results = {**self.state.results, "ptc": result}
+            self.state.results.ptc = result
         self._render()
 
     # ============================================================ showing the result =======
@@ -461,7 +445,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         if self.result is not None:
             return self.result.points
         excluded = self._excluded()
-        return tuple(dataclasses.replace(p, used=False, reason="excluded by user")
+        return tuple(dataclasses.replace(p, used=False, reason=USER_EXCLUDED, exclusion="user")
                      if p.used and p.level in excluded else p for p in self.points)
 
     def _render(self) -> None:
@@ -504,14 +488,11 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.roi_status.object = f"Applied: **{_roi_text(self.roi, self.shape)}**"
 
     def _show_plan(self) -> None:
-        """The acquisition plan's warnings (computed on the Maps page) for this session."""
-        plan, session = self.state.results.get("plan"), self.state.session
-        warnings: list[str] = []
-        if plan is not None and session is not None:
-            try:
-                warnings = check_session_plan(session, plan)
-            except Exception:  # a stale or foreign plan must not break this page
-                log.error("checking the plan failed:\n%s", traceback.format_exc())
+        """The acquisition plan's warnings for this session (``estimate_all``'s, computed on
+        the Maps page)."""
+        est = self.state.results.estimates
+        warnings = list(est.plan_warnings) if est is not None and est.plan is not None \
+            and self.state.session is not None else []
         self.plan_alert.object = ("**This session has fewer frames than the acquisition plan "
                                   "requires** (see the Maps page):\n\n"
                                   + "\n".join(f"- {w}" for w in warnings)) if warnings else ""

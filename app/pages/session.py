@@ -33,8 +33,9 @@ import pandas as pd
 import panel as pn
 import param
 
+from ccdcore.common import format_size
 from ccdcore.errors import CcdError
-from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest, size_text
+from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots
 from ..state import AppState, assets_dir, demo_sessions
@@ -64,21 +65,35 @@ def _code(text: Any) -> str:
     return "`" + str(text).replace("`", "'") + "`"
 
 
+#: what the groups table says for a size or dtype that differs within a group
+MIXED = "mixed"
+#: ... and when no frame of the group has a readable header
+UNREADABLE = "unreadable"
+
+
 def _size(shape: Any) -> str:
-    """Shape text ``"HxW"`` as ``"W × H"`` (:func:`ccdcore.session.size_text`), "" for none."""
-    return size_text(shape, " \u00d7 ") or ""
+    """A NumPy shape as ``"W × H"`` (:func:`ccdcore.common.format_size`), "" for none."""
+    return "" if shape is None else format_size(shape)
+
+
+def _group_value(row: dict[str, Any], key: str, text: str) -> str:
+    """``text`` (the group's size or dtype), or why there is none: mixed, unreadable."""
+    if row.get(key) is not None:
+        return text
+    return MIXED if key in row.get("mixed", ()) else UNREADABLE
 
 
 def groups_frame(session: Session) -> pd.DataFrame:
-    """One row per group of frames (role, key, count, shape, dtype, exposures) for display."""
+    """One row per group of frames (role, key, count, size, dtype, exposures) for display;
+    a size or dtype that differs within a group reads ``mixed``."""
     rows = []
     for row in session.groups_table():
         exposures = row.get("exposures") or []
         rows.append({"role": row["role"],
                      "key": "" if row.get("key") is None else str(row["key"]),
                      "count": int(row["count"]),
-                     "size (W×H)": _size(row.get("shape") or "unreadable"),
-                     "dtype": row.get("dtype") or "unreadable",
+                     "size (W×H)": _group_value(row, "shape", _size(row.get("shape"))),
+                     "dtype": _group_value(row, "dtype", str(row.get("dtype"))),
                      "exposure (s)": ", ".join(f"{e:g}" for e in exposures)})
     return pd.DataFrame(rows, columns=["role", "key", "count", "size (W×H)", "dtype",
                                        "exposure (s)"])
@@ -86,9 +101,12 @@ def groups_frame(session: Session) -> pd.DataFrame:
 
 def frames_frame(session: Session) -> pd.DataFrame:
     """One row per frame: path, role, metadata set in any frame, header shape/dtype/bits."""
-    df = pd.DataFrame(session.frames_table())
-    if df.empty:
+    rows = session.frames_table()
+    if not rows:
         return pd.DataFrame(columns=list(_ALWAYS) + ["inferred"])
+    for row in rows:  # the shape (a tuple) as the size people read
+        row["shape"] = _size(row.get("shape"))
+    df = pd.DataFrame(rows)
     for col in df.columns:
         if df[col].map(lambda v: isinstance(v, (list, tuple))).any():
             df[col] = df[col].map(lambda v: ", ".join(map(str, v))
@@ -97,9 +115,7 @@ def frames_frame(session: Session) -> pd.DataFrame:
         if col in df.columns:
             df[col] = df[col].map(lambda v: "" if v is None or v is np.nan
                                   or isinstance(v, float) and np.isnan(v) else str(v))
-    if "shape" in df.columns:
-        df = df.rename(columns={"shape": "size (W×H)"})
-        df["size (W×H)"] = df["size (W×H)"].map(_size)
+    df = df.rename(columns={"shape": "size (W×H)"})
     keep = [c for c in df.columns
             if c in _ALWAYS or c == "inferred" and (df[c] != "").any()
             or c not in _ALWAYS and c != "inferred" and df[c].notna().any()
@@ -121,21 +137,31 @@ def _problem_alert(problem: Any) -> pn.pane.Alert:
                          alert_type=kind, sizing_mode="stretch_width", margin=(2, 5))
 
 
+#: the channel choices of a colour frame (label -> channel)
+_COLOUR_CHANNELS = {"R": "R", "G": "G", "B": "B", "Luminance": plots.LUMINANCE}
+
+
+def _channel_choices(names: list[str]) -> dict[str, str]:
+    """label -> channel for the preview's channel buttons (``L`` reads *Luminance*)."""
+    return {("Luminance" if n == plots.LUMINANCE else n): n for n in names}
+
+
 class SessionPage(pn.viewable.Viewer):
     """Open, check and preview a capture session (the app's first page)."""
 
     state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
     frame = param.Selector(default=None, objects=[], allow_None=True,
                            doc="relpath of the previewed frame (None for none).")
-    channel = param.Selector(default="L", objects={"R": "R", "G": "G", "B": "B",
-                                                   "Luminance": "L"},
-                             doc="Channel shown for colour frames (R, G, B or L = luminance).")
+    channel = param.Selector(default=plots.LUMINANCE, objects=_COLOUR_CHANNELS, doc=(
+        "Channel shown: R, G, B or L (luminance) for colour frames, the CFA plane R, G1, G2 "
+        "or B for raw Bayer frames (the choices follow the previewed frame)."))
 
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
         self._records: dict[str, FrameRecord] = {}
         self._array: np.ndarray | None = None     # the previewed frame, as stored
         self._shown: FrameRecord | None = None    # its record
+        self._planes: dict[str, np.ndarray] = {}  # its channel choices (none when mono)
         self._plane: np.ndarray | None = None     # its shown channel (2-D)
         self._frame_request = 0                   # newest preview request (older ones drop)
         self._layout: pn.Column | None = None
@@ -419,6 +445,7 @@ class SessionPage(pn.viewable.Viewer):
     # ============================================================ frame preview ============
     def _clear_preview(self, message: str = "") -> None:
         self._array = self._plane = self._shown = None
+        self._planes = {}
         self.image_pane.object = None
         self.hist_pane.object = None
         self.frame_info.object = message
@@ -456,9 +483,22 @@ class SessionPage(pn.viewable.Viewer):
             self.preview_alert.visible = True
             return
         self.preview_alert.visible = False
-        self._array, self._shown = array, rec
-        names = plots.channel_names(array)
-        self.channel_select.visible = bool(names)
+        self._array = self._shown = None  # no preview while the channel choices change
+        try:
+            planes = plots.channel_planes(array, session.camera.layout)
+        except ValueError as err:
+            self._clear_preview()
+            self.preview_alert.object = f"**Cannot preview the frame:** {rec.relpath}: {err}"
+            self.preview_alert.visible = True
+            return
+        if planes:
+            channel = self.channel if self.channel in planes else \
+                plots.LUMINANCE if plots.LUMINANCE in planes else next(iter(planes))
+            with param.parameterized.batch_call_watchers(self):
+                self.param.channel.objects = _channel_choices(list(planes))
+                self.channel = channel
+        self._array, self._shown, self._planes = array, rec, planes
+        self.channel_select.visible = bool(planes)
         self._show_plane(rec)
 
     def _on_channel(self, event: Any = None) -> None:
@@ -468,7 +508,8 @@ class SessionPage(pn.viewable.Viewer):
     def _show_plane(self, rec: FrameRecord) -> None:
         """Show the current channel of the current frame: image, histogram, range, info."""
         array = self._array
-        plane = plots.channel_data(array, self.channel)
+        plane = self._planes.get(self.channel, array) if self._planes else \
+            plots.channel_data(array)
         self._plane = plane
         finite = plane[np.isfinite(plane)] if plane.dtype.kind == "f" else plane
         lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
@@ -478,7 +519,9 @@ class SessionPage(pn.viewable.Viewer):
         clim = plots.auto_clim(plane)
         self.clim_slider.param.update(start=lo, end=hi, step=1 if integer else (hi - lo) / 1000)
         self._set_clim((max(lo, clim[0]), min(hi, clim[1])))
-        channel = "" if plane is array else f", channel {self.channel}"
+        channel = f", channel {self.channel}" if self._planes else ""
+        if plane.shape[:2] != array.shape[:2]:  # a CFA plane: every other row and column
+            channel += f" ({_size(plane.shape)} px plane)"
         self.frame_info.object = (
             f"{_code(rec.relpath)} \u2014 {rec.role}"
             + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")

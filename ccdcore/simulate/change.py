@@ -24,6 +24,13 @@ the noise parameters; files ``truth/E.exr`` (reference radiance), ``truth/E_targ
 ``truth/change_mask.png`` (uint8, 1 on objects) and ``truth/shadow_mask.png`` (uint8 labels:
 0 none, 1 .. number of shades); with ``bayer`` also ``truth/E_effective.exr`` and
 ``truth/E_target_effective.exr`` (``demosaic(mosaic(E))``, see :mod:`ccdcore.simulate.tsin`).
+Floats carry 12 significant digits, except ``g`` (all digits, see
+:func:`ccdcore.simulate.tsin.response_table`).
+
+Reproducibility: the same seed gives the same bytes on every CPU.  The smoothing, the colour blend
+and the transforms use only basic arithmetic in a fixed order and the CPU-independent ``exp`` of
+:mod:`ccdcore.simulate._det` (not NumPy's vector ``exp``, ``einsum`` or BLAS ``@``); the brackets
+go through :func:`ccdcore.simulate.tsin.expose`.
 
 Public objects
 --------------
@@ -48,14 +55,13 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
-
-from .. import cfa
+from .. import channels
 from ..errors import CcdError
 from ..io import write_image
+from . import _det
 from ._common import SessionWriter
 from .tsin import (QUANTISATION_NOTE, SHOT_NOISE_NOTE, effective_radiance, expose, exposure_times,
-                   inverse_response, white_balance)
+                   response_table, white_balance)
 
 __all__ = ["DEFAULTS", "DEFAULT_M", "DEFAULT_M_SHADOWS", "background_radiance", "scene_layout",
            "apply_transform", "simulate"]
@@ -96,7 +102,7 @@ SHADOW_LABELS = {"1": "cast by the inserted objects (shade 1)",
 
 def _smooth_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> NDArray:
     """Gaussian-smoothed white noise, zero mean, unit standard deviation."""
-    f = ndimage.gaussian_filter(rng.standard_normal(shape), sigma, mode="reflect")
+    f = _det.gaussian_filter(rng.standard_normal(shape), sigma)     # as ndimage's, mode="reflect"
     f -= f.mean()
     return f / max(float(f.std()), 1e-12)
 
@@ -125,13 +131,18 @@ def background_radiance(rng: np.random.Generator, shape: tuple[int, int],
     h, w = shape
     for _ in range(100):
         palette = rng.uniform(0.05, 0.5, size=(int(n_colours), 3))
+        # LAPACK's condition number may differ in the last bit between CPUs; only a value within
+        # ~1e-15 of 20 could change the choice
         if np.linalg.cond(palette[:3]) < 20.0:
             break
     scale = min(h, w)
     fields = np.stack([_smooth_field(rng, shape, scale / 10.0) for _ in range(int(n_colours))])
-    weights = np.exp(fields / 0.35)
+    weights = _det.exp(fields / 0.35)
     weights /= weights.sum(axis=0, keepdims=True)
-    E = np.einsum("jhw,jc->hwc", weights, palette)
+    # sum_j weights_j palette_j in a fixed order (einsum may fuse multiply-adds on some CPUs)
+    E = np.zeros(shape + (3,))
+    for j in range(int(n_colours)):
+        E = E + weights[j][..., None] * palette[j]
     modulation = 1.0 + 0.2 * _smooth_field(rng, shape, scale / 6.0)
     texture = 1.0 + 0.05 * _smooth_field(rng, shape, 1.0)
     E *= np.clip(modulation * texture, 0.5, 1.5)[..., None]
@@ -208,11 +219,16 @@ def scene_layout(rng: np.random.Generator, shape: tuple[int, int], n_objects: in
 
 
 def apply_transform(E: ArrayLike, M: ArrayLike) -> NDArray[np.float64]:
-    """``E'(x) = E(x) M`` for every pixel, ``E`` of shape ``(..., 3)`` (row vectors, eq. 20)."""
+    """``E'(x) = E(x) M`` for every pixel, ``E`` of shape ``(..., 3)`` (row vectors, eq. 20).
+
+    Evaluated as ``E_0 M_0 + E_1 M_1 + E_2 M_2`` (rows ``M_i``) in this order rather than with
+    ``@``, whose BLAS kernel depends on the CPU: the same bits everywhere.
+    """
     M = np.asarray(M, dtype=np.float64)
     if M.shape != (3, 3):
         raise CcdError("M", f"expected a 3x3 colour transform, got shape {M.shape}")
-    return np.asarray(E, dtype=np.float64) @ M
+    E = np.asarray(E, dtype=np.float64)
+    return (E[..., 0:1] * M[0] + E[..., 1:2] * M[1]) + E[..., 2:3] * M[2]
 
 
 def _object_radiance(rng: np.random.Generator, shape: tuple[int, int]) -> NDArray[np.float64]:
@@ -250,7 +266,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         raise CcdError("change", f"unknown option(s) {', '.join(unknown)}; known: "
                                  f"{', '.join(DEFAULTS)}")
     width, height = int(size[0]), int(size[1])
-    bayer = None if opts["bayer"] is None else cfa.check_pattern(opts["bayer"])
+    bayer = None if opts["bayer"] is None else channels.check_pattern(opts["bayer"])
     if bayer and (width % 2 or height % 2):
         raise CcdError("--size", f"a Bayer camera needs even width and height, got "
                                  f"{width}x{height}")
@@ -322,7 +338,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         "objects": objects,
         "areas": areas,
         "masks": {"change": "truth/change_mask.png", "shadow": "truth/shadow_mask.png"},
-        "g": inverse_response(np.arange(256), gamma),
+        "g": response_table(gamma),
         "gamma": gamma,
         "f": f"f(v) = 255 * clip(v, 0, 1) ** (1 / {gamma:g}); g(z) = (z / 255) ** {gamma:g}",
         "t": t,
@@ -337,4 +353,4 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     }
     note = (f"change-scene simulation (Tsin, Ramesh & Kanade 2001, sec. 5), seed {int(seed)}.\n"
             "Truth in truth.json.")
-    return writer.finish(truth, note=note)
+    return writer.finish(truth, note=note, exact=("g",))

@@ -16,9 +16,10 @@ G = (⟨DL_B⟩ − ⟨DL_0⟩)/(DL_B − DL_0) is 1/F_c.  The response is linea
 (``knee_fraction`` of full scale), then saturates and clips at 2^b − 1.
 
 Offset settings (the paper's Table 2), recorded in every frame's manifest entry as
-``note = "setting=NZDI"`` or ``note = "setting=ZDI"`` (and in the file path, ``nzdi/`` or
-``zdi/``); the manifest ``gain`` is the camera's gain setting (1.0 = the nominal per-channel gains
-A_c, the same for both settings):
+``setting = "NZDI"`` or ``setting = "ZDI"`` (and in the file path, ``nzdi/`` or ``zdi/``), so
+:meth:`ccdcore.session.Session.flat_groups` / ``dark_groups(setting=...)`` select them; the
+manifest ``gain`` is the camera's gain setting (1.0 = the nominal per-channel gains A_c, the same
+for both settings):
 
 ``NZDI`` (non-zero dark image)
     offset register 1400: positive black levels (≈ 7–9 DN); the dark image never touches 0.
@@ -52,6 +53,7 @@ simulate
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -79,13 +81,21 @@ def _check(cond: bool, name: str, problem: str) -> None:
 
 
 def _vignetting(shape: tuple[int, int], centre: tuple[float, float], corner: float) -> np.ndarray:
-    """cos⁴ falloff cos⁴θ with tanθ = r/f; f puts ``corner`` at the frame corner from the centre."""
+    """cos⁴ falloff cos⁴θ with tanθ = r/f; f puts ``corner`` at the frame corner from the centre.
+
+    Evaluated as cos⁴θ = 1/(1 + r²/f²)² (cos(arctan u) = 1/√(1 + u²)) with
+    f² = r_c²·c²/(1 − c²), c = corner^¼ = √√corner (tan(arccos c) = √(1 − c²)/c): basic
+    arithmetic only, so the map -- which sets the Poisson means of the flat frames -- has the same
+    bits on every CPU (NumPy's vector cos/arctan/power differ in the last bit).
+    """
     h, w = shape
-    r_corner = np.hypot(w / 2.0, h / 2.0)
-    f = r_corner / np.tan(np.arccos(corner ** 0.25))
+    r_corner2 = (w / 2.0) * (w / 2.0) + (h / 2.0) * (h / 2.0)
+    c = math.sqrt(math.sqrt(float(corner)))
+    f2 = r_corner2 * (c * c) / (1.0 - c * c) if c < 1.0 else math.inf
     y, x = np.mgrid[0:h, 0:w].astype(float)
-    r = np.hypot(x + 0.5 - centre[0], y + 0.5 - centre[1])
-    return np.cos(np.arctan(r / f)) ** 4
+    dx, dy = x + 0.5 - centre[0], y + 0.5 - centre[1]
+    q = 1.0 / (1.0 + (dx * dx + dy * dy) / f2)
+    return q * q
 
 
 def _linear_low(model: SensorModel, tol: float = 0.05) -> float:
@@ -230,7 +240,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96,
             sat.append(float(np.mean(m.response(lin) >= fs - 0.5)))
         frame = np.stack(chans, axis=-1)
         writer.add_frame(relpath, frame, role=role, level=level_id, exposure=t, gain=float(gain),
-                         note=f"setting={setting}")
+                         setting=setting)
         frames_truth.append({"path": relpath, "role": role, "setting": setting, "level": level_id,
                              "exposure": t, "mean_dn": mean, "mean_dn_linear": mean_lin,
                              "in_linear_range": lin_ok, "saturated_fraction": sat})
@@ -281,7 +291,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96,
         "n_dark": int(n_dark),
         "base": {"level": int(base[0]), "exposure": t_base},
         "settings": per_setting,
-        "setting_key": "manifest note = 'setting=<NZDI|ZDI>'",
+        "setting_key": "manifest key setting = '<NZDI|ZDI>'",
         "flatfield_map": "truth/flatfield.exr",
         "frames": frames_truth,
         "notes": {"mean_dn": "spatial mean of E[DL] per channel incl. knee and clipping "

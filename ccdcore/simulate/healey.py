@@ -22,15 +22,15 @@ Frames written (all ``exposure`` = the fixed exposure time, TIFF, 8-bit unless `
     n1 configurations × n2 frames (sec. V-B): for every configuration the card and lamp are moved,
     i.e. a new random card texture with rare outlier spots and a new smooth illumination field, at
     about the same mean level.
-``scene/PATCH_LNN.tif``  (role ``scene``, ``level`` = 1..L, ``roi`` = [x, y, w, h], ``note`` =
-``"patch=NAME"``)
+``scene/PATCH_LNN.tif``  (role ``scene``, ``level`` = 1..L, ``roi`` = [x, y, w, h], ``patch`` =
+``"NAME"``)
     Scene-variation frames (sec. VI, VII-B): each patch is a planar surface of one material that
     fills the field of view (like the 100×100 region inside a painted square of the paper), imaged
     at several neutral-density levels.  The manifest allows one ROI per frame, so we write one frame
     per (patch, level); the ROI is the central region (``scene_margin`` pixels inside the border),
     the same for every frame.  The patch's texture is the same at every level (only the ND filter
     changes), so its scene variation V_S = σ_E²/S² (eq. 57) is the same at every level.
-``scene/max_intensity.tif``  (role ``scene``, ``note`` = ``"max-intensity"``, no ROI)
+``scene/max_intensity.tif``  (role ``scene``, ``flags`` = ``["max-intensity"]``, no ROI, no patch)
     A uniform card at maximum intensity, for the correction check of sec. VII-A (the paper's 27% of
     pixels changed by more than one quantisation step).
 
@@ -262,7 +262,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
             I = S * texture
             p = f"scene/{name}_L{li:02d}.tif"
             add(p, model.expose(I, K, dark_e, noise_rng), role="scene", level=li,
-                exposure=exposure, roi=roi, note=f"patch={name}")
+                exposure=exposure, roi=roi, patch=name)
             frames.append({"level": li, "path": p, "nd_transmission": S / s_scene_top,
                            "mu_D": float(model.A * I[sl].mean()),
                            "mu_raw": float(model.expected_mean(I, K, dark_e)[sl].mean()),
@@ -279,7 +279,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
             shape, child_rng(seed, "max_illumination"), illumination_std))
         p = "scene/max_intensity.tif"
         add(p, model.expose(I, K, dark_e, noise_rng), role="scene", exposure=exposure,
-            note="max-intensity")
+            flags=["max-intensity"])
         change = np.abs(K - 1.0) * I * model.A  # what dividing by K (eq. 51) changes, in DN
         max_truth = {"path": p, "mu": float(model.expected_mean(I, K, dark_e).mean()),
                      "fraction_changed_gt_1q": float(np.mean(change > model.q)),
@@ -307,7 +307,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
                           "outlier_contrast": float(outlier_contrast),
                           "illumination_std": float(illumination_std)},
         "scene": {"layout": "one frame per (patch, level); the patch fills the frame; roi in the "
-                            "manifest and here; note = 'patch=NAME'",
+                            "manifest and here; manifest key patch = 'NAME'",
                   "patches": patch_truth},
         "max_intensity": max_truth,
         "K_map": "truth/K.exr", "dark_map": "truth/dark.exr",

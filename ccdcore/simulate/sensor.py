@@ -38,6 +38,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
+from . import _det
+
 __all__ = ["SensorModel", "child_rng", "smooth_field", "clipped_normal_mean"]
 
 
@@ -58,17 +60,26 @@ def smooth_field(shape: tuple[int, int], rng: np.random.Generator, std: float,
     A random bivariate polynomial of total degree ``order`` over normalised coordinates in
     [-1, 1] plus a broad Gaussian blob at a random position: the kind of slow variation a real lamp
     and card produce.  Used for nonuniform illumination (sec. III, eq. 10 of Healey & Kondepudy).
+    Computed with basic arithmetic and :func:`ccdcore.simulate._det.exp`, so the same bits on
+    every CPU.
     """
     h, w = shape
     y, x = np.meshgrid(np.linspace(-1.0, 1.0, h), np.linspace(-1.0, 1.0, w), indexing="ij")
+    # powers by repeated multiplication and the CPU-independent exp of ._det: the field feeds
+    # the Poisson means of the frames, so it must not change with NumPy's vector loops
+    xp, yp = [np.ones(shape)], [np.ones(shape)]
+    for _ in range(order):
+        xp.append(xp[-1] * x)
+        yp.append(yp[-1] * y)
     f = np.zeros(shape)
     for i in range(order + 1):
         for j in range(order + 1 - i):
             if i + j:
-                f += rng.normal() * x ** i * y ** j
+                f += rng.normal() * xp[i] * yp[j]
     cx, cy = rng.uniform(-0.8, 0.8, size=2)
     width = rng.uniform(0.5, 1.0)
-    f += rng.normal() * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * width ** 2))
+    dx, dy = x - cx, y - cy
+    f += rng.normal() * _det.exp(-(dx * dx + dy * dy) / (2 * width * width))
     f -= f.mean()
     sd = f.std()
     return f * (std / sd) if sd > 0 else f
@@ -81,8 +92,8 @@ def clipped_normal_mean(m: ArrayLike, s: ArrayLike, lo: float, hi: float) -> NDA
     a = (lo - m) / s
     b = (hi - m) / s
     pa, pb = ndtr(a), ndtr(b)
-    phi_a = np.exp(-0.5 * a * a) / math.sqrt(2 * math.pi)
-    phi_b = np.exp(-0.5 * b * b) / math.sqrt(2 * math.pi)
+    phi_a = _det.exp(-0.5 * a * a) / math.sqrt(2 * math.pi)
+    phi_b = _det.exp(-0.5 * b * b) / math.sqrt(2 * math.pi)
     return lo * pa + hi * (1.0 - pb) + m * (pb - pa) + s * (phi_a - phi_b)
 
 
@@ -186,13 +197,15 @@ class SensorModel:
 
         Identity below ``knee_dn``; above, ``knee + w·tanh((V − knee)/w)`` with
         ``w = full_scale + 1 − knee``, so the value approaches (and the ADC clips at) full scale.
+        ``tanh`` is the CPU-independent one of :mod:`ccdcore.simulate._det` (the value is rounded
+        to a digital number).
         """
         V = np.asarray(V, dtype=float)
         if self.knee_dn is None:
             return V
         k = float(self.knee_dn)
         w = self.full_scale + 1.0 - k
-        return np.where(V > k, k + w * np.tanh((V - k) / w), V)
+        return np.where(V > k, k + w * _det.tanh((V - k) / w), V)
 
     def response_slope(self, V: ArrayLike) -> NDArray[np.float64]:
         """d response / dV: 1 below the knee, 1 − tanh² above."""
@@ -201,7 +214,8 @@ class SensorModel:
             return np.ones_like(V)
         k = float(self.knee_dn)
         w = self.full_scale + 1.0 - k
-        return np.where(V > k, 1.0 - np.tanh((V - k) / w) ** 2, 1.0)
+        t = _det.tanh((V - k) / w)
+        return np.where(V > k, 1.0 - t * t, 1.0)
 
     def expose(self, I_e: ArrayLike, K: ArrayLike, dark_e: ArrayLike,
                rng: np.random.Generator) -> NDArray[np.integer]:

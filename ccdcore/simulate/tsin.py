@@ -49,7 +49,7 @@ noise seen in the data is ``sigma_c2^2 + 1/12`` DN^2 (rounding adds 1/12).
 
 Colour and Bayer.  ``layout="rgb"`` draws an independent ``E`` per channel.  ``bayer="rggb"`` (or
 another pattern) samples ``E`` through the colour filter array, adds the noise per *sensor site*,
-applies white balance per colour and interpolates bilinearly (:func:`ccdcore.cfa.demosaic_bilinear`)
+applies white balance per colour and interpolates bilinearly (:func:`ccdcore.channels.demosaic_bilinear`)
 before ``f`` -- the paper's camera.  Interpolated pixels then carry averaged, spatially correlated
 noise, and the noise-free image obeys eq. 5 with the *effective* radiance
 ``demosaic(mosaic(E))``, written as ``truth/E_effective.exr`` next to the scene ``truth/E.exr``.
@@ -60,6 +60,13 @@ certain radius ... usually 3 pixels").  Per image a label mask is written
 (``truth/bloom_s<j>_k<kk>.png``: 0 clean, 1 contaminated = within ``r`` of a saturated site,
 2 saturated).  For Bayer output the contamination is widened by the 3x3 interpolation support.
 
+Reproducibility.  The same seed gives the same bytes on every CPU: ``f`` uses the CPU-independent
+``pow`` of :mod:`ccdcore.simulate._det` (NumPy's vector ``power`` differs in the last bit between
+AVX2 and AVX-512, which could flip a rounded digital number), blooming sums shifted arrays, and the
+bilinear interpolation's weights (1/4, 1/2, 1) are powers of two, so its products are exact.  The
+``g`` of ``truth.json`` is computed with the C library's scalar ``pow`` (:func:`response_table`)
+and written with all its digits; the other floats of ``truth.json`` carry 12 significant digits.
+
 Public objects
 --------------
 DEFAULTS
@@ -68,6 +75,8 @@ Exposure
     One simulated frame: ``z`` (uint8), the signal ``v`` entering ``f``, blooming labels.
 inverse_response(z, gamma), response(v, gamma)
     ``g(z) = (z/255)^gamma`` and ``f(v) = 255 clip(v, 0, 1)^(1/gamma)``.
+response_table(gamma)
+    ``g(0) .. g(255)`` as written to ``truth.json`` (scalar ``pow``, the same on every CPU).
 exposure_times(n, ratio, t_max)
     Nominal exposure times ``t_k`` of the bracket.
 white_balance(t, rng, ...)
@@ -96,12 +105,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from .. import cfa
+from .. import channels
 from ..errors import CcdError
 from ..io import write_image
-from ._common import SessionWriter
+from . import _det
+from ._common import TRUTH_DIGITS, SessionWriter, round_sig
 
-__all__ = ["DEFAULTS", "Exposure", "inverse_response", "response", "exposure_times",
+__all__ = ["DEFAULTS", "Exposure", "inverse_response", "response", "response_table",
+           "exposure_times",
            "white_balance", "uniform_radiance", "effective_radiance", "expose", "bloom_kernel",
            "simulate", "SHOT_NOISE_NOTE", "QUANTISATION_NOTE"]
 
@@ -165,9 +176,24 @@ def inverse_response(z: ArrayLike, gamma: float = 1.2) -> NDArray[np.float64]:
     return (np.asarray(z, dtype=np.float64) / 255.0) ** gamma
 
 
+def response_table(gamma: float = 1.2) -> list[float]:
+    """``g(z)`` for ``z = 0 .. 255``, each computed with the C library's scalar ``pow``.
+
+    This is the ``g`` of ``truth.json``: correctly rounded in practice and, unlike NumPy's vector
+    ``power`` (whose AVX-512 loop differs from its AVX2 loop in the last bit), the same on every
+    CPU.
+    """
+    gamma = float(gamma)
+    return [(z / 255.0) ** gamma for z in range(256)]
+
+
 def response(v: ArrayLike, gamma: float = 1.2) -> NDArray[np.float64]:
-    """The camera response ``f(v) = 255 clip(v, 0, 1) ** (1 / gamma)`` (eq. 3), in DN."""
-    return 255.0 * np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0) ** (1.0 / gamma)
+    """The camera response ``f(v) = 255 clip(v, 0, 1) ** (1 / gamma)`` (eq. 3), in DN.
+
+    The power is :func:`ccdcore.simulate._det.pow` (a few ulps, the same bits on every CPU): the
+    result is rounded to a digital number, which must not depend on NumPy's vector loops.
+    """
+    return 255.0 * _det.pow(np.clip(np.asarray(v, dtype=np.float64), 0.0, 1.0), 1.0 / gamma)
 
 
 def exposure_times(n: int = 8, ratio: float = math.sqrt(2.0),
@@ -182,7 +208,7 @@ def exposure_times(n: int = 8, ratio: float = math.sqrt(2.0),
         raise CcdError("ratio", f"need ratio > 1 and t_max > 0, got {ratio}, {t_max}")
     t = [t_max * ratio ** (k - int(n) + 1) for k in range(int(n))]
     # round to 12 significant digits so that manifests show 0.125, not 0.12499999999999994
-    return np.array([float(f"{x:.12g}") for x in t], dtype=np.float64)
+    return np.array([round_sig(x, TRUTH_DIGITS) for x in t], dtype=np.float64)
 
 
 def white_balance(t: ArrayLike, rng: np.random.Generator, *, enabled: bool, channels: int = 1,
@@ -205,6 +231,8 @@ def white_balance(t: ArrayLike, rng: np.random.Generator, *, enabled: bool, chan
     Returns
     -------
     a, b
+        With white balance, rounded to 12 significant digits (like the exposure times), so that
+        ``truth.json`` holds exactly the values simulated.
     """
     t = np.asarray(t, dtype=np.float64)
     shape = t.shape if channels == 1 else t.shape + (channels,)
@@ -214,7 +242,9 @@ def white_balance(t: ArrayLike, rng: np.random.Generator, *, enabled: bool, chan
     if not enabled:
         return np.broadcast_to(tt, shape).copy(), np.zeros(shape)
     b[0] = 0.0
-    return tt * w, b
+    # rounded like the exposure times, so truth.json holds exactly the a_k and b_k simulated
+    rnd = np.vectorize(round_sig, otypes=[np.float64])
+    return rnd(tt * w), rnd(b)
 
 
 def uniform_radiance(rng: np.random.Generator, shape: tuple[int, ...]) -> NDArray[np.float32]:
@@ -227,7 +257,7 @@ def effective_radiance(E: ArrayLike, bayer: str | None) -> NDArray[np.float64]:
     E = np.asarray(E, dtype=np.float64)
     if bayer is None:
         return E
-    return cfa.demosaic_bilinear(cfa.mosaic(E, bayer), bayer)
+    return channels.demosaic_bilinear(channels.mosaic(E, bayer), bayer)
 
 
 def bloom_kernel(radius: int) -> NDArray[np.bool_]:
@@ -246,7 +276,7 @@ def _per_site(value: ArrayLike, E: NDArray, bayer: str | None) -> NDArray[np.flo
         raise CcdError("a/b", f"per-channel parameters of shape {val.shape} do not fit E of "
                               f"shape {E.shape}")
     full = np.broadcast_to(val, E.shape)
-    return cfa.mosaic(full, bayer) if bayer else np.array(full)
+    return channels.mosaic(full, bayer) if bayer else np.array(full)
 
 
 def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *,
@@ -272,7 +302,7 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
     gamma
         ``f(v) = 255 v^(1/gamma)``.
     bayer
-        ``None``, or a pattern of :data:`ccdcore.cfa.PATTERNS`: noise per CFA site, then bilinear
+        ``None``, or a pattern of :data:`ccdcore.channels.PATTERNS`: noise per CFA site, then bilinear
         interpolation before ``f``.
     blooming, bloom_radius, bloom_strength
         Spill ``bloom_strength`` times the charge above full well (``v > 1``) evenly onto the other
@@ -284,10 +314,10 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
     """
     E = np.asarray(E, dtype=np.float64)
     if bayer is not None:
-        bayer = cfa.check_pattern(bayer)
+        bayer = channels.check_pattern(bayer)
         if E.ndim != 3 or E.shape[2] != 3:
             raise CcdError("E", f"a Bayer camera needs an (H, W, 3) radiance, got {E.shape}")
-        sensor_E = cfa.mosaic(E, bayer)
+        sensor_E = channels.mosaic(E, bayer)
     else:
         if E.ndim not in (2, 3):
             raise CcdError("E", f"expected an (H, W) or (H, W, C) radiance, got {E.shape}")
@@ -303,14 +333,15 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
         footprint = bloom_kernel(bloom_radius)
         excess = np.maximum(v - 1.0, 0.0)
         primary = excess > 0.0 if v.ndim == 2 else np.any(excess > 0.0, axis=2)
-        spill_kernel = footprint.astype(np.float64)
+        ring = footprint.copy()
         r = int(bloom_radius)
-        spill_kernel[r, r] = 0.0
-        spill_kernel /= max(spill_kernel.sum(), 1.0)
+        ring[r, r] = False
+        n_ring = max(float(ring.sum()), 1.0)
+        # sums of shifted arrays in a fixed order (not ndimage.convolve): the same bits on every CPU
         if v.ndim == 2:
-            spill = ndimage.convolve(excess, spill_kernel, mode="constant")
+            spill = _det.correlate_footprint(excess, ring) / n_ring
         else:
-            spill = np.stack([ndimage.convolve(excess[..., c], spill_kernel, mode="constant")
+            spill = np.stack([_det.correlate_footprint(excess[..., c], ring) / n_ring
                               for c in range(v.shape[2])], axis=2)
         v = np.minimum(v, 1.0) + bloom_strength * spill
         near = ndimage.binary_dilation(primary, structure=footprint)
@@ -326,7 +357,7 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
     else:
         v = np.minimum(v, 1.0)
     if bayer is not None:
-        v = cfa.demosaic_bilinear(v, bayer)
+        v = channels.demosaic_bilinear(v, bayer)
     zf = np.rint(response(v, gamma) + sigma_c2 * n_c2)
     zf[v >= 1.0] = 255.0                                       # white clip at full well
     z = np.clip(zf, 0.0, 255.0).astype(np.uint8)
@@ -341,7 +372,7 @@ def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
     if opts["layout"] not in ("mono", "rgb"):
         raise CcdError("layout", f"layout must be 'mono' or 'rgb', got {opts['layout']!r}")
     if opts["bayer"] is not None:
-        opts["bayer"] = cfa.check_pattern(opts["bayer"])
+        opts["bayer"] = channels.check_pattern(opts["bayer"])
         opts["layout"] = "rgb"
         if size[0] % 2 or size[1] % 2:
             raise CcdError("--size", f"a Bayer camera needs even width and height, got "
@@ -431,7 +462,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         "size": [width, height],
         "layout": opts["layout"],
         "bayer": bayer,
-        "g": inverse_response(np.arange(256), gamma),
+        "g": response_table(gamma),
         "gamma": gamma,
         "f": f"f(v) = 255 * clip(v, 0, 1) ** (1 / {gamma:g}); g(z) = (z / 255) ** {gamma:g}",
         "t": t,
@@ -455,4 +486,4 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
                              "masks": bloom_paths}
     note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
             "Truth in truth.json.")
-    return writer.finish(truth, note=note)
+    return writer.finish(truth, note=note, exact=("g",))

@@ -126,7 +126,8 @@ def test_plot_functions():
     assert 4 < lo < 6 and 993 < hi < 995
     rgb = np.zeros((2, 2, 3), np.uint8)
     rgb[..., 0] = 200
-    assert plots.channel_names(rgb) == ("R", "G", "B", "L")
+    assert tuple(plots.channel_planes(rgb)) == ("R", "G", "B", "L")
+    assert plots.channel_planes(rgb[..., 0]) == {}                  # mono: the frame itself
     assert plots.channel_data(rgb, "R").max() == 200
     assert plots.channel_data(rgb, "L").max() == pytest.approx(200 * 0.2126, rel=1e-6)
 

@@ -6,11 +6,12 @@ import re
 
 from playwright.sync_api import Page, expect
 
-from app.flat_plots import format_pm, group_label
+from app.flat_plots import group_label
 from app.pages.flat_field import default_frame
+from ccdcore.common import format_pm
 from ccdcore.flatfield import flat_field_from_session, recommend_base
 from ccdcore.session import open_session
-from ccdcore.uniformity import flat_groups, snup
+from ccdcore.uniformity import snup
 
 TIMEOUT = 60_000  # generous: a busy CI machine draws slowly; passing runs do not wait
 OTHER_BASE = (2, 0.04)
@@ -23,7 +24,7 @@ def test_choosing_a_base_image_updates_the_after_correction_snup(page: Page, ser
     # shown, with the recommended base and with another base
     session = open_session(demo)
     rec = recommend_base(session, setting="NZDI")
-    groups = flat_groups(session, setting="NZDI")
+    groups = session.flat_groups(setting="NZDI")
     relpath = default_frame(rec, groups)
     frame = session.read(next(r for rs in groups.values() for r in rs if r.relpath == relpath))
 

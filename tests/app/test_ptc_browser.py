@@ -6,7 +6,7 @@ import re
 
 from playwright.sync_api import Page, expect
 
-from app.pages.photon_transfer import format_value
+from ccdcore.common import format_pm
 from ccdcore.noise import photon_transfer
 
 TIMEOUT = 60_000  # generous: a busy CI machine draws slowly; passing runs do not wait
@@ -17,8 +17,8 @@ def test_photon_transfer_page_shows_the_fit_and_a_level_toggle_changes_A(page: P
     # what the page must display: ccdcore's A with and without level 8, as the page formats it
     full = photon_transfer(healey94)
     without_8 = photon_transfer(healey94, exclude_levels=[8])
-    a_full = format_value(full.A, full.A_err)
-    a_without_8 = format_value(without_8.A, without_8.A_err)
+    a_full = format_pm(full.A, full.A_err)
+    a_without_8 = format_pm(without_8.A, without_8.A_err)
     assert a_full != a_without_8  # otherwise the test could not see the change
 
     url = serve_app(healey94)

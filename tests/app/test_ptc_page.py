@@ -13,12 +13,14 @@ import pytest
 
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from app import ptc_plots
-from app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, format_value,
-                                       parameter_frame, verdict_message)
+from app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, parameter_frame,
+                                       verdict_message)
 from app.state import AppState
+from ccdcore.common import format_pm
 from ccdcore.io import write_image
-from ccdcore.noise import photon_transfer
+from ccdcore.noise import USER_EXCLUDED, photon_transfer
 from ccdcore.planning import check_session_plan, plan_acquisition
+from ccdcore.product import Estimates
 
 
 def _run(coro):
@@ -77,12 +79,12 @@ def test_demo_fit_equals_photon_transfer(state, healey94, demo_pt):
     assert page.result.notes == demo_pt.notes
     assert len(page.points) == 8 and all(p.used for p in page.points)
     # shared with the other pages under the agreed names
-    assert state.results["ptc"] is page.result
-    assert state.results["ptc_points"] == page.points
+    assert state.results.ptc is page.result
+    assert state.results.ptc_points == page.points
     # the parameter table, the verdict, the plots
     table = page.parameter_table.object
     a_row = table[table["symbol"] == "A"].iloc[0]
-    assert a_row["value"] == format_value(demo_pt.A, demo_pt.A_err)
+    assert a_row["value"] == format_pm(demo_pt.A, demo_pt.A_err)
     assert a_row["unit"] == "DN/e\u207b"
     assert set(table["symbol"]) >= {"A", "1/A", "\u03c3\u00b2_C", "\u03c3_R", "A\u00b7\u03c3_R",
                                      "q\u00b2/12", "b\u2080", "\u03c7\u00b2", "\u03bd", "Q"}
@@ -102,12 +104,12 @@ def test_excluding_a_level_refits_at_once_and_marks_the_point(state, healey94, d
     expected = photon_transfer(healey94, exclude_levels=[8])
     assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
     p8 = next(p for p in page.result.points if p.level == 8)
-    assert not p8.used and p8.reason == "excluded by user"
+    assert not p8.used and p8.exclusion == "user" and p8.reason == USER_EXCLUDED
     assert page.points_table.object.iloc[7]["status"] == "excluded"
     table = page.parameter_table.object
-    assert table[table["symbol"] == "A"].iloc[0]["value"] == format_value(expected.A,
+    assert table[table["symbol"] == "A"].iloc[0]["value"] == format_pm(expected.A,
                                                                           expected.A_err)
-    assert state.results["ptc"] is page.result
+    assert state.results.ptc is page.result
     # back to all levels
     page._on_all_levels()
     assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
@@ -135,7 +137,7 @@ def test_roi_apply_changes_the_pixels_and_full_frame_resets(state, healey94):
     assert {p.n_pixels for p in page.result.points} == {64 * 32}
     expected = photon_transfer(healey94, roi=(10, 20, 64, 32))
     assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
-    assert state.results["ptc_points"] == page.points
+    assert state.results.ptc_points == page.points
     assert "64 \u00d7 32" in page.roi_status.object
     assert _run(page.full_frame())
     assert page.roi is None and {p.n_pixels for p in page.result.points} == {256 * 192}
@@ -173,7 +175,7 @@ def test_robust_mode_drops_the_outlier(state, tmp_path):
     assert page.result.robust_dropped == (4,)
     assert "level 4" in page.robust_pane.object
     p4 = next(p for p in page.result.points if p.level == 4)
-    assert not p4.used and p4.reason.startswith("robust mode")
+    assert not p4.used and p4.exclusion == "robust"
     expected = photon_transfer(root, robust=True)
     assert page.result.A == pytest.approx(expected.A, rel=0, abs=1e-12)
     page.robust = False
@@ -212,12 +214,12 @@ def test_no_session_and_session_change(state, healey94, assets):
 
 def test_reuses_another_pages_fit_without_its_choices(state, healey94, demo_pt):
     state.load(healey94)
-    state.results = {"ptc": photon_transfer(healey94, exclude_levels=[3])}
+    state.results.ptc = photon_transfer(healey94, exclude_levels=[3])
     page = PhotonTransferPage(state, auto=False)
     _run(page.refresh())
     assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
     assert all(p.used for p in page.result.points)
-    assert state.results["ptc_points"] == page.points
+    assert state.results.ptc_points == page.points
 
 
 def test_plan_warnings_are_shown(state, tmp_path):
@@ -227,19 +229,20 @@ def test_plan_warnings_are_shown(state, tmp_path):
     plan = plan_acquisition(page.result, bits=12, sigma_hat=2e-3)
     warnings = check_session_plan(state.session, plan)
     assert warnings  # no fixed-pattern frames at all
-    state.results = {**state.results, "plan": plan}
+    state.results.estimates = Estimates(noise=page.result, plan=plan,
+                                        plan_warnings=tuple(warnings))
     assert page.plan_alert.visible and warnings[0] in page.plan_alert.object
 
 
 # ------------------------------------------------------------------------- formatting -------
-def test_format_value_and_verdicts(demo_pt):
-    assert format_value(0.0034649085, 4.759e-05) == "0.003465 \u00b1 0.000048"
-    assert format_value(288.6, 3.96) == "288.6 \u00b1 4.0"
-    assert format_value(12346.0, 678.0) == "12350 \u00b1 680"
-    assert format_value(float("nan"), 1.0) == "n/a"
-    assert format_value(2.5) == "2.5"
+def test_format_pm_and_verdicts(demo_pt):
+    assert format_pm(0.0034649085, 4.759e-05) == "0.003465 \u00b1 0.000048"
+    assert format_pm(288.6, 3.96) == "288.6 \u00b1 4.0"
+    assert format_pm(12346.0, 678.0) == "12350 \u00b1 680"
+    assert format_pm(float("nan"), 1.0) == "n/a"
+    assert format_pm(2.5) == "2.5"
     kind, text = verdict_message(demo_pt)
-    assert kind == "success" and format_value(demo_pt.Q) in text
+    assert kind == "success" and format_pm(demo_pt.Q) in text
     for verdict, expected in (("poor", "warning"), ("model rejected", "danger"),
                               ("untested (no degrees of freedom)", "info")):
         assert verdict_message(dataclasses.replace(demo_pt, verdict=verdict))[0] == expected
@@ -269,7 +272,7 @@ def test_transfer_plot_band_line_and_points(healey94):
     used, excluded = _elements(overlay, hv.Scatter)
     assert list(used.dimension_values("level")) == [1, 3, 4, 5, 6, 7, 8]
     assert list(excluded.dimension_values("level")) == [2]
-    assert list(excluded.dimension_values("reason")) == ["excluded by user"]
+    assert list(excluded.dimension_values("reason")) == [USER_EXCLUDED]   # shown in the hover
     bars_used, bars_excluded = _elements(overlay, hv.ErrorBars)
     np.testing.assert_array_equal(bars_used.dimension_values("var_err"),
                                   [p.var_err for p in pt.points if p.used])

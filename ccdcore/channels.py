@@ -1,4 +1,13 @@
-"""Bayer colour filter arrays: sampling, plane extraction and bilinear demosaicing.
+"""Channels of a frame: colour layouts, channel names and views, Bayer colour filter arrays.
+
+The one home of everything that says which channels a frame has: the camera layouts of the
+manifest (``mono``, ``rgb``, ``bayer-rggb`` ...), the channel names of each layout (``L``; ``R``,
+``G``, ``B``; the four CFA planes ``R``, ``G1``, ``G2``, ``B``), views of each channel (no copies,
+no interpolation), and the Bayer utilities (sampling, planes, bilinear demosaicing).  The session,
+the estimators, the command line and the app all use it.
+
+Bayer colour filter arrays
+--------------------------
 
 A colour CCD samples one colour per site through a Bayer mosaic: "two rows in a Bayer pattern
 consist of a sequence of alternating red/green filter elements in one row followed by alternating
@@ -12,6 +21,12 @@ correction factors 1.265 (green) and 1.333 (red, blue) of Tsin et al. sec. 3.1 a
 
 Public objects
 --------------
+LAYOUTS
+    The camera layouts of the manifest: ``mono``, ``rgb`` and the four ``bayer-<pattern>``.
+CHANNEL_NAMES, channel_names(layout)
+    Channel names per layout family.
+check_layout(shape, layout, where), channel_slices(shape, layout), split_channels(image, layout)
+    The layout of frames of a shape (checked), and each channel as a view.
 PATTERNS
     The four Bayer patterns, ``("rggb", "bggr", "grbg", "gbrg")``.
 PLANES
@@ -33,13 +48,15 @@ demosaic_bilinear(raw, pattern)
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
 
 from .errors import CcdError
 
-__all__ = ["PATTERNS", "PLANES", "check_pattern", "plane_offsets", "plane_masks", "channel_masks",
+__all__ = ["LAYOUTS", "CHANNEL_NAMES", "channel_names", "check_layout", "channel_slices",
+           "split_channels", "PATTERNS", "PLANES", "check_pattern", "plane_offsets", "plane_masks", "channel_masks",
            "mosaic", "planes", "demosaic_bilinear"]
 
 #: the four Bayer patterns, named by the top-left 2x2 cell read row by row
@@ -47,6 +64,13 @@ PATTERNS: tuple[str, ...] = ("rggb", "bggr", "grbg", "gbrg")
 
 #: names of the four CFA planes; G1 is the green on the red row, G2 the green on the blue row
 PLANES: tuple[str, ...] = ("R", "G1", "G2", "B")
+
+#: the colour layouts of a camera (manifest key ``[camera] layout``)
+LAYOUTS: tuple[str, ...] = ("mono", "rgb") + tuple(f"bayer-{p}" for p in PATTERNS)
+
+#: channel names per layout family
+CHANNEL_NAMES: dict[str, tuple[str, ...]] = {"mono": ("L",), "rgb": ("R", "G", "B"),
+                                             "bayer": PLANES}
 
 # bilinear kernels (exact binary fractions, so sampled sites are reproduced bit-exactly)
 _KERNEL_G = np.array([[0.0, 0.25, 0.0], [0.25, 1.0, 0.25], [0.0, 0.25, 0.0]])
@@ -200,6 +224,8 @@ def demosaic_bilinear(raw: ArrayLike, pattern: str) -> NDArray[np.float64]:
     ndarray
         ``(H, W, 3)`` float64 image, channels R, G, B.
     """
+    from scipy import ndimage
+
     arr = _check_raw(raw).astype(np.float64)
     red, green, blue = channel_masks(arr.shape, pattern)
     out = np.empty(arr.shape + (3,), dtype=np.float64)
@@ -209,3 +235,71 @@ def demosaic_bilinear(raw: ArrayLike, pattern: str) -> NDArray[np.float64]:
         out[..., i] = ndimage.convolve(sampled, kernel, mode="mirror")
         out[..., i][mask] = arr[mask]
     return out
+
+
+# --------------------------------------------------------------------------------------------
+# layouts and channels
+# --------------------------------------------------------------------------------------------
+def _normal_layout(layout: str) -> str:
+    if not isinstance(layout, str):
+        raise CcdError("layout", f"expected a layout name, got {type(layout).__name__}")
+    name = layout.strip().lower()
+    if name in ("mono", "rgb"):
+        return name
+    return "bayer-" + check_pattern(name)
+
+
+def channel_names(layout: str) -> tuple[str, ...]:
+    """``("L",)`` for mono, ``("R", "G", "B")`` for rgb, ``("R", "G1", "G2", "B")`` for Bayer."""
+    name = _normal_layout(layout)
+    return CHANNEL_NAMES["bayer" if name.startswith("bayer") else name]
+
+
+def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image") -> str:
+    """Normalised layout for frames of ``shape``; ``None`` infers mono (2-D) or rgb (H, W, 3).
+
+    Raises
+    ------
+    CcdError
+        The shape does not fit the layout (a colour frame for a mono or Bayer layout, a 2-D
+        frame for rgb, odd Bayer dimensions ...).
+    """
+    shape = tuple(shape)
+    if layout is None:
+        if len(shape) == 2:
+            return "mono"
+        if len(shape) == 3 and shape[2] == 3:
+            return "rgb"
+        raise CcdError(where, f"cannot tell the colour layout of frames of shape {shape}; "
+                              "pass layout='mono', 'rgb' or 'bayer-rggb' ...")
+    name = _normal_layout(layout)
+    if name == "rgb":
+        if len(shape) != 3 or shape[2] != 3:
+            raise CcdError(where, f"layout 'rgb' needs (H, W, 3) frames, got shape {shape}")
+    elif len(shape) != 2:
+        raise CcdError(where, f"layout '{name}' needs 2-D frames, got shape {shape}"
+                              + (" (a colour image: use layout='rgb')" if len(shape) == 3 else ""))
+    elif name.startswith("bayer") and (shape[0] % 2 or shape[1] % 2):
+        raise CcdError(where, f"Bayer frames need even height and width, got {shape}")
+    return name
+
+
+def channel_slices(shape: tuple[int, ...], layout: str | None) -> dict[str, tuple]:
+    """Channel name -> index tuple giving that channel as a view: ``image[idx]``.
+
+    mono: the whole frame; rgb: ``[:, :, c]``; Bayer: the plane ``[r::2, c::2]`` of each CFA site.
+    """
+    name = check_layout(shape, layout)
+    full = slice(None)
+    if name == "mono":
+        return {"L": (full, full)}
+    if name == "rgb":
+        return {c: (full, full, i) for i, c in enumerate(CHANNEL_NAMES["rgb"])}
+    return {p: (slice(r, None, 2), slice(c, None, 2))
+            for p, (r, c) in plane_offsets(name).items()}
+
+
+def split_channels(image: ArrayLike, layout: str | None = None) -> dict[str, NDArray]:
+    """Channel name -> view of ``image`` (see :func:`channel_slices`)."""
+    arr = np.asarray(image)
+    return {n: arr[idx] for n, idx in channel_slices(arr.shape, layout).items()}

@@ -29,11 +29,13 @@ open_emva_descriptor(path)
 from __future__ import annotations
 
 import dataclasses
+import math
 import posixpath
 from pathlib import Path
 
-from .errors import CcdError, ImageReadError
-from .session import Camera, Problem, Session, _assemble, _Candidate
+from ..errors import CcdError, ImageReadError
+from .assemble import Candidate, assemble
+from .records import Camera, Problem, Session
 
 __all__ = ["open_emva_descriptor"]
 
@@ -42,9 +44,32 @@ class _LineError(Exception):
     """A descriptor line of the wrong form (reported as a Problem, never raised to the user)."""
 
 
-def _number(text: str) -> float:
-    """A descriptor number; a decimal comma is accepted as the reference parser does."""
-    return float(text.replace(",", "."))
+def _number(text: str, what: str) -> float:
+    """A finite descriptor number >= 0; a decimal comma is accepted as the reference parser does.
+
+    Raises
+    ------
+    _LineError
+        Not a number, not finite, or negative (``what`` names the field).
+    """
+    try:
+        value = float(text.replace(",", "."))
+    except ValueError:
+        raise _LineError(f"{what} {text!r} is not a number") from None
+    if not math.isfinite(value) or value < 0:
+        raise _LineError(f"{what} must be a finite number >= 0, got {text}")
+    return value
+
+
+def _count(text: str, what: str, low: int, high: int) -> int:
+    """An integer field of the ``n`` line in [low, high]."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise _LineError(f"{what} {text!r} is not an integer") from None
+    if not low <= value <= high:
+        raise _LineError(f"{what} must be an integer from {low} to {high}, got {value}")
+    return value
 
 
 def open_emva_descriptor(path: str | Path) -> Session:
@@ -74,7 +99,7 @@ def open_emva_descriptor(path: str | Path) -> Session:
         raise CcdError(desc, f"cannot read the EMVA1288 descriptor: {exc}") from None
 
     problems: list[Problem] = []
-    candidates: list[_Candidate] = []
+    candidates: list[Candidate] = []
     fmt: tuple[int, int, int] | None = None  # bits, width, height
     point: tuple[str, dict] | None = None    # (label, metadata) of the current b/d point
     n_images = 0  # images of the current point
@@ -82,7 +107,8 @@ def open_emva_descriptor(path: str | Path) -> Session:
 
     def close_point() -> None:
         if point is not None and n_images < 1:
-            problems.append(Problem(point[0], "point has no 'i' image lines"))
+            problems.append(Problem(point[0], "point has no 'i' image lines",
+                                    code="descriptor-line"))
 
     for lineno, raw in enumerate(lines, start=1):
         line = raw.strip()
@@ -100,7 +126,8 @@ def open_emva_descriptor(path: str | Path) -> Session:
                     raise _LineError("should be 'n <bits> <width> <height>'")
                 if fmt is not None:
                     raise _LineError("a second 'n' line (only one is allowed)")
-                fmt = (int(args[0]), int(args[1]), int(args[2]))
+                fmt = (_count(args[0], "bits", 1, 32), _count(args[1], "width", 1, 2 ** 20),
+                       _count(args[2], "height", 1, 2 ** 20))
             elif tag in ("b", "d"):
                 close_point()
                 point, n_images = None, 0
@@ -108,8 +135,8 @@ def open_emva_descriptor(path: str | Path) -> Session:
                     raise _LineError("should be 'b <exposure_ns> <photons>'")
                 if tag == "d" and len(args) != 1:
                     raise _LineError("should be 'd <exposure_ns>'")
-                meta = {"exposure": _number(args[0]) / 1e9,  # ns -> s, correctly rounded
-                        "photons": _number(args[1]) if tag == "b" else 0.0}
+                meta = {"exposure": _number(args[0], "exposure [ns]") / 1e9,  # ns -> s
+                        "photons": _number(args[1], "photons per pixel") if tag == "b" else 0.0}
                 if tag == "b":
                     n_bright += 1
                     point = (where, {"role": "ptc", "level": n_bright, **meta})
@@ -124,19 +151,18 @@ def open_emva_descriptor(path: str | Path) -> Session:
                 meta = dict(point[1])
                 role = meta.pop("role")
                 relpath = posixpath.normpath(args[0].replace("\\", "/"))
-                candidates.append(_Candidate(point[0], relpath, role, meta))
+                candidates.append(Candidate(point[0], relpath, role, meta))
             else:
                 raise _LineError(f"unknown line type '{tag}' (expected v, n, b, d or i)")
         except _LineError as exc:
-            problems.append(Problem(where, str(exc)))
-        except ValueError:
-            problems.append(Problem(where, f"bad number in '{line}'"))
+            problems.append(Problem(where, str(exc), code="descriptor-line"))
     close_point()
 
     if fmt is None:
-        problems.append(Problem(desc.name, "no 'n <bits> <width> <height>' line"))
+        problems.append(Problem(desc.name, "no 'n <bits> <width> <height>' line",
+                                code="descriptor-line"))
     camera = Camera(name=f"EMVA1288 {desc.stem}", bits=fmt[0] if fmt else None, layout="mono")
-    session = _assemble(desc.parent.resolve(), desc, "emva1288", camera, candidates, problems)
+    session = assemble(desc.parent.resolve(), desc, "emva1288", camera, candidates, problems)
     if fmt is None:
         return session
 
@@ -148,5 +174,6 @@ def open_emva_descriptor(path: str | Path) -> Session:
             continue  # already reported
         if (hdr.width, hdr.height) != fmt[1:]:
             size_problems.append(Problem(rec.relpath, f"image is {hdr.width}x{hdr.height} but "
-                                         f"the descriptor's n line says {fmt[1]}x{fmt[2]}"))
+                                         f"the descriptor's n line says {fmt[1]}x{fmt[2]}",
+                                         code="descriptor-size", roles=(rec.role,)))
     return dataclasses.replace(session, problems=session.problems + tuple(size_problems))

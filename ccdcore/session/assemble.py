@@ -1,0 +1,172 @@
+"""Building a session: frame candidates from any source -> checked records and problems.
+
+Every source (a manifest, a plain folder, an EMVA1288 descriptor) turns what it declares into
+:class:`Candidate` frames and calls :func:`assemble`, which checks paths stay inside the session
+folder, reads each header once, fills metadata the source leaves out from the header, and runs
+the checks across frames (shapes, dtypes and bit depths within a role, ptc level sizes).
+"""
+from __future__ import annotations
+
+import posixpath
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath, PureWindowsPath
+from typing import Any
+
+from ..common import format_size, group_by
+from ..errors import ImageReadError
+from ..io import ImageHeader, read_header
+from .records import (EXPOSURE_ROLES, ROLES, UNIFORM_ROLES, Camera, FrameRecord, Problem,
+                      Session)
+
+__all__ = ["Candidate", "path_problem", "assemble"]
+
+_HEADER_KEYS = ("exposure", "gain", "temperature")  # metadata a file header can supply
+
+
+@dataclass
+class Candidate:
+    """A frame before validation: where it was declared, its path and metadata.
+
+    ``entry`` is the manifest entry (``"frames[2] (a.tif)"``, ``"groups[0] (dark/*.tif)"``),
+    descriptor line or relative path that declared it; ``meta`` holds metadata keys of
+    :class:`~ccdcore.session.records.FrameRecord`; ``inferred`` names those not given explicitly.
+    """
+
+    entry: str
+    relpath: str
+    role: str
+    meta: dict[str, Any]
+    inferred: tuple[str, ...] = ()
+
+
+def path_problem(root: Path, relpath: str) -> str | None:
+    """Why ``relpath`` is not a safe path inside ``root`` (resolved), or None when it is."""
+    if not relpath:
+        return "empty path"
+    if PurePosixPath(relpath).is_absolute() or PureWindowsPath(relpath).is_absolute():
+        return "absolute path; paths must be relative to the session folder"
+    norm = posixpath.normpath(relpath)
+    if norm == ".." or norm.startswith("../"):
+        return "path escapes the session folder ('..')"
+    target = (root / norm).resolve()
+    if not target.is_relative_to(root):
+        return f"resolves outside the session folder (symbolic link to {target})"
+    return None
+
+
+def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera,
+             candidates: list[Candidate], problems: list[Problem]) -> Session:
+    """Check paths, read headers, infer header metadata and validate a list of candidates."""
+    headers: dict[Path, ImageHeader] = {}
+    records: list[FrameRecord] = []
+    seen: dict[Path, str] = {}
+    reported: set[tuple[str, str]] = set()
+
+    def once(where: str, message: str, code: str, role: str) -> None:
+        if (where, message) not in reported:  # a group reports its entry problem once
+            reported.add((where, message))
+            problems.append(Problem(where, message, code=code, roles=(role,)))
+
+    for cand in candidates:
+        roles = (cand.role,)
+        # a file matched by a group glob also names the group
+        origin = f" ({cand.entry})" if cand.entry.startswith("groups") else ""
+        why = path_problem(root, cand.relpath)
+        if why is not None:
+            problems.append(Problem(cand.relpath, why + origin, code="path-outside", roles=roles))
+            continue
+        path = (root / posixpath.normpath(cand.relpath)).resolve()
+        if not path.exists():
+            problems.append(Problem(cand.relpath, "file not found", code="file-not-found",
+                                    roles=roles))
+            continue
+        if not path.is_file():
+            problems.append(Problem(cand.relpath, "is a folder, not an image file",
+                                    code="not-a-file", roles=roles))
+            continue
+        if path in seen:
+            problems.append(Problem(cand.relpath, f"frame listed twice: {seen[path]} and "
+                                                  f"{cand.entry}", code="duplicate", roles=roles))
+            continue
+        seen[path] = cand.entry
+        if cand.role == "ptc" and cand.meta.get("level") is None:
+            once(cand.entry, "ptc frame without 'level' (frames of one light level form pairs)",
+                 "missing-level", "ptc")
+        if cand.role == "fixed_pattern" and cand.meta.get("config") is None:
+            once(cand.entry, "fixed_pattern frame without 'config' (configuration id)",
+                 "missing-config", "fixed_pattern")
+
+        meta, inferred = dict(cand.meta), list(cand.inferred)
+        try:
+            hdr = headers[path] = read_header(path)
+        except ImageReadError as exc:
+            problems.append(Problem(cand.relpath, exc.problem + origin, code="unreadable",
+                                    roles=roles))
+            hdr = None
+        if hdr is not None:
+            for key in _HEADER_KEYS:
+                value = getattr(hdr, key)
+                if meta.get(key) is None and value is not None:
+                    meta[key] = value
+                    inferred.append(key)
+        if cand.role in EXPOSURE_ROLES and meta.get("exposure") is None and hdr is not None:
+            problems.append(Problem(cand.relpath, f"missing exposure: a {cand.role} frame needs "
+                                    "one, and neither the manifest nor the file header "
+                                    "(EXIF ExposureTime, FITS EXPTIME) gives it",
+                                    code="missing-exposure", roles=roles))
+        roi = meta.get("roi")
+        if roi is not None and hdr is not None:
+            x, y, w, h = roi
+            if x + w > hdr.width or y + h > hdr.height:
+                problems.append(Problem(cand.relpath, f"roi {list(roi)} extends past the "
+                                        f"{hdr.width}x{hdr.height} frame", code="roi-outside",
+                                        roles=roles))
+        records.append(FrameRecord(path=path, relpath=posixpath.normpath(cand.relpath),
+                                   role=cand.role, inferred=tuple(dict.fromkeys(inferred)),
+                                   **meta))
+
+    problems.extend(_cross_frame_problems(records, headers, camera))
+    return Session(root=root, manifest_path=manifest_path, source=source, camera=camera,
+                   frames=tuple(records), problems=tuple(problems), headers=headers)
+
+
+def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageHeader],
+                          camera: Camera) -> list[Problem]:
+    """Shape / dtype / bit-depth consistency within roles, bits vs camera, ptc level sizes."""
+    out: list[Problem] = []
+    for role in ROLES:
+        recs = [r for r in records if r.role == role and r.path in headers]
+        if role in UNIFORM_ROLES and recs:
+            sigs = {r.path: (headers[r.path].shape, str(headers[r.path].dtype),
+                             headers[r.path].bits) for r in recs}
+            counts = Counter(sigs[r.path] for r in recs)
+            common, n_common = counts.most_common(1)[0]  # ties: the first frame's signature
+            for r in recs:
+                sig = sigs[r.path]
+                if sig == common:
+                    continue
+                diffs = [f"{name} {fmt(a)} differs from {fmt(b)}"
+                         for name, a, b, fmt in (("size", sig[0], common[0], format_size),
+                                                 ("dtype", sig[1], common[1], str),
+                                                 ("bit depth", sig[2], common[2], str))
+                         if a != b]
+                out.append(Problem(r.relpath, f"{'; '.join(diffs)} of the other {role} frames "
+                                              f"({n_common} frame{'s' if n_common > 1 else ''})",
+                                   code="mismatch", roles=(role,)))
+    if camera.bits is not None:
+        for r in records:
+            hdr = headers.get(r.path)
+            # A header whose bit depth is just the container width (a 12-bit camera stored in a
+            # 16-bit TIFF) says nothing about the ADC; only an explicit smaller depth is compared.
+            if (hdr is not None and hdr.dtype.kind in "ui" and hdr.bits > camera.bits
+                    and hdr.bits < hdr.dtype.itemsize * 8):
+                out.append(Problem(r.relpath, f"{hdr.bits}-bit data but camera.bits = "
+                                              f"{camera.bits}", code="bit-depth", roles=(r.role,)))
+    for level, recs in group_by((r for r in records if r.role == "ptc" and r.level is not None),
+                                lambda r: r.level).items():
+        if len(recs) < 2:
+            out.append(Problem(f"ptc level {level}", f"only one frame ({recs[0].relpath}); a "
+                                                     "photon-transfer level needs at least two",
+                               code="ptc-single-frame", roles=("ptc",)))
+    return out

@@ -1,0 +1,470 @@
+"""The records of a capture session and every query on its frames.
+
+:class:`Camera`, :class:`FrameRecord` and :class:`Problem` are frozen records; :class:`Session`
+holds them with the cached file headers and answers every question an estimator asks of a
+session's frames: frames by role, photon-transfer levels, fixed-pattern configurations, flat and
+dark groups by offset setting and gain, exposure brackets, scene patches, the max-intensity frame.
+Estimators never group frames themselves (``docs/session.md`` gives the manifest keys).
+
+Validation problems carry a machine-readable ``code`` and the ``roles`` whose frames they touch,
+so a verb refuses exactly the sessions whose errors concern the frames it uses
+(:meth:`Session.raise_if_invalid` with ``roles=``) and no caller matches the text of a message.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterable, Iterator
+
+import numpy as np
+import tomli_w
+
+from ..channels import LAYOUTS
+from ..common import group_by, sort_key
+from ..errors import CcdError, ImageReadError, SessionError
+from ..io import ImageHeader, read_header, read_image
+
+__all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "META_KEYS", "EXPOSURE_ROLES",
+           "UNIFORM_ROLES", "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA", "Camera", "FrameRecord",
+           "Problem", "Session"]
+
+ROLES = ("dark", "ptc", "fixed_pattern", "flat", "bracket", "scene", "reference", "target")
+MANIFEST_NAME = "session.toml"
+DRAFT_NAME = "session.toml.draft"
+SCHEMA = 1
+
+#: the flag of the scene frame taken at maximum intensity (the correction check, sec. VII-A of
+#: Healey & Kondepudy 1994)
+MAX_INTENSITY = "max-intensity"
+#: the frame flags the manifest accepts (key ``flags``, a list of these)
+FLAGS: tuple[str, ...] = (MAX_INTENSITY,)
+
+#: roles whose frames need an exposure time (manifest or file header)
+EXPOSURE_ROLES = frozenset({"bracket", "reference", "target"})
+#: roles whose frames must all share one shape, dtype and bit depth (scenes are independent images)
+UNIFORM_ROLES = frozenset(ROLES) - {"scene"}
+
+#: the per-frame metadata keys of the manifest, in the order a manifest draft writes them
+META_KEYS = ("level", "exposure", "config", "gain", "temperature", "roi", "stack", "setting",
+             "patch", "flags", "photons", "note")
+
+
+# --------------------------------------------------------------------------------------------
+# records
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Camera:
+    """The camera of a session: free-text name, ADC bit depth, colour layout (one of LAYOUTS)
+    and, optionally, its black level (the electronic offset in DN that is not signal and carries
+    no shot noise; manifest key ``[camera] black_level``, used by :mod:`ccdcore.noise`)."""
+
+    name: str = ""
+    bits: int | None = None
+    layout: str = "mono"
+    black_level: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "bits": self.bits, "layout": self.layout,
+                "black_level": self.black_level}
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One frame of a session and its metadata (no pixels).
+
+    ``setting`` names the camera offset setting (de Lasarte et al.: ``"NZDI"``, ``"ZDI"``),
+    ``patch`` the scene surface a frame shows (Healey & Kondepudy sec. VI), ``flags`` marks
+    special frames (``"max-intensity"``).  ``note`` is free text, never parsed (a manifest of
+    an earlier release with ``note = "setting=NZDI"`` is still read, with a warning).
+    ``inferred`` names the metadata keys that were not in the manifest but read from the file
+    header (``exposure``, ``gain``, ``temperature``), guessed from a plain folder's layout
+    (``role``, ``level``, ``config``) or taken from a legacy note.  ``photons`` is the mean
+    number of photons per pixel of an EMVA1288 bright point.
+    """
+
+    path: Path
+    relpath: str
+    role: str
+    level: int | None = None
+    exposure: float | None = None
+    config: int | None = None
+    gain: float | None = None
+    temperature: float | None = None
+    roi: tuple[int, int, int, int] | None = None
+    stack: int | str | None = None
+    setting: str | None = None
+    patch: str | None = None
+    flags: tuple[str, ...] = ()
+    photons: float | None = None
+    note: str | None = None
+    inferred: tuple[str, ...] = ()
+
+    def metadata(self) -> dict[str, Any]:
+        """The manifest keys of this frame that are set (``role`` and the optional keys)."""
+        out: dict[str, Any] = {"role": self.role}
+        for key in META_KEYS:
+            value = getattr(self, key)
+            if value is not None and value != ():
+                out[key] = list(value) if key in ("roi", "flags") else value
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"relpath": self.relpath, "role": self.role}
+        for key in META_KEYS:
+            value = getattr(self, key)
+            d[key] = list(value) if key in ("roi", "flags") and value is not None else value
+        d["inferred"] = list(self.inferred)
+        return d
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One validation problem.
+
+    Attributes
+    ----------
+    where
+        The file (relative path) or manifest entry it concerns.
+    message
+        One line for a person.
+    severity
+        ``"error"`` or ``"warning"``.
+    code
+        What kind of problem, for programs (``"file-not-found"``, ``"unknown-key"`` ...; the list
+        is in ``docs/session.md``).  Never match the message.
+    roles
+        The roles whose frames it touches; empty for a problem of the whole session (schema,
+        camera), which touches every role.
+    """
+
+    where: str
+    message: str
+    severity: str = "error"  # "error" | "warning"
+    code: str = "invalid"
+    roles: tuple[str, ...] = ()
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.message}"
+
+    def touches(self, roles: Iterable[str] | None) -> bool:
+        """True when the problem concerns frames of any of ``roles`` (``None``: any role)."""
+        return roles is None or not self.roles or bool(set(self.roles) & set(roles))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"where": self.where, "message": self.message, "severity": self.severity,
+                "code": self.code, "roles": list(self.roles)}
+
+
+def _group_key(rec: FrameRecord) -> Any:
+    """The key that groups frames of one role (see :meth:`Session.groups_table`)."""
+    if rec.role == "ptc":
+        return rec.level
+    if rec.role == "fixed_pattern":
+        return rec.config
+    if rec.role == "flat":
+        return rec.level if rec.level is not None else rec.exposure
+    if rec.role == "dark":
+        return rec.exposure
+    if rec.role in ("bracket", "reference", "target"):
+        return rec.stack
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# the session
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Session:
+    """A capture session: camera, frames (metadata only), validation problems.
+
+    Build it with :func:`ccdcore.session.open_session`.  Frames are listed in manifest order
+    (``[[frames]]`` entries, then each ``[[groups]]`` entry's matches in sorted order); for a
+    plain folder, in sorted path order.  Pixels are read on demand, one frame at a time.
+    """
+
+    root: Path
+    manifest_path: Path | None
+    source: str  # "manifest" | "folder" | "emva1288"
+    camera: Camera
+    frames: tuple[FrameRecord, ...]
+    problems: tuple[Problem, ...] = ()
+    headers: dict[Path, ImageHeader] = field(default_factory=dict, repr=False)
+
+    # ---- validity ---------------------------------------------------------------------------
+    @property
+    def label(self) -> str:
+        """How messages name the session: its manifest or descriptor, else its folder."""
+        return str(self.manifest_path or self.root)
+
+    @property
+    def ok(self) -> bool:
+        """True when no problem has severity ``"error"``."""
+        return not self.errors
+
+    @property
+    def errors(self) -> tuple[Problem, ...]:
+        return tuple(p for p in self.problems if p.severity == "error")
+
+    @property
+    def warnings(self) -> tuple[Problem, ...]:
+        return tuple(p for p in self.problems if p.severity != "error")
+
+    def errors_for(self, roles: Iterable[str] | None = None) -> tuple[Problem, ...]:
+        """The errors that touch frames of ``roles`` (every error for ``None``)."""
+        roles = None if roles is None else tuple(roles)
+        return tuple(p for p in self.errors if p.touches(roles))
+
+    def raise_if_invalid(self, roles: Iterable[str] | None = None) -> None:
+        """Raise :class:`SessionError` listing every error that touches ``roles`` (all errors
+        for ``None``); ``str`` of it is the first error plus a count of the others."""
+        errors = self.errors_for(roles)
+        if not errors:
+            return
+        first = errors[0]
+        n = len(errors) - 1
+        more = f" (and {n} more problem{'s' if n > 1 else ''})" if n else ""
+        raise SessionError(first.where, first.message + more, problems=errors)
+
+    # ---- frames by role ---------------------------------------------------------------------
+    def by_role(self, role: str) -> tuple[FrameRecord, ...]:
+        """Frames of one role, in session order."""
+        if role not in ROLES:
+            raise CcdError("role", f"unknown role '{role}'; choose one of {', '.join(ROLES)}")
+        return tuple(r for r in self.frames if r.role == role)
+
+    def roles(self) -> dict[str, int]:
+        """Role -> number of frames, for the roles present (in :data:`ROLES` order)."""
+        counts = Counter(r.role for r in self.frames)
+        return {role: counts[role] for role in ROLES if counts[role]}
+
+    def ptc_levels(self) -> dict[int, tuple[FrameRecord, ...]]:
+        """Photon-transfer level -> its frames (two or more each in a valid session), by level."""
+        return group_by((r for r in self.by_role("ptc") if r.level is not None),
+                        lambda r: r.level)
+
+    def dark_frames(self) -> tuple[FrameRecord, ...]:
+        return self.by_role("dark")
+
+    def fixed_pattern_configs(self) -> dict[int, tuple[FrameRecord, ...]]:
+        """Configuration id -> its frames (the n1 configurations x n2 frames of sec. V-B)."""
+        return group_by((r for r in self.by_role("fixed_pattern") if r.config is not None),
+                        lambda r: r.config)
+
+    def flats(self) -> dict[Any, tuple[FrameRecord, ...]]:
+        """Flat-field frames keyed by level when set, else by exposure (sorted keys)."""
+        return group_by(self.by_role("flat"), _group_key)
+
+    def bracket_stacks(self, role: str = "bracket") -> dict[Any, tuple[FrameRecord, ...]]:
+        """Stack id (``None`` when unset) -> its frames sorted by exposure.
+
+        ``role`` is ``"bracket"``, ``"reference"`` or ``"target"``.
+        """
+        if role not in ("bracket", "reference", "target"):
+            raise CcdError("role", f"'{role}' frames do not form exposure brackets")
+        stacks = group_by(self.by_role(role), lambda r: r.stack)
+        return {k: tuple(sorted(v, key=lambda r: sort_key(r.exposure)))
+                for k, v in stacks.items()}
+
+    def scenes(self) -> tuple[FrameRecord, ...]:
+        return self.by_role("scene")
+
+    # ---- scene patches and flags ------------------------------------------------------------
+    def flagged(self, flag: str, role: str | None = None) -> tuple[FrameRecord, ...]:
+        """Frames carrying ``flag`` (one of :data:`FLAGS`), of ``role`` when given."""
+        if flag not in FLAGS:
+            raise CcdError("flag", f"unknown flag '{flag}'; choose one of {', '.join(FLAGS)}")
+        return tuple(r for r in self.frames if flag in r.flags and (role is None or r.role == role))
+
+    def max_intensity_frame(self) -> FrameRecord | None:
+        """The first scene frame flagged ``max-intensity`` (sec. VII-A), or ``None``."""
+        found = self.flagged(MAX_INTENSITY, "scene")
+        return found[0] if found else None
+
+    def scene_patches(self) -> dict[str, tuple[FrameRecord, ...]]:
+        """Scene frames that measure one surface, by patch: the ``patch`` key, else the ROI
+        (``"roi=x,y,w,h"``); in the order patches first appear.
+
+        Frames with neither (general scene images) and max-intensity frames are left out.
+        """
+        groups: dict[str, list[FrameRecord]] = {}
+        for rec in self.scenes():
+            if MAX_INTENSITY in rec.flags:
+                continue
+            key = rec.patch if rec.patch is not None else (
+                None if rec.roi is None else "roi=" + ",".join(map(str, rec.roi)))
+            if key is not None:
+                groups.setdefault(key, []).append(rec)
+        return {k: tuple(v) for k, v in groups.items()}
+
+    # ---- offset settings and gains ----------------------------------------------------------
+    def settings(self) -> tuple[str, ...]:
+        """The offset settings named by the frames (key ``setting``), in session order."""
+        return tuple(dict.fromkeys(r.setting for r in self.frames if r.setting is not None))
+
+    def resolve_setting(self, setting: str | None) -> tuple[str | None, list[str]]:
+        """The setting to analyse and notes: ``None`` picks the first of several (noted).
+
+        Raises
+        ------
+        CcdError
+            ``setting`` is given but no frame has it.
+        """
+        have = self.settings()
+        if setting is not None:
+            if setting not in have:
+                raise CcdError(self.label, f"no frames with setting = {setting!r}" + (
+                    f"; the session has {', '.join(have)}" if have
+                    else "; the session names no settings (leave the setting out)"))
+            return setting, []
+        if len(have) > 1:
+            return have[0], [f"the session has offset settings {', '.join(have)}; used "
+                              f"{have[0]} (choose another with setting=)"]
+        return (have[0] if have else None), []
+
+    def select(self, role: str, *, setting: str | None = None,
+               gain: float | None = None) -> tuple[FrameRecord, ...]:
+        """Frames of ``role`` with ``setting`` (any when ``None``) and ``gain`` (any when
+        ``None``; frames without a gain match every gain)."""
+        return tuple(r for r in self.by_role(role)
+                     if (setting is None or r.setting == setting)
+                     and (gain is None or r.gain is None or math.isclose(r.gain, gain)))
+
+    def flat_groups(self, *, setting: str | None = None, gain: float | None = None
+                    ) -> dict[tuple[Any, Any], tuple[FrameRecord, ...]]:
+        """Flat frames of one setting (and gain) keyed by ``(level, exposure)``, sorted.
+
+        Raises
+        ------
+        CcdError
+            The selection mixes several gains and ``gain`` is not given.
+        """
+        recs = self.select("flat", setting=setting, gain=gain)
+        gains = {r.gain for r in recs if r.gain is not None}
+        if gain is None and len(gains) > 1:
+            raise CcdError(self.label, f"flat frames at several gains {sorted(gains)}: pass gain=")
+        return group_by(recs, lambda r: (r.level, r.exposure))
+
+    def dark_groups(self, *, setting: str | None = None, gain: float | None = None
+                    ) -> dict[Any, tuple[FrameRecord, ...]]:
+        """Dark frames of one setting (and gain) keyed by exposure (``None`` when unknown)."""
+        return group_by(self.select("dark", setting=setting, gain=gain), lambda r: r.exposure)
+
+    # ---- pixels -----------------------------------------------------------------------------
+    def header(self, rec: FrameRecord) -> ImageHeader:
+        """The file header of a frame (read once, then cached)."""
+        hdr = self.headers.get(rec.path)
+        if hdr is None:
+            hdr = self.headers[rec.path] = read_header(rec.path)
+        return hdr
+
+    def header_or_none(self, rec: FrameRecord) -> ImageHeader | None:
+        """:meth:`header`, or ``None`` when the file cannot be read (already a problem)."""
+        try:
+            return self.header(rec)
+        except ImageReadError:
+            return None
+
+    def read(self, rec: FrameRecord) -> np.ndarray:
+        """The pixels of one frame, in the stored dtype (``(H, W)`` or ``(H, W, C)``)."""
+        return read_image(rec.path)
+
+    def iter_frames(self, records: Iterable[FrameRecord] | None = None
+                    ) -> Iterator[tuple[FrameRecord, np.ndarray]]:
+        """Yield ``(record, pixels)`` one frame at a time, reading each file only when reached.
+
+        ``records`` defaults to every frame of the session.
+        """
+        for rec in (self.frames if records is None else records):
+            yield rec, self.read(rec)
+
+    def verify_pixels(self) -> Session:
+        """Decode every frame once, one at a time, and return a copy of the session whose
+        problems also list the frames whose pixel data cannot be read (truncated or corrupt).
+
+        Opening a session reads headers only, so a file cut short after its header is caught
+        here (or when the frame is first read), not at open time.
+        """
+        extra = []
+        for rec in self.frames:
+            if rec.path not in self.headers:
+                continue  # the header itself is unreadable: already reported
+            try:
+                self.read(rec)
+            except ImageReadError as exc:
+                extra.append(Problem(rec.relpath, exc.problem, code="unreadable",
+                                     roles=(rec.role,)))
+        return dataclasses.replace(self, problems=self.problems + tuple(extra))
+
+    # ---- tables -----------------------------------------------------------------------------
+    def groups_table(self) -> list[dict[str, Any]]:
+        """One row per group of frames.
+
+        Keys: ``role``; ``key`` (ptc level, fixed-pattern config, flat level or exposure, dark
+        exposure, bracket stack; ``None`` for scenes); ``count``; ``shape`` (NumPy order
+        ``(H, W)`` or ``(H, W, C)``) and ``dtype`` (``None`` when they differ within the group or
+        no header is readable); ``mixed`` (which of ``"shape"``, ``"dtype"`` differ);
+        ``unreadable`` (frames whose header cannot be read); the distinct ``exposures`` (sorted).
+        Sizes are numbers: callers format them (:func:`ccdcore.common.format_size`).
+        """
+        rows = []
+        for role in ROLES:
+            for key, recs in group_by(self.by_role(role), _group_key).items():
+                headers = [self.header_or_none(r) for r in recs]
+                readable = [h for h in headers if h is not None]
+                shapes = {h.shape for h in readable}
+                dtypes = {str(h.dtype) for h in readable}
+                rows.append({
+                    "role": role, "key": key, "count": len(recs),
+                    "shape": shapes.pop() if len(shapes) == 1 else None,
+                    "dtype": dtypes.pop() if len(dtypes) == 1 else None,
+                    "mixed": [k for k, s in (("shape", shapes), ("dtype", dtypes)) if len(s) > 1],
+                    "unreadable": len(headers) - len(readable),
+                    "exposures": sorted({r.exposure for r in recs if r.exposure is not None}),
+                })
+        return rows
+
+    def frames_table(self) -> list[dict[str, Any]]:
+        """One row per frame: its metadata (:meth:`FrameRecord.to_dict`) plus ``shape``,
+        ``dtype``, ``bits`` from the header (``None`` when unreadable)."""
+        rows = []
+        for rec in self.frames:
+            hdr = self.header_or_none(rec)
+            row = rec.to_dict()
+            row.update(shape=hdr.shape if hdr else None, dtype=str(hdr.dtype) if hdr else None,
+                       bits=hdr.bits if hdr else None)
+            rows.append(row)
+        return rows
+
+    # ---- serialisation ----------------------------------------------------------------------
+    def to_toml(self) -> str:
+        """A manifest for this session: camera plus one ``[[frames]]`` entry per frame.
+
+        Metadata inferred from headers, the folder layout or a legacy note is written
+        explicitly, so the user can review and edit it; opening the manifest gives the same
+        frames (paths, roles, metadata) in the same order.
+        """
+        camera = {k: v for k, v in self.camera.to_dict().items() if v is not None}
+        origin = {"folder": f"the folder {self.root} (no manifest)",
+                  "emva1288": f"the EMVA1288 descriptor {self.manifest_path}"}.get(self.source)
+        parts = [f"# Session manifest drafted by ccdcore from {origin}.\n"
+                 "# Check every entry (comments say which keys were inferred), then save it as "
+                 f"{MANIFEST_NAME}.\n" if origin else "",
+                 tomli_w.dumps({"schema": SCHEMA}), "\n[camera]\n", tomli_w.dumps(camera)]
+        for rec in self.frames:
+            parts.append("\n[[frames]]\n")
+            if rec.inferred:
+                parts.append(f"# inferred: {', '.join(rec.inferred)}\n")
+            parts.append(tomli_w.dumps({"path": rec.relpath, **rec.metadata()}))
+        return "".join(parts)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "root": str(self.root),
+            "manifest_path": None if self.manifest_path is None else str(self.manifest_path),
+            "source": self.source, "ok": self.ok, "camera": self.camera.to_dict(),
+            "roles": self.roles(), "frames": [r.to_dict() for r in self.frames],
+            "problems": [p.to_dict() for p in self.problems],
+        }
