@@ -181,9 +181,9 @@ class AppState(param.Parameterized):
     """State shared by the pages of one browser session.
 
     Pages read ``session`` and ``results`` and watch ``session`` (and the attributes of
-    ``results``) to refresh; they report long work
-    through ``busy``/``progress`` and problems through ``error`` (shown as a red alert), never by
-    raising.
+    ``results``) to refresh; they report long work through ``busy``/``progress`` and problems
+    through ``error`` (shown as a red alert), never by raising. Long computations run through
+    :meth:`compute` (off the UI thread); the pages store what it returns in ``results``.
     """
 
     session = param.ClassSelector(class_=Session, default=None, allow_None=True,

@@ -1,10 +1,15 @@
-"""Regenerate the bundled demo sessions bit-exactly.
+"""Regenerate the bundled demo sessions.
 
-    .venv/bin/python assets/regenerate.py            # all presets
-    .venv/bin/python assets/regenerate.py healey94   # one
+    .venv/bin/python -m assets.regenerate            # all presets (or: assets/regenerate.py)
+    .venv/bin/python -m assets.regenerate healey94   # one
 
-Each demo is ``ccdcore.simulate.simulate(preset, assets/<preset>, seed=DEMO_SEED, **DEMOS[preset])``;
-``tests/test_assets.py`` checks that the committed files are exactly what this writes.
+Each demo is ``ccdcore.simulate.simulate(preset, assets/<preset>, seed=DEMO_SEED,
+**DEMOS[preset])``.  The simulators' bytes do not depend on the CPU's vector features (AVX2,
+AVX-512, NEON): digital numbers are computed without NumPy's CPU-dispatched vector functions,
+and truth.json's floats carry 12 significant digits.  ``tests/test_assets.py`` checks
+that the committed files are what this writes: frames, masks and ``session.toml`` byte for byte,
+the float32 true maps to one float32 ulp and ``truth.json`` to one unit in the 12th significant
+digit (the margin for a value that an ulp upstream could round either way).
 """
 from __future__ import annotations
 

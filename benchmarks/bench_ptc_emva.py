@@ -52,10 +52,13 @@ def make_data(folder: Path, width: int, height: int, bits: int, steps: int, L: i
     """Write the dataset (once) and return the generator's truth."""
     from emva1288.camera.dataset_generator import DatasetGenerator
 
+    from ccdcore.simulate import find_truth
+
     stamp = json.dumps([width, height, bits, steps, L, seed])
     truth_file = folder / "truth.json"
-    if truth_file.exists() and (folder / ".stamp").read_text() == stamp:
-        return json.loads(truth_file.read_text())
+    cached = find_truth(folder)
+    if cached is not None and (folder / ".stamp").read_text() == stamp:
+        return dict(cached.values)
     if folder.exists():
         shutil.rmtree(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)

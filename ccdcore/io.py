@@ -268,7 +268,7 @@ def _oiio_messages(oiio, obj=None, **names) -> str:
     return _one_line(own, oiio.geterror(), **names)
 
 
-_STDERR_LOCK = threading.Lock()
+_STDERR_LOCK = threading.RLock()
 
 
 def _stderr_to(sink) -> int | None:
@@ -305,10 +305,14 @@ def _libpng_quiet(path: Path) -> Iterator[None]:
     stderr meanwhile (another thread's output) is passed on afterwards; other formats are left
     alone.
     """
-    if path.suffix.lower() != ".png":
+    sink = None
+    if path.suffix.lower() == ".png":
+        with contextlib.suppress(OSError):  # no room for it: libpng may speak then
+            sink = tempfile.TemporaryFile()
+    if sink is None:
         yield
         return
-    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+    with _STDERR_LOCK, sink:
         saved = _stderr_to(sink)
         try:
             yield

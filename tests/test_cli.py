@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from ccdcore.cli import main
+from ccdcore.simulate import load_truth
 from ccdcore.io import write_image
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,8 +53,8 @@ def test_simulate_writes_session_and_truth(capsys, tmp_path):
                          "--size", "40x32", "--json")
     assert code == 0, err
     report = json.loads(out)
-    truth = json.loads((tmp_path / "h" / "truth.json").read_text())
-    assert report["truth"] == truth
+    truth = load_truth(tmp_path / "h")
+    assert report["truth"] == truth.values
     for key in ("A", "sigma_c2", "read_noise_e", "bits"):
         assert key in truth
     assert (tmp_path / "h" / "session.toml").exists()
@@ -68,7 +69,7 @@ def test_ptc_json_has_the_contract_keys_and_recovers_truth(capsys):
                 "read_noise_e"):
         assert key in res
     assert {"level", "mu", "var", "var_err", "used"} <= set(res["points"][0])
-    truth = json.loads((demo / "truth.json").read_text())
+    truth = load_truth(demo)
     a_err = res["cov"][0][0] ** 0.5
     assert abs(res["A"] - truth["A"]) < 3 * a_err  # three standard errors of the fit
 

@@ -13,7 +13,7 @@ from ccdcore.darkframe import DarkReference, dark_reference
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image
 from ccdcore.session import open_session
-from ccdcore.simulate import simulate
+from ccdcore.simulate import load_truth, simulate
 
 S = 16
 SMALL = dict(size=(64, 48), n_dark=S, levels=3, n1=2, n2=1, scene_levels=(0.5,),
@@ -53,7 +53,7 @@ def test_error_consistent_with_sigma_over_root_s(sim):
     the quantised frames to far better than the noise; the rounding's q²/12 is in the variance.
     """
     root, truth, session, dr = sim
-    tmap = read_image(root / truth["dark_map"]).astype(np.float64)
+    tmap = load_truth(root).map("dark_map").astype(np.float64)
     err = dr.mean_map - tmap
     n = err.size
     # 1) with the estimated sem the standardised error is Student t with s−1 dof:

@@ -21,7 +21,7 @@ from ccdcore.fixedpattern import (CorrectionCheck, FixedPattern, correct, correc
                                   fixed_pattern_map)
 from ccdcore.io import read_image, write_image
 from ccdcore.session import open_session
-from ccdcore.simulate import simulate
+from ccdcore.simulate import load_truth, simulate
 
 N1, N2 = 12, 4
 SMALL = dict(size=(64, 48), n_dark=16, levels=3, n1=N1, n2=N2, scene_levels=(0.5,))
@@ -34,7 +34,7 @@ def sim(tmp_path_factory):
     session = open_session(root)
     dark = dark_reference(session)
     fp = fixed_pattern_map(session, dark)
-    K = read_image(root / truth["K_map"]).astype(np.float64)
+    K = load_truth(root).map("K_map").astype(np.float64)
     return root, truth, session, dark, fp, K
 
 
@@ -97,7 +97,7 @@ def test_card_spots_are_rejected(tmp_path):
     session = open_session(tmp_path)
     dark = dark_reference(session)
     fp = fixed_pattern_map(session, dark)
-    K = read_image(tmp_path / truth["K_map"]).astype(np.float64)
+    K = load_truth(tmp_path).map("K_map").astype(np.float64)
     dev = _config_slopes(session, dark.mean_map, K)
     # a spot moves its slope by ±25 %; noise moves a slope by ~0.5 % (sd), so |dev| > 0.1 is a spot
     spots = np.abs(dev) > 0.1

@@ -21,7 +21,7 @@ from ccdcore.flatfield import (base_image_study, compare_dark_settings, compare_
                                zero_dark)
 from ccdcore.io import read_image
 from ccdcore.session import open_session
-from ccdcore.simulate import simulate
+from ccdcore.simulate import load_truth, simulate
 from ccdcore.uniformity import snup
 
 SIZE = (64, 48)
@@ -31,7 +31,7 @@ SIZE = (64, 48)
 def sim(tmp_path_factory):
     out = tmp_path_factory.mktemp("delasarte_ff")
     truth = simulate("delasarte07", out, seed=3, size=SIZE)
-    F = read_image(out / truth["maps"]["flatfield"]).astype(np.float64)
+    F = load_truth(out).map("flatfield").astype(np.float64)
     return open_session(out), truth, F
 
 
@@ -55,7 +55,7 @@ def test_gain_recovers_true_flat_field(sim):
     # Δ = S·F the true signal (the simulator's noise model)
     t = truth["base"]["exposure"]
     S = np.array(truth["signal_dn_per_s"]) * truth["radiance_levels"]["3"] * t
-    dark = read_image(session.root / truth["maps"]["dark_NZDI"]).astype(np.float64)
+    dark = load_truth(session).map("dark_NZDI").astype(np.float64)
     var_b = _noise_var(truth, dark + S * F, "NZDI")
     var_0 = _noise_var(truth, dark, "NZDI")
     rel_sd = np.sqrt(var_b / ff.base.n + var_0 / ff.dark.n) / (S * F)
@@ -88,7 +88,7 @@ def test_corrected_snup_reaches_shot_noise_limit(sim):
     rate = np.array(truth["signal_dn_per_s"])
     x = rate * truth["radiance_levels"]["2"] * t_img * F     # image signal above dark
     y = rate * truth["radiance_levels"]["3"] * t_b * F       # base signal above dark
-    dark = read_image(session.root / truth["maps"]["dark_NZDI"]).astype(np.float64)
+    dark = load_truth(session).map("dark_NZDI").astype(np.float64)
     var_d = _noise_var(truth, dark + x, "NZDI")
     var_b = _noise_var(truth, dark + y, "NZDI")
     var_0 = _noise_var(truth, dark, "NZDI")

@@ -113,6 +113,21 @@ def test_missing_empty_truncated_and_junk_files_name_the_file(tmp_path):
         assert words in str(info.value)
 
 
+@pytest.mark.parametrize("ext", [".tif", ".exr", ".png", ".pgm", ".fits"])
+@pytest.mark.parametrize("keep", [0.9, 0.5, 0.1])
+def test_truncated_files_of_every_format_name_the_file(tmp_path, capfd, ext, keep):
+    a = _random((64, 64), "float32" if ext == ".exr" else "uint16")
+    data = write_image(tmp_path / f"good{ext}", a).read_bytes()
+    cut = tmp_path / f"cut{ext}"
+    cut.write_bytes(data[: int(len(data) * keep)])
+    with pytest.raises(ImageReadError) as info:
+        read_image(cut)
+    message = str(info.value)
+    assert message.startswith(f"{cut}: ") and "\n" not in message
+    assert "truncated" in message or "cannot read" in message
+    assert capfd.readouterr().err == ""             # no libpng / OpenImageIO chatter
+
+
 def test_raw_file_errors_are_clear(tmp_path, monkeypatch):
     bogus = tmp_path / "shot.dng"
     bogus.write_bytes(b"II*\x00 this is not a raw file")

@@ -25,7 +25,7 @@ from ccdcore.flatfield import flat_field
 from ccdcore.io import read_image
 from ccdcore.noise import PtcPoint, fit_points, pair_statistics, photon_transfer
 from ccdcore.session import open_session
-from ccdcore.simulate import simulate
+from ccdcore.simulate import load_truth, simulate
 from ccdcore.uniformity import snup_vs_averaging
 
 #: q²/12 for integer data (q = 1 DN), the quantisation term of eq. 27 (Healey & Kondepudy 1994)
@@ -298,7 +298,7 @@ def test_dark_spatial_std_signal_against_the_healey94_truth(tmp_path):
                      patches=(("a", 0.01),), scene_levels=(0.5,), max_intensity=None)
     dr = dark_reference(open_session(tmp_path))
     assert dr.s == s
-    tmap = read_image(tmp_path / truth["dark_map"]).astype(np.float64)
+    tmap = load_truth(tmp_path).map("dark_map").astype(np.float64)
     true_std = float(tmap.std())
     assert true_std == pytest.approx(truth["dark_std_dn"], rel=1e-5)
     M = tmap.size
@@ -340,7 +340,7 @@ def test_fixed_pattern_K_error_matches_the_noise_budget(tmp_path):
     session = open_session(tmp_path)
     fp = fixed_pattern_map(session, dark_reference(session), window=m, p=1e9)
     assert (fp.n1_used == n1).all()
-    K = read_image(tmp_path / truth["K_map"]).astype(np.float64)
+    K = load_truth(tmp_path).map("K_map").astype(np.float64)
     rms2 = float(np.mean((fp.K - K) ** 2))
 
     A, sigma_c2, black = truth["A"], truth["sigma_c2"], truth["black_level_dn"]

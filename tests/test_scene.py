@@ -22,7 +22,7 @@ from ccdcore.io import read_image
 from ccdcore.scene import (BUDGET_COMPONENTS, SceneVariation, fit_scene_variation,
                            scene_measurement, scene_variation, scene_variations, variance_budget)
 from ccdcore.session import open_session
-from ccdcore.simulate import simulate
+from ccdcore.simulate import load_truth, simulate
 
 SIZE = (64, 48)  # ROI 48 x 32 = 1536 pixels with the default 8-pixel margin
 FAST = dict(n_dark=1, levels=2, n1=1, n2=1)  # only the scene frames matter here
@@ -31,8 +31,8 @@ FAST = dict(n_dark=1, levels=2, n1=1, n2=1)  # only the scene frames matter here
 def _sim(root: Path, seed: int, **options):
     out = root / f"s{seed}"
     truth = simulate("healey94", out, seed=seed, size=SIZE, **{**FAST, **options})
-    K = read_image(out / truth["K_map"]).astype(np.float64)
-    dark = read_image(out / truth["dark_map"]).astype(np.float64)
+    K = load_truth(out).map("K_map").astype(np.float64)
+    dark = load_truth(out).map("dark_map").astype(np.float64)
     return out, truth, K, dark
 
 

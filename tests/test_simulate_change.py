@@ -1,7 +1,6 @@
 """Tests of the change-scene simulator (Tsin, Ramesh & Kanade 2001, sec. 5, eq. 20)."""
 from __future__ import annotations
 
-import json
 import math
 import tomllib
 
@@ -10,7 +9,7 @@ import pytest
 
 from ccdcore.errors import CcdError
 from ccdcore.io import read_header, read_image
-from ccdcore.simulate import change
+from ccdcore.simulate import change, load_truth
 from ccdcore.simulate import simulate as simulate_preset
 
 
@@ -24,7 +23,7 @@ def scene(tmp_path_factory):
 def test_manifest_and_truth_keys(scene):
     root, truth = scene
     manifest = tomllib.loads((root / "session.toml").read_text())
-    assert json.loads((root / "truth.json").read_text()) == truth
+    assert load_truth(root).values == truth
     assert manifest["camera"]["layout"] == "rgb" and manifest["camera"]["bits"] == 8
     roles = [f["role"] for f in manifest["frames"]]
     assert roles == ["reference"] * 7 + ["target"] * 7
@@ -46,9 +45,9 @@ def test_manifest_and_truth_keys(scene):
 
 
 def _masks(root, truth):
-    cm = read_image(root / truth["masks"]["change"])
-    sm = read_image(root / truth["masks"]["shadow"])
-    return cm, sm
+    t = load_truth(root)
+    assert t.values == truth
+    return t.map("masks.change"), t.map("masks.shadow")
 
 
 def test_masks_have_the_expected_areas(scene):
@@ -82,8 +81,8 @@ def test_masks_have_the_expected_areas(scene):
 def test_truth_radiance_obeys_the_transforms(scene):
     root, truth = scene
     cm, sm = _masks(root, truth)
-    E = read_image(root / "truth/E.exr").astype(float)
-    Et = read_image(root / "truth/E_target.exr").astype(float)
+    E = load_truth(root).map("E").astype(float)
+    Et = load_truth(root).map("E_target").astype(float)
     assert E.shape == (96, 128, 3) and E.min() > 0
     transforms = [truth["M"], *truth["M_shadows"]]
     for label, M in enumerate(transforms):

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from ccdcore.io import read_frame, read_image
-from ccdcore.simulate import simulate
+from ccdcore.session import open_session
+from ccdcore.simulate import load_truth, simulate
 
 SIZE = (64, 48)
 
@@ -43,8 +44,11 @@ def test_manifest_and_truth(session):
     man = tomllib.loads((root / "session.toml").read_text())
     assert man["camera"]["layout"] == "rgb" and man["camera"]["bits"] == 8
     assert len(man["frames"]) == len(truth["frames"])
-    notes = {f["note"] for f in man["frames"]}
-    assert notes == {"setting=NZDI", "setting=ZDI"}
+    assert load_truth(root).values == truth
+    settings = {f["setting"] for f in man["frames"]}        # the manifest key, not a note
+    assert settings == {"NZDI", "ZDI"}
+    assert not any("note" in f for f in man["frames"])
+    assert all(f["setting"] == t["setting"] for f, t in zip(man["frames"], truth["frames"]))
     for f in man["frames"]:
         assert f["role"] in ("dark", "flat") and f["exposure"] > 0 and f["gain"] == 1.0
         assert ("level" in f) == (f["role"] == "flat")
@@ -53,6 +57,7 @@ def test_manifest_and_truth(session):
     assert header.exposure == pytest.approx(man["frames"][0]["exposure"])
     for key in ("flatfield", "vignetting", "dark_rate", "dark_NZDI", "dark_ZDI"):
         assert (root / truth["maps"][key]).is_file()
+    assert truth["setting_key"] == "manifest key setting = '<NZDI|ZDI>'"
     base = _frames(truth, role="flat", setting="NZDI", level=truth["base"]["level"],
                    exposure=truth["base"]["exposure"])
     assert len(base) == 8                                   # N = 1, 2, 4, 8 can be averaged
@@ -121,14 +126,14 @@ def test_zdi_dark_is_zero_and_nzdi_dark_is_not(session):
                     + np.array(truth["dark_current_dn_per_s"]) * t)
         se = np.sqrt(_noise_var(truth, expected, "NZDI") / (len(fr) * M))
         assert np.all(np.abs(d - expected) < 4 * se), t
-    dark_zdi = read_image(root / truth["maps"]["dark_ZDI"])
+    dark_zdi = load_truth(root).map("dark_ZDI")
     assert float(np.max(dark_zdi)) < 0.05
 
 
 def test_true_flatfield_explains_the_flat_frames(session):
     """(DL_B - DL_0)/F is uniform up to noise, so G = 1/F is de Lasarte's correction."""
     root, truth = session
-    F = read_image(root / truth["flatfield_map"]).astype(float)
+    F = load_truth(root).map("flatfield_map").astype(float)
     assert F.shape == (48, 64, 3)
     assert np.allclose(F.mean(axis=(0, 1)), 1.0, atol=1e-5)
     t_b, l_b = truth["base"]["exposure"], truth["base"]["level"]
@@ -168,3 +173,24 @@ def test_same_seed_same_bytes(tmp_path):
     for rel in files_a:
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     assert (a / "truth/flatfield.exr").read_bytes() != (c / "truth/flatfield.exr").read_bytes()
+
+
+def test_session_reads_settings_without_warnings(session):
+    """The manifest's ``setting`` key selects the frames of each offset setting (no legacy note)."""
+    root, truth = session
+    s = open_session(root)
+    assert [p for p in s.problems if p.severity == "error"] == []
+    assert [str(p) for p in s.problems if p.code == "deprecated-note"] == []
+    assert s.settings() == ("NZDI", "ZDI")
+    for setting in ("NZDI", "ZDI"):
+        flats = s.flat_groups(setting=setting)
+        want = {(f["level"], f["exposure"]) for f in _frames(truth, role="flat", setting=setting)}
+        assert set(flats) == want
+        for (level, t), recs in flats.items():
+            assert {r.path.name for r in recs} == {
+                Path(f["path"]).name for f in _frames(truth, role="flat", setting=setting,
+                                                      level=level, exposure=t)}
+            assert all(r.setting == setting for r in recs)
+        darks = s.dark_groups(setting=setting)
+        assert sorted(darks) == sorted(truth["exposures"])
+        assert all(len(v) == truth["n_dark"] for v in darks.values())

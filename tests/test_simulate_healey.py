@@ -14,7 +14,8 @@ import pytest
 
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image
-from ccdcore.simulate import simulate
+from ccdcore.session import open_session
+from ccdcore.simulate import load_truth, simulate
 from ccdcore.simulate.sensor import SensorModel, child_rng
 
 SMALL = dict(size=(64, 48), n_dark=8, levels=5, n1=3, n2=2, scene_levels=(0.3, 0.7))
@@ -44,6 +45,7 @@ def test_registry_returns_required_truth(session):
     assert truth["sigma_c2"] == pytest.approx(0.0034 ** 2 * 297.0 ** 2 + 1 / 12)  # eq. 27
     assert (root / truth["K_map"]).is_file() and (root / truth["dark_map"]).is_file()
     assert truth["maps"] == {"K": "truth/K.exr", "dark": "truth/dark.exr"}
+    assert load_truth(root).values == truth
     man = _manifest(root)
     assert man["camera"] == {"name": "XC-77-like simulated CCD", "bits": 8, "layout": "mono",
                              "black_level": 0.0}
@@ -88,7 +90,7 @@ def test_saturated_level_clips(session):
 
 def test_K_map_statistics(session):
     root, truth = session
-    K = read_image(root / truth["K_map"]).astype(float)
+    K = load_truth(root).map("K_map").astype(float)
     M, sK = K.size, truth["sigma_K"]
     assert K.shape == (48, 64)
     assert abs(K.mean() - 1.0) < 4 * sK / np.sqrt(M)               # SE of a mean
@@ -105,7 +107,7 @@ def test_dark_frames_mean_and_temporal_variance(session):
     v = darks.var(axis=0, ddof=1).mean()   # per-pixel temporal variance, pixel averaged
     assert abs(v - s2) < 4 * np.sqrt(2 / ((s - 1) * M)) * s2
     # the dark reference (sec. V-A) differs from the true dark map by noise of variance s2/s only
-    dark_map = read_image(root / truth["dark_map"]).astype(float)
+    dark_map = load_truth(root).map("dark_map").astype(float)
     resid = darks.mean(axis=0) - dark_map
     assert abs(resid.var(ddof=1) - s2 / s) < 4 * np.sqrt(2 / (M - 1)) * s2 / s
     # the true dark map has the paper's spatial spread (sec. VII-A: 10.74 DN, std 0.555 DN)
@@ -132,13 +134,14 @@ def test_fixed_pattern_configurations(session):
 
 def test_scene_variation_recovered_with_true_maps(session):
     root, truth = session
-    K = read_image(root / truth["K_map"]).astype(float)
-    dark = read_image(root / truth["dark_map"]).astype(float)
+    K = load_truth(root).map("K_map").astype(float)
+    dark = load_truth(root).map("dark_map").astype(float)
     for patch in truth["scene"]["patches"]:
         x, y, w, h = patch["roi"]
         for fr in patch["frames"]:
             entry = _frames(root, path=fr["path"])[0]
-            assert entry["roi"] == patch["roi"] and entry["note"] == f"patch={patch['name']}"
+            assert entry["roi"] == patch["roi"] and entry["patch"] == patch["name"]
+            assert "note" not in entry
         top = patch["frames"][-1]
         D = read_image(root / top["path"]).astype(float)
         Dc = ((D - dark) / K)[y:y + h, x:x + w]                         # eq. 51
@@ -149,6 +152,27 @@ def test_scene_variation_recovered_with_true_maps(session):
         se = np.sqrt(2 / (Dc.size - 1)) * var_D / mu_D ** 2
         assert abs(vs_hat - patch["V_S"]) < 4 * se, patch["name"]
         assert abs(mu_D - top["mu_D"]) < 4 * np.sqrt(var_D / Dc.size)   # eq. 54
+
+
+def test_session_reads_patches_and_max_intensity_without_warnings(session):
+    """Scene patches and the max-intensity frame come from the manifest keys ``patch`` and
+    ``flags``, not from a legacy note."""
+    root, truth = session
+    s = open_session(root)
+    assert [p for p in s.problems if p.severity == "error"] == []
+    assert [str(p) for p in s.problems if p.code == "deprecated-note"] == []
+    patches = s.scene_patches()
+    assert list(patches) == [p["name"] for p in truth["scene"]["patches"]]
+    for p in truth["scene"]["patches"]:
+        recs = patches[p["name"]]
+        assert [r.path.name for r in recs] == [Path(f["path"]).name for f in p["frames"]]
+        assert all(r.patch == p["name"] and r.roi == tuple(p["roi"]) and r.flags == ()
+                   for r in recs)
+    mx = s.max_intensity_frame()
+    assert mx is not None and mx.path.name == Path(truth["max_intensity"]["path"]).name
+    assert mx.flags == ("max-intensity",) and mx.patch is None and mx.roi is None
+    entry = _frames(root, path=truth["max_intensity"]["path"])[0]
+    assert entry["flags"] == ["max-intensity"] and "note" not in entry
 
 
 def test_same_seed_same_bytes(tmp_path):

@@ -7,7 +7,6 @@ Var[z] = Var[f(v)] + sigma_c2^2 + 1/12 (rounding).  Tolerances are a few standar
 """
 from __future__ import annotations
 
-import json
 import math
 import tomllib
 from pathlib import Path
@@ -19,8 +18,8 @@ from scipy import ndimage, stats
 from ccdcore import channels
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image
+from ccdcore.simulate import load_truth, tsin
 from ccdcore.simulate import simulate as simulate_preset
-from ccdcore.simulate import tsin
 
 NODES, WEIGHTS = np.polynomial.hermite_e.hermegauss(48)
 WEIGHTS = WEIGHTS / math.sqrt(2.0 * math.pi)
@@ -51,8 +50,7 @@ def check_frame(z, v0, var_v, lo=20.0, hi=230.0, min_n=200):
 
 def read_session(root: Path):
     manifest = tomllib.loads((root / "session.toml").read_text())
-    truth = json.loads((root / "truth.json").read_text())
-    return manifest, truth
+    return manifest, load_truth(root).values
 
 
 # ---------------------------------------------------------------------------------------------
@@ -147,7 +145,7 @@ def test_manifest_and_truth_keys(mono_session):
 
 def test_radiance_is_uniform_on_unit_interval(mono_session):
     root, truth = mono_session
-    E = read_image(root / truth["maps"]["E"])
+    E = load_truth(root).map("E")
     assert E.shape == (48, 64) and E.dtype == np.float32
     assert E.min() >= 0.0 and E.max() <= 1.0
     assert stats.kstest(E.ravel(), "uniform").pvalue > 0.001
@@ -155,7 +153,7 @@ def test_radiance_is_uniform_on_unit_interval(mono_session):
 
 def test_bracket_frames_follow_the_model(mono_session):
     root, truth = mono_session
-    E = read_image(root / "truth/E.exr").astype(float)
+    E = load_truth(root).map("E").astype(float)
     for k, entry in enumerate(truth["frames"]):
         z = read_image(root / entry["path"])
         assert z.dtype == np.uint8 and z.shape == (48, 64)
@@ -167,7 +165,7 @@ def test_bracket_frames_follow_the_model(mono_session):
 
 def test_bracket_spans_dark_to_saturated(mono_session):
     root, truth = mono_session
-    E = read_image(root / "truth/E.exr").astype(float)
+    E = load_truth(root).map("E").astype(float)
     first = read_image(root / truth["frames"][0]["path"])
     last = read_image(root / truth["frames"][-1]["path"])
     a_last = truth["a"][0][-1]
@@ -183,7 +181,7 @@ def test_colour_white_balance_session(tmp_path):
                             white_balance=True)
     manifest, _ = read_session(tmp_path)
     assert manifest["camera"]["layout"] == "rgb"
-    E = read_image(tmp_path / "truth/E.exr").astype(float)
+    E = load_truth(tmp_path).map("E").astype(float)
     assert E.shape == (32, 32, 3)
     corr = np.corrcoef(E.reshape(-1, 3).T)
     assert np.all(np.abs(corr[np.triu_indices(3, 1)]) < 4 / math.sqrt(32 * 32))
@@ -217,8 +215,8 @@ def test_bayer_session_adds_noise_per_site_then_interpolates(tmp_path):
     truth = simulate_preset("tsin01", tmp_path, seed=3, size=(64, 64), bayer="rggb")
     assert truth["layout"] == "rgb" and truth["bayer"] == "rggb"
     assert truth["radiance_map"] == "E_effective"
-    E = read_image(tmp_path / "truth/E.exr").astype(float)
-    Ee = read_image(tmp_path / "truth/E_effective.exr").astype(float)
+    E = load_truth(tmp_path).map("E").astype(float)
+    Ee = load_truth(tmp_path).map(truth["radiance_map"]).astype(float)      # E_effective
     np.testing.assert_allclose(Ee, channels.demosaic_bilinear(channels.mosaic(E, "rggb"), "rggb"),
                                rtol=1e-6)
     green = channels.channel_masks((64, 64), "rggb")[1]

@@ -22,8 +22,8 @@ FrameView, frame_view(session, record, flat)
 default_frame(recommendation, groups)
     The flat frame shown first: one of the linear-range group ``compare_with_k_map`` evaluates.
 kmap_comparison(session, setting)
-    :func:`ccdcore.flatfield.compare_with_k_map`, with the true flat field of ``truth.json`` when
-    the session folder holds one.
+    :func:`ccdcore.flatfield.compare_with_k_map`, with the simulator's true flat field when the
+    session has one (:func:`ccdcore.simulate.truth.find_truth`).
 NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE
     What the page says without flat frames, and above a zero-clipped dark image.
 
@@ -36,12 +36,10 @@ through :meth:`app.state.AppState.compute`; results are cached in ``state.result
 """
 from __future__ import annotations
 
-import json
 import logging
 import traceback
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 from typing import Any, Sequence
 
 import holoviews as hv
@@ -56,18 +54,22 @@ from ccdcore.errors import CcdError
 from ccdcore.flatfield import (BaseRecommendation, FlatField, KMapComparison,
                                base_image_study, compare_dark_settings, compare_with_k_map,
                                flat_field_from_session, recommend_base, zero_dark)
-from ccdcore.io import read_image
 from ccdcore.session import FrameRecord, Session
+from ccdcore.simulate.truth import find_truth
 from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
 from ..state import AppState
+from ._choices import set_choices
 from ._messages import PageMessages
 
 __all__ = ["FlatFieldPage", "create_page", "FrameView", "frame_view", "kmap_comparison",
            "default_frame", "NO_FLAT_MESSAGE", "ZERO_DARK_MESSAGE"]
 
 log = logging.getLogger(__name__)
+
+#: the name of the true flat field among a simulated session's truth maps
+TRUE_FLATFIELD = "flatfield"
 
 #: what the page says when the session has no flat frames
 NO_FLAT_MESSAGE = (
@@ -129,25 +131,24 @@ def _zero_dark(session: Session, setting: str | None):
     return zero_dark(session.iter_frames(recs), layout=session.camera.layout)
 
 
-def _truth_flatfield(root: Path) -> np.ndarray | None:
-    """The true flat field named by ``truth.json`` in ``root`` (simulated sessions), or None."""
-    path = root / "truth.json"
-    if not path.is_file():
-        return None
+def _true_flatfield(session: Session) -> np.ndarray | None:
+    """The simulator's true flat field of the session (``truth.json``'s ``flatfield`` map), or
+    None for a real capture, a truth without one or one that cannot be read (logged)."""
     try:
-        name = json.loads(path.read_text()).get("flatfield_map")
-    except (OSError, ValueError):
+        truth = find_truth(session)
+        if truth is None or TRUE_FLATFIELD not in truth.maps():
+            return None
+        return truth.map(TRUE_FLATFIELD)
+    except CcdError as err:
+        log.warning("the true flat field is not used: %s", err)
         return None
-    if not isinstance(name, str) or not (root / name).is_file():
-        return None
-    return read_image(root / name)
 
 
 def kmap_comparison(session: Session, setting: str | None) -> tuple[KMapComparison, bool]:
-    """:func:`ccdcore.flatfield.compare_with_k_map` on the session; the true flat field of the
-    session's ``truth.json`` (``flatfield_map``) is passed as ``truth_flatfield`` when present.
-    Returns the comparison and whether the truth was used."""
-    truth = _truth_flatfield(Path(session.root))
+    """:func:`ccdcore.flatfield.compare_with_k_map` on the session; the simulator's true flat
+    field (:func:`ccdcore.simulate.truth.find_truth`) is passed as ``truth_flatfield`` when the
+    session has one. Returns the comparison and whether the truth was used."""
+    truth = _true_flatfield(session)
     return compare_with_k_map(session, setting=setting, truth_flatfield=truth), truth is not None
 
 
@@ -225,6 +226,13 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
     channel = param.Selector(default="R", objects=["R", "G", "B"],
                              doc="Channel (or CFA plane) shown in the maps and plots.")
+    offset = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "The offset setting analysed (manifest key setting; None when the session names "
+        "none)."))
+    base = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "(level, exposure) of the flat group used as the base image DL_B."))
+    frame = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "relpath of the flat frame shown before and after correction."))
 
     def __init__(self, state: AppState | None = None, *, auto: bool = True, **params: Any):
         """``auto``: compute when the page is built, the session changes or a widget changes
@@ -235,7 +243,6 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         #: the browser session's document (callbacks after a worker thread may not know it)
         self._doc = pn.state.curdoc
         self._session: Session | None = None
-        self._syncing = False
         self._generation = 0          # bumped by every setting request (newest wins)
         self._base_generation = 0     # bumped by every base request
         self._records: dict[str, FrameRecord] = {}
@@ -266,14 +273,13 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.recommend_alert = pn.pane.Alert("", alert_type="info", visible=False,
                                              sizing_mode="stretch_width", margin=(5, 5, 0, 5))
 
-        self.setting_select = pn.widgets.Select(label="Offset setting", options=[], width=180)
-        self.base_select = pn.widgets.Select(label="Base image (level \u00b7 exposure)",
-                                             options={}, sizing_mode="stretch_width",
-                                             min_width=320)
+        self.setting_select = pn.widgets.Select.from_param(self.param.offset,
+                                                           label="Offset setting", width=180)
+        self.base_select = pn.widgets.Select.from_param(
+            self.param.base, label="Base image (level \u00b7 exposure)",
+            sizing_mode="stretch_width", min_width=320)
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.channel, label="Channel", color="default", align="end", width=220)
-        self.setting_select.param.watch(self._on_setting, "value")
-        self.base_select.param.watch(self._on_base, "value")
         self.param.watch(self._on_channel, "channel")
 
         self.setup_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
@@ -282,9 +288,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
 
         # before / after
-        self.frame_select = pn.widgets.Select(label="Frame (any flat of the setting)", options=[],
-                                              sizing_mode="stretch_width")
-        self.frame_select.param.watch(self._on_frame, "value")
+        self.frame_select = pn.widgets.Select.from_param(
+            self.param.frame, label="Frame (any flat of the setting)", sizing_mode="stretch_width")
         self.snup_title = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
         self.snup_table = _table(pd.DataFrame(), "ccd-flat-snup")
         self.frame_alert = pn.pane.Alert("", alert_type="danger", visible=False,
@@ -393,21 +398,31 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     # ============================================================ widget events ============
     def _schedule(self, step: Any) -> None:
-        if self.auto and not self._syncing:
+        if self.auto:
             pn.state.execute(step)
+
+    def _choose(self, choice: str, objects: Any, value: Any) -> None:
+        """Set a choice's options and value as the page's own: no event, so no step is
+        scheduled (the caller shows it); the user's choices schedule theirs."""
+        widget = {"offset": self.setting_select, "base": self.base_select,
+                  "frame": self.frame_select}[choice]
+        set_choices(self, {choice: (widget, objects, value)}, trigger=False)
 
     def _on_session(self, *events: Any) -> None:
         self._session = None
         if self.auto:
             pn.state.execute(self.refresh)
 
-    def _on_setting(self, event: Any = None) -> None:
+    @param.depends("offset", watch=True)
+    def _on_setting(self) -> None:
         self._schedule(self.show_setting)
 
-    def _on_base(self, event: Any = None) -> None:
+    @param.depends("base", watch=True)
+    def _on_base(self) -> None:
         self._schedule(self.show_base)
 
-    def _on_frame(self, event: Any = None) -> None:
+    @param.depends("frame", watch=True)
+    def _on_frame(self) -> None:
         self._schedule(self.show_frame)
 
     def _on_channel(self, event: Any = None) -> None:
@@ -421,13 +436,6 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         ``state.execute(..., schedule=True)``: holding the document lock, so replaced plots and
         linked ranges reach the browser), or at once outside a server."""
         _in_document(self._doc, render)
-
-    def _set_quietly(self, widget: pn.widgets.Widget, **values: Any) -> None:
-        self._syncing = True
-        try:
-            widget.param.update(**values)
-        finally:
-            self._syncing = False
 
     # ============================================================ computing ================
     async def _get(self, cache: dict, key: Any, func: Any, *args: Any, label: str,
@@ -476,8 +484,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             return
         self._info("")
         settings = list(session.settings())
-        self._set_quietly(self.setting_select, options=settings,
-                          value=settings[0] if settings else None)
+        self._choose("offset", settings, settings[0] if settings else None)
         self.setting_select.visible = bool(settings)
         names = channel_names(session.camera.layout)
         self.param.channel.objects = list(names)
@@ -495,7 +502,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             return
         self._generation += 1
         generation = self._generation
-        setting = self.setting_select.value or None
+        setting = self.offset or None
         self.setting = setting
         self._set_error("")
         self._study = None
@@ -520,9 +527,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                 self._set_error(error)
             self._fill_bases(groups, rec)
             self._records = {r.relpath: r for recs in groups.values() for r in recs}
-            frame = self.frame_select.value if self.frame_select.value in self._records \
-                else default_frame(rec, groups)
-            self._set_quietly(self.frame_select, options=list(self._records), value=frame)
+            frame = self.frame if self.frame in self._records else default_frame(rec, groups)
+            self._choose("frame", list(self._records), frame)
             self._in_document(self._render_linearity)
             zero, zerr = await self._get(self._cache.zero_dark, setting, _zero_dark, session,
                                          setting, label="zero-dark check", optional=True)
@@ -550,9 +556,9 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             if rec is not None and key == rec.key:
                 label += " (recommended)"
             options[label] = key
-        keep = self.base_select.value if self.base_select.value in groups else None
+        keep = self.base if self.base in groups else None
         value = keep or (rec.key if rec is not None else next(iter(groups)))
-        self._set_quietly(self.base_select, options=options, value=value)
+        self._choose("base", options, value)
         if rec is not None:
             self.recommend_alert.object = (
                 f"**Recommended base image: {flat_plots.group_label(rec.key)}** \u2014 "
@@ -565,7 +571,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         """The chosen base image: G and O (darks at its exposure), the maps, the averaging
         table of its frames, then :meth:`show_frame`."""
         session = self._session
-        key = self.base_select.value
+        key = self.base
         if session is None or key is None or not self._current(session):
             return
         self._base_generation += 1
@@ -602,7 +608,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     async def show_frame(self) -> None:
         """The chosen frame before and after correction with the current G, O."""
         session, flat = self._session, self.flat
-        rec = self._records.get(self.frame_select.value)
+        rec = self._records.get(self.frame)
         if session is None or flat is None or rec is None or not self._current(session):
             return
         generation = self._generation

@@ -42,7 +42,8 @@ its warnings, V_S and the correction check on the session's max-intensity frame)
 ``state.results`` (``estimates``; ``ptc``, the noise model, is read and, when missing, filled).
 The page's own state (maps shown and selected, the patch, the planning inputs) is declared with
 ``param``; watchers (``@param.depends(..., watch=True)``) redraw what depends on it, once per
-batch of changes.
+change: the page sets choices together with their options and data through
+:func:`app.pages._choices.set_choices`.
 """
 from __future__ import annotations
 
@@ -71,6 +72,7 @@ from ccdcore.session import ROLES, Session
 from .. import map_plots, plots
 from ..map_plots import MapLayer
 from ..state import AppState
+from ._choices import set_choices
 
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
            "correction_summary", "scene_patch_frame", "scene_level_frame", "export_bytes",
@@ -223,8 +225,14 @@ def export_bytes(layer: MapLayer, fmt: str, clim: tuple[float, float] | None = N
 
 
 def _lacking(what: tuple[str, ...]) -> str:
-    """``("fixed_pattern", "dark")`` -> "`fixed_pattern` frames and no `dark` frames"."""
-    return " and no ".join(f"`{r}` frames" if r in ROLES else r for r in what)
+    """What a session lacks, to follow "No": ``("scene", "ptc", "dark")`` -> "`scene`, `ptc`
+    or `dark` frames"; a described frame (not a role) is added with "and no"."""
+    roles = [f"`{r}`" for r in what if r in ROLES]
+    parts = [r for r in what if r not in ROLES]
+    if roles:
+        head = roles[0] if len(roles) == 1 else ", ".join(roles[:-1]) + " or " + roles[-1]
+        parts.insert(0, f"{head} frames")
+    return " and no ".join(parts)
 
 
 def missing_sentences(session: Session) -> list[str]:
@@ -287,7 +295,7 @@ class MapsPage(pn.viewable.Viewer):
         "Compute the maps when the page is shown and the session has dark frames but no "
         "estimates yet."))
     computing = param.Boolean(default=False, precedence=-1, doc=(
-        "True while the page computes the estimates (a second request waits for it)."))
+        "True while the page computes the estimates (a request meanwhile is ignored)."))
     # ---- the Maps tab
     layers = param.Dict(default={}, precedence=-1, doc=(
         "The maps on the page: key -> app.map_plots.MapLayer, from the dark reference and K̂."))
@@ -693,17 +701,15 @@ class MapsPage(pn.viewable.Viewer):
         shown = [k for k in self.shown if k in layers] or \
             [k for k in DEFAULT_SHOWN if k in layers]
         active = self.active if self.active in layers else next(iter(shown), None)
-        with param.parameterized.batch_call_watchers(self):
-            self.param.shown.objects = options
-            self.param.active.objects = options
-            self.param.update(layers=layers, shown=shown, active=active)
-            self.maps_empty.visible = not layers
-            if hasattr(self, "maps_body"):
-                self.maps_body.visible = bool(layers)
-            if layers:
-                h, w = next(iter(layers.values())).data.shape
-                self.row_slider.param.update(end=max(h - 1, 1), value=h // 2)
-                self.col_slider.param.update(end=max(w - 1, 1), value=w // 2)
+        self.maps_empty.visible = not layers
+        if hasattr(self, "maps_body"):
+            self.maps_body.visible = bool(layers)
+        if layers:
+            h, w = next(iter(layers.values())).data.shape
+            self.row_slider.param.update(end=max(h - 1, 1), value=h // 2)
+            self.col_slider.param.update(end=max(w - 1, 1), value=w // 2)
+        set_choices(self, {"shown": (self.shown_select, options, shown),
+                           "active": (self.active_select, options, active)}, layers=layers)
 
     @property
     def active_layer(self) -> MapLayer | None:
@@ -815,9 +821,7 @@ class MapsPage(pn.viewable.Viewer):
             return
         names = list(scene or {})
         patch = self.patch if self.patch in names else next(iter(names), None)
-        with param.parameterized.batch_call_watchers(self):
-            self.param.patch.objects = names
-            self.param.update(scene=scene, patch=patch)
+        set_choices(self, {"patch": (self.patch_select, names, patch)}, scene=scene)
 
     @param.depends("scene", watch=True)
     def _show_scene(self) -> None:

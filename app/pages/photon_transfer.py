@@ -49,6 +49,7 @@ from ccdcore.session import FrameRecord, Session
 
 from .. import plots, ptc_plots
 from ..state import AppState
+from ._choices import set_choices
 from ._messages import PageMessages
 
 __all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "verdict_message",
@@ -159,14 +160,19 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     robust = param.Boolean(default=False, doc=(
         f"Robust mode: drop, one at a time, the level whose residual exceeds {ROBUST_Z:g} sigma "
         "(at least three levels kept)."))
+    points = param.ClassSelector(class_=tuple, default=(), doc=(
+        "The measured levels (ccdcore.noise.PtcPoint) at the applied ROI, with the estimator's "
+        "flags when fitted."))
+    levels = param.ListSelector(default=[], objects=[], doc=(
+        "The light levels ticked for the fit (the others are excluded by the user)."))
+    frame = param.Selector(default=None, objects=[], allow_None=True, doc=(
+        "relpath of the photon-transfer frame previewed under the ROI box."))
 
     def __init__(self, state: AppState | None = None, *, auto: bool = True, **params: Any):
         """``auto``: compute as soon as the page is built and whenever the session changes
         (scheduled on the server's event loop); tests pass ``False`` and await :meth:`refresh`."""
         super().__init__(state=state if state is not None else AppState(), **params)
         self.auto = auto
-        #: the measured levels at the applied ROI (with the estimator's flags when fitted)
-        self.points: tuple[PtcPoint, ...] = ()
         #: ``photon_transfer`` at the applied ROI with no user choices: carries the black level,
         #: bits, ROI and notes for every refit (None when the points cannot be fitted)
         self.base: PhotonTransfer | None = None
@@ -178,12 +184,13 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.shape: tuple[int, int] | None = None
         self.error = ""          # the page's current problem ('' when none)
         self._session: Session | None = None   # the session the page shows
-        self._syncing = False    # True while the page sets widgets itself (no refit)
+        self._fit_error = ""     # why the measured points have no fit (shown by the next fit)
         self._preview_request = 0
         self._records: dict[str, FrameRecord] = {}
         self._build_widgets()
         self.state.param.watch(self._on_session, "session")
         self.state.results.param.watch(self._on_results, "estimates")
+        self.param.watch(self._on_frame, "frame")
         self._show_empty()
         if auto and self.state.session is not None:
             pn.state.execute(self.refresh)
@@ -204,13 +211,11 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             sizing_mode="stretch_width", name="parameters", css_classes=["ccd-ptc-parameters"],
             stylesheets=[_TABLE_CSS])
 
-        self.level_select = pn.widgets.CheckBoxGroup(label="Levels in the fit", options={},
-                                                     value=[], inline=False)
-        self.level_select.param.watch(self._on_levels, "value")
+        self.level_select = pn.widgets.CheckBoxGroup.from_param(
+            self.param.levels, label="Levels in the fit", inline=False)
         self.robust_checkbox = pn.widgets.Checkbox.from_param(
             self.param.robust, label=f"Robust mode (drop levels beyond {ROBUST_Z:g}\u03c3, one at "
                                     "a time)")
-        self.param.watch(self._on_robust, "robust")
         self.all_levels_button = pn.widgets.Button(label="Use all levels", color="light")
         self.all_levels_button.on_click(self._on_all_levels)
         self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
@@ -234,9 +239,8 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
 
         # ---- ROI
-        self.frame_select = pn.widgets.Select(label="Preview frame", options=[],
-                                              sizing_mode="stretch_width")
-        self.frame_select.param.watch(self._on_frame, "value")
+        self.frame_select = pn.widgets.Select.from_param(self.param.frame, label="Preview frame",
+                                                         sizing_mode="stretch_width")
         self.x_input = pn.widgets.IntInput(label="X (column)", value=0, start=0, width=110)
         self.y_input = pn.widgets.IntInput(label="Y (row)", value=0, start=0, width=110)
         self.w_input = pn.widgets.IntInput(label="W (px)", value=1, start=1, width=110)
@@ -299,12 +303,10 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     def _on_session(self, *events: Any) -> None:
         """A new session: forget the old one's points, ROI and choices; compute again."""
         self._session = None
-        self.points, self.base, self.result, self.roi, self.shape = (), None, None, None, None
-        self._syncing = True
-        try:
-            self.level_select.param.update(options={}, value=[])
-        finally:
-            self._syncing = False
+        self.base, self.result, self.roi, self.shape = None, None, None, None
+        self._fit_error = ""
+        set_choices(self, {"levels": (self.level_select, {}, []),    # one (empty) fit and render
+                           "frame": (self.frame_select, [], None)}, points=())
         self._set_error("")
         if self.auto and self.state.session is not None:
             pn.state.execute(self.refresh)
@@ -324,7 +326,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self._session = session
         self._set_error("")
         levels = session.ptc_levels()
-        self.roi, self.points, self.base, self.result = None, (), None, None
+        self.roi, self.base, self.result = None, None, None
         if not levels:
             self._info(NO_PTC_MESSAGE)
             self._show_plan()
@@ -341,12 +343,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self._reset_roi_inputs(None)
         order = sorted(levels)
         middle = levels[order[len(order) // 2]][0].relpath
-        self._syncing = True
-        try:
-            self.frame_select.options = list(self._records)
-            self.frame_select.value = middle
-        finally:
-            self._syncing = False
+        # previewed below, once the points are measured
+        set_choices(self, {"frame": (self.frame_select, list(self._records), middle)},
+                    trigger=False)
         self._show_plan()
         results = self.state.results
         cached = results.ptc
@@ -400,28 +399,25 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
                roi: Sequence[int] | None, error: str = "") -> None:
         """Take new points measured over ``roi`` (and their default fit, ``base``) and refit
         with the user's choices."""
-        self.base, self.points = base, tuple(points)
+        self.base = base
         self.roi = None if roi is None else tuple(int(v) for v in roi)  # type: ignore[assignment]
-        excluded = self._excluded()
-        options = {_level_label(p): p.level for p in self.points}
-        self._syncing = True
-        try:
-            self.level_select.options = options
-            self.level_select.value = [p.level for p in self.points if p.level not in excluded]
-        finally:
-            self._syncing = False
         self._reset_roi_inputs(self.roi)
-        self._refit(error)
+        excluded = self._excluded()
+        self._fit_error = error
+        options = {_level_label(p): p.level for p in points}
+        set_choices(self, {"levels": (self.level_select, options,    # one fit for both
+                                      [p.level for p in points if p.level not in excluded])},
+                    points=tuple(points))
 
     def _excluded(self) -> set[int]:
         """Levels the user unticked (kept across ROI changes while the level exists)."""
-        options = self.level_select.options
-        known = set(options.values()) if isinstance(options, dict) else set(options)
-        return known - set(self.level_select.value)
+        return set(self.param.levels.objects) - set(self.levels)
 
-    def _refit(self, error: str = "") -> None:
+    @param.depends("points", "levels", "robust", watch=True)
+    def _refit(self) -> None:
         """Fit the measured points again with the ticked levels and the robust mode (instant:
         ``PhotonTransfer.refit``, i.e. ``fit_points``; no frame is read)."""
+        error, self._fit_error = self._fit_error, ""
         excluded = sorted(self._excluded() & {p.level for p in self.points})
         result: PhotonTransfer | None = None
         if self.base is not None:
@@ -499,16 +495,8 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.plan_alert.visible = bool(warnings)
 
     # ============================================================ toggles ==================
-    def _on_levels(self, event: Any = None) -> None:
-        if not self._syncing and self.points:
-            self._refit()
-
-    def _on_robust(self, event: Any = None) -> None:
-        if self.points:
-            self._refit()
-
     def _on_all_levels(self, event: Any = None) -> None:
-        self.level_select.value = [p.level for p in self.points]
+        self.levels = [p.level for p in self.points]
 
     # ============================================================ ROI ======================
     def _pending_roi(self) -> tuple[int, int, int, int]:
@@ -573,9 +561,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
     async def _on_frame(self, event: Any = None) -> None:
         """Show the chosen ptc frame with the ROI box (read in a worker thread)."""
-        if self._syncing and event is not None:
-            return
-        session, rec = self.state.session, self._records.get(self.frame_select.value)
+        session, rec = self.state.session, self._records.get(self.frame)
         if session is None or rec is None:
             self.preview_pane.object = None
             return
@@ -595,7 +581,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
                                             visible=True)
             return
         self.preview_alert.visible = False
-        plane = plots.channel_data(array, "L")
+        plane = plots.channel_data(array)  # the frame's own pixel grid (luminance of colour)
         element = plots.image_element(plane, label=rec.relpath)
         image = plots.rasterized_image(element, plots.auto_clim(plane), title=rec.relpath)
         image = image.opts(tools=["hover", "box_select"], active_tools=["box_select", "wheel_zoom"],

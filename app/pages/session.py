@@ -6,11 +6,14 @@ SessionPage
     The page (a :class:`panel.viewable.Viewer`): choose a bundled demo or open a folder (typed
     path or file browser restricted to the allowed roots); camera, groups and per-frame metadata
     tables; every validation problem as an alert; what was inferred for plain folders and a
-    button writing the manifest draft; a zoomable preview of any frame with its histogram.
+    button writing the manifest draft; a zoomable preview of any frame with its histogram, per
+    channel (R, G, B or the luminance of colour frames; the CFA planes R, G1, G2, B of raw Bayer
+    frames, by the camera's layout: :func:`ccdcore.channels.split_channels`).
 create_page(state)
     The registry entry point.
 groups_frame(session), frames_frame(session)
-    The groups and frames tables of a session as DataFrames (display-ready).
+    The groups and frames tables of a session as DataFrames (display-ready): sizes width first
+    (:func:`ccdcore.common.format_size`), ``mixed`` where a group's sizes or dtypes differ.
 inferred_summary(session)
     Which metadata keys were inferred, from what, for how many frames.
 
@@ -39,6 +42,7 @@ from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots
 from ..state import AppState, assets_dir, demo_sessions
+from ._choices import set_choices
 
 __all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",
            "MAX_ALERTS"]
@@ -483,7 +487,6 @@ class SessionPage(pn.viewable.Viewer):
             self.preview_alert.visible = True
             return
         self.preview_alert.visible = False
-        self._array = self._shown = None  # no preview while the channel choices change
         try:
             planes = plots.channel_planes(array, session.camera.layout)
         except ValueError as err:
@@ -494,9 +497,9 @@ class SessionPage(pn.viewable.Viewer):
         if planes:
             channel = self.channel if self.channel in planes else \
                 plots.LUMINANCE if plots.LUMINANCE in planes else next(iter(planes))
-            with param.parameterized.batch_call_watchers(self):
-                self.param.channel.objects = _channel_choices(list(planes))
-                self.channel = channel
+            # shown below
+            set_choices(self, {"channel": (self.channel_select, _channel_choices(list(planes)),
+                                           channel)}, trigger=False)
         self._array, self._shown, self._planes = array, rec, planes
         self.channel_select.visible = bool(planes)
         self._show_plane(rec)

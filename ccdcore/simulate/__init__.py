@@ -17,7 +17,15 @@ Presets (each a module with ``simulate(out_dir, *, seed, size, **options) -> dic
     the illumination change and shadows, inserted objects, truth masks.
 
 Every preset writes a capture session (``session.toml`` + frames) and ``truth.json``. The same seed
-gives the same bytes.
+gives the same bytes whatever the CPU's vector features (AVX2, AVX-512, NEON): what feeds a digital
+number is computed with basic arithmetic and the CPU-independent functions of
+:mod:`ccdcore.simulate._det` instead of NumPy's CPU-dispatched ``exp``/``power``/``tanh``/BLAS
+loops (the random draws are NumPy's ``Generator``, whose C code is not dispatched), and the floats
+of ``truth.json`` carry 12 significant digits (see :mod:`ccdcore.simulate._common`).  Frame metadata
+goes into the manifest's keys (``setting``, ``patch``, ``flags``), never into ``note``.
+
+:func:`load_truth` / :func:`find_truth` read a session's ``truth.json`` into a :class:`Truth`
+(values by key, true maps by :meth:`Truth.map`); see :mod:`ccdcore.simulate.truth`.
 """
 from __future__ import annotations
 
@@ -26,8 +34,9 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import CcdError
+from .truth import Truth, find_truth, load_truth
 
-__all__ = ["PRESETS", "simulate"]
+__all__ = ["PRESETS", "simulate", "Truth", "load_truth", "find_truth"]
 
 #: preset name -> module (relative to this package) implementing it
 PRESETS: dict[str, str] = {

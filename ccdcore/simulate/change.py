@@ -27,10 +27,10 @@ the noise parameters; files ``truth/E.exr`` (reference radiance), ``truth/E_targ
 Floats carry 12 significant digits, except ``g`` (all digits, see
 :func:`ccdcore.simulate.tsin.response_table`).
 
-Reproducibility: the same seed gives the same bytes on every CPU.  The smoothing, the colour blend
-and the transforms use only basic arithmetic in a fixed order and the CPU-independent ``exp`` of
-:mod:`ccdcore.simulate._det` (not NumPy's vector ``exp``, ``einsum`` or BLAS ``@``); the brackets
-go through :func:`ccdcore.simulate.tsin.expose`.
+Reproducibility: the same seed gives the same bytes whatever the CPU's vector features.  The
+smoothing, the colour blend and the transforms use only basic arithmetic in a fixed order and the
+CPU-independent ``exp`` of :mod:`ccdcore.simulate._det` (not NumPy's vector ``exp``, ``einsum`` or
+BLAS ``@``); the brackets go through :func:`ccdcore.simulate.tsin.expose`.
 
 Public objects
 --------------

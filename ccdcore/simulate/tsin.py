@@ -60,12 +60,13 @@ certain radius ... usually 3 pixels").  Per image a label mask is written
 (``truth/bloom_s<j>_k<kk>.png``: 0 clean, 1 contaminated = within ``r`` of a saturated site,
 2 saturated).  For Bayer output the contamination is widened by the 3x3 interpolation support.
 
-Reproducibility.  The same seed gives the same bytes on every CPU: ``f`` uses the CPU-independent
-``pow`` of :mod:`ccdcore.simulate._det` (NumPy's vector ``power`` differs in the last bit between
-AVX2 and AVX-512, which could flip a rounded digital number), blooming sums shifted arrays, and the
-bilinear interpolation's weights (1/4, 1/2, 1) are powers of two, so its products are exact.  The
-``g`` of ``truth.json`` is computed with the C library's scalar ``pow`` (:func:`response_table`)
-and written with all its digits; the other floats of ``truth.json`` carry 12 significant digits.
+Reproducibility.  The same seed gives the same bytes whatever the CPU's vector features: ``f`` uses
+the CPU-independent ``pow`` of :mod:`ccdcore.simulate._det` (NumPy's vector ``power`` differs in the
+last bit between AVX2 and AVX-512, which could flip a rounded digital number), blooming sums shifted
+arrays, and the bilinear interpolation's weights (1/4, 1/2, 1) are powers of two, so its products
+are exact.  The ``g`` of ``truth.json`` is computed with the C library's scalar ``pow``
+(:func:`response_table`) and written with all its digits; the other floats of ``truth.json`` carry
+12 significant digits.
 
 Public objects
 --------------

@@ -170,3 +170,37 @@ def test_every_page_lays_out_without_bokeh_validation_issues(demo, assets):
         issues = [str(i) for i in (*found.error, *found.warning) if i.code != 1002
                   and not (i.code == 1005 and any(e in i.extra for e in exempt))]
         assert issues == [], spec.slug
+
+
+def test_set_choices_gives_watchers_only_the_final_choice():
+    """A served Select replaces a value missing from its new options by the first option;
+    set_choices gives the widget options and value together, so watchers see the final choice
+    once (the widgets here have Bokeh models, as in a served page)."""
+    import panel as pn
+    import param
+
+    from app.pages._choices import set_choices
+
+    class Page(param.Parameterized):
+        choice = param.Selector(default=None, objects=[], allow_None=True)
+        ticks = param.ListSelector(default=[], objects=[])
+        data = param.Dict(default={})
+        seen = param.List(default=[])
+
+        @param.depends("data", "choice", "ticks", watch=True)
+        def _watch(self):
+            self.seen = [*self.seen, (self.choice, list(self.ticks))]
+
+    page = Page()
+    select = pn.widgets.Select.from_param(page.param.choice)
+    boxes = pn.widgets.CheckBoxGroup.from_param(page.param.ticks)
+    select.get_root(), boxes.get_root()
+    set_choices(page, {"choice": (select, {"A": "a", "B": "b"}, "b"),
+                       "ticks": (boxes, {"one": 1, "two": 2}, [2])}, data={"x": 1})
+    assert page.seen == [("b", [2])]
+    assert (select.value, boxes.value) == ("b", [2])
+    assert list(select.options) == ["A", "B"] and list(boxes.options) == ["one", "two"]
+    set_choices(page, {"choice": (select, ["c", "d"], "d")}, trigger=False)
+    assert page.seen == [("b", [2])] and select.value == "d" and page.choice == "d"
+    select.value = "c"                                   # the user's choice reaches watchers
+    assert page.seen[-1] == ("c", [2])

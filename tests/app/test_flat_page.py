@@ -13,12 +13,13 @@ import pytest
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from app import flat_plots
 from app.pages.flat_field import (NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE, FlatFieldPage,
-                                  default_frame, result_key)
-from app.state import AppState
-from ccdcore.flatfield import (base_image_study, flat_field_from_session, recommend_base,
-                               zero_dark)
+                                  default_frame)
+from app.state import AppState, FlatResults
+from ccdcore.common import format_pm
+from ccdcore.flatfield import (BaseRecommendation, FlatField, base_image_study,
+                               flat_field_from_session, recommend_base, zero_dark)
 from ccdcore.io import write_image
-from ccdcore.uniformity import dark_groups, flat_groups, snup, snup_vs_averaging
+from ccdcore.uniformity import snup, snup_vs_averaging
 
 
 def _run(coro):
@@ -47,32 +48,37 @@ def loaded(delasarte07):
     return page
 
 
-def test_result_keys_are_strings():
-    assert result_key("flat", "NZDI", (3, 0.04)) == "flat:NZDI:3:0.04"
-    assert result_key("flat_base", None) == "flat_base:"
+def test_results_are_typed_and_kept_by_setting_and_base(loaded):
+    flat = loaded.state.results.flat
+    assert isinstance(flat, FlatResults)
+    assert isinstance(flat.recommendations["NZDI"], BaseRecommendation)
+    key = loaded.base_select.value
+    assert isinstance(flat.fields[("NZDI", key)], FlatField)
+    assert flat.fields[("NZDI", key)] is loaded.flat
+    assert flat.studies["NZDI"] is not None and flat.settings is not None
 
 
 def test_recommended_base_is_marked_chosen_and_explained(loaded):
     session = loaded.state.session
     rec = recommend_base(session, setting="NZDI")
-    assert loaded.setting_select.options == ["NZDI", "ZDI"]
+    assert dict(loaded.setting_select.options) == {"NZDI": "NZDI", "ZDI": "ZDI"}
+    assert loaded.offset == "NZDI" and loaded.setting_select.value == "NZDI"
     assert loaded.base_select.value == rec.key
     marked = [label for label, key in loaded.base_select.options.items()
               if label.endswith("(recommended)")]
     assert len(marked) == 1 and loaded.base_select.options[marked[0]] == rec.key
     assert loaded.recommend_alert.visible and rec.reason in loaded.recommend_alert.object
-    assert set(loaded.base_select.options.values()) == set(flat_groups(session,
-                                                                       setting="NZDI"))
-    # cached under the shared string keys
-    assert loaded.state.results[result_key("flat_base", "NZDI")].key == rec.key
-    assert result_key("flat", "NZDI", rec.key) in loaded.state.results
+    assert set(loaded.base_select.options.values()) == set(session.flat_groups(setting="NZDI"))
+    # cached in the shared results, by setting and base
+    assert loaded.state.results.flat.recommendations["NZDI"].key == rec.key
+    assert ("NZDI", rec.key) in loaded.state.results.flat.fields
 
 
 def test_snup_table_is_ccdcores_before_and_after(loaded):
     session = loaded.state.session
     rec = recommend_base(session, setting="NZDI")
     ff = flat_field_from_session(session, setting="NZDI", base=rec.key)
-    groups = flat_groups(session, setting="NZDI")
+    groups = session.flat_groups(setting="NZDI")
     relpath = default_frame(rec, groups)
     assert loaded.frame_select.value == relpath
     record = next(r for recs in groups.values() for r in recs if r.relpath == relpath)
@@ -82,9 +88,9 @@ def test_snup_table_is_ccdcores_before_and_after(loaded):
     table = loaded.snup_table.object
     assert list(table["channel"]) == ["R", "G", "B"]
     for c, row in zip(before.channels, table.itertuples(index=False)):
-        assert row[2] == flat_plots.format_pm(c.snup, c.snup_err)
+        assert row[2] == format_pm(c.snup, c.snup_err)
         a = after[c.name]
-        assert row[4] == flat_plots.format_pm(a.snup, a.snup_err)
+        assert row[4] == format_pm(a.snup, a.snup_err)
         assert loaded.view.after[c.name].snup == a.snup   # the exact numbers, not re-estimated
     assert loaded.view.after["G"].snup < loaded.view.before["G"].snup / 2  # it did correct
     # the maps shown are ccdcore's G and O of the chosen channel
@@ -114,7 +120,7 @@ def test_choosing_another_base_changes_the_after_snup(loaded):
         ff = flat_field_from_session(session, setting="NZDI", base=other)
         record = loaded._records[loaded.frame_select.value]
         expected = snup(ff.correct(session.read(record)), layout="rgb")
-        assert loaded.after_snup == {c.name: flat_plots.format_pm(c.snup, c.snup_err)
+        assert loaded.after_snup == {c.name: format_pm(c.snup, c.snup_err)
                                      for c in expected.channels}
         assert loaded.after_snup != shown
         assert "corrected with base L2 \u00b7 40 ms" in loaded.snup_title.object
@@ -132,7 +138,7 @@ def test_zero_dark_warning_for_zdi_and_not_for_nzdi(delasarte07):
     assert not page.zero_alert.visible
     page.setting_select.value = "ZDI"
     _run(page.show_setting())
-    darks = [r for g in dark_groups(state.session, setting="ZDI").values() for r in g]
+    darks = [r for g in state.session.dark_groups(setting="ZDI").values() for r in g]
     zd = zero_dark(state.session.iter_frames(darks), layout="rgb")
     assert zd.clipped
     assert page.zero_alert.visible and page.zero_alert.alert_type == "warning"
@@ -150,7 +156,7 @@ def _elements(overlay, kind):
 def test_averaging_plot_and_table_hold_ccdcores_numbers(loaded):
     session = loaded.state.session
     key = loaded.base_select.value
-    avg = snup_vs_averaging(session.iter_frames(flat_groups(session, setting="NZDI")[key]),
+    avg = snup_vs_averaging(session.iter_frames(session.flat_groups(setting="NZDI")[key]),
                             layout="rgb")
     overlay = loaded.avg_pane.object
     scatters = {s.label: s for s in _elements(overlay, hv.Scatter)}
@@ -188,7 +194,7 @@ def test_base_study_heatmap_and_table_are_ccdcores(loaded):
     study = base_image_study(session, setting="NZDI")
     c = loaded.channel
     heat = loaded.study_pane.object
-    groups = list(flat_groups(session, setting="NZDI"))
+    groups = list(session.flat_groups(setting="NZDI"))
     assert len(heat) == len(groups) * (len(groups) + 1)       # + the uncorrected row
     table = study.table(c)
     rec = study.recommended
@@ -248,3 +254,28 @@ def test_flats_without_darks_show_an_error_and_the_page_keeps_working(tmp_path, 
     state.load(assets / "delasarte07")
     _run(page.refresh())
     assert not page.error_alert.visible and page.after_snup
+
+
+def test_choices_the_page_makes_schedule_nothing_the_users_schedule_their_step(delasarte07,
+                                                                               monkeypatch):
+    """The offset, base and frame choices are page parameters: a value the page sets itself
+    (with its options, set_choices) schedules no step; a value the user picks schedules the
+    step showing it, once."""
+    import panel as pn
+
+    state = AppState(allowed_roots=[delasarte07.parent.resolve()])
+    assert state.load(delasarte07)
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    scheduled = []
+    monkeypatch.setattr(pn.state, "execute", lambda step, **kw: scheduled.append(step))
+    page.auto = True
+    options = dict(page.param.base.names)
+    other = next(k for k in options.values() if k != page.base)
+    page._choose("base", options, other)             # the page's own choice
+    assert scheduled == [] and page.base_select.value == other
+    page.base_select.value = page.recommendation.key  # the user's
+    assert scheduled == [page.show_base]
+    page.setting_select.value = "ZDI"
+    page.frame_select.value = next(f for f in page.param.frame.objects if f != page.frame)
+    assert scheduled == [page.show_base, page.show_setting, page.show_frame]

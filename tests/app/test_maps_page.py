@@ -9,13 +9,16 @@ import numpy as np
 import pytest
 
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+import ccdcore.fixedpattern
 from app import map_plots
-from app.pages.maps import (PAPER_PLAN_INPUTS, MapsPage, budget_inputs, export_bytes,
-                            missing_frames, scene_patch_frame)
+from app.pages import maps
+from app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
+                            missing_sentences, scene_patch_frame)
 from app.state import AppState
+from ccdcore.common import format_pm
 from ccdcore.io import read_image
 from ccdcore.planning import check_session_plan, plan_acquisition
-from ccdcore.product import estimate_all
+from ccdcore.product import Requirement, budget_inputs, estimate_all, missing_frames
 from ccdcore.session import open_session
 
 
@@ -32,14 +35,39 @@ def reference(assets):
     return estimate_all(open_session(assets / "healey94"))
 
 
+class _Counter:
+    """Wraps a function and counts its calls."""
+
+    def __init__(self, func):
+        self.func, self.calls = func, 0
+
+    def __call__(self, *args, **kwargs):
+        self.calls += 1
+        return self.func(*args, **kwargs)
+
+
 @pytest.fixture(scope="module")
-def computed(assets):
-    """The page on the healey94 demo after 'Compute maps' (computed once for the module)."""
+def counted(assets):
+    """The page on the healey94 demo after 'Compute maps' (computed once for the module), and
+    how often the correction check and the plot builders ran meanwhile."""
     state = AppState(allowed_roots=[assets.resolve()])
     assert state.load(assets / "healey94")
     page = MapsPage(state, auto_compute=False)
-    _run(page.compute())
-    return page
+    counts = {"correction_check": _Counter(ccdcore.fixedpattern.correction_check),
+              "map_grid": _Counter(map_plots.map_grid),
+              "scene_fit_plot": _Counter(map_plots.scene_fit_plot),
+              "budget_plot": _Counter(map_plots.budget_plot)}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ccdcore.fixedpattern, "correction_check", counts["correction_check"])
+        for name in ("map_grid", "scene_fit_plot", "budget_plot"):
+            mp.setattr(map_plots, name, counts[name])
+        _run(page.compute())
+    return page, {name: c.calls for name, c in counts.items()}
+
+
+@pytest.fixture(scope="module")
+def computed(counted):
+    return counted[0]
 
 
 def _cell(df, quantity: str) -> str:
@@ -48,8 +76,10 @@ def _cell(df, quantity: str) -> str:
 
 def test_compute_fills_the_shared_results(computed):
     results = computed.state.results
-    for key in ("ptc", "dark", "fixed_pattern", "plan", "scene", "correction_check"):
-        assert results.get(key) is not None, key
+    for key in ("ptc", "estimates", "dark", "fixed_pattern", "plan", "scene",
+                "correction_check"):
+        assert getattr(results, key) is not None, key
+    assert results.ptc is results.estimates.noise
     assert computed.state.error == ""
     assert set(computed.layers) == set(map_plots.MAP_TITLES)
 
@@ -63,7 +93,7 @@ def test_maps_and_summary_equal_ccdcore(computed, reference):
     np.testing.assert_array_equal(computed.layers["K_err"].data, np.sqrt(fp.K_var))
     d, f = dark.to_dict(), fp.to_dict()
     dark_table, fp_table = computed.dark_table.object, computed.fp_table.object
-    assert _cell(dark_table, "D̂_D mean (DN)").startswith(f"{d['mean']:.4f} ± ")
+    assert _cell(dark_table, "D̂_D mean (DN)") == format_pm(d["mean"], d["mean_sem"])
     assert _cell(dark_table, "D̂_D spatial std (DN)") == f"{d['spatial_std']:.4g}"
     assert _cell(dark_table, "hot pixels") == str(d["n_hot"])
     assert _cell(fp_table, "K̂ mean") == f"{f['mean']:.6f}"
@@ -76,21 +106,22 @@ def test_maps_and_summary_equal_ccdcore(computed, reference):
     assert set(dark_table["paper"]) >= {"10.74", "0.555"}
     assert set(fp_table["paper"]) >= {"0.99998", "3.72e-3"}
     # the sec. VII-A correction check on the max-intensity frame
-    check = computed.state.results["correction_check"]
+    check = computed.state.results.correction_check
+    assert check.to_dict() == reference.correction_check.to_dict()
     assert _cell(computed.check_table.object, "pixels changed by > 1 q") == \
         f"{100 * check.frac_gt_1q:.1f} %"
     assert computed.check_card.visible and computed.check_table.visible
 
 
 def test_plan_and_scene_equal_ccdcore(computed, reference):
-    plan = computed.state.results["plan"]
+    plan = computed.state.results.plan
     assert plan.to_dict() == reference.plan.to_dict()
     # the demo has 12 configurations x 4 frames, fewer than the plan: a warning at the top
     warnings = check_session_plan(computed.state.session, plan)
     assert warnings and computed.plan_alert.visible
     assert "12 configurations" in computed.plan_alert.object
     assert f"n1 = {plan.n1_required}" in computed.plan_alert.object
-    scene = computed.state.results["scene"]
+    scene = computed.state.results.scene
     assert list(scene) == list(reference.scene)
     for name, var in reference.scene.items():
         assert scene[name].V_S == var.V_S and scene[name].V_S_err == var.V_S_err
@@ -101,16 +132,16 @@ def test_plan_and_scene_equal_ccdcore(computed, reference):
 
 def test_variance_budget_of_the_chosen_patch(computed):
     results = computed.state.results
-    for name in results["scene"]:
+    for name in results.scene:
         computed.patch_select.value = name
         budget = computed.budget
-        assert budget.parameters["V_S"] == pytest.approx(max(results["scene"][name].V_S, 0))
+        assert budget.parameters["V_S"] == pytest.approx(max(results.scene[name].V_S, 0))
         total = sum(budget.fractions[k] for k in budget.fractions)
         np.testing.assert_allclose(total, 1.0, rtol=1e-12)   # fractions of one total
-    inputs = budget_inputs(results["dark"], results["fixed_pattern"], results["ptc"],
-                           results["scene"][name], 8)
-    assert inputs["dark_spatial_var"] == pytest.approx(results["dark"].spatial_std_signal ** 2)
-    assert inputs["mu"][0] == pytest.approx(results["dark"].mean)
+    inputs = budget_inputs(results.dark, results.fixed_pattern, results.ptc,
+                           results.scene[name], 8)
+    assert inputs["dark_spatial_var"] == pytest.approx(results.dark.spatial_std_signal ** 2)
+    assert inputs["mu"][0] == pytest.approx(results.dark.mean)
     assert inputs["mu"][-1] == 255
 
 
@@ -228,7 +259,7 @@ def test_planning_panel_with_the_papers_inputs(computed):
     assert "need A &gt; 0" in page.plan_error.object   # (escaped for Markdown)
     # back to this session's estimates: the session's own plan
     page._on_session_inputs()
-    session_plan = page.state.results["plan"]
+    session_plan = page.state.results.plan
     assert page.plan_result.n1_required == session_plan.n1_required
     assert page.plan_result.n2_required == session_plan.n2_required
 
@@ -239,9 +270,14 @@ def test_session_without_darks_says_what_to_capture(assets):
     page = MapsPage(state, auto_compute=False)
     assert not page._wants_auto_compute()
     assert page.info_alert.visible and page.info_alert.alert_type == "info"
-    assert "No dark frames" in page.info_alert.object
-    assert "No fixed-pattern frames" in page.info_alert.object
-    assert len(missing_frames(state.session)) == 4
+    assert "No `dark` frames" in page.info_alert.object
+    assert "No `fixed_pattern` or `dark` frames" in page.info_alert.object
+    # everything the page shows is missing, each said once, in ccdcore's words
+    lacking = missing_frames(state.session, MAPS_ESTIMATES)
+    assert [req.estimate for req, _ in lacking] == list(MAPS_ESTIMATES)
+    assert len(missing_sentences(state.session)) == len(MAPS_ESTIMATES)
+    for req, _ in lacking:
+        assert req.capture in page.info_alert.object and req.purpose in page.info_alert.object
     _run(page.compute())                     # nothing to estimate: still no error, no maps
     assert state.error == "" and page.layers == {}
     assert page.maps_empty.visible and not page.plan_alert.visible
@@ -259,7 +295,9 @@ def test_bad_frames_are_an_alert_and_the_page_keeps_working(small_session, tmp_p
     # another session clears the alert's cause and computes fine
     assert state.load(assets / "healey94")
     assert "Press **Compute maps**" in page.info_alert.object
-    assert page.state.results == {} and page.layers == {}
+    results = page.state.results
+    assert results.estimates is None and results.ptc is None and page.layers == {}
+    assert not page.error_alert.visible
 
 
 def test_map_plot_functions():
@@ -288,4 +326,42 @@ def test_page_builds_its_layout(computed):
 
 
 def test_a_complete_session_lacks_nothing(assets):
-    assert missing_frames(open_session(assets / "healey94")) == []
+    assert missing_sentences(open_session(assets / "healey94")) == []
+
+
+def test_the_correction_check_is_computed_once(counted):
+    """estimate_all makes the correction check (on the max-intensity frame); the page shows
+    that one and runs no second check."""
+    page, counts = counted
+    assert counts["correction_check"] == 1
+    assert page.state.results.correction_check is page.state.results.estimates.correction_check
+    assert page.check_table.visible
+
+
+def test_compute_builds_each_plot_once(counted):
+    """One batch of state changes per compute: the map grid, the scene fit and the budget of
+    the chosen patch are each drawn once."""
+    _, counts = counted
+    assert counts["map_grid"] == 1
+    assert counts["scene_fit_plot"] == 1
+    assert counts["budget_plot"] == 1
+
+
+def test_missing_frames_text_comes_from_ccdcores_requirements(assets, monkeypatch):
+    """The info alert says what ccdcore's requirement says (no text of the app's own)."""
+    req = Requirement("dark", ("dark",), "the purpose of a test requirement",
+                      "what a test requirement asks to capture")
+    asked = []
+
+    def fake(session, estimates=None):
+        asked.append(tuple(estimates))
+        return [(req, ("dark", "a flagged frame"))]
+
+    monkeypatch.setattr(maps, "missing_frames", fake)
+    state = AppState(allowed_roots=[assets.resolve()])
+    assert state.load(assets / "tsin01")
+    page = MapsPage(state, auto_compute=False)
+    assert asked and asked[-1] == MAPS_ESTIMATES
+    assert page.info_alert.object == ("**No `dark` frames and no a flagged frame** for the "
+                                      "purpose of a test requirement: capture what a test "
+                                      "requirement asks to capture.")

@@ -16,7 +16,8 @@ from app import ptc_plots
 from app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, parameter_frame,
                                        verdict_message)
 from app.state import AppState
-from ccdcore.common import format_pm
+from ccdcore.common import check_roi, format_pm
+from ccdcore.errors import CcdError
 from ccdcore.io import write_image
 from ccdcore.noise import USER_EXCLUDED, photon_transfer
 from ccdcore.planning import check_session_plan, plan_acquisition
@@ -148,7 +149,10 @@ def test_bad_roi_is_an_alert_and_keeps_the_fit(state, healey94, demo_pt):
     page = _page(state, healey94)
     page.x_input.value, page.w_input.value = 200, 100
     assert not _run(page.apply_roi())
-    assert page.error_alert.visible and "does not fit" in page.error_alert.object
+    # the alert says what ccdcore's ROI check says about this region
+    with pytest.raises(CcdError) as refused:
+        check_roi((200, 0, 100, 192), (192, 256))
+    assert page.error_alert.visible and refused.value.problem in page.error_alert.object
     assert page.result is not None and page.result.roi is None
     assert page.result.A == pytest.approx(demo_pt.A, rel=0, abs=1e-12)
 
@@ -308,3 +312,23 @@ def test_residual_and_loglog_plots(healey94):
 def test_roi_box_follows_pixel_edges():
     box = ptc_plots.roi_box(10, 20, 64, 32)
     assert list(box.array()[0]) == [9.5, 19.5, 73.5, 51.5]
+
+
+def test_each_choice_refits_and_draws_once(state, healey94, monkeypatch):
+    """Levels, robust mode and points are page parameters: a tick, the robust mode or new
+    points (an applied ROI, which also sets the ticks) refit and draw the curve once each."""
+    page = _page(state, healey94)
+    calls = []
+    draw = ptc_plots.transfer_plot
+    monkeypatch.setattr(ptc_plots, "transfer_plot",
+                        lambda *a, **k: calls.append(1) or draw(*a, **k))
+    page.level_select.value = [lv for lv in range(1, 9) if lv != 8]
+    assert len(calls) == 1 and page.result.points[7].exclusion == "user"
+    page.robust = True
+    assert len(calls) == 2
+    page.robust = False
+    page.x_input.value, page.y_input.value, page.w_input.value, page.h_input.value = \
+        0, 0, 128, 96
+    assert _run(page.apply_roi())
+    assert len(calls) == 4 and page.result.roi == (0, 0, 128, 96)
+    assert page.levels == [lv for lv in range(1, 9) if lv != 8]   # the ticks are kept

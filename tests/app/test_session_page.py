@@ -19,6 +19,7 @@ from app.main import AppShell, _session_header, create_app
 from app.pages import PAGES, build_page, get_page, is_available
 from app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
 from app.state import AppState, is_allowed
+from ccdcore.io import write_image
 from ccdcore.session import open_session
 
 
@@ -251,3 +252,62 @@ def test_python_dash_m_app_help():
     out = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True,
                          cwd=Path(app.__file__).parents[1], timeout=60)
     assert out.returncode == 0 and "--port" in out.stdout and "SESSION" in out.stdout.upper()
+
+
+def _bayer_session(root: Path) -> Path:
+    """A raw Bayer (RGGB) session: two 2-D mosaic frames whose four CFA sites differ."""
+    root.mkdir(parents=True)
+    rng = np.random.default_rng(5)
+    entries = []
+    for i in range(2):
+        raw = rng.integers(0, 100, (16, 20)).astype(np.uint16)
+        raw[0::2, 0::2] += 3000      # R
+        raw[0::2, 1::2] += 2000      # G1 (the green on the red row)
+        raw[1::2, 0::2] += 1000      # G2
+        write_image(root / f"ptc/raw{i}.tif", raw, exposure=0.01, bits=12)
+        entries.append(f'[[frames]]\npath = "ptc/raw{i}.tif"\nrole = "ptc"\nlevel = 1\n')
+    (root / "session.toml").write_text('schema = 1\n[camera]\nname = "bayer"\nbits = 12\n'
+                                       'layout = "bayer-rggb"\n\n' + "\n".join(entries))
+    return root
+
+
+def test_bayer_frames_offer_the_four_cfa_planes(state, tmp_path, small_session):
+    from ccdcore.channels import split_channels
+
+    page = SessionPage(state)
+    assert state.load(_bayer_session(tmp_path / "bayer")), state.error
+    _show(page, "ptc/raw1.tif")
+    raw = state.session.read(state.session.frames[1])
+    assert page.channel_select.visible
+    assert list(page.channel_select.options.values()) == ["R", "G1", "G2", "B"]
+    assert list(page.param.channel.objects) == ["R", "G1", "G2", "B"]
+    planes = split_channels(raw, "bayer-rggb")
+    for name in ("R", "G1", "G2", "B"):
+        page.channel = name
+        np.testing.assert_array_equal(page._plane, planes[name])
+        assert f"channel {name} (10 \u00d7 8 px plane)" in page.frame_info.object
+    assert page._plane.min() < 100                 # B: the site without an offset
+    # a colour frame next: the colour channels and the luminance instead of the CFA planes
+    state.load(small_session)
+    _show(page, "scene/rgb.tif")
+    assert list(page.channel_select.options) == ["R", "G", "B", "Luminance"]
+    assert page.channel == "B"                     # the choice is kept where it exists
+    rgb = state.session.read(state.session.frames[-1])
+    np.testing.assert_array_equal(page._plane, rgb[..., 2])
+    with pytest.raises(ValueError):
+        page.channel = "G1"
+
+
+def test_groups_say_mixed_and_unreadable(state, small_session, unreadable_session):
+    from app.pages.session import groups_frame
+
+    root = small_session
+    write_image(root / "dark/wide.tif", np.zeros((24, 40), np.uint16), exposure=0.01, bits=12)
+    with (root / "session.toml").open("a") as f:
+        f.write('\n[[frames]]\npath = "dark/wide.tif"\nrole = "dark"\nexposure = 0.01\n')
+    groups = groups_frame(open_session(root)).set_index("role")
+    assert groups.loc["dark", "size (W×H)"] == "mixed"        # 32 × 24 and 40 × 24
+    assert groups.loc["dark", "dtype"] == "uint16"
+    assert groups.loc["ptc", "size (W×H)"] == "32 × 24"
+    bad = groups_frame(open_session(unreadable_session)).set_index("role")
+    assert bad.loc["scene", "size (W×H)"] == "unreadable"
