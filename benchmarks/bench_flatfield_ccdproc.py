@@ -16,12 +16,14 @@ own:
 
 Both compute k·(DL − DL_0)/(DL_B − DL_0); the table gives wall time, peak memory and the SNUP
 (de Lasarte et al. 2007, eq. 5) of the corrected held-out frame (the shot-noise limit of one
-frame is printed beside it).
+frame is printed beside it).  Each tool runs ``--repeat`` times (after a warm-up round that fills
+the page cache), the two alternated; times and peak RSS are median (min–max), ratios come from the
+medians.
 
 Run by hand (needs ``pip install ccdproc``; not part of the tests)::
 
     .venv/bin/python benchmarks/bench_flatfield_ccdproc.py            # 2048x2048
-    .venv/bin/python benchmarks/bench_flatfield_ccdproc.py --size 512 # quick
+    .venv/bin/python benchmarks/bench_flatfield_ccdproc.py --size 512 --repeat 3  # quick
 """
 from __future__ import annotations
 
@@ -38,6 +40,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+
+import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 N_DARK, N_FLAT = 10, 20
 BLACK, SIGNAL, E_PER_DN, READ_E = 100.0, 20000.0, 2.0, 10.0
@@ -131,39 +135,62 @@ def run_ccdcore(folder: Path) -> dict:
     return res
 
 
+def _child(size: int, tool: str) -> dict:
+    proc = subprocess.run([sys.executable, __file__, "--size", str(size), "--run", tool],
+                          capture_output=True, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--run", choices=("ccdproc", "ccdcore"), help=argparse.SUPPRESS)
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="timed runs per tool (fresh processes, alternated; default 5)")
+    ap.add_argument("--warmup", type=int, default=1,
+                    help="untimed rounds first, to warm the page cache (default 1)")
     args = ap.parse_args()
     folder = HERE / "_data" / f"flatfield_{args.size}"
     if args.run:
         fn = run_ccdproc if args.run == "ccdproc" else run_ccdcore
         print(json.dumps(fn(folder)))
         return
+    tools = ("ccdcore", "ccdproc")
+    _report.header(__file__, args.repeat, args.warmup, order=tools,
+                   note="each run is a fresh process: its time excludes start-up and imports, its "
+                        "peak RSS (ru_maxrss) includes them; 'after import' is the RSS before the "
+                        "timed work")
     make_data(folder, args.size)
-    results = []
-    for tool in ("ccdcore", "ccdproc"):
-        proc = subprocess.run([sys.executable, __file__, "--size", str(args.size), "--run", tool],
-                              capture_output=True, text=True, check=True)
-        results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
-    core, ref = results
+    runs = _report.interleaved({t: (lambda t=t: _child(args.size, t)) for t in tools},
+                               repeat=args.repeat, warmup=args.warmup)
+    for t in tools:
+        if len({(r["snup"], r["snup_err"]) for r in runs[t]}) != 1:
+            print(f"WARNING: {t}'s SNUP differs between runs")
+    secs = {t: [r["seconds"] for r in runs[t]] for t in tools}
+    above = {t: [r["peak_rss_mb"] - r["base_rss_mb"] for r in runs[t]] for t in tools}
+    core, ref = runs["ccdcore"][-1], runs["ccdproc"][-1]
     print(f"{N_DARK} darks + {N_FLAT} flats of {args.size}x{args.size} uint16 FITS, "
           f"one held-out flat corrected")
-    print(f"{'tool':10s} {'wall s':>8s} {'peak RSS MB':>12s} {'(after import)':>15s} "
-          f"{'SNUP %':>8s} {'± err':>7s}")
-    for r in results:
-        print(f"{r['tool']:10s} {r['seconds']:8.2f} {r['peak_rss_mb']:12.0f} "
-              f"{r['base_rss_mb']:15.0f} {r['snup']:8.4f} {r['snup_err']:7.4f}")
-    mem = ((ref['peak_rss_mb'] - ref['base_rss_mb'])
-           / (core['peak_rss_mb'] - core['base_rss_mb']))
-    print(f"ratio ccdproc/ccdcore: time {ref['seconds'] / core['seconds']:.1f}x, peak memory "
-          f"{mem:.1f}x (above the imports)")
+    print(f"{'tool':10s}{'wall s median (min–max)':>26s}{'peak RSS MB median (min–max)':>31s}"
+          f"{'(after import)':>16s}{'SNUP %':>9s}{'± err':>8s}")
+    for t in tools:
+        r = runs[t][-1]
+        wall = _report.summary(secs[t])
+        peak = _report.summary([x["peak_rss_mb"] for x in runs[t]])
+        base = _report.summary([x["base_rss_mb"] for x in runs[t]])
+        print(f"{t:10s}{wall.format('.2f'):>26s}{peak.format('.0f'):>31s}{base.median:>16.0f}"
+              f"{r['snup']:>9.4f}{r['snup_err']:>8.4f}")
+    mem = _report.summary(above["ccdproc"]).median / _report.summary(above["ccdcore"]).median
+    print(f"ratio ccdproc/ccdcore: time {_report.ratio_text(secs['ccdproc'], secs['ccdcore'], '.1f')}")
+    print(f"ratio ccdproc/ccdcore: peak memory above the imports {mem:.1f}x (ratio of medians: "
+          f"{_report.summary(above['ccdproc']).median:.0f} MB / "
+          f"{_report.summary(above['ccdcore']).median:.0f} MB)")
     print(f"uncorrected SNUP {core['snup_raw']:.3f} %, single-frame shot-noise limit "
           f"{core['snup_limit']:.4f} %, G vs true flat field residual "
           f"{core['G_residual_pct']:.4f} %")
     print("(ccdcore's DL_c = O + G·DL keeps the mean dark level ⟨DL_0⟩ (eq. 2), ccdproc's "
           "output does not: the same noise over a mean larger by the dark level)")
+    _report.footer()
 
 
 if __name__ == "__main__":

@@ -12,10 +12,13 @@ The expected memory: n1 float32 slope maps + the (n1, H, W) bool rejection array
 100 MB at n1 = 20) plus about a dozen float64 (H, W) maps (8 MB each), independent of n2.  For
 scale, ``np.stack`` of all n1·n2 frames in float64 would be n1·n2·H·W·8 bytes (3.4 GB here).
 
+Each variant runs ``--repeat`` times (after a warm-up round that fills the page cache), the variants
+alternated; the tables give median (min–max) times and peak RSS.
+
 Run by hand (not part of the tests)::
 
     .venv/bin/python benchmarks/bench_kmap.py                 # 1024x1024
-    .venv/bin/python benchmarks/bench_kmap.py --size 256      # quick
+    .venv/bin/python benchmarks/bench_kmap.py --size 256 --repeat 3   # quick
 """
 from __future__ import annotations
 
@@ -30,6 +33,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+
+import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 N1, N2, S = 20, 20, 20
 
@@ -71,40 +76,71 @@ def run_variant(folder: Path, n1: int, n2: int) -> dict:
             "shape": list(fp.K.shape)}
 
 
+def _child(size: int, n1: int, n2: int) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--size", str(size), "--variant", f"{n1},{n2}"],
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--variant", help=argparse.SUPPRESS)
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="timed runs per variant (fresh processes, alternated; default 5)")
+    ap.add_argument("--warmup", type=int, default=1,
+                    help="untimed rounds first, to warm the page cache (default 1)")
     args = ap.parse_args()
     folder = HERE / "_data" / f"kmap_{args.size}"
     if args.variant:
         n1, n2 = map(int, args.variant.split(","))
         print(json.dumps(run_variant(folder, n1, n2)))
         return
+    variants = ((N1, N2), (N1, 5), (10, N2))
+    names = [f"{n1}x{n2}" for n1, n2 in variants]
+    _report.header(__file__, args.repeat, args.warmup, order=names,
+                   note="each run is a fresh process: its times exclude start-up and imports, "
+                        "its peak RSS (ru_maxrss) includes them; 'base' is the RSS after imports")
     make_data(folder, args.size)
-    rows = []
-    for n1, n2 in ((N1, N2), (N1, 5), (10, N2)):
-        out = None
-        for _ in range(2):  # the first run warms the page cache; report the second
-            out = subprocess.run([sys.executable, __file__, "--size", str(args.size),
-                                  "--variant", f"{n1},{n2}"], capture_output=True, text=True,
-                                 check=True)
-        rows.append(json.loads(out.stdout))
+    runs = _report.interleaved(
+        {name: (lambda v=v: _child(args.size, *v)) for name, v in zip(names, variants)},
+        repeat=args.repeat, warmup=args.warmup)
     hw = args.size * args.size
     print(f"dark_reference (s = {S}) + fixed_pattern_map on {args.size}x{args.size} uint8 frames")
-    print(f"{'n1':>3}{'n2':>4}{'frames':>8}{'dark s':>8}{'K map s':>9}{'frames/s':>10}"
-          f"{'base MB':>9}{'peak MB':>9}{'peak-base':>10}{'model MB':>10}{'np.stack MB':>13}")
-    for r in rows:
+    print(f"{'n1':>3}{'n2':>4}{'frames':>8}{'dark s median (min–max)':>25}"
+          f"{'K map s median (min–max)':>26}{'frames/s':>10}")
+    for name in names:
+        rs = runs[name]
+        r = rs[0]
         frames = r["n1"] * r["n2"]
+        dark = _report.summary([x["dark_s"] for x in rs])
+        kmap = _report.summary([x["kmap_s"] for x in rs])
+        fps = (frames + r["s"]) / (dark.median + kmap.median)
+        print(f"{r['n1']:>3}{r['n2']:>4}{frames:>8}{dark.format('.2f'):>25}"
+              f"{kmap.format('.2f'):>26}{fps:>10.1f}")
+    print("(frames/s: dark + K-map frames over the median dark + K map times)")
+    print()
+    print(f"{'n1':>3}{'n2':>4}{'base MB':>9}{'peak MB median (min–max)':>26}{'peak-base':>11}"
+          f"{'model MB':>10}{'np.stack MB':>13}")
+    for name in names:
+        rs = runs[name]
+        r = rs[0]
+        frames = r["n1"] * r["n2"]
+        base = _report.summary([x["base_rss_mb"] for x in rs])
+        peak = _report.summary([x["peak_rss_mb"] for x in rs])
+        above = _report.summary([x["peak_rss_mb"] - x["base_rss_mb"] for x in rs])
         model = (r["n1"] * hw * 5 + 12 * hw * 8) / 2 ** 20
         stack = frames * hw * 8 / 2 ** 20
-        fps = (frames + r["s"]) / (r["dark_s"] + r["kmap_s"])
-        print(f"{r['n1']:>3}{r['n2']:>4}{frames:>8}{r['dark_s']:>8.2f}{r['kmap_s']:>9.2f}"
-              f"{fps:>10.1f}{r['base_rss_mb']:>9.0f}{r['peak_rss_mb']:>9.0f}"
-              f"{r['peak_rss_mb'] - r['base_rss_mb']:>10.0f}{model:>10.0f}{stack:>13.0f}")
-    r = rows[0]
+        print(f"{r['n1']:>3}{r['n2']:>4}{base.median:>9.0f}{peak.format('.0f'):>26}"
+              f"{above.median:>11.0f}{model:>10.0f}{stack:>13.0f}")
+    print("(base, peak-base: medians over the runs)")
+    r = runs[names[0]][-1]
+    for name in names:
+        if len({(x["K_mean"], x["K_std"], x["sigma_hat"]) for x in runs[name]}) != 1:
+            print(f"WARNING: K̂ differs between the runs of {name}")
     print(f"K̂ (n1 = {r['n1']}, n2 = {r['n2']}): mean {r['K_mean']:.5f}, spatial std "
           f"{r['K_std']:.3e}, σ̂ {r['sigma_hat']:.3e}, n̂_1 {r['n1_hat']}")
+    _report.footer()
 
 
 if __name__ == "__main__":

@@ -10,7 +10,8 @@ then estimate, from the same files:
 
 and their run times are measured on the same files (emva1288: parse, load, ``Data1288``,
 ``Results1288.K`` and ``.sigma_d``; ccdcore: ``open_session`` on the descriptor, then
-``photon_transfer``).  The data are generated once into ``benchmarks/_data/emva_ptc`` (reused when
+``photon_transfer``), ``--repeat`` times each in one process, alternating the two tools after a
+warm-up round, as median (min–max); the speed ratio is the ratio of the medians.  The data are generated once into ``benchmarks/_data/emva_ptc`` (reused when
 the parameters match).
 
 Truth of the generator: K = ``cam.K``; read noise √``sigma2_dark_0`` e.  The generator adds a
@@ -24,7 +25,7 @@ ccdcore excludes the clipped and non-linear levels with stated reasons (listed b
 Run by hand (not part of the tests)::
 
     .venv/bin/python benchmarks/bench_ptc_emva.py                # 640x480, 12 bits, 20 steps
-    .venv/bin/python benchmarks/bench_ptc_emva.py --steps 10 --size 320x240
+    .venv/bin/python benchmarks/bench_ptc_emva.py --steps 10 --size 320x240 --repeat 5
 """
 from __future__ import annotations
 
@@ -32,7 +33,6 @@ import argparse
 import json
 import math
 import shutil
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -45,6 +45,8 @@ np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E7
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+
+import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 
 def make_data(folder: Path, width: int, height: int, bits: int, steps: int, L: int,
@@ -110,19 +112,28 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--spatial", type=int, default=8, help="images of the spatial point (L)")
     ap.add_argument("--seed", type=int, default=1288)
-    ap.add_argument("--repeat", type=int, default=3, help="timed runs per tool (median)")
+    ap.add_argument("--repeat", type=int, default=9,
+                    help="timed runs per tool, alternated emva1288/ccdcore (default 9)")
+    ap.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default 1)")
     args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.lower().split("x"))
 
+    _report.header(__file__, args.repeat, args.warmup, order=("emva1288", "ccdcore"))
     folder = HERE / "_data" / "emva_ptc"
     truth = make_data(folder, width, height, args.bits, args.steps, args.spatial, args.seed)
     descriptor = folder / truth["descriptor"]
 
-    emva_runs = [run_emva(descriptor) for _ in range(args.repeat)]
-    ours_runs = [run_ccdcore(descriptor) for _ in range(args.repeat)]
+    runs = _report.interleaved({"emva1288": lambda: run_emva(descriptor),
+                                "ccdcore": lambda: run_ccdcore(descriptor)},
+                               repeat=args.repeat, warmup=args.warmup)
+    emva_runs, ours_runs = runs["emva1288"], runs["ccdcore"]
     emva, ours = emva_runs[-1], ours_runs[-1]
-    t_emva = statistics.median(r["seconds"] for r in emva_runs)
-    t_ours = statistics.median(r["seconds"] for r in ours_runs)
+    # the estimates do not depend on the run: say so if they ever do
+    for name, rs in (("emva1288", emva_runs), ("ccdcore", ours_runs)):
+        if len({(r["K"], r["read_noise_e"]) for r in rs}) != 1:
+            print(f"WARNING: {name}'s estimates differ between runs")
+    t_emva = [r["seconds"] for r in emva_runs]
+    t_ours = [r["seconds"] for r in ours_runs]
     pt = ours["result"]
 
     print(f"EMVA1288 DatasetGenerator: {width}x{height}, {args.bits} bits, {args.steps} steps, "
@@ -141,9 +152,12 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{'read noise error [%]':<22}{'':>12}"
           f"{100 * (emva['read_noise_e'] / truth['read_noise_e_effective'] - 1):>12.3f}"
           f"{100 * (ours['read_noise_e'] / truth['read_noise_e_effective'] - 1):>22.3f}")
-    print(f"{'run time [s] (median)':<22}{'':>12}{t_emva:>12.3f}{t_ours:>22.3f}")
-    print(f"speed ratio emva1288 / ccdcore: {t_emva / t_ours:.2f}x "
-          f"(median of {args.repeat} runs each, same files)")
+    print()
+    print(f"{'run time, same files':<22}{'median (min–max) [s]':>24}")
+    for name, ts in (("emva1288", t_emva), ("ccdcore", t_ours)):
+        print(f"{name:<22}{_report.summary(ts).format('.3f'):>24}")
+    print(f"speed ratio emva1288 / ccdcore: {_report.ratio_text(t_emva, t_ours)}")
+    print()
     print(f"emva1288: sensitivity fit up to index {emva['index_sensitivity_max']}, saturation "
           f"index {emva['index_u_ysat']}")
     used = [p.level for p in pt.points if p.used]
@@ -153,6 +167,7 @@ def main(argv: list[str] | None = None) -> None:
     for p in pt.points:
         if not p.used:
             print(f"  level {p.level}: {p.reason}")
+    _report.footer()
 
 
 if __name__ == "__main__":

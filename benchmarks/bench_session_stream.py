@@ -9,10 +9,13 @@ Writes N frames of W x H uint16 TIFF (uncompressed, like camera output) plus a m
 * ``numpy``:  the naive way, ``np.stack`` of every frame then ``mean``/``var`` (memory grows
   with N), for scale.
 
+Each variant runs ``--repeat`` times (after a warm-up round that fills the page cache), the variants
+alternated (oiio, session, numpy, oiio, ...); the table gives the median (min–max) time and peak RSS.
+
 Run by hand (not part of the tests)::
 
     .venv/bin/python benchmarks/bench_session_stream.py            # 64 frames of 2048x2048
-    .venv/bin/python benchmarks/bench_session_stream.py --frames 16 --size 512
+    .venv/bin/python benchmarks/bench_session_stream.py --frames 16 --size 512 --repeat 3
 """
 from __future__ import annotations
 
@@ -29,6 +32,8 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+
+import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 
 def make_data(folder: Path, n: int, size: int) -> None:
@@ -87,34 +92,51 @@ def run_variant(variant: str, folder: Path) -> dict:
     return {"variant": variant, "seconds": dt, "frames": len(files), "peak_rss_mb": peak_mb}
 
 
+def _child(args: argparse.Namespace, variant: str) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames), "--size",
+                          str(args.size), "--variant", variant], capture_output=True, text=True,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=64)
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--variant", help=argparse.SUPPRESS)
     ap.add_argument("--skip-numpy", action="store_true")
+    ap.add_argument("--repeat", type=int, default=5,
+                    help="timed runs per variant (fresh processes, alternated; default 5)")
+    ap.add_argument("--warmup", type=int, default=1,
+                    help="untimed rounds first, to warm the page cache (default 1)")
     args = ap.parse_args()
     folder = HERE / "_data" / f"stream_{args.frames}x{args.size}"
     if args.variant:
         print(json.dumps(run_variant(args.variant, folder)))
         return
+    variants = ["oiio", "session"] + ([] if args.skip_numpy else ["numpy"])
+    _report.header(__file__, args.repeat, args.warmup, order=variants,
+                   note="each run is a fresh process: its time excludes start-up and imports, its "
+                        "peak RSS (ru_maxrss) includes the interpreter and libraries")
     make_data(folder, args.frames, args.size)
     frame_mb = args.size * args.size * 2 / 2**20
-    variants = ["oiio", "session"] + ([] if args.skip_numpy else ["numpy"])
-    rows = []
-    for v in variants:
-        # first run warms the page cache; report the second
-        for _ in range(2):
-            out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames), "--size",
-                                  str(args.size), "--variant", v], capture_output=True, text=True,
-                                 check=True)
-        rows.append(json.loads(out.stdout))
+    runs = _report.interleaved({v: (lambda v=v: _child(args, v)) for v in variants},
+                               repeat=args.repeat, warmup=args.warmup)
+    secs = {v: [r["seconds"] for r in runs[v]] for v in variants}
     print(f"{args.frames} frames of {args.size}x{args.size} uint16 ({frame_mb:.1f} MB each)")
-    print(f"{'variant':<10}{'seconds':>9}{'frames/s':>10}{'MB/s':>9}{'peak RSS MB':>13}")
-    for r in rows:
-        fps = r["frames"] / r["seconds"]
-        print(f"{r['variant']:<10}{r['seconds']:>9.2f}{fps:>10.1f}{fps * frame_mb:>9.0f}"
-              f"{r['peak_rss_mb']:>13.0f}")
+    print(f"{'variant':<10}{'seconds median (min–max)':>26}{'frames/s':>10}{'MB/s':>8}"
+          f"{'peak RSS MB median (min–max)':>31}")
+    for v in variants:
+        t = _report.summary(secs[v])
+        rss = _report.summary([r["peak_rss_mb"] for r in runs[v]])
+        fps = args.frames / t.median
+        print(f"{v:<10}{t.format('.3f'):>26}{fps:>10.1f}{fps * frame_mb:>8.0f}"
+              f"{rss.format('.0f'):>31}")
+    print("(frames/s and MB/s from the median time)")
+    print(f"time session / oiio read loop: {_report.ratio_text(secs['session'], secs['oiio'])}")
+    if "numpy" in secs:
+        print(f"time numpy / session: {_report.ratio_text(secs['numpy'], secs['session'])}")
+    _report.footer()
 
 
 if __name__ == "__main__":

@@ -11,8 +11,12 @@ Implements, with uncertainties and against a simulator with known truth:
   Applied Optics 46(2), 2007 (flat-field gain/offset correction, SNUP).
 
 Modules: :mod:`ccdcore.io` (frames and maps), :mod:`ccdcore.session` (capture sessions),
-:mod:`ccdcore.stats` (streamed per-pixel statistics), :mod:`ccdcore.cfa` (Bayer planes),
-:mod:`ccdcore.simulate` (camera simulators), :mod:`ccdcore.cli` (command line).
-This package never imports a UI library.
+:mod:`ccdcore.channels` (layouts, channels, Bayer planes), :mod:`ccdcore.common` (shared helpers),
+:mod:`ccdcore.stats` (streamed per-pixel statistics), the estimators (:mod:`ccdcore.noise`,
+:mod:`ccdcore.darkframe`, :mod:`ccdcore.fixedpattern`, :mod:`ccdcore.planning`,
+:mod:`ccdcore.scene`, :mod:`ccdcore.uniformity`, :mod:`ccdcore.flatfield`),
+:mod:`ccdcore.product` (calibration products), :mod:`ccdcore.simulate` (camera simulators with
+their truth), :mod:`ccdcore.cli` (command line).  ``docs/architecture.md`` in the repository
+describes the layout and the data flow.  This package never imports a UI library.
 """
 __version__ = "0.1.0"

@@ -247,14 +247,20 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_snup(args: argparse.Namespace) -> int:
-    from .io import read_frame
+    from .common import check_roi
+    from .io import read_header, read_image, read_region
     from .uniformity import snup
 
     images = []
     for path in args.images:
-        data, header = read_frame(path)
+        header = read_header(path)
         layout = args.layout or header.layout
-        res = snup(data, roi=args.roi, layout=layout, where=str(path))
+        if args.roi is None:
+            data = read_image(path)
+        else:  # decode only the region: a huge frame need not fit the pixel limit
+            roi = check_roi(args.roi, header.shape, path, even=layout.startswith("bayer"))
+            data = read_region(path, *roi)
+        res = snup(data, layout=layout, where=str(path))
         images.append({"path": str(path), "layout": layout,
                        "channels": res.to_dict()["channels"]})
     if args.json:

@@ -378,7 +378,7 @@ REQUIREMENTS: tuple[Requirement, ...] = (
                 "n1 configurations × n2 frames of a uniform card, moving card and lamp between "
                 "configurations (role = fixed_pattern, config = 1 … n1), and dark frames"),
     Requirement("plan", ("ptc", "fixed_pattern"), "the acquisition plan n1, n2 (sec. V-B)",
-                "photon-transfer pairs and fixed-pattern frames, and the camera bit depth"),
+                "photon-transfer pairs and fixed-pattern frames (with [camera] bits set)"),
     Requirement("correction_check", ("scene", "fixed_pattern", "dark"),
                 "the check of eq. 51 on a maximum-intensity image (sec. VII-A)",
                 "a scene frame of a card at maximum intensity (role = scene, "
@@ -425,7 +425,8 @@ def missing_frames(session: Session, estimates: Iterable[str] | None = None
 class Skipped:
     """An estimate :func:`estimate_all` did not make: ``code`` is ``"missing-frames"`` (the
     session lacks ``roles``), ``"failed"`` (its frames are there but the method refused them,
-    ``reason`` says why) or ``"needs"`` (an estimate it builds on was not made)."""
+    ``reason`` says why), ``"needs"`` (an estimate it builds on was not made) or
+    ``"not-applicable"`` (the method does not apply to this camera, e.g. D̂_D on colour frames)."""
 
     estimate: str
     code: str
@@ -574,8 +575,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     report("dark reference", 0.2)
     roles = session.roles()
     if roles.get("dark") and session.camera.layout != "mono":
-        skipped.append(Skipped("dark", "failed", f"{session.camera.layout} camera: the dark "
-                               "reference D̂_D of sec. V-A is made for mono frames; the "
+        skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: the "
+                               "dark reference D̂_D of sec. V-A is made for mono frames; the "
                                "flat-field DL_0 serves instead"))
     else:
         attempt("dark", (), dark_run)

@@ -71,7 +71,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .channels import CHANNEL_NAMES, channel_names, channel_slices, check_layout, split_channels
+from .channels import channel_names, channel_slices, check_layout, split_channels
 from .common import check_roi, crop, named_frames, sort_key
 from .errors import CcdError
 from .stats import PixelMoments

@@ -4,12 +4,10 @@ person reads (help, valid/invalid, no doubled prefixes, no overlong lines)."""
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -330,3 +328,19 @@ def test_long_lists_of_excluded_levels_are_summarised(tmp_path):
     assert len([n for n in res.notes if "not used" in n]) == 1
     assert "12 levels not used (user: 1 … 12)" in res.notes[-1]
     assert max(map(len, res.notes)) <= 200
+
+
+def test_snup_with_a_roi_reads_only_the_region(tmp_path, capsys, monkeypatch):
+    """A frame over the pixel limit is refused whole, but its ROI is measured (read_region
+    decodes only the FITS rows holding it: 30 x 80 = 2400 values under the limit of 3000)."""
+    rng = np.random.default_rng(3)
+    img = rng.normal(1000, 10, (64, 80)).astype(np.uint16)
+    write_image(tmp_path / "big.fits", img)
+    monkeypatch.setenv("CCDCORE_MAX_PIXELS", "3000")
+    code, _, err = run(capsys, "snup", tmp_path / "big.fits")
+    assert code == 2 and "over the limit" in err and "big.fits" in err
+    code, out, _ = run(capsys, "snup", tmp_path / "big.fits", "--roi", "8,4,40,30", "--json")
+    assert code == 0
+    ch = json.loads(out)["images"][0]["channels"][0]
+    part = img[4:34, 8:48].astype(float)
+    assert ch["snup"] == pytest.approx(100 * part.std(ddof=1) / part.mean(), rel=1e-12)

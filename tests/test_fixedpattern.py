@@ -7,7 +7,6 @@ are fixed, so the tests are deterministic.
 from __future__ import annotations
 
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ from ccdcore.darkframe import dark_reference
 from ccdcore.errors import CcdError
 from ccdcore.fixedpattern import (CorrectionCheck, FixedPattern, correct, correction_check,
                                   fixed_pattern_map)
-from ccdcore.io import read_image, write_image
+from ccdcore.io import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 
@@ -91,7 +90,7 @@ def _config_slopes(session, dmap, K):
 
 def test_card_spots_are_rejected(tmp_path):
     """With 2 % of the card in spots of ±25 %, every spot slope is rejected (n'_1 < n1 there)."""
-    truth = simulate("healey94", tmp_path, seed=8, size=(64, 48), n_dark=16, levels=3, n1=10,
+    simulate("healey94", tmp_path, seed=8, size=(64, 48), n_dark=16, levels=3, n1=10,
                      n2=4, outlier_fraction=0.02, outlier_contrast=0.25, scene_levels=(0.5,),
                      max_intensity=None)
     session = open_session(tmp_path)

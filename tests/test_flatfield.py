@@ -19,7 +19,6 @@ from ccdcore.errors import CcdError
 from ccdcore.flatfield import (base_image_study, compare_dark_settings, compare_with_k_map,
                                correct, flat_field, flat_field_from_session, recommend_base,
                                zero_dark)
-from ccdcore.io import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 from ccdcore.uniformity import snup

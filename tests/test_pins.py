@@ -22,7 +22,6 @@ import pytest
 from ccdcore.darkframe import dark_reference
 from ccdcore.fixedpattern import fixed_pattern_map
 from ccdcore.flatfield import flat_field
-from ccdcore.io import read_image
 from ccdcore.noise import PtcPoint, fit_points, pair_statistics, photon_transfer
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate

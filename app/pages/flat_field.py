@@ -623,7 +623,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                 self.state.error = before
         finally:
             self.pair_pane.loading = False
-        if not self._current(session) or flat is not self.flat:
+        if not self._current(session, generation) or flat is not self.flat:
             return
         if view is None:
             self.view = None

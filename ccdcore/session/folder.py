@@ -63,7 +63,7 @@ def _folder_images(root: Path) -> list[str]:
 def open_folder(folder: Path) -> Session:
     root = folder.resolve()
     problems: list[Problem] = []
-    candidates: list[_Candidate] = []
+    candidates: list[Candidate] = []
     relpaths = _folder_images(root)
     # role from the first path component; ptc level / fixed_pattern config from the sub-folder
     # (ptc/L03/a.tif) or else from the first number of the file name (ptc/L03_a.tif)
