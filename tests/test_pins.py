@@ -251,6 +251,17 @@ def test_dark_sem_map_is_sqrt_var_over_s(s):
     np.testing.assert_allclose(dr.sem_map, expected, rtol=1e-10, atol=1e-12)
 
 
+def _spatial_std_se(true_std: float, var_e: float, M: int, s: int) -> float:
+    """Standard error of ``spatial_std_signal`` for a signal of spatial std ``true_std`` under
+    averaging noise of variance ``var_e`` = σ²_N/s on M pixels: in variance units the cross term
+    2·σ_D·σ_ē/√M, the sample variance of the noise σ²_ē·√(2/M) and that of mean(var_map)/s,
+    σ²_ē·√(2/((s − 1)M)), in quadrature; then d(std) = d(var)/(2·std)."""
+    se_var = math.sqrt((2 * true_std * math.sqrt(var_e / M)) ** 2
+                       + (var_e * math.sqrt(2.0 / M)) ** 2
+                       + (var_e * math.sqrt(2.0 / ((s - 1) * M))) ** 2)
+    return se_var / (2 * true_std)
+
+
 def test_dark_spatial_std_signal_recovers_a_known_nonuniformity():
     """Bug 6: ``spatial_std_signal`` = √(spatial_std² − mean(var_map)/s), not /(s − 1).
 
@@ -272,10 +283,7 @@ def test_dark_spatial_std_signal_recovers_a_known_nonuniformity():
     M = D.size
     true_std = float(D.std())
     var_e = sigma_n ** 2 / s
-    se_var = math.sqrt((2 * true_std * math.sqrt(var_e / M)) ** 2
-                       + (var_e * math.sqrt(2.0 / M)) ** 2
-                       + (var_e * math.sqrt(2.0 / ((s - 1) * M))) ** 2)
-    se_std = se_var / (2 * true_std)
+    se_std = _spatial_std_se(true_std, var_e, M, s)
     assert dr.spatial_std_signal == pytest.approx(true_std, abs=5 * se_std), (
         dr.spatial_std_signal, true_std, se_std)
 
@@ -302,10 +310,7 @@ def test_dark_spatial_std_signal_against_the_healey94_truth(tmp_path):
     assert true_std == pytest.approx(truth["dark_std_dn"], rel=1e-5)
     M = tmap.size
     var_e = truth["dark_sigma2_dn"] / s
-    se_var = math.sqrt((2 * true_std * math.sqrt(var_e / M)) ** 2
-                       + (var_e * math.sqrt(2.0 / M)) ** 2
-                       + (var_e * math.sqrt(2.0 / ((s - 1) * M))) ** 2)
-    se_std = se_var / (2 * true_std)
+    se_std = _spatial_std_se(true_std, var_e, M, s)
     assert dr.spatial_std_signal == pytest.approx(true_std, abs=5 * se_std), (
         dr.spatial_std_signal, true_std, se_std)
 
