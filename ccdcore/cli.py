@@ -333,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("preset", choices=sorted(PRESETS), help="which paper's capture procedure")
     p.add_argument("out_dir", type=Path, help="folder to write (created)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--size", type=_size, default=None,
+    p.add_argument("--size", type=_size, default=None, metavar="WxH",
                    help="frame size WxH in pixels (default: the preset's)")
     json_flag(p)
 
@@ -349,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
              _cmd_ptc, needs="ptc frames at 3 or more light levels (two or more frames each); "
                              "dark frames give the black level")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
-    p.add_argument("--roi", type=_roi, help=_ROI_HELP)
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP)
     p.add_argument("--robust", action="store_true",
                    help="drop levels whose residual is beyond 3 sigma, one at a time")
     p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
@@ -361,7 +361,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "reference), fixed_pattern and dark frames (K map), flat and "
                                    "dark frames (flat field); what cannot be made is listed")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
-    p.add_argument("--roi", type=_roi, help="ROI X,Y,W,H for the photon-transfer statistics")
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
     p.add_argument("-o", "--out", type=Path, required=True,
                    help="product folder to write (new, empty, or an earlier product)")
     json_flag(p)
@@ -377,7 +377,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
                      "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
     p.add_argument("images", type=Path, nargs="+", help="image files")
-    p.add_argument("--roi", type=_roi, help=_ROI_HELP + " (even values on Bayer data)")
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP + " (even values on Bayer data)")
     p.add_argument("--layout", choices=list(LAYOUTS),
                    help="channel layout (default: from the file; give it for mosaicked raw data)")
     json_flag(p)
