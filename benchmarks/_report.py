@@ -10,14 +10,24 @@ the min–max spread; ratios are computed from the medians.
 * :func:`timed` -- wall times of ``repeat`` calls of one function (after ``warmup`` calls);
 * :func:`interleaved` -- the return values of several functions called in turn, round by round;
 * :func:`summary` -- median and min–max of a list of numbers (:class:`Summary`);
-* :func:`header` / :func:`footer` -- the block printed at the start and end of each script's output.
+* :func:`header` / :func:`footer` -- the block printed at the start and end of each script's output;
+* :func:`run_json` -- run a child process and parse the JSON line it prints last.
+
+Peak memory is measured as a child process's ``ru_maxrss``.  On Linux a child started with
+``subprocess`` (vfork + exec) inherits the launching process's high-water mark as the floor of its
+own ``ru_maxrss``: a launcher that once held 400 MB (e.g. while writing the test data) makes every
+child report at least 400 MB.  So the scripts write their data in a child process too, and the
+footer prints the launcher's own peak, the floor of every figure.
 """
 from __future__ import annotations
 
 import datetime
+import json
 import os
 import platform
+import resource
 import statistics
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -25,6 +35,8 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 _START: float | None = None
+_STAT0: list[int] | None = None
+_OURS0: float = 0.0
 
 
 def _cpu_model() -> str:
@@ -43,9 +55,10 @@ def _simd() -> str:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("flags"):
                 flags = set(line.split(":", 1)[1].split())
-                for name in ("avx512f", "avx2", "avx", "sse4_2"):
-                    if name in flags:
-                        return name.upper().replace("AVX512F", "AVX-512").replace("SSE4_2", "SSE4.2")
+                for flag, name in (("avx512f", "AVX-512"), ("avx2", "AVX2"), ("avx", "AVX"),
+                                   ("sse4_2", "SSE4.2")):
+                    if flag in flags:
+                        return name
     except OSError:
         pass
     return ""
@@ -110,8 +123,35 @@ def load_average() -> str:
         return ""
 
 
+def _cpu_times() -> list[int] | None:
+    """The ``cpu`` line of /proc/stat: user nice system idle iowait irq softirq steal ... ticks."""
+    try:
+        line = Path("/proc/stat").read_text().splitlines()[0]
+        return [int(v) for v in line.split()[1:]]
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _our_cpu_seconds() -> float:
+    """CPU time (user + system) of this process and of its finished children."""
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def max_rss_mb() -> float:
+    """This process's peak resident set size (``ru_maxrss``) in MB."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def run_json(cmd: Sequence[str]) -> Any:
+    """Run ``cmd`` (stdout captured, stderr passed through); parse its last stdout line as JSON."""
+    proc = subprocess.run(list(cmd), stdout=subprocess.PIPE, text=True, check=True)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def timed(fn: Callable[[], Any], repeat: int = 5, warmup: int = 1) -> list[float]:
-    """Wall times (s, ``time.perf_counter``) of ``repeat`` calls of ``fn``, after ``warmup`` calls."""
+    """Wall times (s, ``perf_counter``) of ``repeat`` calls of ``fn``, after ``warmup`` calls."""
     for _ in range(warmup):
         fn()
     times = []
@@ -180,8 +220,10 @@ def ratio_text(slow: Sequence[float], fast: Sequence[float], fmt: str = ".2f") -
 def header(script: str, repeat: int, warmup: int = 1, order: Sequence[str] = (),
            note: str = "") -> None:
     """Print the block that opens each benchmark's output: script, machine, date, repeat count."""
-    global _START
+    global _START, _STAT0, _OURS0
     _START = time.perf_counter()
+    _STAT0 = _cpu_times()
+    _OURS0 = _our_cpu_seconds()
     name = Path(script).name
     args = " ".join(sys.argv[1:])
     print(f"== {name}{(' ' + args) if args else ''}")
@@ -199,11 +241,29 @@ def header(script: str, repeat: int, warmup: int = 1, order: Sequence[str] = (),
     sys.stdout.flush()
 
 
-def footer() -> None:
-    """Print the script's total run time and the load average at the end."""
+def footer(children: bool = False) -> None:
+    """Print the script's run time, the load average and how much CPU others took meanwhile.
+
+    With ``children`` (the script measured peak memory in child processes), also this process's
+    own peak RSS, the floor of theirs.
+    """
     print()
-    total = f"{time.perf_counter() - _START:.0f} s" if _START is not None else "?"
+    wall = time.perf_counter() - _START if _START is not None else float("nan")
+    total = f"{wall:.0f} s"
     la = load_average()
     print(f"total run time of the script: {total}"
           + (f"; load average at end (1/5/15 min): {la}" if la else ""))
+    stat1 = _cpu_times()
+    if _STAT0 is not None and stat1 is not None and len(stat1) >= 8:
+        d = [b - a for a, b in zip(_STAT0, stat1)]
+        total_ticks = sum(d[:8]) or 1
+        busy = total_ticks - d[3] - d[4]
+        hz = os.sysconf("SC_CLK_TCK")
+        others = busy / hz - (_our_cpu_seconds() - _OURS0)
+        print(f"CPU meanwhile (all {os.cpu_count()} cores): busy {100 * busy / total_ticks:.0f} %; "
+              f"other processes used about {max(others, 0.0) / wall:.2f} cores on average; "
+              f"hypervisor steal {100 * d[7] / total_ticks:.1f} %")
+    if children:
+        print(f"launcher peak RSS {max_rss_mb():.0f} MB (on Linux the floor of every child's "
+              f"ru_maxrss)")
     sys.stdout.flush()

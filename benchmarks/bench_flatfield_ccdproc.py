@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -135,16 +134,15 @@ def run_ccdcore(folder: Path) -> dict:
     return res
 
 
-def _child(size: int, tool: str) -> dict:
-    proc = subprocess.run([sys.executable, __file__, "--size", str(size), "--run", tool],
-                          capture_output=True, text=True, check=True)
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+def _child(size: int, *extra: str) -> dict:
+    return _report.run_json([sys.executable, __file__, "--size", str(size), *extra])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--run", choices=("ccdproc", "ccdcore"), help=argparse.SUPPRESS)
+    ap.add_argument("--make-data", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--repeat", type=int, default=5,
                     help="timed runs per tool (fresh processes, alternated; default 5)")
     ap.add_argument("--warmup", type=int, default=1,
@@ -155,20 +153,24 @@ def main() -> None:
         fn = run_ccdproc if args.run == "ccdproc" else run_ccdcore
         print(json.dumps(fn(folder)))
         return
+    if args.make_data:
+        make_data(folder, args.size)
+        print(json.dumps({"folder": str(folder)}))
+        return
     tools = ("ccdcore", "ccdproc")
     _report.header(__file__, args.repeat, args.warmup, order=tools,
                    note="each run is a fresh process: its time excludes start-up and imports, its "
                         "peak RSS (ru_maxrss) includes them; 'after import' is the RSS before the "
                         "timed work")
-    make_data(folder, args.size)
-    runs = _report.interleaved({t: (lambda t=t: _child(args.size, t)) for t in tools},
+    _child(args.size, "--make-data")  # in a child: our peak RSS is the floor of theirs
+    runs = _report.interleaved({t: (lambda t=t: _child(args.size, "--run", t)) for t in tools},
                                repeat=args.repeat, warmup=args.warmup)
     for t in tools:
         if len({(r["snup"], r["snup_err"]) for r in runs[t]}) != 1:
             print(f"WARNING: {t}'s SNUP differs between runs")
     secs = {t: [r["seconds"] for r in runs[t]] for t in tools}
     above = {t: [r["peak_rss_mb"] - r["base_rss_mb"] for r in runs[t]] for t in tools}
-    core, ref = runs["ccdcore"][-1], runs["ccdproc"][-1]
+    core = runs["ccdcore"][-1]
     print(f"{N_DARK} darks + {N_FLAT} flats of {args.size}x{args.size} uint16 FITS, "
           f"one held-out flat corrected")
     print(f"{'tool':10s}{'wall s median (min–max)':>26s}{'peak RSS MB median (min–max)':>31s}"
@@ -181,7 +183,8 @@ def main() -> None:
         print(f"{t:10s}{wall.format('.2f'):>26s}{peak.format('.0f'):>31s}{base.median:>16.0f}"
               f"{r['snup']:>9.4f}{r['snup_err']:>8.4f}")
     mem = _report.summary(above["ccdproc"]).median / _report.summary(above["ccdcore"]).median
-    print(f"ratio ccdproc/ccdcore: time {_report.ratio_text(secs['ccdproc'], secs['ccdcore'], '.1f')}")
+    time_ratio = _report.ratio_text(secs["ccdproc"], secs["ccdcore"], ".1f")
+    print(f"ratio ccdproc/ccdcore: time {time_ratio}")
     print(f"ratio ccdproc/ccdcore: peak memory above the imports {mem:.1f}x (ratio of medians: "
           f"{_report.summary(above['ccdproc']).median:.0f} MB / "
           f"{_report.summary(above['ccdcore']).median:.0f} MB)")
@@ -190,7 +193,7 @@ def main() -> None:
           f"{core['G_residual_pct']:.4f} %")
     print("(ccdcore's DL_c = O + G·DL keeps the mean dark level ⟨DL_0⟩ (eq. 2), ccdproc's "
           "output does not: the same noise over a mean larger by the dark level)")
-    _report.footer()
+    _report.footer(children=True)
 
 
 if __name__ == "__main__":

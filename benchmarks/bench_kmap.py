@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -76,16 +75,15 @@ def run_variant(folder: Path, n1: int, n2: int) -> dict:
             "shape": list(fp.K.shape)}
 
 
-def _child(size: int, n1: int, n2: int) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--size", str(size), "--variant", f"{n1},{n2}"],
-                         capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+def _child(size: int, *extra: str) -> dict:
+    return _report.run_json([sys.executable, __file__, "--size", str(size), *extra])
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--variant", help=argparse.SUPPRESS)
+    ap.add_argument("--make-data", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--repeat", type=int, default=5,
                     help="timed runs per variant (fresh processes, alternated; default 5)")
     ap.add_argument("--warmup", type=int, default=1,
@@ -96,14 +94,19 @@ def main() -> None:
         n1, n2 = map(int, args.variant.split(","))
         print(json.dumps(run_variant(folder, n1, n2)))
         return
+    if args.make_data:
+        make_data(folder, args.size)
+        print(json.dumps({"folder": str(folder)}))
+        return
     variants = ((N1, N2), (N1, 5), (10, N2))
     names = [f"{n1}x{n2}" for n1, n2 in variants]
     _report.header(__file__, args.repeat, args.warmup, order=names,
                    note="each run is a fresh process: its times exclude start-up and imports, "
                         "its peak RSS (ru_maxrss) includes them; 'base' is the RSS after imports")
-    make_data(folder, args.size)
+    _child(args.size, "--make-data")  # in a child: our peak RSS is the floor of theirs
     runs = _report.interleaved(
-        {name: (lambda v=v: _child(args.size, *v)) for name, v in zip(names, variants)},
+        {name: (lambda v=v: _child(args.size, "--variant", f"{v[0]},{v[1]}"))
+         for name, v in zip(names, variants)},
         repeat=args.repeat, warmup=args.warmup)
     hw = args.size * args.size
     print(f"dark_reference (s = {S}) + fixed_pattern_map on {args.size}x{args.size} uint8 frames")
@@ -140,7 +143,7 @@ def main() -> None:
             print(f"WARNING: K̂ differs between the runs of {name}")
     print(f"K̂ (n1 = {r['n1']}, n2 = {r['n2']}): mean {r['K_mean']:.5f}, spatial std "
           f"{r['K_std']:.3e}, σ̂ {r['sigma_hat']:.3e}, n̂_1 {r['n1_hat']}")
-    _report.footer()
+    _report.footer(children=True)
 
 
 if __name__ == "__main__":

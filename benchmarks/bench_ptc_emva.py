@@ -11,8 +11,8 @@ then estimate, from the same files:
 and their run times are measured on the same files (emva1288: parse, load, ``Data1288``,
 ``Results1288.K`` and ``.sigma_d``; ccdcore: ``open_session`` on the descriptor, then
 ``photon_transfer``), ``--repeat`` times each in one process, alternating the two tools after a
-warm-up round, as median (min–max); the speed ratio is the ratio of the medians.  The data are generated once into ``benchmarks/_data/emva_ptc`` (reused when
-the parameters match).
+warm-up round, as median (min–max); the speed ratio is the ratio of the medians.  The data are
+generated once into ``benchmarks/_data/emva_ptc`` (reused when the parameters match).
 
 Truth of the generator: K = ``cam.K``; read noise √``sigma2_dark_0`` e.  The generator adds a
 uniform dither U(−½, ½) DN *before* rounding, so its frames carry the quantisation variance twice

@@ -10,7 +10,8 @@ Writes N frames of W x H uint16 TIFF (uncompressed, like camera output) plus a m
   with N), for scale.
 
 Each variant runs ``--repeat`` times (after a warm-up round that fills the page cache), the variants
-alternated (oiio, session, numpy, oiio, ...); the table gives the median (min–max) time and peak RSS.
+alternated (oiio, session, numpy, oiio, ...); the table gives the median (min–max) time and peak
+RSS.
 
 Run by hand (not part of the tests)::
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import resource
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -92,11 +92,9 @@ def run_variant(variant: str, folder: Path) -> dict:
     return {"variant": variant, "seconds": dt, "frames": len(files), "peak_rss_mb": peak_mb}
 
 
-def _child(args: argparse.Namespace, variant: str) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--frames", str(args.frames), "--size",
-                          str(args.size), "--variant", variant], capture_output=True, text=True,
-                         check=True)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+def _child(args: argparse.Namespace, *extra: str) -> dict:
+    return _report.run_json([sys.executable, __file__, "--frames", str(args.frames), "--size",
+                             str(args.size), *extra])
 
 
 def main() -> None:
@@ -104,6 +102,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=64)
     ap.add_argument("--size", type=int, default=2048)
     ap.add_argument("--variant", help=argparse.SUPPRESS)
+    ap.add_argument("--make-data", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--skip-numpy", action="store_true")
     ap.add_argument("--repeat", type=int, default=5,
                     help="timed runs per variant (fresh processes, alternated; default 5)")
@@ -114,13 +113,17 @@ def main() -> None:
     if args.variant:
         print(json.dumps(run_variant(args.variant, folder)))
         return
+    if args.make_data:
+        make_data(folder, args.frames, args.size)
+        print(json.dumps({"folder": str(folder)}))
+        return
     variants = ["oiio", "session"] + ([] if args.skip_numpy else ["numpy"])
     _report.header(__file__, args.repeat, args.warmup, order=variants,
                    note="each run is a fresh process: its time excludes start-up and imports, its "
                         "peak RSS (ru_maxrss) includes the interpreter and libraries")
-    make_data(folder, args.frames, args.size)
+    _child(args, "--make-data")  # in a child: our peak RSS is the floor of theirs
     frame_mb = args.size * args.size * 2 / 2**20
-    runs = _report.interleaved({v: (lambda v=v: _child(args, v)) for v in variants},
+    runs = _report.interleaved({v: (lambda v=v: _child(args, "--variant", v)) for v in variants},
                                repeat=args.repeat, warmup=args.warmup)
     secs = {v: [r["seconds"] for r in runs[v]] for v in variants}
     print(f"{args.frames} frames of {args.size}x{args.size} uint16 ({frame_mb:.1f} MB each)")
@@ -136,7 +139,7 @@ def main() -> None:
     print(f"time session / oiio read loop: {_report.ratio_text(secs['session'], secs['oiio'])}")
     if "numpy" in secs:
         print(f"time numpy / session: {_report.ratio_text(secs['numpy'], secs['session'])}")
-    _report.footer()
+    _report.footer(children=True)
 
 
 if __name__ == "__main__":
