@@ -740,12 +740,14 @@ def _os_problem(exc: OSError, tmp: Path | None = None, path: Path | None = None)
 
 
 def _free_bytes(folder: Path) -> int | None:
-    """Bytes an ordinary user may still write in ``folder``'s file system (None: unknown)."""
+    """Bytes this process may still write in ``folder``'s file system (None: unknown): the
+    blocks free to ordinary users, and for root also the blocks reserved for it."""
     try:
         st = os.statvfs(folder)
     except (OSError, AttributeError):  # no statvfs on Windows
         return None
-    return st.f_bavail * st.f_frsize
+    root = hasattr(os, "geteuid") and os.geteuid() == 0
+    return (st.f_bfree if root else st.f_bavail) * st.f_frsize
 
 
 def _new_temp(path: Path) -> Path:
