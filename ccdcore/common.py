@@ -37,12 +37,12 @@ __all__ = ["json_safe", "format_pm", "format_size", "sort_key", "group_by", "nam
 def json_safe(obj: Any) -> Any:
     """``obj`` with every number a plain Python ``bool``/``int``/``float`` and NaN/inf -> ``None``.
 
-    Dicts, lists and tuples are converted recursively (tuples become lists), NumPy arrays become
-    nested lists, paths become strings; other objects are returned unchanged.  The result passes
-    ``json.dumps(..., allow_nan=False)``.
+    Dicts, lists and tuples are converted recursively (tuples become lists, dict keys strings),
+    NumPy arrays become nested lists, paths become POSIX strings; other objects are returned
+    unchanged.  The result passes ``json.dumps(..., allow_nan=False)``.
     """
     if isinstance(obj, dict):
-        return {k: json_safe(v) for k, v in obj.items()}
+        return {k if isinstance(k, str) else str(k): json_safe(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [json_safe(v) for v in obj]
     if isinstance(obj, np.ndarray):
@@ -54,7 +54,7 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, (float, np.floating)):
         return float(obj) if math.isfinite(obj) else None
     if isinstance(obj, Path):
-        return str(obj)
+        return obj.as_posix()
     return obj
 
 

@@ -21,9 +21,10 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from ..common import json_safe
 from ..io import atomic_write_text, write_image, write_map
 
-__all__ = ["SessionWriter", "to_jsonable", "round_sig", "round_floats", "TRUTH_DIGITS"]
+__all__ = ["SessionWriter", "round_sig", "round_floats", "TRUTH_DIGITS"]
 
 #: significant digits of the floats written to ``truth.json`` (see the module docstring)
 TRUTH_DIGITS = 12
@@ -39,21 +40,6 @@ def round_sig(x: float, digits: int = TRUTH_DIGITS) -> float:
     if not math.isfinite(x) or x == 0.0:
         return x
     return float(f"{x:.{int(digits)}g}")
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples into plain JSON types (recursively)."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return obj.as_posix()
-    return obj
 
 
 def round_floats(obj: Any, digits: int = TRUTH_DIGITS) -> Any:
@@ -94,7 +80,7 @@ class SessionWriter:
 
     def add_frame(self, relpath: str, data: np.ndarray, *, role: str, **metadata: Any) -> None:
         entry = {"path": relpath, "role": role}
-        entry.update({k: to_jsonable(v) for k, v in metadata.items() if v is not None})
+        entry.update({k: json_safe(v) for k, v in metadata.items() if v is not None})
         write_image(self.root / relpath, data, exposure=metadata.get("exposure"),
                     bits=self.camera.get("bits"))
         self.frames.append(entry)
@@ -111,7 +97,7 @@ class SessionWriter:
         Floats of ``truth`` are rounded to :data:`TRUTH_DIGITS` significant digits except the
         top-level keys in ``exact``.  Returns the truth as written (plain JSON types).
         """
-        manifest: dict[str, Any] = {"schema": 1, "camera": to_jsonable(self.camera),
+        manifest: dict[str, Any] = {"schema": 1, "camera": json_safe(self.camera),
                                     "frames": self.frames}
         text = tomli_w.dumps(manifest)
         if note:
@@ -120,6 +106,6 @@ class SessionWriter:
         truth = dict(truth)
         if self.maps:
             truth.setdefault("maps", {}).update(self.maps)
-        truth = {k: v if k in exact else round_floats(v) for k, v in to_jsonable(truth).items()}
+        truth = {k: v if k in exact else round_floats(v) for k, v in json_safe(truth).items()}
         atomic_write_text(self.root / "truth.json", json.dumps(truth, indent=2, sort_keys=True) + "\n")
         return truth
