@@ -277,7 +277,7 @@ def _cmd_snup(args: argparse.Namespace) -> int:
 def _cmd_apply(args: argparse.Namespace) -> int:
     from .product import apply_product
 
-    written = apply_product(args.calib, args.images, args.out_dir)
+    written = apply_product(args.calib, args.images, args.out_dir, compression=args.compression)
     for path in written:
         print(path)
     return 0
@@ -373,6 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("images", type=Path, nargs="+", help="images of the calibrated camera")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for the corrected images (same base names)")
+    p.add_argument("--compression", choices=["none", "zip"], default="none",
+                   help="TIFF/EXR compression of the float32 outputs (default none: about six "
+                        "times faster to write than zip, a quarter larger)")
 
     p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
                      "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")

@@ -462,11 +462,17 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
     if not darks:
         return 0.0, "none", ("no black level given and no dark frames: b0 = 0, the paper's model "
                              "(eq. 20); an electronic offset would then be counted as signal",)
-    groups: dict[float | None, PixelMoments] = {}
+    # one scalar sum per exposure (not a frame-sized accumulator: a set may have 100 exposures)
+    sums: dict[float | None, float] = {}
+    counts: dict[float | None, int] = {}
+    frames: dict[float | None, int] = {}
     for rec, frame in session.iter_frames(darks):
         pix = _checked_pixels(rec, frame, roi)
-        groups.setdefault(rec.exposure, PixelMoments()).add(pix, name=rec.relpath)
-    means = {t: float(acc.result().mean.mean()) for t, acc in groups.items()}
+        t = rec.exposure
+        sums[t] = sums.get(t, 0.0) + float(pix.sum(dtype=np.float64))
+        counts[t] = counts.get(t, 0) + pix.size
+        frames[t] = frames.get(t, 0) + 1
+    means = {t: sums[t] / counts[t] for t in sums}
     timed = {t: m for t, m in means.items() if t is not None}
     if len(timed) >= 2:
         t = np.array(sorted(timed))
@@ -480,8 +486,8 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
             f"black level b0 = {intercept:.4g} DN: dark mean extrapolated to zero exposure "
             f"({table}; dark signal {slope:.4g} DN/s); the dark signal stays in mu with its "
             "shot noise as in eq. 36",)
-    n = sum(acc.n for acc in groups.values())
-    total = sum(means[t] * groups[t].n for t in groups) / n
+    n = sum(frames.values())
+    total = sum(sums.values()) / sum(counts.values())
     return total, "dark_mean", (
         f"black level b0 = {total:.4g} DN: mean of {n} dark frame{'s' if n > 1 else ''} at one "
         "exposure (EMVA 1288 convention); mu is then the light signal only and sigma_c2 also "

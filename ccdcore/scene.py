@@ -430,9 +430,10 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
         raise CcdError(where, f"the corrected mean over roi {list(roi_t)} is {mu:.4g} DN; "
                               "V_S = (σ²_D − σ²_KN)/μ²_D needs a lit region above the dark level")
     dev = DC - mu
-    m2 = float(np.mean(dev * dev))
+    d2 = dev * dev
+    m2 = float(np.mean(d2))
     var_D = m2 * n / (n - 1)                                     # eq. 55, sample variance
-    m4 = float(np.mean(dev ** 4))
+    m4 = float(np.mean(d2 * d2))                                 # not dev ** 4: 4x slower
     invK2 = 1.0 / (Kr * Kr)
     E = float(invK2.mean())                                      # E[1/K̂²], eq. 56
     dbar = float(dk.mean())

@@ -86,6 +86,22 @@ def test_apply_is_eq_51_and_leaves_inputs_alone(product, sim, tmp_path):
     assert hashlib.sha256(src.read_bytes()).hexdigest() == before
 
 
+def test_apply_compression_is_a_choice(product, sim, tmp_path, capsys):
+    """Uncompressed by default (fast); zip on request: the same float32 values, a smaller file
+    (the K̂-corrected frame is smooth enough to deflate); an unknown choice is refused."""
+    src = sim[0] / "scene" / "max_intensity.tif"
+    [plain] = apply_product(product, [src], tmp_path / "plain")
+    [packed] = apply_product(product, [src], tmp_path / "zip", compression="zip")
+    np.testing.assert_array_equal(read_image(plain), read_image(packed))
+    assert packed.stat().st_size < plain.stat().st_size
+    assert plain.stat().st_size >= read_image(plain).nbytes   # nothing deflated
+    with pytest.raises(CcdError, match="unknown compression 'jpeg'"):
+        apply_product(product, [src], tmp_path / "x", compression="jpeg")
+    assert main(["apply", str(tmp_path / "nowhere"), str(src), "-o", str(tmp_path / "o"),
+                 "--compression", "zip"]) == 2
+    capsys.readouterr()
+
+
 def test_apply_bad_inputs(product, sim, tmp_path):
     root, _ = sim
     small = write_image(tmp_path / "small.png", np.zeros((8, 8), np.uint8))
