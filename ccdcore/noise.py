@@ -86,7 +86,6 @@ from scipy import stats
 from .common import check_roi, crop, json_safe
 from .errors import CcdError
 from .session import FrameRecord, Session, open_session
-from .stats import PixelMoments
 
 __all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
            "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
