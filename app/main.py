@@ -162,9 +162,13 @@ def create_app(session_path: str | Path | None = None, *,
     template.app_state = state  # type: ignore[attr-defined]
     template.app_shell = shell  # type: ignore[attr-defined]
 
+    doc = pn.state.curdoc
+    if doc is not None and doc.session_context is not None:
+        # served: when the browser session ends, its results go (Bokeh destroys a session
+        # some seconds after its last connection closed)
+        doc.on_session_destroyed(lambda context: state.close())
     if session_path is not None:
         path = str(session_path)
-        doc = pn.state.curdoc
         if doc is None or doc.session_context is None:
             state.load(path)          # not served (a script or a test): open it now
         else:

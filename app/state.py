@@ -276,6 +276,18 @@ class AppState(param.Parameterized):
     def clear_error(self) -> None:
         self.error = ""
 
+    def close(self) -> None:
+        """The browser session ended: drop the capture session and every result, so that their
+        memory comes back even while Panel still holds the page objects.
+
+        No watcher runs: the pages' document is gone, so nothing may be redrawn."""
+        discard = param.parameterized.discard_events
+        with discard(self), discard(self.results):
+            self.results.clear()
+            self.session = None
+            self.session_path = ""
+            self.status = "Session closed."
+
     # ---- computed results -----------------------------------------------------------------------
     def _run_safely(self, func: Callable[..., Any], args: tuple, kwargs: dict
                     ) -> tuple[Any, str]:

@@ -87,7 +87,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter
 
 from .channels import channel_names, channel_slices, check_layout, split_channels
-from .common import named_frames
+from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
 from .stats import MomentsResult, PixelMoments
@@ -568,16 +568,23 @@ class BaseStudy:
                 "rows": [dict(r, base=k(r["base"]), image=k(r["image"])) for r in self.rows]}
 
 
-def _base_maps(session, setting, gain, keys, groups, **options) -> dict[tuple, FlatField]:
-    """FlatField of each candidate base, darks at its exposure (one dark average per exposure)."""
-    out, dark_cache = {}, {}
-    for key in keys:
-        recs, t, _ = _pick_darks(session, setting, gain, key[1])
-        if t not in dark_cache:
-            dark_cache[t] = _moments(session.iter_frames(recs), "dark")[0]
-        out[key] = flat_field(dark_cache[t], session.iter_frames(groups[key]),
-                              layout=session.camera.layout, **options)
-    return out
+def _base_maps(session, setting, gain, keys, groups, **options
+               ) -> dict[tuple, tuple[NDArray[np.float32], NDArray[np.float32], str, float]]:
+    """``(G, O, layout, mean base level over channels)`` of each candidate base, darks at its
+    exposure.  Only the float32 G and O are kept (not the float64 means and variances of
+    DL_0 and DL_B), and one dark average at a time: candidates are taken by dark exposure."""
+    darks = {key: _pick_darks(session, setting, gain, key[1])[:2] for key in keys}
+    out = {}
+    dark_t, dark = object(), None
+    for key in sorted(keys, key=lambda k: sort_key(darks[k][1])):
+        recs, t = darks[key]
+        if t != dark_t:
+            dark_t, dark = t, None
+            dark = _moments(session.iter_frames(recs), "dark")[0]
+        ff = flat_field(dark, session.iter_frames(groups[key]), layout=session.camera.layout,
+                        **options)
+        out[key] = (ff.G, ff.O, ff.layout, float(np.mean([c.base_level for c in ff.channels])))
+    return {key: out[key] for key in keys}
 
 
 def base_image_study(session: Any, *, setting: str | None = None, gain: float | None = None,
@@ -614,7 +621,7 @@ def base_image_study(session: Any, *, setting: str | None = None, gain: float | 
         if key not in groups:
             raise CcdError("base_image_study", f"no flat group (level, exposure) = {key}")
     ffs = _base_maps(session, setting, gain, cands, groups, **options)
-    level = {key: float(np.mean([c.base_level for c in ff.channels])) for key, ff in ffs.items()}
+    level = {key: m[3] for key, m in ffs.items()}
     rows = []
     for img in imgs:
         bases = list(ffs)
@@ -633,7 +640,8 @@ def base_image_study(session: Any, *, setting: str | None = None, gain: float | 
             if nearest and not bases:
                 bases = [min(others, key=lambda b: abs(level[b] - img_level[0]))]
             for b in bases:
-                r = snup(ffs[b].correct(frame, where=rec.relpath), roi=roi, layout=ffs[b].layout,
+                G, O, layout, _ = ffs[b]
+                r = snup(correct(frame, G, O, where=rec.relpath), roi=roi, layout=layout,
                          where=rec.relpath)
                 for c in r.channels:
                     per.setdefault(b, {}).setdefault(c.name, []).append(c.snup)

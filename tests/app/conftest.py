@@ -7,7 +7,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 import pytest
@@ -161,13 +161,15 @@ def warmed() -> None:
 
 @pytest.fixture
 def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
-    """``serve_app(session_path=None, allowed_roots=None) -> url``: the app on a free port,
-    served threaded as ``app.main.serve`` does; every server is stopped after the test."""
+    """``serve_app(session_path=None, allowed_roots=None, **server_options) -> url``: the app on
+    a free port, served threaded as ``app.main.serve`` does (``server_options`` go to the Bokeh
+    server); every server is stopped after the test."""
     import panel as pn
 
     from app.main import create_app
 
-    def start(session_path: str | Path | None = None, allowed_roots=None) -> str:
+    def start(session_path: str | Path | None = None, allowed_roots=None,
+              **server_options: Any) -> str:
         port = _free_port()
 
         def app():  # a plain function (Panel renders a functools.partial as text)
@@ -175,7 +177,7 @@ def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
 
         pn.serve({"/": app},
                  port=port, address="127.0.0.1", threaded=True, show=False, liveness=True,
-                 websocket_origin=[f"127.0.0.1:{port}"], title="ccdcore")
+                 websocket_origin=[f"127.0.0.1:{port}"], title="ccdcore", **server_options)
         url = f"http://127.0.0.1:{port}"
         _wait_alive(url)
         return url

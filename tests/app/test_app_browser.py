@@ -126,3 +126,43 @@ def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_a
     # at this zoom a screen pixel is smaller than a frame pixel: the value is the pixel's own
     assert dn == float(red[y, x]), (x, y, dn, red[y - 1:y + 2, x - 1:x + 2])
     assert np.issubdtype(red.dtype, np.integer)
+
+
+def test_closing_the_browser_session_releases_its_results(page: Page, serve_app, open_app,
+                                                          healey94, monkeypatch):
+    """When the tab closes, Bokeh destroys the session (here 0.3 s after the last connection)
+    and the app drops the session's capture session and results."""
+    import time
+
+    from app.state import AppState
+
+    states: list[AppState] = []
+    closed: list[AppState] = []
+    init, close = AppState.__init__, AppState.close
+
+    def recording_init(self, **params):
+        init(self, **params)
+        states.append(self)
+
+    def recording_close(self):
+        close(self)
+        closed.append(self)
+
+    monkeypatch.setattr(AppState, "__init__", recording_init)
+    monkeypatch.setattr(AppState, "close", recording_close)
+    url = serve_app(healey94, check_unused_sessions_milliseconds=300,
+                    unused_session_lifetime_milliseconds=300)
+    open_app(url)
+    expect(page.get_by_text("Loaded healey94")).to_be_visible(timeout=TIMEOUT)
+    page.get_by_role("button", name=re.compile("Photon transfer")).click()
+    expect(page.get_by_text("Fit acceptable")).to_be_visible(timeout=TIMEOUT)
+    [state] = [s for s in states if s.results.ptc is not None]   # this tab's
+    assert state.session is not None and state not in closed
+
+    page.close()
+    deadline = time.monotonic() + 30
+    while state not in closed and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert state in closed
+    assert state.session is None and state.results.ptc is None
+    assert state.results.ptc_points is None and state.results.estimates is None
