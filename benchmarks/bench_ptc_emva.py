@@ -26,6 +26,8 @@ Run by hand (not part of the tests)::
 
     .venv/bin/python benchmarks/bench_ptc_emva.py                # 640x480, 12 bits, 20 steps
     .venv/bin/python benchmarks/bench_ptc_emva.py --steps 10 --size 320x240 --repeat 5
+    .venv/bin/python benchmarks/bench_ptc_emva.py --size 2048x512 --bits 8 --steps 100 \
+        --format png --repeat 3                                   # a measured-set-sized series
 """
 from __future__ import annotations
 
@@ -50,13 +52,13 @@ import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 
 def make_data(folder: Path, width: int, height: int, bits: int, steps: int, L: int,
-              seed: int) -> dict:
+              seed: int, image_format: str = "tif") -> dict:
     """Write the dataset (once) and return the generator's truth."""
     from emva1288.camera.dataset_generator import DatasetGenerator
 
     from ccdcore.simulate import find_truth
 
-    stamp = json.dumps([width, height, bits, steps, L, seed])
+    stamp = json.dumps([width, height, bits, steps, L, seed, image_format])
     truth_file = folder / "truth.json"
     cached = find_truth(folder)
     if cached is not None and (folder / ".stamp").read_text() == stamp:
@@ -65,7 +67,7 @@ def make_data(folder: Path, width: int, height: int, bits: int, steps: int, L: i
         shutil.rmtree(folder)
     folder.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    gen = DatasetGenerator(steps=steps, L=L, image_format="tif", outdir=str(folder),
+    gen = DatasetGenerator(steps=steps, L=L, image_format=image_format, outdir=str(folder),
                            width=width, height=height, bit_depth=bits, seed=seed)
     cam = gen.cam
     truth = {"K": float(cam.K), "sigma2_dark_0": float(cam._sigma2_dark_0),
@@ -112,6 +114,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--spatial", type=int, default=8, help="images of the spatial point (L)")
     ap.add_argument("--seed", type=int, default=1288)
+    ap.add_argument("--format", default="tif", choices=["tif", "png"],
+                    help="image files the generator writes (png: 8 bits only as emva1288 "
+                         "writes them; default tif)")
     ap.add_argument("--repeat", type=int, default=9,
                     help="timed runs per tool, alternated emva1288/ccdcore (default 9)")
     ap.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default 1)")
@@ -119,8 +124,11 @@ def main(argv: list[str] | None = None) -> None:
     width, height = (int(v) for v in args.size.lower().split("x"))
 
     _report.header(__file__, args.repeat, args.warmup, order=("emva1288", "ccdcore"))
-    folder = HERE / "_data" / "emva_ptc"
-    truth = make_data(folder, width, height, args.bits, args.steps, args.spatial, args.seed)
+    default = (args.size, args.bits, args.steps, args.format) == ("640x480", 12, 20, "tif")
+    folder = HERE / "_data" / ("emva_ptc" if default else
+                               f"emva_ptc_{width}x{height}_{args.bits}b_{args.steps}_{args.format}")
+    truth = make_data(folder, width, height, args.bits, args.steps, args.spatial, args.seed,
+                      args.format)
     descriptor = folder / truth["descriptor"]
 
     runs = _report.interleaved({"emva1288": lambda: run_emva(descriptor),

@@ -74,7 +74,9 @@ CLIP_LIMIT, LINEARITY_Z, LINEARITY_TOLERANCE, ROBUST_Z, QUANTISATION_STEP
 """
 from __future__ import annotations
 
+import itertools
 import math
+import os
 from dataclasses import dataclass, replace
 from os import PathLike
 from typing import Any, Iterable, Sequence
@@ -100,6 +102,8 @@ LINEARITY_Z = 5.0
 LINEARITY_TOLERANCE = 0.05
 #: robust mode drops a level whose |residual| / σ exceeds this
 ROBUST_Z = 3.0
+#: frames decoded ahead in worker threads while one is measured (memory: this many + 1 frames)
+READ_AHEAD = min(4, os.cpu_count() or 1)
 #: quantisation step q of integer data, DN (eq. 4)
 QUANTISATION_STEP = 1.0
 #: the fraction of the μ̂ range where the variance-based linearity rule looks
@@ -465,7 +469,7 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None
     sums: dict[float | None, float] = {}
     counts: dict[float | None, int] = {}
     frames: dict[float | None, int] = {}
-    for rec, frame in session.iter_frames(darks):
+    for rec, frame in session.iter_frames(darks, read_ahead=READ_AHEAD):
         pix = _checked_pixels(rec, frame, roi)
         t = rec.exposure
         sums[t] = sums.get(t, 0.0) + float(pix.sum(dtype=np.float64))
@@ -532,13 +536,16 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
         notes.extend(more)
 
     points = []
+    paired = {level: recs[:2 * (len(recs) // 2)] for level, recs in levels.items()}
+    stream = session.iter_frames([r for recs in paired.values() for r in recs],
+                                 read_ahead=READ_AHEAD)
     for level, recs in levels.items():
         n_pairs = len(recs) // 2
         if len(recs) % 2:
             notes.append(f"ptc level {level}: {len(recs)} frames, the last one "
                          f"({recs[-1].relpath}) has no partner and is not used")
         mus, vars_, clipped, count, m = [], [], 0, 0, 0
-        frames = session.iter_frames(recs[:2 * n_pairs])
+        frames = itertools.islice(stream, len(paired[level]))
         for (r1, f1), (r2, f2) in zip(frames, frames):
             p1, p2 = _checked_pixels(r1, f1, roi_t), _checked_pixels(r2, f2, roi_t)
             if p1.shape != p2.shape:

@@ -651,3 +651,26 @@ def test_format_size():
     assert format_size((192, 256)) == "256 × 192"
     assert format_size((4, 6, 3), "x") == "6x4x3"
     assert format_size(None) == "?"
+
+
+@pytest.mark.parametrize("read_ahead", [1, 3])
+def test_iter_frames_reading_ahead_keeps_order_and_errors_in_place(tmp_path: Path,
+                                                                   read_ahead: int) -> None:
+    """Frames decoded ahead in threads come out in session order, equal to the plain reads; a
+    frame that cannot be read raises when it is reached, after the frames before it."""
+    root = tmp_path / "s"
+    for i in range(6):
+        put(root, f"dark/d{i}.tif", i)
+    s = manifest(root, '[[groups]]\nglob = "dark/*.tif"\nrole = "dark"')
+    plain = [(r.relpath, d.tobytes()) for r, d in s.iter_frames()]
+    ahead = [(r.relpath, d.tobytes()) for r, d in s.iter_frames(read_ahead=read_ahead)]
+    assert ahead == plain
+    s.frames[4].path.write_bytes(b"not an image")
+    seen = []
+    with pytest.raises(ImageReadError, match="d4.tif"):
+        for rec, _ in s.iter_frames(read_ahead=read_ahead):
+            seen.append(rec.relpath)
+    assert seen == [f"dark/d{i}.tif" for i in range(4)]
+    it = s.iter_frames(s.frames[:3], read_ahead=read_ahead)   # stopped early: no error, no hang
+    assert next(it)[0] is s.frames[0]
+    it.close()

@@ -13,8 +13,10 @@ so a verb refuses exactly the sessions whose errors concern the frames it uses
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
-from collections import Counter
+from collections import Counter, deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -371,14 +373,35 @@ class Session:
         """The pixels of one frame, in the stored dtype (``(H, W)`` or ``(H, W, C)``)."""
         return read_image(rec.path)
 
-    def iter_frames(self, records: Iterable[FrameRecord] | None = None
-                    ) -> Iterator[tuple[FrameRecord, np.ndarray]]:
-        """Yield ``(record, pixels)`` one frame at a time, reading each file only when reached.
+    def iter_frames(self, records: Iterable[FrameRecord] | None = None, *,
+                    read_ahead: int = 0) -> Iterator[tuple[FrameRecord, np.ndarray]]:
+        """Yield ``(record, pixels)`` one frame at a time, in order.
 
-        ``records`` defaults to every frame of the session.
+        ``records`` defaults to every frame of the session.  With ``read_ahead = 0`` each file is
+        read only when reached.  With ``read_ahead = n > 0`` the next n frames are decoded in
+        worker threads while the caller works on the current one (image decoders release the
+        GIL, so on several cores decoding and computing overlap); memory holds at most n + 1
+        frames, and a frame that cannot be read raises when it is reached, as without read-ahead.
         """
-        for rec in (self.frames if records is None else records):
-            yield rec, self.read(rec)
+        recs = self.frames if records is None else records
+        if read_ahead <= 0:
+            for rec in recs:
+                yield rec, self.read(rec)
+            return
+        todo = iter(recs)
+        with ThreadPoolExecutor(max_workers=read_ahead) as pool:
+            pending = deque((rec, pool.submit(self.read, rec))
+                            for rec in itertools.islice(todo, read_ahead))
+            try:
+                while pending:
+                    rec, future = pending.popleft()
+                    nxt = next(todo, None)
+                    if nxt is not None:
+                        pending.append((nxt, pool.submit(self.read, nxt)))
+                    yield rec, future.result()
+            finally:  # the caller stopped early or a read failed: drop what was read ahead
+                for _, future in pending:
+                    future.cancel()
 
     def verify_pixels(self) -> Session:
         """Decode every frame once, one at a time, and return a copy of the session whose
