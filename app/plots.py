@@ -38,6 +38,7 @@ from typing import Any
 
 import holoviews as hv
 import numpy as np
+from bokeh.models import NumeralTickFormatter
 from holoviews.operation.datashader import rasterize
 from numpy.typing import NDArray
 
@@ -240,7 +241,8 @@ def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim
     """``hv.Histogram`` of all values of a plane (non-finite values are left out).
 
     ``framewise=True`` makes the axes follow each new frame or channel (otherwise the first
-    range sticks, see docs/notes.md). With ``log`` the counts axis is logarithmic.
+    range sticks, see docs/notes.md). With ``log`` the counts axis is logarithmic. Counts read
+    as plain numbers with thousands separators (``150,000``, not ``1.5e+5``).
     """
     flat = np.ravel(values)
     if flat.dtype.kind == "f":
@@ -250,7 +252,8 @@ def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim
     hist = hv.Histogram((edges, counts), kdims=[hv.Dimension(vdim)], vdims=["count"],
                         label=label)
     return hist.opts(framewise=True, responsive=True, height=height, color="#4a6fa5",
-                     line_color=None, logy=log, tools=["hover"], title="Histogram")
+                     line_color=None, logy=log, tools=["hover"], title="Histogram",
+                     yformatter=NumeralTickFormatter(format="0,0"))
 
 
 def clim_span(clim: tuple[float, float]) -> hv.VSpan:

@@ -311,3 +311,19 @@ def test_groups_say_mixed_and_unreadable(state, small_session, unreadable_sessio
     assert groups.loc["ptc", "size (W×H)"] == "32 × 24"
     bad = groups_frame(open_session(unreadable_session)).set_index("role")
     assert bad.loc["scene", "size (W×H)"] == "unreadable"
+
+
+def test_histogram_counts_read_as_plain_numbers():
+    """A histogram of a large frame labels its counts 150,000, not 1.5e+5 (linear and log)."""
+    import holoviews as hv
+    from bokeh.models import NumeralTickFormatter
+
+    from app import plots
+
+    values = np.zeros(400_000)
+    values[::2] = 1.0
+    for log in (False, True):
+        fig = hv.render(plots.histogram_element(values, bins=4, log=log), backend="bokeh")
+        [axis] = fig.yaxis
+        assert isinstance(axis.formatter, NumeralTickFormatter)
+        assert axis.formatter.format == "0,0"
