@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import shutil
 import sys
@@ -107,8 +108,18 @@ def run_ccdcore(descriptor: Path) -> dict:
             "read_noise_e_err": pt.read_noise_e_err, "seconds": elapsed, "result": pt}
 
 
+def child(tool: str, descriptor: Path) -> None:
+    """Run one tool once in this (fresh) process and print its time and peak RSS as JSON."""
+    base = _report.max_rss_mb()
+    out = (run_emva if tool == "emva1288" else run_ccdcore)(descriptor)
+    print(json.dumps({"seconds": out["seconds"], "peak_rss_mb": _report.max_rss_mb(),
+                      "base_rss_mb": base}))
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--child", choices=["emva1288", "ccdcore"], help=argparse.SUPPRESS)
+    ap.add_argument("--descriptor", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--size", default="640x480", help="WxH (default 640x480)")
     ap.add_argument("--bits", type=int, default=12)
     ap.add_argument("--steps", type=int, default=20)
@@ -121,6 +132,12 @@ def main(argv: list[str] | None = None) -> None:
                     help="timed runs per tool, alternated emva1288/ccdcore (default 9)")
     ap.add_argument("--warmup", type=int, default=1, help="untimed rounds first (default 1)")
     args = ap.parse_args(argv)
+    if args.child:
+        from ccdcore.noise import photon_transfer  # noqa: F401  (imports are not the tool's)
+        import emva1288.process  # noqa: F401
+        logging.disable(logging.INFO)   # emva1288 logs every file it opens at INFO
+        child(args.child, args.descriptor)
+        return
     width, height = (int(v) for v in args.size.lower().split("x"))
 
     _report.header(__file__, args.repeat, args.warmup, order=("emva1288", "ccdcore"))
@@ -130,6 +147,12 @@ def main(argv: list[str] | None = None) -> None:
     truth = make_data(folder, width, height, args.bits, args.steps, args.spatial, args.seed,
                       args.format)
     descriptor = folder / truth["descriptor"]
+
+    # peak memory first, each tool once in a fresh child, while this process is still small
+    # (a child's ru_maxrss starts from its parent's)
+    memory = {tool: _report.run_json([sys.executable, __file__, "--child", tool,
+                                      "--descriptor", str(descriptor)])
+              for tool in ("emva1288", "ccdcore")}
 
     runs = _report.interleaved({"emva1288": lambda: run_emva(descriptor),
                                 "ccdcore": lambda: run_ccdcore(descriptor)},
@@ -165,6 +188,9 @@ def main(argv: list[str] | None = None) -> None:
     for name, ts in (("emva1288", t_emva), ("ccdcore", t_ours)):
         print(f"{name:<22}{_report.summary(ts).format('.3f'):>24}")
     print(f"speed ratio emva1288 / ccdcore: {_report.ratio_text(t_emva, t_ours)}")
+    print("peak RSS of one run in a fresh process (after imports): " + ", ".join(
+        f"{tool} {m['peak_rss_mb']:.0f} MB ({m['peak_rss_mb'] - m['base_rss_mb']:.0f} MB)"
+        for tool, m in memory.items()))
     print()
     print(f"emva1288: sensitivity fit up to index {emva['index_sensitivity_max']}, saturation "
           f"index {emva['index_u_ysat']}")
