@@ -112,8 +112,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _group_text(row: dict) -> str:
     parts = [f"{row['count']} frame{'s' if row['count'] != 1 else ''}"]
-    key_name = {"ptc": "level", "fixed_pattern": "config", "dark": "exposure",
-                "bracket": "stack", "reference": "stack", "target": "stack"}.get(row["role"], "key")
+    key_name = row["key_name"]
     if row["key"] is not None:
         unit = " s" if key_name == "exposure" else ""
         parts.insert(0, f"{key_name} {row['key']}{unit}")

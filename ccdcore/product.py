@@ -93,7 +93,8 @@ class CalibrationProduct:
     warnings
         What the session lacks against the acquisition plan (fewer configurations or frames).
     notes
-        Remarks on the product as a whole (each estimate keeps its own notes).
+        Remarks on the product as a whole; each estimate keeps its own notes (products of the
+        first release kept their skip reasons and plan warnings here).
     """
 
     maps: dict[str, np.ndarray]
@@ -448,7 +449,7 @@ class Estimates:
     """The result objects of :func:`estimate_all` (``None`` where not made; ``skipped`` says why).
 
     ``plan_warnings`` list what the session lacks compared with the acquisition plan (sec. V-B);
-    ``notes`` hold the remarks of the estimates that were made.
+    each result keeps its own notes.
     """
 
     noise: PhotonTransfer | None = None
@@ -460,7 +461,6 @@ class Estimates:
     correction_check: CorrectionCheck | None = None
     flat: FlatField | None = None
     skipped: tuple[Skipped, ...] = ()
-    notes: tuple[str, ...] = ()
 
     @property
     def made(self) -> tuple[str, ...]:
@@ -529,7 +529,6 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     report = progress or _no_progress
     made: dict[str, Any] = {}
     skipped: list[Skipped] = []
-    notes: list[str] = []
     lacking = dict((req.estimate, roles) for req, roles in missing_frames(session))
 
     def attempt(name: str, needs: tuple[str, ...], run: Callable[[], Any]) -> None:
@@ -599,7 +598,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     return Estimates(noise=made.get("noise"), dark=made.get("dark"),
                      fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
                      scene=made.get("scene"), correction_check=made.get("correction_check"),
-                     flat=made.get("flat_field"), skipped=tuple(skipped), notes=tuple(notes))
+                     flat=made.get("flat_field"), skipped=tuple(skipped))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -677,7 +676,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
                   "source": session.source, "n_frames": len(session.frames), "steps": steps}
     return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
                               provenance=json_safe(provenance), skipped=e.skipped,
-                              warnings=e.plan_warnings, notes=e.notes)
+                              warnings=e.plan_warnings)
 
 
 # ---------------------------------------------------------------------------------------------

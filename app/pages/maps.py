@@ -632,7 +632,6 @@ class MapsPage(pn.viewable.Viewer):
             if est is not None:
                 lines += [f"Note: {_purpose(s.estimate)} not made: {s.reason}"
                           for s in est.skipped if s.code in ("needs", "not-applicable")]
-                lines += [f"Note: {n}" for n in est.notes]
             elif session.roles().get("dark") and not self.computing and not self.state.error:
                 lines.insert(0, "Press **Compute maps** to estimate D̂_D, K̂, the plan and V_S.")
             text = "\n\n".join(lines)

@@ -160,19 +160,23 @@ class Problem:
                 "code": self.code, "roles": list(self.roles)}
 
 
+#: the metadata key whose value groups the frames of a role (flat: level, else exposure)
+_GROUP_FIELDS = {"ptc": "level", "fixed_pattern": "config", "flat": "level", "dark": "exposure",
+                 "bracket": "stack", "reference": "stack", "target": "stack"}
+
+
+def _group_field(rec: FrameRecord) -> str | None:
+    """The metadata key that groups ``rec`` with the other frames of its role, or None."""
+    field_ = _GROUP_FIELDS.get(rec.role)
+    if rec.role == "flat" and rec.level is None:
+        return "exposure"
+    return field_
+
+
 def _group_key(rec: FrameRecord) -> Any:
     """The key that groups frames of one role (see :meth:`Session.groups_table`)."""
-    if rec.role == "ptc":
-        return rec.level
-    if rec.role == "fixed_pattern":
-        return rec.config
-    if rec.role == "flat":
-        return rec.level if rec.level is not None else rec.exposure
-    if rec.role == "dark":
-        return rec.exposure
-    if rec.role in ("bracket", "reference", "target"):
-        return rec.stack
-    return None
+    name = _group_field(rec)
+    return None if name is None else getattr(rec, name)
 
 
 # --------------------------------------------------------------------------------------------
@@ -426,7 +430,8 @@ class Session:
         """One row per group of frames.
 
         Keys: ``role``; ``key`` (ptc level, fixed-pattern config, flat level or exposure, dark
-        exposure, bracket stack; ``None`` for scenes); ``count``; ``shape`` (NumPy order
+        exposure, bracket stack; ``None`` for scenes) and ``key_name`` (which of those metadata
+        keys it is); ``count``; ``shape`` (NumPy order
         ``(H, W)`` or ``(H, W, C)``) and ``dtype`` (``None`` when they differ within the group or
         no header is readable); ``mixed`` (which of ``"shape"``, ``"dtype"`` differ);
         ``unreadable`` (frames whose header cannot be read); the distinct ``exposures`` (sorted).
@@ -440,7 +445,8 @@ class Session:
                 shapes = {h.shape for h in readable}
                 dtypes = {str(h.dtype) for h in readable}
                 rows.append({
-                    "role": role, "key": key, "count": len(recs),
+                    "role": role, "key": key, "key_name": _group_field(recs[0]),
+                    "count": len(recs),
                     "shape": shapes.pop() if len(shapes) == 1 else None,
                     "dtype": dtypes.pop() if len(dtypes) == 1 else None,
                     "mixed": [k for k, s in (("shape", shapes), ("dtype", dtypes)) if len(s) > 1],
