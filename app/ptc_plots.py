@@ -31,7 +31,7 @@ roi_box(x, y, w, h)
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Any, Sequence
 
 import holoviews as hv
 import numpy as np
@@ -41,7 +41,8 @@ from numpy.typing import NDArray
 from ccdcore.noise import PhotonTransfer, PtcPoint
 
 __all__ = ["USED_COLOR", "EXCLUDED_COLOR", "FIT_COLOR", "points_table", "mu_grid",
-           "transfer_plot", "residual_plot", "loglog_plot", "roi_box"]
+           "transfer_plot", "residual_plot", "loglog_plot", "roi_box",
+           "hide_empty_legend_items"]
 
 #: colour of the levels used by the fit
 USED_COLOR = "#1f5f99"
@@ -55,6 +56,9 @@ _TOOLS = ["hover"]
 
 _COLUMNS = ["level", "mu", "var", "var_err", "sigma", "sigma_err", "n_pairs", "n_pixels",
             "used", "status", "reason", "residual"]
+_DTYPES = {"level": "int64", "mu": "float64", "var": "float64", "var_err": "float64",
+           "sigma": "float64", "sigma_err": "float64", "n_pairs": "int64", "n_pixels": "int64",
+           "used": "bool", "status": "object", "reason": "object", "residual": "float64"}
 
 
 def _status(p: PtcPoint) -> str:
@@ -84,7 +88,7 @@ def points_table(points: Sequence[PtcPoint], result: PhotonTransfer | None = Non
                      "n_pairs": int(p.n_pairs), "n_pixels": int(p.n_pixels),
                      "used": bool(p.used), "status": _status(p), "reason": p.reason or "",
                      "residual": residual})
-    return pd.DataFrame(rows, columns=_COLUMNS)
+    return pd.DataFrame(rows, columns=_COLUMNS).astype(_DTYPES)  # typed even when empty
 
 
 def mu_grid(points: Sequence[PtcPoint], n: int = 200, log: bool = False) -> NDArray[np.float64]:
@@ -112,7 +116,13 @@ def mu_grid(points: Sequence[PtcPoint], n: int = 200, log: bool = False) -> NDAr
 
 def _point_layers(df: pd.DataFrame, x: str, y: str, err: str, xlabel: str, ylabel: str
                   ) -> list[hv.Element]:
-    """Error bars and markers of the used (filled) and excluded (hollow, grey) points."""
+    """Error bars and markers of the used (filled) and excluded (hollow, grey) points.
+
+    Always the same four layers (ErrorBars and Scatter of the used levels, then of the excluded
+    ones), empty when no level is in the group: a plot fed through a stream keeps its Bokeh
+    glyphs and only their data change (:func:`hide_empty_legend_items` hides the empty group's
+    legend entry).
+    """
     layers: list[hv.Element] = []
     kx = hv.Dimension(x, label=xlabel)
     vy = hv.Dimension(y, label=ylabel)
@@ -121,8 +131,6 @@ def _point_layers(df: pd.DataFrame, x: str, y: str, err: str, xlabel: str, ylabe
     for used, color, name in ((True, USED_COLOR, "used levels"),
                               (False, EXCLUDED_COLOR, "excluded levels")):
         part = df[df["used"] == used]
-        if part.empty:  # no legend entry for nothing
-            continue
         bars = hv.ErrorBars(part, kdims=[kx], vdims=[vy, err], label=name).opts(
             color=color, line_width=1.5, lower_head=None, upper_head=None)
         marks = hv.Scatter(part, kdims=[kx], vdims=vdims, label=name)
@@ -137,6 +145,22 @@ def _point_layers(df: pd.DataFrame, x: str, y: str, err: str, xlabel: str, ylabe
             ("pairs", "@n_pairs"), ("status", "@status"), ("reason", "@reason")])
         layers += [bars, marks]
     return layers
+
+
+def _framewise(layers: list[hv.Element]) -> hv.Overlay:
+    """The overlay of ``layers`` with ``framewise=True`` on every layer: a plot fed through a
+    stream then fits its axes to each new frame (on the overlay alone the first ranges stay)."""
+    return hv.Overlay([layer.opts(framewise=True) for layer in layers])
+
+
+def hide_empty_legend_items(plot: Any, element: Any) -> None:
+    """HoloViews plot hook: hide the legend entries whose glyphs have no data (an empty group of
+    levels, the model before a fit), so a plot updated in place never lists what it does not
+    draw. HoloViews runs hooks after the first render and after every update."""
+    for legend in getattr(plot.state, "legend", []) or []:
+        for item in legend.items:
+            item.visible = any(len(next(iter(r.data_source.data.values()), ())) > 0
+                               for r in item.renderers)
 
 
 def transfer_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
@@ -156,37 +180,40 @@ def transfer_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = No
     Returns
     -------
     holoviews.Overlay
-        Spread (band, when fitted), Curve (line, when fitted), then ErrorBars and Scatter for the
-        used and the excluded levels.
+        Spread (band) and Curve (line), empty without a fit, then ErrorBars and Scatter for the
+        used and the excluded levels (empty when a group has none): the same layers whatever the
+        data, so the page updates one plot in place.
     """
     df = points_table(points, result)
     xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302\u00b2_N (DN\u00b2)"
-    layers: list[hv.Element] = []
     if result is not None:
         grid = mu_grid(points)
         value, std = result.fit.predict(grid)
-        band = pd.DataFrame({"mu": grid, "var": value, "std": std})
-        layers.append(hv.Spread(band, kdims=["mu"], vdims=["var", "std"],
-                                label="fit \u00b11\u03c3").opts(
-            color=FIT_COLOR, alpha=0.25, line_alpha=0))
-        layers.append(hv.Curve(band, kdims=["mu"], vdims=["var"],
-                               label="\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C").opts(
-            color=FIT_COLOR, line_width=2))
+    else:
+        grid = value = std = np.empty(0)
+    band = pd.DataFrame({"mu": grid, "var": value, "std": std})
+    layers: list[hv.Element] = [
+        hv.Spread(band, kdims=["mu"], vdims=["var", "std"], label="fit \u00b11\u03c3").opts(
+            color=FIT_COLOR, alpha=0.25, line_alpha=0),
+        hv.Curve(band, kdims=["mu"], vdims=["var"],
+                 label="\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C").opts(
+            color=FIT_COLOR, line_width=2)]
     layers += _point_layers(df, "mu", "var", "var_err", xlabel, ylabel)
     title = "Photon transfer: noise variance against mean signal"
-    return hv.Overlay(layers).opts(
+    return _framewise(layers).opts(
         responsive=True, height=_HEIGHT, title=title, xlabel=xlabel, ylabel=ylabel,
-        legend_position="top_left", show_grid=True, framewise=True)
+        legend_position="top_left", show_grid=True, framewise=True,
+        hooks=[hide_empty_legend_items])
 
 
-def residual_plot(result: PhotonTransfer) -> hv.Overlay:
+def residual_plot(result: PhotonTransfer | None) -> hv.Overlay:
     """Residuals (σ̂²_N − A·μ − σ²_C)/σ of every level (σ = its ``var_err``), against μ.
 
     Used levels are filled, excluded ones hollow and grey; each has an error bar of ±1 (its own
     standard error in these units). Reference lines: 0 (solid), ±1 (dashed) and ±3 (dotted, the
-    robust mode's limit).
+    robust mode's limit). Without a fit (``None``) the point layers are empty.
     """
-    df = points_table(result.points, result)
+    df = points_table(result.points if result is not None else (), result)
     df = df.assign(unit=np.where(np.isfinite(df["residual"]), 1.0, np.nan))
     xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "residual / \u03c3"
     layers: list[hv.Element] = [hv.HLine(0.0).opts(color="#444444", line_width=1)]
@@ -197,7 +224,7 @@ def residual_plot(result: PhotonTransfer) -> hv.Overlay:
     layers += _point_layers(df, "mu", "residual", "unit", xlabel, ylabel)
     finite = df["residual"][np.isfinite(df["residual"])]
     top = max(3.8, float(finite.abs().max()) + 1.2) if len(finite) else 3.8
-    return hv.Overlay(layers).opts(
+    return _framewise(layers).opts(
         responsive=True, height=220, title="Residuals in units of each point's standard error",
         xlabel=xlabel, ylabel=ylabel, ylim=(-top, top), show_legend=False, show_grid=True,
         framewise=True)
@@ -209,27 +236,33 @@ def loglog_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
 
     Only levels with μ > 0 can be drawn on a log axis. With ``result``: the model
     √(A·μ + σ²_C), the read-noise floor √σ²_C (horizontal, dashed) and the shot-noise asymptote
-    √(A·μ) (dotted); the two cross at μ = σ²_C/A.
+    √(A·μ) (dotted); the two cross at μ = σ²_C/A. The three curves are always there (empty
+    without a fit, or when σ²_C or A is not positive), like the points' layers, so the page
+    updates the plot in place.
     """
     positive = [p for p in points if p.mu > 0 and p.var > 0]
     df = points_table(positive, result)
     xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302_N (DN)"
-    layers: list[hv.Element] = []
+    empty = np.empty(0)
+    grid = mu_grid(positive, log=True) if result is not None else empty
+    model = floor = shot = empty
+    floor_grid = shot_grid = empty
     if result is not None:
-        grid = mu_grid(positive, log=True)
         model = np.sqrt(np.maximum(np.asarray(result.sigma_n2(grid)), 0.0))
-        layers.append(hv.Curve((grid, model), kdims=["mu"], vdims=["sigma"],
-                               label="\u221a(A\u00b7\u03bc + \u03c3\u00b2_C)").opts(
-            color=FIT_COLOR, line_width=2))
         if result.sigma_c2 > 0:
-            layers.append(hv.Curve((grid, np.full_like(grid, math.sqrt(result.sigma_c2))),
-                                   kdims=["mu"], vdims=["sigma"],
-                                   label="read-noise floor \u221a\u03c3\u00b2_C").opts(
-                color="#6f42c1", line_dash="dashed", line_width=1.5))
+            floor_grid, floor = grid, np.full_like(grid, math.sqrt(result.sigma_c2))
         if result.A > 0:
-            layers.append(hv.Curve((grid, np.sqrt(result.A * grid)), kdims=["mu"],
-                                   vdims=["sigma"], label="shot noise \u221a(A\u00b7\u03bc)").opts(
-                color="#2a9d8f", line_dash="dotted", line_width=2))
+            shot_grid, shot = grid, np.sqrt(result.A * grid)
+    layers: list[hv.Element] = [
+        hv.Curve((grid, model), kdims=["mu"], vdims=["sigma"],
+                 label="\u221a(A\u00b7\u03bc + \u03c3\u00b2_C)").opts(
+            color=FIT_COLOR, line_width=2),
+        hv.Curve((floor_grid, floor), kdims=["mu"], vdims=["sigma"],
+                 label="read-noise floor \u221a\u03c3\u00b2_C").opts(
+            color="#6f42c1", line_dash="dashed", line_width=1.5),
+        hv.Curve((shot_grid, shot), kdims=["mu"], vdims=["sigma"],
+                 label="shot noise \u221a(A\u00b7\u03bc)").opts(
+            color="#2a9d8f", line_dash="dotted", line_width=2)]
     layers += _point_layers(df, "mu", "sigma", "sigma_err", xlabel, ylabel)
     ylim: tuple[float, float] | tuple[None, None] = (None, None)
     lows = [float(s) for s in df["sigma"] if s > 0]
@@ -238,10 +271,11 @@ def loglog_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
     if lows:  # a quarter of the lowest noise shown: the asymptote does not squash the points
         highs = [float(s) for s in df["sigma"] if s > 0] or lows
         ylim = (0.25 * min(lows), 1.6 * max(highs))
-    return hv.Overlay(layers).opts(
+    return _framewise(layers).opts(
         responsive=True, height=height, logx=True, logy=True, show_grid=True, ylim=ylim,
         title="Temporal noise against signal (log-log, EMVA 1288 style)", xlabel=xlabel,
-        ylabel=ylabel, legend_position="bottom_right", framewise=True)
+        ylabel=ylabel, legend_position="bottom_right", framewise=True,
+        hooks=[hide_empty_legend_items])
 
 
 def roi_box(x: int, y: int, w: int, h: int) -> hv.Rectangles:

@@ -149,6 +149,18 @@ def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
                     "levels the line passes through the points; add light levels to test it.")
 
 
+def _transfer_view(data: tuple) -> hv.Overlay:
+    return ptc_plots.transfer_plot(*data)
+
+
+def _residual_view(data: tuple) -> hv.Overlay:
+    return ptc_plots.residual_plot(data[1])
+
+
+def _loglog_view(data: tuple) -> hv.Overlay:
+    return ptc_plots.loglog_plot(*data)
+
+
 def _level_label(p: PtcPoint) -> str:
     return f"Level {p.level} (\u03bc {p.mu:.4g} DN)"
 
@@ -221,15 +233,26 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
                                             styles={"font-size": "0.9em"})
 
-        self.transfer_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=380,
-                                               linked_axes=False, css_classes=["ccd-ptc-plot"])
-        self.residual_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=220,
-                                               linked_axes=False)
-        self.loglog_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", min_height=600,
-                                             linked_axes=False)
+        # the three plots are built once; every refit sends (points, fit) through one stream
+        # and HoloViews updates their Bokeh data sources in place (no new figure)
+        self.plot_stream = hv.streams.Pipe(data=((), None))
+        self.transfer_pane = pn.pane.HoloViews(
+            hv.DynamicMap(_transfer_view, streams=[self.plot_stream]),
+            sizing_mode="stretch_width", min_height=380, linked_axes=False,
+            css_classes=["ccd-ptc-plot"])
+        self.residual_pane = pn.pane.HoloViews(
+            hv.DynamicMap(_residual_view, streams=[self.plot_stream]),
+            sizing_mode="stretch_width", min_height=220, linked_axes=False)
+        # shown with a fit; its holder toggles (Panel 1.9 fails to sync ``visible`` from a
+        # HoloViews pane of a DynamicMap to its Bokeh figure)
+        self.residual_box = pn.Column(self.residual_pane, sizing_mode="stretch_width",
+                                      margin=0, visible=False)
+        self.loglog_pane = pn.pane.HoloViews(
+            hv.DynamicMap(_loglog_view, streams=[self.plot_stream]),
+            sizing_mode="stretch_width", min_height=600, linked_axes=False)
         self.plot_tabs = pn.Tabs(
             ("Linear: \u03c3\u00b2_N against \u03bc",
-             pn.Column(self.transfer_pane, self.residual_pane, sizing_mode="stretch_width")),
+             pn.Column(self.transfer_pane, self.residual_box, sizing_mode="stretch_width")),
             ("Log-log (EMVA 1288)", self.loglog_pane),
             sizing_mode="stretch_width", dynamic=False)
 
@@ -446,10 +469,8 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
     def _render(self) -> None:
         result, points = self.result, self._display_points()
-        self.transfer_pane.object = ptc_plots.transfer_plot(points, result) if points else None
-        self.residual_pane.object = ptc_plots.residual_plot(result) if result else None
-        self.residual_pane.visible = result is not None
-        self.loglog_pane.object = ptc_plots.loglog_plot(points, result) if points else None
+        self.plot_stream.send((points, result))
+        self.residual_box.visible = result is not None
         table = ptc_plots.points_table(points, result)
         def fmt(column: str, spec: str) -> list[str]:
             return [format(v, spec) if math.isfinite(v) else "" for v in table[column]]

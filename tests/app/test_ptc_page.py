@@ -10,6 +10,7 @@ from pathlib import Path
 import holoviews as hv
 import numpy as np
 import pytest
+from bokeh.document import Document
 
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from app import ptc_plots
@@ -91,7 +92,8 @@ def test_demo_fit_equals_photon_transfer(state, healey94, demo_pt):
                                      "q\u00b2/12", "b\u2080", "\u03c7\u00b2", "\u03bd", "Q"}
     assert page.verdict_alert.visible and page.verdict_alert.alert_type == "success"
     assert "acceptable" in page.verdict_alert.object.lower()
-    assert page.transfer_pane.object is not None and page.loglog_pane.object is not None
+    drawn_points, drawn_fit = page.plot_stream.data      # what the three plots draw
+    assert len(drawn_points) == 8 and drawn_fit is page.result
     assert len(page.points_table.object) == 8
     assert page.level_select.value == list(range(1, 9))
     assert not page.info_alert.visible and not page.error_alert.visible
@@ -121,7 +123,7 @@ def test_too_few_levels_is_an_alert_and_the_points_stay(state, healey94):
     page.level_select.value = [1, 2]
     assert page.result is None
     assert page.error_alert.visible and "need at least 3" in page.error_alert.object
-    assert page.transfer_pane.object is not None          # the points are still drawn
+    assert len(page.plot_stream.data[0]) == 8 and page.plot_stream.data[1] is None  # points
     assert page.parameter_table.object.empty and not page.verdict_alert.visible
     assert list(page.points_table.object["status"]).count("excluded") == 6
     page.level_select.value = [1, 2, 3]
@@ -198,7 +200,7 @@ def test_two_levels_show_the_points_and_why_there_is_no_fit(state, tmp_path):
     page = _page(state, root)
     assert page.result is None and len(page.points) == 2
     assert page.error_alert.visible and "need at least 3" in page.error_alert.object
-    assert page.transfer_pane.object is not None
+    assert len(page.plot_stream.data[0]) == 2 and page.plot_stream.data[1] is None
 
 
 def test_no_session_and_session_change(state, healey94, assets):
@@ -256,8 +258,10 @@ def test_format_pm_and_verdicts(demo_pt):
 
 
 # ------------------------------------------------------------------------- plot functions ---
-def _elements(overlay: hv.Overlay, kind: type) -> list:
-    return [el for el in overlay if type(el) is kind]
+def _elements(overlay: hv.Overlay, kind: type, *, empty: bool = False) -> list:
+    """The layers of type ``kind`` (with ``empty``, also the layers without data: the plots keep
+    every layer whatever the data, so the page can update them in place)."""
+    return [el for el in overlay if type(el) is kind and (empty or len(el))]
 
 
 def test_transfer_plot_band_line_and_points(healey94):
@@ -283,6 +287,8 @@ def test_transfer_plot_band_line_and_points(healey94):
     # without a fit: points only
     bare = ptc_plots.transfer_plot(pt.points)
     assert not _elements(bare, hv.Spread) and not _elements(bare, hv.Curve)
+    # ... but the same layers, so a stream can switch between the two in place
+    assert [type(el) for el in bare] == [type(el) for el in overlay]
     hv.render(overlay)  # builds a bokeh figure
 
 
@@ -314,10 +320,19 @@ def test_roi_box_follows_pixel_edges():
     assert list(box.array()[0]) == [9.5, 19.5, 73.5, 51.5]
 
 
+def _models(root) -> dict[str, list]:
+    """The figures and data sources under a rendered Bokeh root, by type name."""
+    found: dict[str, list] = {}
+    for m in root.references():
+        found.setdefault(type(m).__name__, []).append(m)
+    return found
+
+
 def test_each_choice_refits_and_draws_once(state, healey94, monkeypatch):
     """Levels, robust mode and points are page parameters: a tick, the robust mode or new
     points (an applied ROI, which also sets the ticks) refit and draw the curve once each."""
     page = _page(state, healey94)
+    page.__panel__().get_root(Document())          # rendered: the plots follow their stream
     calls = []
     draw = ptc_plots.transfer_plot
     monkeypatch.setattr(ptc_plots, "transfer_plot",
@@ -332,3 +347,36 @@ def test_each_choice_refits_and_draws_once(state, healey94, monkeypatch):
     assert _run(page.apply_roi())
     assert len(calls) == 4 and page.result.roi == (0, 0, 128, 96)
     assert page.levels == [lv for lv in range(1, 9) if lv != 8]   # the ticks are kept
+
+
+def test_a_level_toggle_updates_the_plots_in_place(state, healey94):
+    """Unticking a level changes the data of the drawn glyphs, not the plots: the same Bokeh
+    figures and data sources before and after (a new figure costs the browser seconds)."""
+    page = _page(state, healey94)
+    root = page.__panel__().get_root(Document())
+    before = _models(root)
+    figures = {m.id for m in before["figure"]}
+    sources = {m.id for m in before["ColumnDataSource"]}
+    assert len(figures) == 4               # transfer, residuals, log-log, frame preview
+
+    def excluded_levels() -> list[int]:
+        """The levels drawn hollow in the transfer plot (read from the Bokeh data)."""
+        drawn = []
+        for src in _models(root)["ColumnDataSource"]:
+            if "status" in src.data and "var" in src.data:
+                drawn += [int(lv) for lv, st in zip(src.data["level"], src.data["status"])
+                          if st == "excluded"]
+        return sorted(set(drawn))
+
+    assert excluded_levels() == []
+    page.level_select.value = [lv for lv in range(1, 9) if lv != 3]
+    after = _models(root)
+    assert {m.id for m in after["figure"]} == figures
+    assert {m.id for m in after["ColumnDataSource"]} == sources
+    assert excluded_levels() == [3]
+    legend = [item for m in after["Legend"] for item in m.items]
+    assert any(item.visible for item in legend)
+    page.level_select.value = list(range(1, 9))    # back: the hollow group is empty again
+    assert excluded_levels() == []
+    hidden = [item for m in _models(root)["Legend"] for item in m.items if not item.visible]
+    assert hidden, "the empty 'excluded levels' entry stays in the legend"
