@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import html
 import logging
+import threading
+import time
 from functools import partial
 from pathlib import Path
 from typing import Any, Iterable
@@ -111,6 +113,29 @@ def _session_header(path: str, status: str, busy: bool) -> str:
     return f"<div class='ccd-session'>{text}</div>"
 
 
+def _progress_bar(state: AppState) -> pn.Row:
+    """The header's progress bar (percent done, or moving when unknown) and Cancel button,
+    shown while a computation runs; the step and frame counts are in the status line."""
+    bar = pn.indicators.Progress(value=-1, max=100, width=160, height=16, bar_color="info",
+                                 margin=(20, 6, 0, 6), sizing_mode="fixed",
+                                 css_classes=["ccd-progress"])
+    cancel = pn.widgets.Button(name="Cancel", button_type="light", width=76, height=30,
+                               margin=(12, 6, 0, 0), sizing_mode="fixed",
+                               css_classes=["ccd-cancel"],
+                               description="Stop the computation at its next frame")
+    cancel.on_click(lambda event: state.cancel())
+    row = pn.Row(bar, cancel, visible=False, sizing_mode="fixed", width=260, margin=0)
+
+    def sync(*events: Any) -> None:
+        running = state.busy and state.cancellable
+        bar.param.update(value=state.progress if state.progress >= 0 else -1,
+                         active=running and state.progress < 0)
+        row.visible = running
+
+    state.param.watch(sync, ["busy", "progress"])
+    return row
+
+
 def create_app(session_path: str | Path | None = None, *,
                allowed_roots: Iterable[str | Path] | None = None) -> pn.template.BaseTemplate:
     """Build a fresh app for one browser session.
@@ -147,6 +172,7 @@ def create_app(session_path: str | Path | None = None, *,
     template.header.append(pn.indicators.LoadingSpinner(
         value=state.param.busy, width=22, height=22, color="light", bgcolor="dark",
         margin=(14, 4, 0, 10), sizing_mode="fixed", css_classes=["ccd-busy"]))
+    template.header.append(_progress_bar(state))
     template.header.append(pn.pane.HTML(
         pn.bind(_session_header, state.param.session_path, state.param.status,
                 state.param.busy),
@@ -180,15 +206,28 @@ def create_app(session_path: str | Path | None = None, *,
     return template
 
 
+_warm_lock = threading.Lock()
 _warmed = False
 
 
 def warm_up() -> None:
-    """Compile datashader's kernels once per process (first rasterize costs 2–3 s)."""
+    """Import what later pages need and compile datashader's kernels, once per process.
+
+    The first rasterize costs 2–3 s (numba compiles) and scipy.stats about 0.5 s to import;
+    :func:`serve` runs this in a background thread once the server listens, so the server
+    answers at once and the first map is drawn without the wait (docs/notes.md).
+    """
     global _warmed
-    if not _warmed:
+    with _warm_lock:
+        if _warmed:
+            return
+        start = time.perf_counter()
+        import scipy.ndimage  # noqa: F401  (the estimators' imports, off the event loop)
+        import scipy.stats  # noqa: F401
+
         seconds = plots.warm_up()
-        log.info("datashader warm-up took %.1f s", seconds)
+        log.info("warm-up took %.1f s (datashader %.1f s)", time.perf_counter() - start,
+                 seconds)
         _warmed = True
 
 
@@ -196,10 +235,11 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
           threaded: bool = False, address: str = "127.0.0.1") -> Any:
     """Serve the app on ``address:port`` (default 127.0.0.1:5006).
 
-    Warms datashader up first. ``threaded=True`` returns the running server thread (stop it with
+    The server listens at once; :func:`warm_up` runs in a background thread meanwhile.
+    ``threaded=True`` returns the running server thread (stop it with
     ``pn.state.kill_all_servers()``); otherwise this blocks until interrupted.
     """
-    warm_up()
+    threading.Thread(target=warm_up, name="ccdcore-warm-up", daemon=True).start()
     origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
 
     def app() -> pn.template.BaseTemplate:  # a plain function: Panel calls it per session

@@ -43,7 +43,6 @@ from typing import Any, Mapping, Sequence
 
 import holoviews as hv
 import numpy as np
-from holoviews.operation.datashader import rasterize
 from numpy.typing import NDArray
 
 from . import plots
@@ -205,6 +204,8 @@ def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
     the plot has that fixed width (and the map's aspect) instead of stretching (plots in a
     layout grid need a fixed size).
     """
+    from holoviews.operation.datashader import rasterize  # datashader loads on first use
+
     image = map_image(layer)
     clim = default_clim(layer) if clim is None else clim
     if layer.kind in ("count", "flags"):

@@ -39,7 +39,6 @@ from typing import Any
 import holoviews as hv
 import numpy as np
 from bokeh.models import NumeralTickFormatter
-from holoviews.operation.datashader import rasterize
 from numpy.typing import NDArray
 
 from ccdcore.channels import check_layout, split_channels
@@ -186,6 +185,8 @@ def rasterized_image(image: hv.Image, clim: tuple[float, float] | None = None, *
     ``y`` (pixel column and row) and the value under the cursor (the mean of the pixels under a
     screen pixel when zoomed out, the pixel itself when zoomed in).
     """
+    from holoviews.operation.datashader import rasterize  # datashader loads on first use
+
     vdim = image.vdims[0].name
     (x0, x1), (y0, y1) = image.range("x"), image.range("y")
     aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
@@ -268,6 +269,8 @@ def warm_up() -> float:
     datashader compiles its numba kernels on first use (about 2–3 s, docs/notes.md); calling this at
     server start moves that cost out of the first user's click.
     """
+    from holoviews.operation.datashader import rasterize
+
     start = time.perf_counter()
     for dtype in (np.uint8, np.uint16, np.float32, np.float64):
         plane = np.arange(64 * 48, dtype=np.float64).reshape(48, 64).astype(dtype)

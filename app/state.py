@@ -28,7 +28,7 @@ import logging
 import os
 import traceback
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import param
 
@@ -39,6 +39,7 @@ from ccdcore.flatfield import SettingsComparison
 from ccdcore.noise import PhotonTransfer
 from ccdcore.planning import AcquisitionPlan
 from ccdcore.product import Estimates
+from ccdcore.progress import Cancelled, Tracker, tracking
 from ccdcore.scene import SceneVariation
 from ccdcore.session import MANIFEST_NAME, Session, open_session
 
@@ -204,6 +205,7 @@ class AppState(param.Parameterized):
         params.setdefault("allowed_roots", default_roots())
         params.setdefault("results", Results())
         super().__init__(**params)
+        self._trackers: set[Tracker] = set()   # the running computations
 
     # ---- opening sessions ---------------------------------------------------------------------
     def check_allowed(self, path: str | Path) -> Path:
@@ -296,30 +298,68 @@ class AppState(param.Parameterized):
             return func(*args, **kwargs), ""
         except CcdError as err:
             return None, str(err)
+        except Cancelled:
+            raise
         except Exception as err:  # a bug must reach the user as a message, not a traceback
             log.error("computing with %s failed:\n%s", getattr(func, "__name__", func),
                       traceback.format_exc())
             return None, f"unexpected error: {type(err).__name__}: {err}"
 
+    def _run_tracked(self, tracker: Tracker, func: Callable[..., Any], args: tuple,
+                     kwargs: dict) -> tuple[Any, str | None]:
+        """:meth:`_run_safely` reporting to ``tracker``; error ``None`` means cancelled."""
+        try:
+            with tracking(tracker):
+                return self._run_safely(func, args, kwargs)
+        except Cancelled:
+            return None, None
+
+    def _show_progress(self, tracker: Tracker, label: str) -> None:
+        if not tracker.cancelled:
+            self.param.update(progress=min(int(100 * tracker.fraction), 99),
+                              status=f"Computing {label}: {tracker.describe()} ...")
+
     async def compute(self, func: Callable[..., Any], *args: Any, label: str = "results",
+                      steps: Sequence[tuple[str, float]] = (), pass_progress: bool = False,
                       **kwargs: Any) -> Any | None:
         """Run ``func(*args, **kwargs)`` off the UI thread and return its result.
 
-        While it runs ``busy`` is set and ``status`` says what is computed (``label``); a
-        :class:`CcdError` (bad input: too few levels, missing frames ...) becomes ``error`` and
-        ``None`` is returned, as it is when another session was opened meanwhile. The caller
-        stores the result in :attr:`results`.
+        While it runs ``busy`` is set, and four times a second ``progress`` (percent) and
+        ``status`` say what is computed (``label``), which step and how many of its frames are
+        read (:mod:`ccdcore.progress`: every frame reader reports; ``steps`` names the steps
+        and where each starts, ``pass_progress`` hands the tracker to ``func`` as its
+        ``progress`` callback). :meth:`cancel` stops it at the next frame: ``None`` is
+        returned and ``status`` says it was cancelled. A :class:`CcdError` (bad input: too few
+        levels, missing frames ...) becomes ``error`` and ``None`` is returned, as it is when
+        another session was opened meanwhile. The caller stores the result in :attr:`results`.
         """
         session = self.session
+        tracker = Tracker(steps)
+        if pass_progress:
+            kwargs["progress"] = tracker
+        self._trackers.add(tracker)
         with param.parameterized.batch_call_watchers(self):
             self.error = ""
             self.busy = True
             self.progress = -1
             self.status = f"Computing {label} ..."
-        result, error = await asyncio.to_thread(self._run_safely, func, args, kwargs)
+        try:
+            task = asyncio.ensure_future(
+                asyncio.to_thread(self._run_tracked, tracker, func, args, kwargs))
+            while not task.done():
+                await asyncio.wait({task}, timeout=0.25)
+                if not task.done():
+                    self._show_progress(tracker, label)
+            result, error = task.result()
+        finally:
+            self._trackers.discard(tracker)
         with param.parameterized.batch_call_watchers(self):
-            self.busy = False
+            self.busy = bool(self._trackers)
+            self.progress = -1
             if self.session is not session:  # another session was opened meanwhile
+                return None
+            if error is None:
+                self.status = f"Cancelled {label}."
                 return None
             if error:
                 self.error = error
@@ -327,6 +367,18 @@ class AppState(param.Parameterized):
                 return None
             self.status = f"Computed {label}."
         return result
+
+    def cancel(self) -> None:
+        """Stop the running computations at their next frame (:meth:`compute` returns None)."""
+        for tracker in list(self._trackers):
+            tracker.cancel()
+        if self._trackers:
+            self.status = "Cancelling ..."
+
+    @property
+    def cancellable(self) -> bool:
+        """True while a computation that :meth:`cancel` can stop is running."""
+        return bool(self._trackers)
 
     def compute_now(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any | None:
         """:meth:`compute` in this thread (for scripts and tests)."""

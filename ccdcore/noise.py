@@ -83,7 +83,6 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy import stats
 
 from .common import check_roi, crop, json_safe
 from .errors import CcdError
@@ -327,6 +326,8 @@ def goodness_of_fit(chi2: float, dof: int) -> float:
     """
     if dof < 1:
         return float("nan")
+    from scipy import stats  # here: scipy.stats costs ~0.5 s to import (the app starts faster)
+
     return float(stats.chi2.sf(float(chi2), int(dof)))
 
 

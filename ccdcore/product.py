@@ -47,7 +47,8 @@ from .session import MAX_INTENSITY, Camera, Session, open_session
 
 __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
-           "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE"]
+           "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE",
+           "ESTIMATE_STEPS"]
 
 PRODUCT_FILE = "calibration.json"
 PRODUCT_SCHEMA = 1
@@ -68,6 +69,14 @@ _FINITE_MAPS = ("dark", "dark_var", "K_var", "flat_G", "flat_O")
 
 def _no_progress(step: str, fraction: float) -> None:
     return None
+
+
+#: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
+#: (what its ``progress`` callback receives; :class:`ccdcore.progress.Tracker` takes them)
+ESTIMATE_STEPS: tuple[tuple[str, float], ...] = (
+    ("photon transfer", 0.0), ("dark reference", 0.15), ("fixed pattern", 0.3),
+    ("planning", 0.55), ("correction check", 0.6), ("scene variation", 0.65),
+    ("flat field", 0.85), ("done", 1.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -527,6 +536,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     from .scene import scene_variations
 
     report = progress or _no_progress
+    start = dict(ESTIMATE_STEPS)
     made: dict[str, Any] = {}
     skipped: list[Skipped] = []
     lacking = dict((req.estimate, roles) for req, roles in missing_frames(session))
@@ -566,12 +576,12 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         assert rec is not None  # missing_frames checked the flag
         return correction_check(session.read(rec), made["dark"], made["fixed_pattern"])
 
-    report("photon transfer", 0.0)
+    report("photon transfer", start["photon transfer"])
     if noise is not None:
         made["noise"] = noise
     else:
         attempt("noise", (), lambda: photon_transfer(session, roi=roi))
-    report("dark reference", 0.2)
+    report("dark reference", start["dark reference"])
     roles = session.roles()
     if roles.get("dark") and session.camera.layout != "mono":
         skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: the "
@@ -579,22 +589,22 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                                "flat-field DL_0 serves instead"))
     else:
         attempt("dark", (), dark_run)
-    report("fixed pattern", 0.4)
+    report("fixed pattern", start["fixed pattern"])
     attempt("fixed_pattern", ("dark",),
             lambda: fixed_pattern_map(session, made["dark"], window=window, p=p))
-    report("planning", 0.6)
+    report("planning", start["planning"])
     attempt("plan", ("noise", "fixed_pattern"), plan_run)
-    report("correction check", 0.7)
+    report("correction check", start["correction check"])
     attempt("correction_check", ("dark", "fixed_pattern"), check_run)
-    report("scene variation", 0.8)
+    report("scene variation", start["scene variation"])
     attempt("scene", ("noise", "dark", "fixed_pattern"),
             lambda: scene_variations(session, made["dark"], made["fixed_pattern"], made["noise"],
                                      **scene_error_terms(made["dark"], made["fixed_pattern"])))
-    report("flat field", 0.9)
+    report("flat field", start["flat field"])
     attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto"))
     plan = made.get("plan")
     warnings = tuple(check_session_plan(session, plan)) if plan is not None else ()
-    report("done", 1.0)
+    report("done", start["done"])
     return Estimates(noise=made.get("noise"), dark=made.get("dark"),
                      fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
                      scene=made.get("scene"), correction_check=made.get("correction_check"),

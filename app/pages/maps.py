@@ -65,7 +65,8 @@ from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image, write_map
 from ccdcore.planning import DEFAULT_WORST_RATIO, plan_acquisition
-from ccdcore.product import budget_inputs, estimate_all, missing_frames, requirement
+from ccdcore.product import (ESTIMATE_STEPS, budget_inputs, estimate_all, missing_frames,
+                              requirement)
 from ccdcore.scene import variance_budget
 from ccdcore.session import ROLES, Session
 
@@ -566,7 +567,8 @@ class MapsPage(pn.viewable.Viewer):
         try:
             results = self.state.results
             est = await self.state.compute(
-                estimate_all, session, noise=results.ptc,
+                estimate_all, session, noise=results.ptc, steps=ESTIMATE_STEPS,
+                pass_progress=True,
                 label="dark reference, K̂, plan, scene variation and correction check")
             if est is not None and self.state.session is session:
                 results.param.update(estimates=est,

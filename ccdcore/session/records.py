@@ -19,7 +19,7 @@ from collections import Counter, deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any, Iterable, Iterator, Sized
 
 import numpy as np
 import tomli_w
@@ -28,6 +28,7 @@ from ..channels import LAYOUTS
 from ..common import group_by, sort_key
 from ..errors import CcdError, ImageReadError, SessionError
 from ..io import ImageHeader, read_header, read_image
+from ..progress import checkpoint
 
 __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "META_KEYS", "EXPOSURE_ROLES",
            "UNIFORM_ROLES", "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA", "Camera", "FrameRecord",
@@ -386,10 +387,16 @@ class Session:
         worker threads while the caller works on the current one (image decoders release the
         GIL, so on several cores decoding and computing overlap); memory holds at most n + 1
         frames, and a frame that cannot be read raises when it is reached, as without read-ahead.
+
+        Before each frame it calls :func:`ccdcore.progress.checkpoint` (frames done of the
+        list's length): inside :func:`ccdcore.progress.tracking` that reports progress and
+        stops a cancelled computation with :class:`ccdcore.progress.Cancelled`.
         """
         recs = self.frames if records is None else records
+        total = len(recs) if isinstance(recs, Sized) else None
         if read_ahead <= 0:
-            for rec in recs:
+            for i, rec in enumerate(recs):
+                checkpoint(i, total)
                 yield rec, self.read(rec)
             return
         todo = iter(recs)
@@ -397,12 +404,15 @@ class Session:
             pending = deque((rec, pool.submit(self.read, rec))
                             for rec in itertools.islice(todo, read_ahead))
             try:
+                i = 0
                 while pending:
+                    checkpoint(i, total)
                     rec, future = pending.popleft()
                     nxt = next(todo, None)
                     if nxt is not None:
                         pending.append((nxt, pool.submit(self.read, nxt)))
                     yield rec, future.result()
+                    i += 1
             finally:  # the caller stopped early or a read failed: drop what was read ahead
                 for _, future in pending:
                     future.cancel()

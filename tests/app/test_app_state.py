@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -204,3 +205,45 @@ def test_set_choices_gives_watchers_only_the_final_choice():
     assert page.seen == [("b", [2])] and select.value == "d" and page.choice == "d"
     select.value = "c"                                   # the user's choice reaches watchers
     assert page.seen[-1] == ("c", [2])
+
+
+def test_compute_reports_progress_and_cancel_stops_it(tmp_path):
+    """A tracked computation shows its step and frames in ``status``/``progress`` while it
+    runs; ``cancel`` stops it at the next frame: None, no error, status says cancelled."""
+    import threading
+    import time
+
+    from ccdcore.product import ESTIMATE_STEPS, estimate_all
+
+    demo = Path(__file__).resolve().parents[2] / "assets" / "healey94"
+    state = AppState(allowed_roots=[demo.parent])
+    assert state.load(demo)
+    statuses: list[tuple[int, str]] = []
+    state.param.watch(lambda e: statuses.append((state.progress, state.status)), "status")
+    gate = threading.Event()
+    original = state.session.read
+
+    def slow_read(rec):                      # slow enough for several progress reports
+        time.sleep(0.03)
+        gate.set()
+        return original(rec)
+
+    object.__setattr__(state.session, "read", slow_read)
+
+    async def run_and_cancel():
+        task = asyncio.ensure_future(state.compute(estimate_all, state.session,
+                                                   steps=ESTIMATE_STEPS, pass_progress=True,
+                                                   label="maps"))
+        while not any("frame" in text for _, text in statuses):
+            await asyncio.sleep(0.05)
+        assert state.busy and state.cancellable
+        state.cancel()
+        return await task
+
+    assert asyncio.run(run_and_cancel()) is None
+    assert state.error == "" and state.status == "Cancelled maps."
+    assert not state.busy and not state.cancellable and state.progress == -1
+    shown = [(p, t) for p, t in statuses if "frame" in t]
+    assert shown and all(0 <= p < 100 for p, _ in shown)
+    assert "photon transfer: frame" in shown[0][1]
+    assert state.results.estimates is None
