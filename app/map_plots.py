@@ -248,28 +248,34 @@ def crosshair(row: int, col: int) -> hv.Overlay:
     return hv.HLine(float(row)).opts(**style) * hv.VLine(float(col)).opts(**style)
 
 
-def row_profile(layer: MapLayer, row: int) -> hv.Curve:
-    """The values of ``row`` against the column x."""
+def _profile(values: NDArray, kdim: str, layer: MapLayer | None, title: str, color: str,
+             label: str) -> hv.Curve:
+    # one value dimension name for every map: the plot is updated in place, only its label
+    # (the axis title) follows the map
+    vdim = hv.Dimension("value", label=layer.label if layer is not None else "value")
+    curve = hv.Curve((np.arange(values.size), values), kdims=[kdim], vdims=[vdim], label=label)
+    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"], title=title,
+                      color=color, line_width=1, interpolation="steps-mid")
+
+
+def row_profile(layer: MapLayer | None, row: int) -> hv.Curve:
+    """The values of ``row`` against the column x (an empty curve without a map)."""
+    if layer is None:
+        return _profile(np.empty(0), "x (column)", None, "Row profile", "#1f3b57", "")
     row = int(np.clip(row, 0, layer.data.shape[0] - 1))
     values = np.asarray(layer.data[row], dtype=np.float64)
-    curve = hv.Curve((np.arange(values.size), values), kdims=["x (column)"],
-                     vdims=[hv.Dimension(layer.symbol, label=layer.label)],
-                     label=f"row y = {row}")
-    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"],
-                      title=f"Row profile, y = {row}", color="#1f3b57", line_width=1,
-                      interpolation="steps-mid")
+    return _profile(values, "x (column)", layer, f"Row profile, y = {row}", "#1f3b57",
+                    f"row y = {row}")
 
 
-def column_profile(layer: MapLayer, col: int) -> hv.Curve:
-    """The values of column ``col`` against the row y."""
+def column_profile(layer: MapLayer | None, col: int) -> hv.Curve:
+    """The values of column ``col`` against the row y (an empty curve without a map)."""
+    if layer is None:
+        return _profile(np.empty(0), "y (row)", None, "Column profile", "#8c2d04", "")
     col = int(np.clip(col, 0, layer.data.shape[1] - 1))
     values = np.asarray(layer.data[:, col], dtype=np.float64)
-    curve = hv.Curve((np.arange(values.size), values), kdims=["y (row)"],
-                     vdims=[hv.Dimension(layer.symbol, label=layer.label)],
-                     label=f"column x = {col}")
-    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"],
-                      title=f"Column profile, x = {col}", color="#8c2d04", line_width=1,
-                      interpolation="steps-mid")
+    return _profile(values, "y (row)", layer, f"Column profile, x = {col}", "#8c2d04",
+                    f"column x = {col}")
 
 
 def _format(value: float, layer: MapLayer) -> str:

@@ -89,7 +89,7 @@ PAPER_PLAN_INPUTS: dict[str, Any] = {"A": 0.003384, "sigma_c2": 1.1196, "bits": 
                                      "worst_ratio": DEFAULT_WORST_RATIO, "black_level": 0.0,
                                      "n2_reading": "paper"}
 #: maps shown in the grid when they exist
-DEFAULT_SHOWN = ("K", "dark", "n_rejected", "flags")
+DEFAULT_SHOWN = ("K", "dark")
 #: the inputs of :func:`ccdcore.planning.plan_acquisition` the Planning tab asks for
 PLAN_INPUTS = ("A", "sigma_c2", "bits", "sigma_hat", "p", "worst_ratio", "black_level",
                "n2_reading")
@@ -288,6 +288,16 @@ def _table(df: pd.DataFrame | None = None, **kw: Any) -> pn.widgets.Tabulator:
 
 
 # ================================================================================ the page ====
+def _row_profile_view(data: tuple) -> hv.Curve:
+    layer, row, _ = data
+    return map_plots.row_profile(layer, row)
+
+
+def _column_profile_view(data: tuple) -> hv.Curve:
+    layer, _, col = data
+    return map_plots.column_profile(layer, col)
+
+
 class MapsPage(pn.viewable.Viewer):
     """Dark and fixed-pattern maps, planning and scene variation (see the module docstring)."""
 
@@ -397,11 +407,16 @@ class MapsPage(pn.viewable.Viewer):
         self.hist_row = pn.FlexBox(sizing_mode="stretch_width", css_classes=["ccd-histograms"])
         # side by side in a FlexBox: a Row of stretching plots nested this deep makes Bokeh
         # lay the map grid out at zero size
+        # built once: the sliders and the selected map reach both through one stream and
+        # HoloViews updates their data in place
+        self.profile_stream = hv.streams.Pipe(data=(None, 0, 0))
         self.row_profile_pane = pn.pane.HoloViews(
-            None, sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
+            hv.DynamicMap(_row_profile_view, streams=[self.profile_stream]),
+            sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
             css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
         self.col_profile_pane = pn.pane.HoloViews(
-            None, sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
+            hv.DynamicMap(_column_profile_view, streams=[self.profile_stream]),
+            sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
             css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
         self.map_note = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10),
                                          styles={"color": "#6c757d", "font-size": "0.9em"})
@@ -768,12 +783,8 @@ class MapsPage(pn.viewable.Viewer):
         self._update_profiles()
 
     def _update_profiles(self, event: Any = None) -> None:
-        layer = self.active_layer
-        if layer is None:
-            self.row_profile_pane.object = self.col_profile_pane.object = None
-            return
-        self.row_profile_pane.object = map_plots.row_profile(layer, self.row_slider.value)
-        self.col_profile_pane.object = map_plots.column_profile(layer, self.col_slider.value)
+        self.profile_stream.send((self.active_layer, self.row_slider.value,
+                                  self.col_slider.value))
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
         hit = map_plots.pixel_values(self.layers, x, y)

@@ -150,16 +150,16 @@ def test_map_selection_switches_the_data(computed):
     page.active_select.value = "dark"
     assert page.active_layer.key == "dark"
     row = page.row_slider.value
-    curve = page.row_profile_pane.object
+    curve = page.row_profile_pane.object[()]      # the frame its stream draws now
     np.testing.assert_array_equal(curve.dimension_values(1), page.layers["dark"].data[row])
     assert page.download_exr.filename == "dark.exr"
     assert page.clim_holder.objects[0] is page._sliders["dark"]
     page.active_select.value = "K"
-    np.testing.assert_array_equal(page.row_profile_pane.object.dimension_values(1),
+    np.testing.assert_array_equal(page.row_profile_pane.object[()].dimension_values(1),
                                   page.layers["K"].data[row])
     # a column profile follows the column slider
     page.col_slider.value = 17
-    np.testing.assert_array_equal(page.col_profile_pane.object.dimension_values(1),
+    np.testing.assert_array_equal(page.col_profile_pane.object[()].dimension_values(1),
                                   page.layers["K"].data[:, 17])
     # the grid follows the shown maps
     page.shown_select.value = ["dark", "n1_used"]
@@ -365,3 +365,40 @@ def test_missing_frames_text_comes_from_ccdcores_requirements(assets, monkeypatc
     assert page.info_alert.object == ("**No `dark` frames and no a flagged frame** for the "
                                       "purpose of a test requirement: capture what a test "
                                       "requirement asks to capture.")
+
+
+def test_choices_on_computed_maps_update_the_plots_in_place(assets):
+    """The selected map, the profile sliders and a colour range change data and options of
+    the drawn plots, never the plots: the same Bokeh figures before and after."""
+    from bokeh.document import Document
+
+    state = AppState(allowed_roots=[assets.resolve()])
+    assert state.load(assets / "healey94")
+    page = MapsPage(state, auto_compute=False)
+    _run(page.compute())
+    root = page.__panel__().get_root(Document())
+
+    def models(kind: str) -> dict:
+        return {m.id: m for m in root.references() if type(m).__name__ == kind}
+
+    figures = set(models("figure"))
+    assert len(figures) >= 2 + 2 + 2      # maps, their histograms, two profiles
+
+    def profile_values() -> list[set]:
+        """The values the two profile plots draw (as sets: steps double the points)."""
+        return [set(src.data["value"]) for src in models("ColumnDataSource").values()
+                if "value" in src.data]
+
+    row = page.row_slider.value
+    page.active_select.value = "dark"
+    dark = page.layers["dark"].data
+    assert set(dark[row]) in profile_values() and set(dark[:, 0]) not in profile_values()
+    page.row_slider.value = row + 3
+    page.col_slider.value = 5
+    assert set(dark[row + 3]) in profile_values() and set(dark[:, 5]) in profile_values()
+    slider = page._sliders["dark"]
+    lo, hi = slider.value
+    slider.value = (lo, (lo + hi) / 2)
+    mappers = [m for m in root.references() if type(m).__name__ == "LinearColorMapper"]
+    assert any(m.high == pytest.approx((lo + hi) / 2) for m in mappers)
+    assert set(models("figure")) == figures
