@@ -299,8 +299,10 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         # template (bokeh grid of fixed-size figures), so the views are side by side in a Row.
         self.before_pane = _image_pane("ccd-flat-before")
         self.after_pane = _image_pane("ccd-flat-after")
-        self.pair_pane = pn.Row(self.before_pane, self.after_pane, sizing_mode="stretch_width",
-                                css_classes=["ccd-flat-pair"])
+        # a FlexBox, not a Row: on a narrow window (1024 px) the second view wraps below the
+        # first instead of overflowing the card
+        self.pair_pane = pn.FlexBox(self.before_pane, self.after_pane,
+                                    sizing_mode="stretch_width", css_classes=["ccd-flat-pair"])
         self.readout = pn.pane.Markdown("Move the cursor over either image to read the pixel "
                                         "before and after correction.",
                                         sizing_mode="stretch_width", css_classes=["ccd-readout"])
@@ -308,8 +310,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         # maps
         self.g_pane = _image_pane("ccd-flat-gmap")
         self.o_pane = _image_pane("ccd-flat-omap")
-        self.maps_pane = pn.Row(self.g_pane, self.o_pane, sizing_mode="stretch_width",
-                                css_classes=["ccd-flat-maps"])
+        self.maps_pane = pn.FlexBox(self.g_pane, self.o_pane, sizing_mode="stretch_width",
+                                    css_classes=["ccd-flat-maps"])
         self.map_readout = pn.pane.Markdown("", sizing_mode="stretch_width")
 
         # averaging, linearity, study, settings, K
@@ -338,8 +340,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                                         sizing_mode="stretch_width")
 
         setup = pn.Card(
-            pn.Row(self.setting_select, self.base_select, self.channel_select,
-                   sizing_mode="stretch_width"),
+            pn.FlexBox(self.setting_select, self.base_select, self.channel_select,
+                       sizing_mode="stretch_width"),
             self.recommend_alert, self.setup_pane, self.channel_table, self.flag_pane,
             title="Correction: dark and base images", sizing_mode="stretch_width",
             collapsible=False)
