@@ -17,8 +17,11 @@ map_layers(dark=None, fixed_pattern=None)
 default_clim(layer)
     The colour range a map opens with (0.5–99.5 % percentiles; symmetric about 1 for K̂; the
     category range for flags).
-map_image(layer), map_view(layer, clim=None)
-    ``hv.Image`` of a map and its rasterised, zoomable view in the map's colour map.
+map_image(layer), map_view(layer, clim=None, overview=None, frame_width=None)
+    ``hv.Image`` of a map and its zoomable view in the map's colour map, drawn at screen
+    resolution with a stated reduction (extreme or mean) when zoomed out.
+Overview, overview_how(layer, how), overview_centre(layer), overview_title(layer, f, how)
+    The stream of the overview choice and the pieces of a zoomed-out view.
 map_grid(views, cols=2)
     The maps in one ``hv.Layout`` whose plots share (link) their x and y axes.
 crosshair(row, col)
@@ -47,7 +50,7 @@ from numpy.typing import NDArray
 
 from . import plots
 
-__all__ = ["MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
+__all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
            "map_image", "map_view", "map_grid", "crosshair", "row_profile", "column_profile",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
 
@@ -194,42 +197,83 @@ def map_image(layer: MapLayer) -> hv.Image:
     return plots.image_element(layer.data, label=layer.title, vdim=layer.symbol)
 
 
+#: the stream carrying the page's overview choice (a key of :data:`app.plots.OVERVIEWS`) to
+#: every value map it shows; counts and flags always show the largest value
+Overview = hv.streams.Stream.define("Overview", how="extreme")
+
+
+def overview_how(layer: MapLayer, how: str) -> str:
+    """The reduction a zoomed-out view of ``layer`` uses: ``how`` for values, ``"max"`` for
+    counts and flags (a single rejected slope or hot pixel must stay visible)."""
+    return "max" if layer.kind in ("count", "flags") else how
+
+
+def overview_centre(layer: MapLayer) -> float:
+    """The value "extreme" measures deviations from: the centre of a diverging map (1 for K̂),
+    the median of the finite values otherwise."""
+    if layer.kind == "diverging":
+        return float(layer.centre)
+    finite = plots._sample(layer.data)
+    finite = finite[np.isfinite(finite)]
+    return float(np.median(finite)) if finite.size else 0.0
+
+
+def overview_title(layer: MapLayer, factor: int, how: str) -> str:
+    """The map's title, saying how a screen pixel is made when the view is zoomed out."""
+    if factor <= 1:
+        return layer.title
+    return f"{layer.title} \u2014 {factor}\u00d7{factor} px per screen pixel: " \
+           f"{plots.OVERVIEWS[how]}"
+
+
 def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
-             dynamic: bool = True, frame_width: int | None = None) -> hv.DynamicMap:
-    """The rasterised, zoomable view of a map in its colour map, with a hover tool.
+             overview: Any = None, frame_width: int | None = None) -> hv.DynamicMap:
+    """The zoomable view of a map in its colour map, with a hover tool.
 
-    Values are rasterised with the mean of the pixels under a screen pixel
-    (:func:`app.plots.rasterized_image`); counts and flags with their maximum, so a single hot
-    pixel or rejected slope stays visible when a large map is zoomed out. With ``frame_width``
-    the plot has that fixed width (and the map's aspect) instead of stretching (plots in a
-    layout grid need a fixed size).
+    Each zoom or pan draws the visible part of the map at screen resolution
+    (:func:`app.plots.overview`): when more map pixels than screen pixels are visible, each
+    screen pixel shows the extreme of its block (the value farthest from
+    :func:`overview_centre`), or the mean, as the ``overview`` stream (:data:`Overview`) says;
+    counts and flags show their maximum. The title says which, and the block size. With
+    ``frame_width`` the plot has that fixed width and square pixels (plots in a layout grid
+    need a fixed size).
     """
-    from holoviews.operation.datashader import rasterize  # datashader loads on first use
-
     image = map_image(layer)
     clim = default_clim(layer) if clim is None else clim
-    if layer.kind in ("count", "flags"):
-        (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-        aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
-        view = rasterize(image, dynamic=dynamic, aggregator="max").opts(
-            colorbar=True, tools=["hover"], invert_yaxis=True, aspect=aspect, responsive=True,
-            xlabel="x (column)", ylabel="y (row)",
-            hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (layer.symbol, "@image")],
-            default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
-            active_tools=["wheel_zoom"])
-    else:
-        view = plots.rasterized_image(image, dynamic=dynamic)
-    opts: dict[str, Any] = dict(cmap=layer.cmap, title=layer.title,
-                                clim=tuple(float(c) for c in clim), clabel=layer.label)
-    if frame_width is not None:
-        opts.update(plots.fixed_size(image, frame_width))
+    centre = overview_centre(layer)
+    size = plots.fixed_size(image, frame_width) if frame_width is not None else {}
+    screen = (size.get("frame_width", 600), size.get("frame_height", 600))
+    streams: list[Any] = [hv.streams.RangeXY(), hv.streams.PlotSize()]
+    streams.append(overview if overview is not None else Overview())
+
+    def draw(x_range: Any = None, y_range: Any = None, width: Any = None, height: Any = None,
+             how: str = "extreme", **_: Any) -> hv.Image:
+        how = overview_how(layer, how)
+        data, bounds, factor = plots.overview(
+            layer.data, x_range, y_range, width or screen[0], height or screen[1], how=how,
+            centre=centre)
+        img = hv.Image(np.asarray(data)[::-1], bounds=bounds, kdims=["x", "y"],
+                       vdims=[hv.Dimension(layer.symbol, label=layer.label)],
+                       label=layer.title)
+        return img.opts(title=overview_title(layer, factor, how))
+
+    (x0, x1), (y0, y1) = image.range("x"), image.range("y")
+    aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
+    opts: dict[str, Any] = dict(
+        cmap=layer.cmap, clim=tuple(float(c) for c in clim), clabel=layer.label, colorbar=True,
+        tools=["hover"], invert_yaxis=True, aspect=aspect, responsive=True,
+        xlabel="x (column)", ylabel="y (row)",
+        hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (layer.symbol, "@image")],
+        default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
+        active_tools=["wheel_zoom"])
+    opts.update(size)
     if layer.kind == "flags":
         from bokeh.models import FixedTicker
 
         opts.update(color_levels=3, colorbar_opts={
             "ticker": FixedTicker(ticks=[0, 1, 2]),
             "major_label_overrides": {0: "normal", 1: "hot", 2: "dead"}})
-    return view.opts(**opts)
+    return hv.DynamicMap(draw, streams=streams).opts(**opts)
 
 
 def map_grid(views: Sequence[Any], cols: int = 2) -> hv.Layout:

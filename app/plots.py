@@ -28,6 +28,9 @@ histogram_element(values, ...)
     ``hv.Histogram`` of a plane's values (``framewise=True`` so its axes follow the frame).
 clim_span(clim)
     ``hv.VSpan`` marking the colour range on the histogram.
+OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
+    How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
+    that reduction of the visible part of a map.
 warm_up()
     Run the datashader/numba rasterisation once per common dtype (first call compiles).
 """
@@ -47,7 +50,7 @@ from ccdcore.errors import CcdError
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim",
            "image_element", "rasterized_image", "histogram_edges", "histogram_element",
-           "clim_span", "warm_up"]
+           "clim_span", "warm_up", "OVERVIEWS", "overview", "fixed_size"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -200,6 +203,72 @@ def rasterized_image(image: hv.Image, clim: tuple[float, float] | None = None, *
     if clim is not None:
         opts["clim"] = tuple(float(c) for c in clim)
     return out.opts(**opts)
+
+
+#: how a zoomed-out map view reduces the map pixels under one screen pixel (name -> what the
+#: title says): a mean hides a single hot pixel or a pixel-scale pattern, the extreme keeps it
+OVERVIEWS: dict[str, str] = {
+    "extreme": "the value farthest from the centre",
+    "mean": "the mean",
+    "max": "the largest value",
+}
+
+
+def overview(plane: NDArray, x_range: tuple[float, float] | None,
+             y_range: tuple[float, float] | None, width: int | None, height: int | None, *,
+             how: str = "extreme", centre: float = 0.0
+             ) -> tuple[NDArray, tuple[float, float, float, float], int]:
+    """The visible part of ``plane`` reduced to at most ``width`` × ``height`` screen pixels.
+
+    Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)`` (:func:`image_element`). The
+    columns and rows that ``x_range``, ``y_range`` (``None``: all) overlap are cut out (at
+    least one); when they are more than the screen pixels, square blocks of ``f`` × ``f`` map
+    pixels (``f`` the smallest integer that fits) become one value each:
+
+    * ``"extreme"`` -- the pixel farthest from ``centre`` (its own value, sign kept), so one
+      deviating pixel stays visible at any zoom and the colour scale keeps its meaning;
+    * ``"mean"`` -- the mean of the block's finite pixels;
+    * ``"max"`` -- the largest value (counts, flags).
+
+    Non-finite pixels are ignored (a block of only NaN stays NaN); blocks at the edges may be
+    partial. Returns the reduced array (rows as in the map), its bounds ``(left, bottom, right,
+    top)`` in pixel coordinates (edges of the pixels it covers), and ``f`` (1: every pixel).
+    """
+    if how not in OVERVIEWS:
+        raise ValueError(f"how: expected one of {', '.join(OVERVIEWS)}, got {how!r}")
+    h, w = plane.shape
+
+    def span(rng: tuple[float, float] | None, n: int) -> tuple[int, int]:
+        if rng is None or not all(np.isfinite(rng)):
+            return 0, n
+        lo, hi = sorted(float(v) for v in rng)
+        first = min(max(int(np.floor(lo - 0.5)) + 1, 0), n - 1)   # c + 1/2 > lo
+        last = min(max(int(np.ceil(hi + 0.5)), first + 1), n)      # c - 1/2 < hi
+        return first, last
+
+    c0, c1 = span(x_range, w)
+    r0, r1 = span(y_range, h)
+    crop = plane[r0:r1, c0:c1]
+    f = max(1, int(np.ceil(max((c1 - c0) / max(width or (c1 - c0), 1),
+                               (r1 - r0) / max(height or (r1 - r0), 1)))))
+    if f == 1:
+        return crop, (c0 - 0.5, r0 - 0.5, c1 - 0.5, r1 - 0.5), 1
+    nh, nw = -(-(r1 - r0) // f), -(-(c1 - c0) // f)
+    padded = np.full((nh * f, nw * f), np.nan, dtype=np.float64)
+    padded[:r1 - r0, :c1 - c0] = crop
+    blocks = padded.reshape(nh, f, nw, f).transpose(0, 2, 1, 3).reshape(nh, nw, f * f)
+    finite = np.isfinite(blocks)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if how == "mean":
+            out = np.where(finite, blocks, 0.0).sum(axis=2) / finite.sum(axis=2)
+        elif how == "max":
+            out = np.where(finite, blocks, -np.inf).max(axis=2)
+        else:
+            dev = np.where(finite, np.abs(blocks - centre), -1.0)
+            pick = dev.argmax(axis=2)[..., None]
+            out = np.take_along_axis(blocks, pick, axis=2)[..., 0]
+    out[~finite.any(axis=2)] = np.nan
+    return out, (c0 - 0.5, r0 - 0.5, c0 - 0.5 + nw * f, r0 - 0.5 + nh * f), f
 
 
 def fixed_size(image: hv.Image, frame_width: int, max_frame_height: int = 560) -> dict[str, Any]:

@@ -314,6 +314,9 @@ class MapsPage(pn.viewable.Viewer):
         "Keys of the maps shown in the grid (linked zoom), in display order."))
     active = param.Selector(default=None, objects=[], allow_None=True, doc=(
         "Key of the selected map: its colour range, profiles and export."))
+    overview = param.Selector(default="extreme", objects=list(plots.OVERVIEWS)[:2], doc=(
+        "What a screen pixel of a zoomed-out value map shows: the value of its block farthest "
+        "from the map's centre (a single deviating pixel stays visible) or the block mean."))
     # ---- the Scene tab
     scene = param.Dict(default=None, allow_None=True, precedence=-1, doc=(
         "The scene variation per patch shown (state.results.scene), or None."))
@@ -374,6 +377,16 @@ class MapsPage(pn.viewable.Viewer):
         self.active_select = pn.widgets.Select.from_param(self.param.active,
                                                           label="Selected map", width=280)
         self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
+        # the zoomed-out views follow the choice through one stream, in place
+        self.overview_stream = map_plots.Overview(how=self.overview)
+        self.overview_select = pn.widgets.RadioButtonGroup.from_param(
+            self.param.overview, options={"extreme pixel": "extreme", "mean": "mean"},
+            color="default", width=220,
+            description="When a map has more pixels than the screen shows, each screen pixel "
+                        "shows its block's pixel farthest from the centre (1 for K̂, the "
+                        "median otherwise) or the block's mean; counts and flags show the "
+                        "largest. The map's title says which.")
+        self.param.watch(lambda e: self.overview_stream.event(how=e.new), "overview")
         self.auto_button = pn.widgets.Button(label="Auto (0.5–99.5 %)", align="end", width=150)
         self.auto_button.on_click(self._on_auto)
         self.row_slider = pn.widgets.IntSlider(label="Profile row y", start=0, end=1, value=0,
@@ -499,9 +512,12 @@ class MapsPage(pn.viewable.Viewer):
 
     def _build_layout(self) -> pn.viewable.Viewable:
         controls = pn.Column(
-            pn.Row(self.shown_select, self.active_select, sizing_mode="stretch_width"),
+            pn.FlexBox(self.shown_select, self.active_select, sizing_mode="stretch_width"),
             pn.Row(pn.Column(self.clim_holder, sizing_mode="stretch_width", min_width=300),
                    self.auto_button, sizing_mode="stretch_width"),
+            pn.Row(pn.pane.Markdown("**Zoomed out**, a screen pixel of a map shows:",
+                                    margin=(12, 10, 0, 10)),
+                   self.overview_select, sizing_mode="stretch_width"),
             sizing_mode="stretch_width")
         export = pn.Row(pn.pane.Markdown("**Export the selected map:**", margin=(12, 10)),
                         self.download_exr, self.download_fits, self.download_png)
@@ -746,7 +762,8 @@ class MapsPage(pn.viewable.Viewer):
         frame_width = 640 if len(keys) == 1 else 380
         for key in keys:
             layer, slider = self.layers[key], self._sliders[key]
-            view = map_plots.map_view(layer, slider.value, frame_width=frame_width).apply.opts(
+            view = map_plots.map_view(layer, slider.value, frame_width=frame_width,
+                                      overview=self.overview_stream).apply.opts(
                 clim=slider.param.value)
             pointer = hv.streams.PointerXY(x=None, y=None, source=view)
             pointer.add_subscriber(self._on_pointer)

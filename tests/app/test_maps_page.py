@@ -10,7 +10,7 @@ import pytest
 
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 import ccdcore.fixedpattern
-from app import map_plots
+from app import map_plots, plots
 from app.pages import maps
 from app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
                             missing_sentences, scene_patch_frame)
@@ -402,3 +402,60 @@ def test_choices_on_computed_maps_update_the_plots_in_place(assets):
     mappers = [m for m in root.references() if type(m).__name__ == "LinearColorMapper"]
     assert any(m.high == pytest.approx((lo + hi) / 2) for m in mappers)
     assert set(models("figure")) == figures
+
+
+# ------------------------------------------------------------------------- overviews ------
+def test_overview_blocks_mean_extreme_and_max():
+    rng = np.random.default_rng(3)
+    plane = rng.normal(1.0, 0.01, (60, 90))
+    # every pixel when the screen has room; the crop covers every pixel the ranges overlap
+    out, bounds, f = plots.overview(plane, (10.2, 20.7), (0, 59), 400, 400)
+    assert f == 1 and bounds == (9.5, -0.5, 21.5, 59.5)
+    np.testing.assert_array_equal(out, plane[:, 10:22])
+    # 90 x 60 pixels on 30 x 30 screen pixels: blocks of 3 x 3
+    mean, bounds, f = plots.overview(plane, None, None, 30, 30, how="mean")
+    assert f == 3 and mean.shape == (20, 30) and bounds == (-0.5, -0.5, 89.5, 59.5)
+    np.testing.assert_allclose(mean, plane.reshape(20, 3, 30, 3).mean(axis=(1, 3)),
+                               rtol=1e-12)
+    # one cold pixel survives as itself in the extreme view; the mean dilutes it by f^2
+    plane[31, 47] = 0.5
+    ext, _, _ = plots.overview(plane, None, None, 30, 30, how="extreme", centre=1.0)
+    mean, _, _ = plots.overview(plane, None, None, 30, 30, how="mean")
+    assert ext[10, 15] == 0.5 and np.nanmin(ext) == 0.5
+    assert mean[10, 15] == pytest.approx(plane[30:33, 45:48].mean()) and mean.min() > 0.9
+    block = plane[0:3, 0:3]
+    assert ext[0, 0] == block.flat[np.argmax(np.abs(block - 1.0))]
+    # partial edge blocks and NaN: ignored, a block of NaN only stays NaN
+    odd = np.arange(7 * 5, dtype=np.float64).reshape(7, 5)
+    odd[0:3, 0:3] = np.nan
+    mx, bounds, f = plots.overview(odd, None, None, 2, 3, how="max")
+    assert f == 3 and mx.shape == (3, 2) and bounds == (-0.5, -0.5, 5.5, 8.5)
+    assert np.isnan(mx[0, 0]) and mx[2, 1] == odd[6, 4] and mx[0, 1] == odd[2, 4]
+    mean, _, _ = plots.overview(odd, None, None, 2, 3, how="mean")
+    assert mean[2, 0] == pytest.approx(odd[6, 0:3].mean())
+    with pytest.raises(ValueError, match="how"):
+        plots.overview(odd, None, None, 2, 3, how="median")
+
+
+def test_zoomed_out_map_view_says_what_a_screen_pixel_shows():
+    data = np.ones((100, 160), dtype=np.float32)
+    data[40, 70] = 1.3                                   # one hot pixel
+    layer = map_plots.MapLayer("K", "Fixed pattern K", "K", "", data, "RdBu_r",
+                               kind="diverging", centre=1.0)
+    stream = map_plots.Overview(how="extreme")
+    view = map_plots.map_view(layer, frame_width=40, overview=stream)
+    image = view[()]
+    assert "4\u00d74 px per screen pixel: the value farthest from the centre" in \
+        image.opts.get().kwargs["title"]
+    assert np.nanmax(image.dimension_values(2)) == pytest.approx(1.3)
+    stream.event(how="mean")
+    image = view[()]
+    assert "the mean" in image.opts.get().kwargs["title"]
+    assert np.nanmax(image.dimension_values(2)) == pytest.approx(1 + 0.3 / 16)
+    # counts and flags always show the largest value
+    flags = map_plots.MapLayer("flags", "Hot / dead", "flag", "", np.zeros((100, 160)),
+                               kind="flags")
+    flags.data[3, 3] = 1
+    image = map_plots.map_view(flags, frame_width=40, overview=stream)[()]
+    assert "the largest value" in image.opts.get().kwargs["title"]
+    assert image.dimension_values(2).max() == 1
