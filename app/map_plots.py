@@ -222,8 +222,7 @@ def overview_title(layer: MapLayer, factor: int, how: str) -> str:
     """The map's title, saying how a screen pixel is made when the view is zoomed out."""
     if factor <= 1:
         return layer.title
-    return f"{layer.title} \u2014 {factor}\u00d7{factor} px per screen pixel: " \
-           f"{plots.OVERVIEWS[how]}"
+    return f"{layer.title} \u00b7 {plots.OVERVIEWS[how]} of {factor}\u00d7{factor} px"
 
 
 def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,

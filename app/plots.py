@@ -208,9 +208,9 @@ def rasterized_image(image: hv.Image, clim: tuple[float, float] | None = None, *
 #: how a zoomed-out map view reduces the map pixels under one screen pixel (name -> what the
 #: title says): a mean hides a single hot pixel or a pixel-scale pattern, the extreme keeps it
 OVERVIEWS: dict[str, str] = {
-    "extreme": "the value farthest from the centre",
-    "mean": "the mean",
-    "max": "the largest value",
+    "extreme": "extreme pixel",   # the pixel of the block farthest from the map's centre
+    "mean": "mean",
+    "max": "largest",
 }
 
 
