@@ -8,7 +8,8 @@ create_app(session_path=None, *, allowed_roots=None)
 serve(session_path=None, port=5006, show=False, threaded=False, address="127.0.0.1")
     Serve the app (what ``ccdcore app [SESSION] [--port N]`` and ``python -m app`` call).
 AppShell
-    The navigation between the registry's pages (built lazily, cached per browser session).
+    The navigation between the registry's pages (built on the first visit, then kept in the
+    document and only hidden: a revisit draws nothing new).
 
 The Bootstrap template is used because it loads nothing from outside hosts (its CSS and JS are
 served by Panel itself), unlike templates that fetch Google web fonts; lab machines are offline.
@@ -83,6 +84,8 @@ class AppShell(param.Parameterized):
                 rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
         self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
         self.main = pn.Column(sizing_mode="stretch_width", css_classes=["ccd-main"])
+        #: slug -> the holder of a visited page in ``main`` (shown or hidden, never rebuilt)
+        self.holders: dict[str, pn.Column] = {}
         self._show()
 
     def _go(self, slug: str, event: Any = None) -> None:
@@ -95,11 +98,27 @@ class AppShell(param.Parameterized):
             self._pages[slug] = build_page(spec, self.state)
         return self._pages[slug]
 
+    def holder(self, slug: str) -> pn.Column:
+        """The page ``slug`` in its holder in ``main`` (added on the first visit)."""
+        if slug not in self.holders:
+            self.holders[slug] = pn.Column(self.page_view(slug), sizing_mode="stretch_width",
+                                           margin=0, css_classes=[f"ccd-page-{slug}"])
+            self.main.append(self.holders[slug])
+        return self.holders[slug]
+
     @param.depends("page", watch=True)
     def _show(self) -> None:
+        """Show the chosen page and hide the others. A visited page stays in the document with
+        its plots (hidden): a revisit draws nothing new. A page may define ``on_show()``
+        (e.g. to compute on first show)."""
         for slug, button in self.buttons.items():
             button.color = "primary" if slug == self.page else "light"
-        self.main.objects = [self.page_view(self.page)]
+        shown = self.holder(self.page)
+        for holder in self.holders.values():
+            holder.visible = holder is shown
+        hook = getattr(self.page_view(self.page), "on_show", None)
+        if callable(hook):
+            hook()
 
 
 def _session_header(path: str, status: str, busy: bool) -> str:

@@ -502,10 +502,12 @@ class MapsPage(pn.viewable.Viewer):
         self.plan_error = _alert("", "danger")
 
     # ======================================================================== layout =======
-    def __panel__(self) -> pn.viewable.Viewable:
-        # called each time the navigation shows the page: the hook for "compute on first show"
+    def on_show(self) -> None:
+        """Called by the navigation each time it shows the page: compute on first show."""
         if self.auto_compute and self._wants_auto_compute():
             pn.state.execute(self.compute)
+
+    def __panel__(self) -> pn.viewable.Viewable:
         if self._layout is None:
             self._layout = self._build_layout()
         return self._layout

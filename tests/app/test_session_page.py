@@ -197,17 +197,23 @@ def test_shell_navigation_and_coming_pages(state):
     shell = AppShell(state)
     page = shell.page_view("session")
     assert shell.page == "session" and isinstance(page, SessionPage)
-    assert shell.main.objects[0] is page.__panel__()
+    assert shell.main.objects == [shell.holders["session"]]
+    assert shell.holders["session"].objects[0] is page.__panel__()
     coming = [p for p in PAGES if not is_available(p)]
     for spec in coming:
         shell.page = spec.slug
-        view = shell.main.objects[0]
+        view = shell.holders[spec.slug].objects[0]
         text = " ".join(getattr(o, "object", "") or "" for o in view.objects)
         assert "Not built yet" in text and spec.planned in text
         assert shell.buttons[spec.slug].color == "primary"
+        # one page visible, the visited ones kept hidden
+        assert [h.visible for h in shell.main.objects].count(True) == 1
+        assert shell.holders[spec.slug].visible and not shell.holders["session"].visible
     shell.page = "session"
     assert shell.page_view("session") is page                     # kept, not rebuilt
-    assert shell.main.objects[0] is page.__panel__()
+    assert shell.holders["session"].visible
+    assert shell.holders["session"].objects[0] is page.__panel__()
+    assert len(shell.main.objects) == 1 + len(coming)
     assert [p.slug for p in PAGES][:1] == ["session"] and len(PAGES) == 7
     with pytest.raises(KeyError, match="known"):
         get_page("nope")
