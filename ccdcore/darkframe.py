@@ -36,6 +36,7 @@ import numpy as np
 from scipy import special
 
 from .errors import CcdError
+from .noise import READ_AHEAD
 from .stats import PixelMoments
 
 __all__ = ["DarkReference", "dark_reference", "as_dark_map"]
@@ -184,7 +185,7 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
     acc = PixelMoments()
     if _is_session(frames_or_session):
         recs, exp, notes = _session_darks(frames_or_session, exposure)
-        items: Iterable = frames_or_session.iter_frames(recs)
+        items: Iterable = frames_or_session.iter_frames(recs, read_ahead=READ_AHEAD)
     else:
         items, exp = frames_or_session, exposure
         if isinstance(items, np.ndarray) and items.ndim == 2:
@@ -198,7 +199,7 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         acc.add(arr, name=name)
     if acc.n == 0:
         raise CcdError("dark", "no dark frames given")
-    res = acc.result()
+    res = acc.result(in_place=True)
     s = res.n
     mean_map, var_map = res.mean, res.var
     if s < 2:

@@ -23,16 +23,21 @@ reported either way.
 
 Border rule: ē_i is ``scipy.ndimage.uniform_filter(e_i, window, mode="reflect")``: near the edge
 the window is completed by mirroring the image about its edge (``d c b a | a b c d``), so every
-pixel has a full m×m mean, edge pixels' neighbours counting twice.
+pixel has a full m×m mean, edge pixels' neighbours counting twice.  It is computed by
+:func:`_local_mean`, a compiled copy of scipy's running sums (the same bits with scipy 1.17).
 
 Where no slope survives the rejection (possible with n1 = 2, when the two slopes are more than
 2·p·σ̂ apart), K̂ falls back to the median of the slopes; those pixels are counted in ``notes`` and
 have n'_1 = 0.  Pixels with ē_i ≤ 0 give no slope for configuration i (rejected).
 
 Memory: the n1 slope maps are kept as one (n1, H, W) float32 array (n1·H·W·4 bytes; 80 MB for 20
-configurations of 1024²) plus the (n1, H, W) boolean rejection array (n1·H·W bytes), a few float64
-(H, W) maps (the running average of one configuration, m̄, sums) and, for the median, a copy of
-64 rows of the slopes at a time; nothing grows with n2.
+configurations of 1024²) plus the (n1, H, W) boolean rejection array (n1·H·W bytes) and a few
+float64 (H, W) maps (the running average of one configuration, ē_i, m̄, K̂, its variance); nothing
+grows with n2.  Eqs. 48 and 49 (m̄, σ̂, the median, the rejection, K̂ and its variance) are compiled
+passes over the slopes pixel by pixel (numba, as :mod:`ccdcore.stats`), with no full-size
+temporaries; they sum in the same order as the array formulas they replace, so the results are
+the same to the bit.  The frames of the next configuration are decoded ahead in worker threads
+(``Session.iter_frames(read_ahead=...)``).
 
 Public objects
 --------------
@@ -47,15 +52,18 @@ CorrectionCheck, correction_check(frame, dark, K, q)
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
+import numba
 import numpy as np
 from scipy.ndimage import uniform_filter
 
 from .darkframe import DarkReference, as_dark_map, dark_reference
 from .errors import CcdError
+from .noise import READ_AHEAD
 from .stats import PixelMoments
 
 __all__ = ["FixedPattern", "fixed_pattern_map", "correct", "CorrectionCheck",
@@ -153,7 +161,11 @@ def _configs_from(source: Any) -> tuple[list[tuple[Any, Iterable]], Any]:
     """[(config id, iterable of frames or (record, frame) pairs)] and the session (or None)."""
     if hasattr(source, "fixed_pattern_configs") and hasattr(source, "iter_frames"):
         cfgs = source.fixed_pattern_configs()
-        return [(cid, source.iter_frames(recs)) for cid, recs in cfgs.items()], source
+        # one stream over every configuration, decoded ahead in worker threads: the next
+        # configuration's first frames are read while this one is filtered
+        stream = source.iter_frames([r for recs in cfgs.values() for r in recs],
+                                    read_ahead=READ_AHEAD)
+        return [(cid, itertools.islice(stream, len(recs))) for cid, recs in cfgs.items()], source
     if isinstance(source, Mapping):
         return list(source.items()), None
     if isinstance(source, np.ndarray):
@@ -186,7 +198,7 @@ def _average_config(cid: Any, frames: Iterable, ref_shape: tuple | None,
         acc.add(arr, name=name)
     if acc.n == 0:
         raise CcdError(f"configuration {cid}", "has no frames")
-    res = acc.result()
+    res = acc.result(in_place=True)   # the mean is then e_i's buffer (eq. 46)
     noise = float(np.mean(res.var)) / res.n if res.n > 1 else float("nan")
     return res.mean, noise, res.n, first
 
@@ -259,76 +271,57 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
 
     shape = dmap.shape
     slopes = np.empty((n1,) + shape, dtype=np.float32)   # the n1 slope maps m_i (eq. 47)
+    e_bar = np.empty(shape)                               # ē_i, reused for every configuration
     ids, levels, noises, n2s = [], [], [], []
     for i, (cid, frames) in enumerate(configs):
-        mean, noise, n2, name = _average_config(cid, frames, shape, "the dark reference")
-        e = mean - dmap                                         # eq. 46
-        del mean
-        e_bar = uniform_filter(e, size=window, mode="reflect")  # ē_i, the m×m local mean
+        e, noise, n2, name = _average_config(cid, frames, shape, "the dark reference")
+        np.subtract(e, dmap, out=e)                             # eq. 46, e_i = average − D̂_D
+        _local_mean(e, window, e_bar)                           # ē_i, the m×m local mean
         level = float(e.mean())
         if level <= 0:
             raise CcdError(name, f"configuration {cid} is not above the dark level (mean e_i = "
                                  f"{level:.3g} DN): is it a lit card?")
         with np.errstate(divide="ignore", invalid="ignore"):
-            slopes[i] = np.where(e_bar > 0, e / e_bar, np.nan)   # eq. 47
+            np.divide(e, e_bar, out=e)                          # eq. 47, m_i = e_i/ē_i
+        e[~(e_bar > 0)] = np.nan                                # no slope where ē_i ≤ 0
+        slopes[i] = e
         ids.append(cid)
         levels.append(level)
         noises.append(noise)
         n2s.append(n2)
-        del e, e_bar
+        del e
+    del e_bar
     if len(set(n2s)) > 1:
         notes.append(f"configurations have different frame counts ({min(n2s)}..{max(n2s)})")
 
-    # eq. 48: m̄, and the per-pixel sample std of the slopes (two passes over the n1 maps)
-    s1 = np.zeros(shape)
-    cnt = np.zeros(shape, np.int16)
-    for m in slopes:
-        ok = np.isfinite(m)
-        s1 += np.where(ok, m, 0.0)
-        cnt += ok
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m_bar = s1 / cnt
-        s2 = np.zeros(shape)
-        for m in slopes:
-            d = m - m_bar
-            s2 += np.where(np.isfinite(d), d * d, 0.0)
-        sd = np.sqrt(s2 / (cnt - 1))
-    del s2
+    # eq. 48: m̄, and the per-pixel sample std of the slopes (one compiled pass over the n1 maps)
+    m_bar = np.empty(shape)
+    sd = np.empty(shape)
+    _slope_moments(slopes.reshape(n1, -1), m_bar.reshape(-1), sd.reshape(-1))
     sigma_hat = float(np.nanmean(sd)) if np.isfinite(sd).any() else float("nan")
     del sd
     if not math.isfinite(sigma_hat):
         raise CcdError(where, "no pixel has two usable slopes (ē_i > 0): cannot estimate σ̂")
-    centre_map = m_bar if center == "mean" else _median_slopes(slopes)
 
-    # eq. 49: reject slopes outside centre ± p·σ̂ and re-average
+    # eq. 49: reject slopes outside centre ± p·σ̂ (centre m̄, or the per-pixel median of the
+    # slopes) and re-average; where nothing is kept, the median slope; and K̂'s error variance
+    # (see FixedPattern.K_var).  One compiled pass over the n1 maps, pixel by pixel.
     half = p * sigma_hat
+    K = np.empty(shape)
+    if center == "median":     # the centres go into K̂'s buffer, which eq. 49 then overwrites
+        _median_slopes(slopes.reshape(n1, -1), K.reshape(-1))
     rejected = np.empty((n1,) + shape, dtype=bool)
-    s1[:] = 0.0
-    used = np.zeros(shape, np.int16)
-    for i, m in enumerate(slopes):
-        keep = np.abs(m - centre_map) <= half      # NaN slopes compare False: rejected
-        rejected[i] = ~keep
-        s1 += np.where(keep, m, 0.0)
-        used += keep
-    del centre_map
-    with np.errstate(invalid="ignore", divide="ignore"):
-        K = s1 / used
+    used = np.empty(shape, np.int16)
+    K_var = np.empty(shape)
+    _reject_and_average(slopes.reshape(n1, -1), (m_bar if center == "mean" else K).reshape(-1),
+                        half, half ** 2, rejected.reshape(n1, -1), K.reshape(-1),
+                        used.reshape(-1), K_var.reshape(-1))
     none = used == 0
     if none.any():
-        K[none] = np.nanmedian(slopes[:, none], axis=0)
+        K[none] = _median_map(slopes[:, none])
         notes.append(f"{int(none.sum())} pixel(s) kept no slope inside the centre ± p·σ̂ "
                      f"(centre = {center}); K̂ there is the median slope and n'_1 = 0")
-    # per-pixel error of K̂: variance of the kept slopes / n'_1 (see FixedPattern.K_var)
-    ss = np.zeros(shape)
-    for i, m in enumerate(slopes):
-        d = np.where(rejected[i], 0.0, m - K)
-        ss += d * d
-    del slopes, s1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        K_var = ss / ((used - 1.0) * used)
-    few = used < 2
-    K_var[few] = half ** 2 / np.maximum(used[few], 1)
-    del ss
+    del slopes
     n1_hat = int(used.min())
     var_bound = half ** 2 / n1_hat if n1_hat > 0 else float("inf")   # eq. 50
     n2_min = min(n2s)
@@ -341,15 +334,170 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
                         K_var=K_var)
 
 
-def _median_slopes(slopes: np.ndarray, rows: int = 64) -> np.ndarray:
-    """Per-pixel median of the (n1, H, W) slopes, NaN-aware, in blocks of rows so that the copy
-    a median needs is a block, not all n1 maps."""
-    out = np.empty(slopes.shape[1:], np.float64)
-    med = np.nanmedian if np.isnan(slopes).any() else np.median
-    for r0 in range(0, slopes.shape[1], rows):
-        with np.errstate(all="ignore"):
-            out[r0:r0 + rows] = med(slopes[:, r0:r0 + rows], axis=0)
+def _local_mean(e: np.ndarray, window: int, out: np.ndarray) -> None:
+    """ē = ``uniform_filter(e, window, mode="reflect")`` (float64) into ``out``.
+
+    The compiled :func:`_box_mean` repeats scipy's running sums operation for operation (with
+    scipy 1.17 the same bits; ``tests/test_fixedpattern.py`` checks it to rounding) without
+    scipy's strided column pass, which took most of the filter's time (0.2 s of 0.26 s on a
+    2048² float64 map); frames smaller than the window, whose mirrored border folds more than
+    once, go to scipy.
+    """
+    if e.shape[0] < window or e.shape[1] < window:
+        uniform_filter(e, size=window, mode="reflect", output=out)
+    else:
+        _box_mean(np.ascontiguousarray(e, dtype=np.float64), window, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def _box_mean(e, size, out):  # pragma: no cover - compiled
+    """scipy.ndimage.uniform_filter(e, size, mode="reflect") of a 2-D float64 array, H, W ≥ size.
+
+    Per line, scipy sums the first ``size`` values of the mirrored line, then adds the entering
+    and subtracts the leaving value per step, each output being the running sum / ``size``;
+    first along the columns (here a row of running sums at a time, into ``out``), then along the
+    rows of that (each row copied to a line buffer first).
+    """
+    h, w = e.shape
+    s1 = size // 2                       # samples mirrored in before the first one
+    tmp = np.zeros(w)
+    for k in range(size):                # the first window of every column
+        r = k - s1
+        r = -r - 1 if r < 0 else r
+        for x in range(w):
+            tmp[x] += e[r, x]
+    for x in range(w):
+        out[0, x] = tmp[x] / size
+    for y in range(1, h):
+        r_in = y - 1 + size - s1
+        r_in = 2 * h - r_in - 1 if r_in >= h else r_in
+        r_out = y - 1 - s1
+        r_out = -r_out - 1 if r_out < 0 else r_out
+        for x in range(w):
+            tmp[x] += e[r_in, x] - e[r_out, x]
+            out[y, x] = tmp[x] / size
+    line = tmp
+    for y in range(h):
+        line[:] = out[y]
+        t = 0.0
+        for k in range(size):
+            c = k - s1
+            c = -c - 1 if c < 0 else c
+            t += line[c]
+        out[y, 0] = t / size
+        for x in range(1, w):
+            c_in = x - 1 + size - s1
+            c_in = 2 * w - c_in - 1 if c_in >= w else c_in
+            c_out = x - 1 - s1
+            c_out = -c_out - 1 if c_out < 0 else c_out
+            t += line[c_in] - line[c_out]
+            out[y, x] = t / size
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _slope_moments(slopes, m_bar, sd):  # pragma: no cover - compiled
+    """Eq. 48 per pixel j of the (n1, N) slopes: m̄ (mean of the finite slopes) and the sample
+    standard deviation (ddof = 1) about it, float64, summed in configuration order."""
+    n1, npix = slopes.shape
+    for j in range(npix):
+        s1 = 0.0
+        cnt = 0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            if np.isfinite(m):
+                s1 += m
+                cnt += 1
+        mean = s1 / cnt
+        s2 = 0.0
+        for i in range(n1):
+            d = np.float64(slopes[i, j]) - mean
+            if np.isfinite(d):
+                s2 += d * d
+        m_bar[j] = mean
+        sd[j] = np.sqrt(s2 / (cnt - 1))
+
+
+def _median_map(slopes: np.ndarray) -> np.ndarray:
+    """Per-pixel median of the (n1, ...) float32 slopes, NaNs left out (NaN where all are NaN),
+    as ``numpy.nanmedian`` gives it, float64 of shape ``slopes.shape[1:]``."""
+    out = np.empty(slopes.shape[1:])
+    _median_slopes(np.ascontiguousarray(slopes).reshape(slopes.shape[0], -1), out.reshape(-1))
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _median_slopes(slopes, out):  # pragma: no cover - compiled
+    """Median of the non-NaN values of each column j of the (n1, N) float32 ``slopes``: the
+    middle value, or the float32 mean of the two middle values (as ``numpy.median`` of float32).
+
+    Blocks of pixels are sorted together by odd-even transposition (n1 rounds of
+    compare-exchanges between neighbouring configurations, vectorised over the pixels of the
+    block; NaN counts as +inf and is not counted), then each pixel takes its middle values.
+    """
+    n1, npix = slopes.shape
+    B = 256
+    tmp = np.empty((n1, B), np.float32)
+    cnt = np.empty(B, np.int64)
+    for j0 in range(0, npix, B):
+        nb = min(B, npix - j0)
+        for b in range(nb):
+            cnt[b] = 0
+        for i in range(n1):
+            for b in range(nb):
+                v = slopes[i, j0 + b]
+                nan = np.isnan(v)
+                tmp[i, b] = np.inf if nan else v
+                cnt[b] += 0 if nan else 1
+        for r in range(n1):
+            for i in range(r % 2, n1 - 1, 2):
+                for b in range(nb):
+                    lo = tmp[i, b]
+                    hi = tmp[i + 1, b]
+                    tmp[i, b] = lo if lo < hi else hi
+                    tmp[i + 1, b] = hi if lo < hi else lo
+        for b in range(nb):
+            k = cnt[b]
+            if k == 0:
+                out[j0 + b] = np.nan
+            elif k % 2:
+                out[j0 + b] = tmp[k // 2, b]
+            else:
+                out[j0 + b] = (tmp[k // 2 - 1, b] + tmp[k // 2, b]) / np.float32(2.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _reject_and_average(slopes, centre, half, half2, rejected, K, used,
+                        K_var):  # pragma: no cover - compiled
+    """Eq. 49 per pixel j of the (n1, N) slopes (``centre`` may be ``K``: each pixel's centre
+    is read before its K̂ is written).
+
+    A slope is kept when |m_i − centre| ≤ half (NaN slopes are rejected); K̂ is the mean of the
+    kept slopes (float64, in configuration order; NaN where none is kept, for the caller to
+    fill); ``K_var`` = Σ(m_i − K̂)²/((n'_1 − 1)·n'_1) over the kept slopes, or
+    half²/max(n'_1, 1) where fewer than two are kept.
+    """
+    n1, npix = slopes.shape
+    for j in range(npix):
+        c = centre[j]
+        s1 = 0.0
+        n = 0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            keep = abs(m - c) <= half
+            rejected[i, j] = not keep
+            if keep:
+                s1 += m
+                n += 1
+        k = s1 / n
+        ss = 0.0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            if abs(m - c) <= half:
+                d = m - k
+                ss += d * d
+        K[j] = k
+        used[j] = n
+        K_var[j] = ss / ((n - 1.0) * n) if n >= 2 else half2 / max(n, 1)
 
 
 # --------------------------------------------------------------------------------------------

@@ -401,7 +401,10 @@ def pair_statistics(d1: ArrayLike, d2: ArrayLike) -> tuple[float, float, float, 
         raise CcdError("pair_statistics", "a pair needs at least two pixels per frame")
     mu = (a.sum() + b.sum()) / (2.0 * m)                         # eq. 37
     diff = a - b                                                 # eq. 31
-    var = float(np.sum((diff - diff.mean()) ** 2) / (2.0 * (m - 1)))  # eq. 38
+    del a, b
+    diff -= diff.mean()                                          # in place: (D_Δ − μ̂_Δ)²
+    diff *= diff
+    var = float(np.sum(diff) / (2.0 * (m - 1)))                  # eq. 38
     var_var = 2.0 * var * var / (m - 1)                          # eq. 40
     return float(mu), var, float(var_var), m
 

@@ -96,6 +96,7 @@ References
 """
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -103,10 +104,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2 as _chi2
 
 from .common import Roi, check_roi, json_safe
 from .errors import CcdError
+from .noise import READ_AHEAD
 
 __all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "scene_measurement",
            "fit_scene_variation", "scene_variation", "scene_variations", "variance_budget",
@@ -315,8 +316,34 @@ def _roi_slices(roi: Any, shape: tuple[int, int], where: str) -> tuple[Roi, tupl
 
 
 def _correct(frame: NDArray, dark: NDArray, K: NDArray) -> NDArray[np.float64]:
-    """D_C = (D − D̂_D)/K̂, eq. 51 (local copy of ``ccdcore.fixedpattern.correct`` on a crop)."""
-    return (np.asarray(frame, dtype=np.float64) - dark) / K
+    """D_C = (D − D̂_D)/K̂, eq. 51 (local copy of ``ccdcore.fixedpattern.correct`` on a crop),
+    float64, computed in one new array."""
+    out = np.subtract(frame, dark, dtype=np.float64)
+    out /= K
+    return out
+
+
+def _once(cache: dict | None, key: tuple, compute: Any) -> Any:
+    """``compute()``, or its value from an earlier frame: the calibration maps' terms over one
+    ROI are the same for every frame of a patch (:func:`scene_variation` passes a ``cache``).
+    A failure is not kept, so a bad map fails at the same step of every frame."""
+    if cache is None:
+        return compute()
+    if key not in cache:
+        cache[key] = compute()
+    return cache[key]
+
+
+def _check_K(Kr: NDArray, roi_t: tuple) -> bool:
+    if not np.all(np.isfinite(Kr)) or np.any(Kr <= 0):
+        raise CcdError("K map", f"K must be finite and positive inside roi {list(roi_t)}")
+    return True
+
+
+def _check_dark(dk: NDArray, roi_t: tuple) -> bool:
+    if not np.all(np.isfinite(dk)):
+        raise CcdError("dark map", f"non-finite values inside roi {list(roi_t)}")
+    return True
 
 
 def _noise_params(noise: Any) -> tuple[float, float, NDArray | None, float | None]:
@@ -400,22 +427,36 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
         Colour or non-2-D frames, mismatched map shapes, an ROI outside the frame, K̂ ≤ 0 or
         non-finite values in the ROI, a non-positive corrected mean, bad noise parameters.
     """
+    return _scene_measurement(frame, dark_map, K, A=A, sigma_c2=sigma_c2, roi=roi,
+                              black_level=black_level, noise_cov=noise_cov, path=path,
+                              level=level, full_scale=full_scale, dark_var=dark_var,
+                              K_var=K_var, fp_level=fp_level, cache=None)
+
+
+def _scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A: float,
+                       sigma_c2: float, roi: Any, black_level: float,
+                       noise_cov: ArrayLike | None, path: str | None, level: int | None,
+                       full_scale: float | None, dark_var: ArrayLike | float, K_var: float,
+                       fp_level: float | None, cache: dict | None) -> SceneMeasurement:
+    """:func:`scene_measurement`; with a ``cache`` shared by the frames of one patch (same maps),
+    the maps' terms over an ROI (crops, checks, E[1/K̂²], D̄_D, the dark_var term) are computed
+    once for all its frames."""
     where = path or "frame"
     D = _mono(frame, where)
     shape = D.shape
     roi_t, sl = _roi_slices(roi, shape, where)
-    dk = _map(dark_map, shape, "dark map")[sl]
-    Kr = _map(K, shape, "K map")[sl]
-    Dr = D[sl].astype(np.float64)
+    at = (roi_t, shape)
+    dk = _once(cache, ("dark", at), lambda: _map(dark_map, shape, "dark map")[sl])
+    Kr = _once(cache, ("K", at), lambda: _map(K, shape, "K map")[sl])
+    # the raw crop: integer pixels are compared and converted exactly, as float64 would be
+    Dr = D[sl] if D.dtype.kind in "uib" else D[sl].astype(np.float64)
     if not (math.isfinite(A) and A >= 0 and math.isfinite(sigma_c2) and sigma_c2 >= 0):
         raise CcdError("noise", f"need finite A >= 0 and sigma_c2 >= 0, got A={A}, "
                                 f"sigma_c2={sigma_c2}")
     cov = _check_cov(noise_cov)
-    if not np.all(np.isfinite(Kr)) or np.any(Kr <= 0):
-        raise CcdError("K map", f"K must be finite and positive inside roi {list(roi_t)}")
-    if not np.all(np.isfinite(dk)):
-        raise CcdError("dark map", f"non-finite values inside roi {list(roi_t)}")
-    if not np.all(np.isfinite(Dr)):
+    _once(cache, ("K ok", at), lambda: _check_K(Kr, roi_t))
+    _once(cache, ("dark ok", at), lambda: _check_dark(dk, roi_t))
+    if Dr.dtype.kind == "f" and not np.all(np.isfinite(Dr)):
         raise CcdError(where, f"non-finite pixel values inside roi {list(roi_t)}")
     if K_var < 0:
         raise CcdError("K_var", f"must be >= 0, got {K_var}")
@@ -429,20 +470,26 @@ def scene_measurement(frame: ArrayLike, dark_map: ArrayLike, K: ArrayLike, *, A:
     if not mu > 0:
         raise CcdError(where, f"the corrected mean over roi {list(roi_t)} is {mu:.4g} DN; "
                               "V_S = (σ²_D − σ²_KN)/μ²_D needs a lit region above the dark level")
-    dev = DC - mu
-    d2 = dev * dev
+    d2 = DC                                                      # one buffer, in place:
+    d2 -= mu                                                     # the deviations D_C − μ̂_D,
+    d2 *= d2                                                     # their squares
     m2 = float(np.mean(d2))
     var_D = m2 * n / (n - 1)                                     # eq. 55, sample variance
-    m4 = float(np.mean(d2 * d2))                                 # not dev ** 4: 4x slower
-    invK2 = 1.0 / (Kr * Kr)
-    E = float(invK2.mean())                                      # E[1/K̂²], eq. 56
-    dbar = float(dk.mean())
+    d2 *= d2                                                     # fourth powers (not dev ** 4)
+    m4 = float(np.mean(d2))
+    del DC, d2
+    E = _once(cache, ("E", at), lambda: float((1.0 / (Kr * Kr)).mean()))  # E[1/K̂²], eq. 56
+    dbar = _once(cache, ("dbar", at), lambda: float(dk.mean()))
     b0 = float(black_level)
     g = np.array([mu + dbar - b0, 1.0])                          # ∂σ̂²_N/∂(Â, σ̂²_C)
     sigma_N2 = float(A * g[0] + sigma_c2)                        # eq. 58 with the black level
     sigma_KN2 = E * sigma_N2                                     # eq. 56
-    dv = np.asarray(dark_var, dtype=np.float64)
-    dv = float(np.mean(_map(dv, shape, "dark_var")[sl] * invK2)) if dv.ndim else float(dv) * E
+    if np.ndim(dark_var):                                        # E[dark_var/K̂²]
+        dv = _once(cache, ("dark_var", at), lambda: float(np.mean(
+            _map(np.asarray(dark_var, dtype=np.float64), shape, "dark_var")[sl]
+            * (1.0 / (Kr * Kr)))))
+    else:
+        dv = float(np.asarray(dark_var, dtype=np.float64)) * E
     if dv < 0:
         raise CcdError("dark_var", "variance of the dark reference must be >= 0")
     if fp_level is not None:
@@ -518,6 +565,8 @@ def fit_scene_variation(measurements: Iterable[SceneMeasurement], *,
         r = y - V * x
         chi2 = float(r @ Si @ r)
         dof = L - 1
+        from scipy.stats import chi2 as _chi2  # here: scipy.stats is slow to import
+
         Q = float(_chi2.sf(chi2, dof))
     else:
         chi2, dof, Q = float("nan"), 0, float("nan")
@@ -579,13 +628,15 @@ def scene_variation(frames_with_meta: Iterable[Any], dark: Any, K: Any, noise: A
     A, c2, cov, b0_noise = _noise_params(noise)
     b0 = black_level if black_level is not None else (b0_noise if b0_noise is not None else 0.0)
     ms = []
+    cache: dict = {}          # the maps' terms per ROI, shared by the frames (same maps)
     for item in frames_with_meta:
         _, pixels, meta = _frame_meta(item)
         r = roi if roi is not None else meta.get("roi")
-        m = scene_measurement(pixels, dark_map, K_map, A=A, sigma_c2=c2, roi=r, black_level=b0,
-                              noise_cov=cov, path=meta.get("path") and str(meta.get("path")),
-                              level=meta.get("level"), full_scale=full_scale,
-                              dark_var=dark_var, K_var=K_var, fp_level=fp_level)
+        m = _scene_measurement(pixels, dark_map, K_map, A=A, sigma_c2=c2, roi=r,
+                               black_level=b0, noise_cov=cov,
+                               path=meta.get("path") and str(meta.get("path")),
+                               level=meta.get("level"), full_scale=full_scale,
+                               dark_var=dark_var, K_var=K_var, fp_level=fp_level, cache=cache)
         if name is None:
             name = meta.get("patch") or "roi=" + ",".join(str(v) for v in m.roi)
         ms.append(m)
@@ -607,7 +658,7 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
     ``patch`` (as the ``healey94`` simulator writes), else by their ROI (``"roi=x,y,w,h"``).  A
     patch frame without an ROI is measured over the whole frame.  Frames with neither (general
     scene images) and the ``max-intensity`` frame (sec. VII-A correction check) are skipped.
-    Frames are read one at a time.
+    Frames are read once, one at a time, the next few decoded ahead in worker threads.
 
     Parameters
     ----------
@@ -645,8 +696,10 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
     if not groups:
         raise CcdError(session.label, "no scene frames with a 'patch' or an 'roi' to measure "
                                       "V_S on")
-    return {name: scene_variation(session.iter_frames(recs), dark, K, noise, name=name,
-                                  black_level=black_level, full_scale=full_scale,
+    stream = session.iter_frames([r for recs in groups.values() for r in recs],
+                                 read_ahead=READ_AHEAD)
+    return {name: scene_variation(itertools.islice(stream, len(recs)), dark, K, noise,
+                                  name=name, black_level=black_level, full_scale=full_scale,
                                   dark_var=dark_var, K_var=K_var, fp_level=fp_level)
             for name, recs in groups.items()}
 

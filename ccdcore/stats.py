@@ -106,18 +106,46 @@ class PixelMoments:
         _accumulate(np.ascontiguousarray(a), self._shift, self._s1, self._s2)
         self.n += 1
 
-    def result(self) -> MomentsResult:
-        """The per-pixel mean and unbiased variance of the frames added so far."""
+    def result(self, *, in_place: bool = False) -> MomentsResult:
+        """The per-pixel mean and unbiased variance of the frames added so far.
+
+        With ``in_place`` the mean and the variance are written over the accumulator's own
+        buffers (no new memory: for a caller that is done with the accumulator); it is then
+        empty again (``n = 0``) and ready for frames of any shape.
+        """
         if self.n == 0:
             raise CcdError(None, "no frames to average")
         n = self.n
-        mean = self._shift + self._s1 / n
-        if n > 1:
-            var = (self._s2 - self._s1 * self._s1 / n) / (n - 1)
-            np.maximum(var, 0.0, out=var)
+        shift, s1, s2 = self._shift, self._s1, self._s2
+        if in_place:
+            mean, var = shift, s2
+            self._shift = self._s1 = self._s2 = None
+            self.n = 0
         else:
-            var = np.full(self._shift.shape, np.nan)
+            mean, var = np.empty_like(shift), np.empty_like(s2)
+        _finish(shift, s1, s2, n, mean, var)
         return MomentsResult(mean=mean, var=var, n=n)
+
+
+@numba.njit(cache=True, nogil=True)
+def _finish(shift, s1, s2, n, mean, var):  # pragma: no cover - compiled
+    """One pass: ``mean = x0 + s1/n`` and ``var = max((s2 − s1·s1/n)/(n − 1), 0)`` (NaN for
+    n = 1), element by element with the operations of the formulas (``mean`` may be ``shift``
+    and ``var`` may be ``s2``: each element is read before it is written)."""
+    a = s1.ravel()
+    b = s2.ravel()
+    x0 = shift.ravel()
+    m = mean.ravel()
+    v = var.ravel()
+    for i in range(a.size):
+        ai = a[i]
+        bi = b[i]
+        m[i] = x0[i] + ai / n
+        if n > 1:
+            w = (bi - ai * ai / n) / (n - 1)
+            v[i] = 0.0 if w < 0.0 else w
+        else:
+            v[i] = np.nan
 
 
 def pixel_moments(frames: Iterable[np.ndarray]) -> MomentsResult:

@@ -141,6 +141,50 @@ def test_eq49_on_constructed_slopes():
         assert fp.n1_used[5, 6] == (0 if center == "mean" else n1 - 1)
 
 
+def _kmap_by_array_formulas(e: np.ndarray, window: int, p: float, center: str) -> dict:
+    """Eqs. 47–49 as whole-array numpy formulas over (n1, H, W) levels e_i (dark = 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e_bar = uniform_filter(e, (1, window, window), mode="reflect")
+        m = np.where(e_bar > 0, e / e_bar, np.nan).astype(np.float32)      # eq. 47
+        ok = np.isfinite(m)
+        cnt = ok.sum(0)
+        m_bar = np.where(ok, m, 0).astype(np.float64).sum(0) / cnt         # eq. 48
+        sd = np.sqrt(np.nansum((m - m_bar) ** 2, axis=0) / (cnt - 1))
+        sigma_hat = float(np.nanmean(sd))
+        med = np.nanmedian(m, axis=0).astype(np.float64)
+        keep = np.abs(m - (m_bar if center == "mean" else med)) <= p * sigma_hat
+        used = keep.sum(0)
+        K = np.where(used > 0, np.where(keep, m, 0).astype(np.float64).sum(0) / used, med)
+        ss = np.where(keep, m - K, 0.0) ** 2
+        K_var = np.where(used >= 2, ss.sum(0) / ((used - 1.0) * used),
+                         (p * sigma_hat) ** 2 / np.maximum(used, 1))
+    return {"m_bar": m_bar, "sigma_hat": sigma_hat, "rejected": ~keep, "n1_used": used, "K": K,
+            "K_var": K_var}
+
+
+@pytest.mark.parametrize("n1,h,w,window", [(7, 40, 52, 9), (6, 33, 20, 5), (5, 7, 30, 9)])
+def test_compiled_passes_match_array_formulas(n1, h, w, window):
+    """The estimator's compiled passes (local mean, eq. 48, median, eq. 49) against the same
+    equations as numpy array formulas, with NaN slopes (ē_i ≤ 0), outliers, even and odd
+    counts of usable slopes, and a frame smaller than the window (scipy's border folding)."""
+    rng = np.random.default_rng(n1 * h)
+    K = 1 + 0.01 * rng.standard_normal((h, w))
+    e = K * 100.0 * (1 + 0.01 * rng.standard_normal((n1, h, w)))
+    e[1, :4, :4] = -300.0                                 # ē_1 ≤ 0 there: no slope
+    e[2, 3, 5] *= 1.5                                     # an outlier
+    e[rng.random((n1, h, w)) < 0.05] *= 1.03              # scattered milder ones
+    for center in ("median", "mean"):
+        fp = fixed_pattern_map(e[:, None], np.zeros((h, w)), window=window, p=1.0, center=center)
+        ref = _kmap_by_array_formulas(e, window, 1.0, center)
+        assert np.isnan(fp.m_bar).sum() == 0 and (fp.n1_used < n1).any()
+        np.testing.assert_allclose(fp.m_bar, ref["m_bar"], rtol=1e-12)
+        assert fp.sigma_hat == pytest.approx(ref["sigma_hat"], rel=1e-12)
+        np.testing.assert_array_equal(fp.rejected, ref["rejected"])
+        np.testing.assert_array_equal(fp.n1_used, ref["n1_used"])
+        np.testing.assert_allclose(fp.K, ref["K"], rtol=1e-12)
+        np.testing.assert_allclose(fp.K_var, ref["K_var"], rtol=1e-9)
+
+
 def test_correct_is_eq51(sim):
     root, truth, session, dark, fp, K = sim
     frame = read_image(root / "scene/max_intensity.tif")

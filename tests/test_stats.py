@@ -37,6 +37,24 @@ def test_pairs_and_errors():
         acc.add(np.zeros((3, 4)), name="b.tif")
 
 
+def test_result_in_place_is_the_same():
+    """``result(in_place=True)`` gives the same bits in the accumulator's buffers, and empties it."""
+    rng = np.random.default_rng(9)
+    for stack in (rng.integers(0, 255, (5, 7, 6), dtype=np.uint8),
+                  rng.normal(100, 3, (4, 7, 6)).astype(np.float32), np.ones((1, 2, 2))):
+        a, b = PixelMoments(), PixelMoments()
+        for f in stack:
+            a.add(f)
+            b.add(f)
+        ra, rb = a.result(), b.result(in_place=True)
+        np.testing.assert_array_equal(rb.mean, ra.mean)
+        np.testing.assert_array_equal(rb.var, ra.var)
+        assert rb.n == ra.n == len(stack) and b.n == 0
+        np.testing.assert_array_equal(a.result().mean, ra.mean)   # a keeps accumulating
+        b.add(np.zeros((3, 3)))                                   # b takes any shape again
+        assert b.result().mean.shape == (3, 3)
+
+
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 from hypothesis.extra import numpy as hnp  # noqa: E402
