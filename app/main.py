@@ -40,6 +40,10 @@ TITLE = "ccdcore \u00b7 radiometric camera calibration"
 
 pn.extension("tabulator", sizing_mode="stretch_width", notifications=False)
 hv.extension("bokeh", logo=False)
+# Canvas, not WebGL: HoloViews asks Bokeh for WebGL by default, which on machines without a GPU
+# (lab VMs, headless servers, CI) runs in software; the plots here have few glyphs, where Canvas
+# is as fast.
+hv.renderer("bokeh").webgl = False
 
 _CSS = """
 .ccd-badge { display: inline-block; padding: 1px 7px; border-radius: 9px; font-size: 0.72em;
@@ -84,8 +88,14 @@ class AppShell(param.Parameterized):
                 rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
         self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
         self.main = pn.Column(sizing_mode="stretch_width", css_classes=["ccd-main"])
-        #: slug -> the holder of a visited page in ``main`` (shown or hidden, never rebuilt)
-        self.holders: dict[str, pn.Column] = {}
+        #: slug -> the holder of each page in ``main``: empty until the first visit, then the
+        #: page, shown or hidden, never rebuilt. All holders are in ``main`` from the start, so
+        #: a first visit changes one holder's children, not ``main``'s (the browser then lays
+        #: out that page only).
+        self.holders: dict[str, pn.Column] = {
+            spec.slug: pn.Column(sizing_mode="stretch_width", margin=0, visible=False,
+                                 css_classes=[f"ccd-page-{spec.slug}"]) for spec in PAGES}
+        self.main.objects = list(self.holders.values())
         self._show()
 
     def _go(self, slug: str, event: Any = None) -> None:
@@ -99,12 +109,11 @@ class AppShell(param.Parameterized):
         return self._pages[slug]
 
     def holder(self, slug: str) -> pn.Column:
-        """The page ``slug`` in its holder in ``main`` (added on the first visit)."""
-        if slug not in self.holders:
-            self.holders[slug] = pn.Column(self.page_view(slug), sizing_mode="stretch_width",
-                                           margin=0, css_classes=[f"ccd-page-{slug}"])
-            self.main.append(self.holders[slug])
-        return self.holders[slug]
+        """The holder of page ``slug`` in ``main``, holding the page (built on first call)."""
+        holder = self.holders[slug]
+        if not holder.objects:
+            holder.objects = [self.page_view(slug)]
+        return holder
 
     @param.depends("page", watch=True)
     def _show(self) -> None:
@@ -115,7 +124,9 @@ class AppShell(param.Parameterized):
             button.color = "primary" if slug == self.page else "light"
         shown = self.holder(self.page)
         for holder in self.holders.values():
-            holder.visible = holder is shown
+            if holder is not shown:
+                holder.visible = False
+        shown.visible = True
         hook = getattr(self.page_view(self.page), "on_show", None)
         if callable(hook):
             hook()
@@ -143,7 +154,7 @@ def _progress_bar(state: AppState) -> pn.Row:
                                css_classes=["ccd-cancel"],
                                description="Stop the computation at its next frame")
     cancel.on_click(lambda event: state.cancel())
-    row = pn.Row(bar, cancel, visible=False, sizing_mode="fixed", width=260, margin=0)
+    row = pn.Row(bar, cancel, visible=False, sizing_mode="fixed", width=260, height=48, margin=0)
 
     def sync(*events: Any) -> None:
         running = state.busy and state.cancellable
