@@ -212,7 +212,9 @@ def create_app(session_path: str | Path | None = None, *,
     template.sidebar.append(pn.pane.Markdown(
         "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
         stylesheets=[_CSS], margin=(12, 10), styles={"font-size": "0.85em", "color": "#6c757d"}))
-    template.main.append(shell.main)
+    # one Bokeh root per page: a change in one page never makes the browser lay out the others
+    for holder in shell.holders.values():
+        template.main.append(holder)
     template.config.raw_css.append(_CSS)
     # handles for tests and for later pages
     template.app_state = state  # type: ignore[attr-defined]
