@@ -30,6 +30,7 @@ import param
 
 from . import plots
 from .pages import PAGES, PageSpec, build_page, is_available
+from .pages._batch import batched
 from .state import AppState, default_roots
 
 __all__ = ["create_app", "serve", "AppShell", "TITLE"]
@@ -116,6 +117,7 @@ class AppShell(param.Parameterized):
         return holder
 
     @param.depends("page", watch=True)
+    @batched
     def _show(self) -> None:
         """Show the chosen page and hide the others. A visited page stays in the document with
         its plots (hidden): a revisit draws nothing new. A page may define ``on_show()``

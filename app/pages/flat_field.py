@@ -60,6 +60,7 @@ from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
 from ..state import AppState
+from ._batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
 
@@ -673,6 +674,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self._render_kmap(kmap, kerr)
 
     # ============================================================ rendering ================
+    @batched
     def _render_flat(self) -> None:
         flat = self.flat
         if flat is None:
@@ -708,6 +710,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     def _plane(self, array: np.ndarray, layout: str) -> np.ndarray:
         return split_channels(array, layout)[self.channel]
 
+    @batched
     def _render_maps(self) -> None:
         flat = self.flat
         if flat is None or self.channel not in channel_names(flat.layout):
@@ -743,6 +746,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.snup_table.object = flat_plots.snup_frame(view.before, view.after)
         self._render_pair()
 
+    @batched
     def _render_pair(self) -> None:
         view, flat = self.view, self.flat
         if view is None or flat is None or self.channel not in channel_names(flat.layout):

@@ -73,6 +73,7 @@ from ccdcore.session import ROLES, Session
 from .. import map_plots, plots
 from ..map_plots import MapLayer
 from ..state import AppState
+from ._batch import batched
 from ._choices import set_choices
 
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
@@ -631,6 +632,7 @@ class MapsPage(pn.viewable.Viewer):
         self._update_info(self.state.session)
 
     # ====================================================================== refresh =========
+    @batched
     def _refresh(self) -> None:
         """Bring every tab in line with ``state.session`` and ``state.results``."""
         session, results = self.state.session, self.state.results
@@ -751,6 +753,7 @@ class MapsPage(pn.viewable.Viewer):
         return self.layers.get(self.active)
 
     @param.depends("layers", "shown", watch=True)
+    @batched
     def _build_grid(self) -> None:
         keys = [k for k in self.shown if k in self.layers]
         if not keys:
@@ -786,6 +789,7 @@ class MapsPage(pn.viewable.Viewer):
         self.hist_row.objects = hists
 
     @param.depends("layers", "active", watch=True)
+    @batched
     def _on_active(self) -> None:
         layer = self.active_layer
         if layer is None:

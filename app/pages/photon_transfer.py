@@ -49,6 +49,7 @@ from ccdcore.session import FrameRecord, Session
 
 from .. import plots, ptc_plots
 from ..state import AppState
+from ._batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
 
@@ -437,6 +438,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         return set(self.param.levels.objects) - set(self.levels)
 
     @param.depends("points", "levels", "robust", watch=True)
+    @batched
     def _refit(self) -> None:
         """Fit the measured points again with the ticked levels and the robust mode (instant:
         ``PhotonTransfer.refit``, i.e. ``fit_points``; no frame is read)."""
