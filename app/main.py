@@ -151,7 +151,7 @@ def _progress_bar(state: AppState) -> pn.Row:
     bar = pn.indicators.Progress(value=-1, max=100, width=160, height=16, bar_color="info",
                                  margin=(20, 6, 0, 6), sizing_mode="fixed",
                                  css_classes=["ccd-progress"])
-    cancel = pn.widgets.Button(name="Cancel", button_type="light", width=76, height=30,
+    cancel = pn.widgets.Button(label="Cancel", color="light", width=76, height=30,
                                margin=(12, 6, 0, 0), sizing_mode="fixed",
                                css_classes=["ccd-cancel"],
                                description="Stop the computation at its next frame")
