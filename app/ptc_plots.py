@@ -1,12 +1,15 @@
-"""Pure plot-building functions of the Photon transfer page (no widgets, no state).
+"""The plots of the Photon transfer page: pure data functions and the figures built once.
 
-Every function takes ccdcore's photon-transfer results (:class:`~ccdcore.noise.PtcPoint`,
-:class:`~ccdcore.noise.PhotonTransfer`) and returns a HoloViews element or overlay, so the
-plotting pipeline is tested without a browser. Every number drawn comes from ccdcore: the points
-(eqs. 37, 38, 40 of Healey & Kondepudy 1994), the fitted line σ²_N = A·μ + σ²_C (eq. 41) and its
-1-σ band from the covariance of (A, σ²_C) (eq. 66, :meth:`ccdcore.noise.LineFit.predict`). The
-plots only change units for display (σ = √σ²_N on the log-log view, residuals in units of each
-point's standard error).
+Every number drawn comes from ccdcore's photon-transfer results (:class:`~ccdcore.noise.PtcPoint`,
+:class:`~ccdcore.noise.PhotonTransfer`): the points (eqs. 37, 38, 40 of Healey & Kondepudy 1994),
+the fitted line σ²_N = A·μ + σ²_C (eq. 41) and its 1-σ band from the covariance of (A, σ²_C)
+(eq. 66, :meth:`ccdcore.noise.LineFit.predict`). The plots only change units for display
+(σ = √σ²_N on the log-log view, residuals in units of each point's standard error).
+
+The figures are plain Bokeh, built once per page (:class:`PtcFigures`); a refit replaces their
+sources' data. (HoloViews DynamicMaps did the same at 0.1–0.3 s of server time per plot and
+update; plain sources cost milliseconds; docs/notes.md.) The data functions are tested without
+a browser.
 
 Public objects
 --------------
@@ -16,22 +19,20 @@ points_table(points, result=None)
     The points as a DataFrame (level, μ, σ̂²_N, its error, σ̂_N, status, reason, residual/σ).
 mu_grid(points, n=200, log=False)
     Abscissae for drawing the model over the measured range of μ.
-transfer_plot(points, result=None)
-    σ̂²_N against μ: points with error bars (excluded ones hollow and grey, with the reason in
-    the hover), the fitted line and its 1-σ confidence band.
-residual_plot(result)
-    (σ̂²_N − fit)/σ against μ with reference lines at 0, ±1 and ±3.
-loglog_plot(points, result=None, height=600)
-    The EMVA 1288 view: temporal noise σ̂_N (DN) against μ (DN) on log axes, with the model
-    √(A·μ + σ²_C), the read-noise floor √σ²_C and the shot-noise asymptote √(A·μ).
+transfer_columns(points, result=None), residual_columns(result), loglog_columns(points, result)
+    What each plot draws, as source columns (band and line, used and excluded points, curves).
+residual_limit(columns), loglog_limits(columns)
+    The y ranges of the residual and the log-log plots.
+PtcFigures
+    The three figures with their sources; ``update(points, result)``.
 roi_box(x, y, w, h)
     The ROI ``(x, y, w, h)`` as an ``hv.Rectangles`` outline in the pixel coordinates of
-    :func:`app.plots.image_element`.
+    :func:`app.plots.image_element` (the frame preview stays a HoloViews view).
 """
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import holoviews as hv
 import numpy as np
@@ -41,8 +42,8 @@ from numpy.typing import NDArray
 from ccdcore.noise import PhotonTransfer, PtcPoint
 
 __all__ = ["USED_COLOR", "EXCLUDED_COLOR", "FIT_COLOR", "points_table", "mu_grid",
-           "transfer_plot", "residual_plot", "loglog_plot", "roi_box",
-           "hide_empty_legend_items"]
+           "transfer_columns", "residual_columns", "loglog_columns", "residual_limit",
+           "loglog_limits", "PtcFigures", "roi_box"]
 
 #: colour of the levels used by the fit
 USED_COLOR = "#1f5f99"
@@ -52,7 +53,6 @@ EXCLUDED_COLOR = "#8c959f"
 FIT_COLOR = "#d9622b"
 
 _HEIGHT = 380
-_TOOLS = ["hover"]
 
 _COLUMNS = ["level", "mu", "var", "var_err", "sigma", "sigma_err", "n_pairs", "n_pixels",
             "used", "status", "reason", "residual"]
@@ -114,168 +114,229 @@ def mu_grid(points: Sequence[PtcPoint], n: int = 200, log: bool = False) -> NDAr
     return np.linspace(lo, hi + 0.05 * span, n)
 
 
-def _point_layers(df: pd.DataFrame, x: str, y: str, err: str, xlabel: str, ylabel: str
-                  ) -> list[hv.Element]:
-    """Error bars and markers of the used (filled) and excluded (hollow, grey) points.
-
-    Always the same four layers (ErrorBars and Scatter of the used levels, then of the excluded
-    ones), empty when no level is in the group: a plot fed through a stream keeps its Bokeh
-    glyphs and only their data change (:func:`hide_empty_legend_items` hides the empty group's
-    legend entry).
-    """
-    layers: list[hv.Element] = []
-    kx = hv.Dimension(x, label=xlabel)
-    vy = hv.Dimension(y, label=ylabel)
-    vdims = [vy, hv.Dimension(err, label="\u00b1 (1\u03c3)"), "level", "n_pairs", "status",
-             "reason"]
-    for used, color, name in ((True, USED_COLOR, "used levels"),
-                              (False, EXCLUDED_COLOR, "excluded levels")):
-        part = df[df["used"] == used]
-        bars = hv.ErrorBars(part, kdims=[kx], vdims=[vy, err], label=name).opts(
-            color=color, line_width=1.5, lower_head=None, upper_head=None)
-        marks = hv.Scatter(part, kdims=[kx], vdims=vdims, label=name)
-        if used:
-            marks = marks.opts(color=color, size=8, marker="circle")
-        else:
-            marks = marks.opts(color=EXCLUDED_COLOR, fill_alpha=0.0, line_color=EXCLUDED_COLOR,
-                               line_width=2, size=10, marker="circle")
-        marks = marks.opts(tools=_TOOLS, hover_tooltips=[
-            ("level", "@level"), (xlabel, f"@{{{x}}}{{0.000}}"),
-            (ylabel, f"@{{{y}}}{{0.0000}}"), ("\u00b1", f"@{{{err}}}{{0.0000}}"),
-            ("pairs", "@n_pairs"), ("status", "@status"), ("reason", "@reason")])
-        layers += [bars, marks]
-    return layers
+#: columns of the point sources (one per group: used, excluded)
+_POINT_COLUMNS = ("level", "mu", "err", "lo", "hi", "n_pairs", "status", "reason")
 
 
-def _framewise(layers: list[hv.Element]) -> hv.Overlay:
-    """The overlay of ``layers`` with ``framewise=True`` on every layer: a plot fed through a
-    stream then fits its axes to each new frame (on the overlay alone the first ranges stay)."""
-    return hv.Overlay([layer.opts(framewise=True) for layer in layers])
+def _point_columns(df: pd.DataFrame, y: str, err: str) -> dict[str, dict[str, list]]:
+    """The used and the excluded points of ``df`` as Bokeh source columns: ``mu``, ``y`` (named
+    as given), ``err`` (its 1-σ error), ``lo``/``hi`` (the error bar's ends) and the hover
+    columns ``level``, ``n_pairs``, ``status``, ``reason``."""
+    out = {}
+    for name, used in (("used", True), ("excluded", False)):
+        part = df[(df["used"] == used) & np.isfinite(df[y])]
+        value, error = part[y].to_numpy(float), part[err].to_numpy(float)
+        out[name] = {"level": part["level"].tolist(), "mu": part["mu"].to_numpy(float),
+                     y: value, "err": error, "lo": value - error, "hi": value + error,
+                     "n_pairs": part["n_pairs"].tolist(), "status": part["status"].tolist(),
+                     "reason": part["reason"].tolist()}
+    return out
 
 
-def hide_empty_legend_items(plot: Any, element: Any) -> None:
-    """HoloViews plot hook: hide the legend entries whose glyphs have no data (an empty group of
-    levels, the model before a fit), so a plot updated in place never lists what it does not
-    draw. HoloViews runs hooks after the first render and after every update."""
-    for legend in getattr(plot.state, "legend", []) or []:
-        for item in legend.items:
-            item.visible = any(len(next(iter(r.data_source.data.values()), ())) > 0
-                               for r in item.renderers)
+def transfer_columns(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
+                     ) -> dict[str, dict[str, Any]]:
+    """What the photon-transfer plot draws (eq. 41 of Healey & Kondepudy 1994), as source columns.
 
-
-def transfer_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
-                  ) -> hv.Overlay:
-    """σ̂²_N against μ (the photon-transfer curve, eq. 41 of Healey & Kondepudy 1994).
-
-    Parameters
-    ----------
-    points
-        The measured levels (normally ``result.points``); ``used`` and ``reason`` decide how each
-        is drawn: used levels filled, excluded levels hollow and grey with the reason in the hover.
-    result
-        The fit. When given, the line σ²_N = A·μ + σ²_C (in the black-level-corrected μ the fit
-        uses) and its 1-σ confidence band ``hv.Spread`` from
-        :meth:`~ccdcore.noise.LineFit.predict` are drawn under the points.
-
-    Returns
-    -------
-    holoviews.Overlay
-        Spread (band) and Curve (line), empty without a fit, then ErrorBars and Scatter for the
-        used and the excluded levels (empty when a group has none): the same layers whatever the
-        data, so the page updates one plot in place.
+    ``"band"``: ``mu``, ``var`` (the line σ²_N = A·μ + σ²_C) and ``lower``/``upper`` (its 1-σ
+    band from :meth:`~ccdcore.noise.LineFit.predict`), empty without a fit; ``"used"`` and
+    ``"excluded"``: the points σ̂²_N (``var``) against μ with their standard errors (√eq. 40), the
+    excluded ones with the reason in ``reason`` (see :func:`_point_columns`).
     """
     df = points_table(points, result)
-    xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302\u00b2_N (DN\u00b2)"
     if result is not None:
         grid = mu_grid(points)
         value, std = result.fit.predict(grid)
     else:
         grid = value = std = np.empty(0)
-    band = pd.DataFrame({"mu": grid, "var": value, "std": std})
-    layers: list[hv.Element] = [
-        hv.Spread(band, kdims=["mu"], vdims=["var", "std"], label="fit \u00b11\u03c3").opts(
-            color=FIT_COLOR, alpha=0.25, line_alpha=0),
-        hv.Curve(band, kdims=["mu"], vdims=["var"],
-                 label="\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C").opts(
-            color=FIT_COLOR, line_width=2)]
-    layers += _point_layers(df, "mu", "var", "var_err", xlabel, ylabel)
-    title = "Photon transfer: noise variance against mean signal"
-    return _framewise(layers).opts(
-        responsive=True, height=_HEIGHT, title=title, xlabel=xlabel, ylabel=ylabel,
-        legend_position="top_left", show_grid=True, framewise=True,
-        hooks=[hide_empty_legend_items])
+    return {"band": {"mu": grid, "var": value, "lower": value - std, "upper": value + std},
+            **_point_columns(df, "var", "var_err")}
 
 
-def residual_plot(result: PhotonTransfer | None) -> hv.Overlay:
-    """Residuals (σ̂²_N − A·μ − σ²_C)/σ of every level (σ = its ``var_err``), against μ.
-
-    Used levels are filled, excluded ones hollow and grey; each has an error bar of ±1 (its own
-    standard error in these units). Reference lines: 0 (solid), ±1 (dashed) and ±3 (dotted, the
-    robust mode's limit). Without a fit (``None``) the point layers are empty.
-    """
+def residual_columns(result: PhotonTransfer | None) -> dict[str, dict[str, Any]]:
+    """The residuals (σ̂²_N − A·μ − σ²_C)/σ of every level (σ its ``var_err``) with a ±1 bar, as
+    ``"used"``/``"excluded"`` source columns (``residual``); none without a fit."""
     df = points_table(result.points if result is not None else (), result)
     df = df.assign(unit=np.where(np.isfinite(df["residual"]), 1.0, np.nan))
-    xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "residual / \u03c3"
-    layers: list[hv.Element] = [hv.HLine(0.0).opts(color="#444444", line_width=1)]
-    for k, dash in ((1, "dashed"), (3, "dotted")):
-        for sign in (1, -1):
-            layers.append(hv.HLine(sign * k).opts(color="#999999", line_dash=dash,
-                                                  line_width=1))
-    layers += _point_layers(df, "mu", "residual", "unit", xlabel, ylabel)
-    finite = df["residual"][np.isfinite(df["residual"])]
-    top = max(3.8, float(finite.abs().max()) + 1.2) if len(finite) else 3.8
-    return _framewise(layers).opts(
-        responsive=True, height=220, title="Residuals in units of each point's standard error",
-        xlabel=xlabel, ylabel=ylabel, ylim=(-top, top), show_legend=False, show_grid=True,
-        framewise=True)
+    return _point_columns(df, "residual", "unit")
 
 
-def loglog_plot(points: Sequence[PtcPoint], result: PhotonTransfer | None = None, *,
-                height: int = 600) -> hv.Overlay:
-    """The EMVA 1288 style view: temporal noise σ̂_N = √σ̂²_N (DN) against μ (DN), log axes.
+def residual_limit(columns: Mapping[str, Mapping[str, Any]]) -> float:
+    """The residual plot's half height: ±3.8, or the largest residual plus 1.2."""
+    values = np.concatenate([np.asarray(columns[k]["residual"], float)
+                             for k in ("used", "excluded")])
+    values = values[np.isfinite(values)]
+    return max(3.8, float(np.abs(values).max()) + 1.2) if values.size else 3.8
 
-    Only levels with μ > 0 can be drawn on a log axis. With ``result``: the model
-    √(A·μ + σ²_C), the read-noise floor √σ²_C (horizontal, dashed) and the shot-noise asymptote
-    √(A·μ) (dotted); the two cross at μ = σ²_C/A. The three curves are always there (empty
-    without a fit, or when σ²_C or A is not positive), like the points' layers, so the page
-    updates the plot in place.
-    """
+
+def loglog_columns(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
+                   ) -> dict[str, dict[str, Any]]:
+    """The EMVA 1288 view as source columns: the points σ̂_N = √σ̂²_N (``sigma``, DN) with
+    ``err`` = var_err/(2σ̂_N) (first order) against μ (only μ > 0 and σ̂²_N > 0 can be drawn on
+    log axes); with a fit the model √(A·μ + σ²_C) (``"model"``), the read-noise floor √σ²_C
+    (``"floor"``, when σ²_C > 0) and the shot-noise asymptote √(A·μ) (``"shot"``, when A > 0),
+    each ``mu``/``sigma``; the curves cross at μ = σ²_C/A."""
     positive = [p for p in points if p.mu > 0 and p.var > 0]
     df = points_table(positive, result)
-    xlabel, ylabel = "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302_N (DN)"
-    empty = np.empty(0)
-    grid = mu_grid(positive, log=True) if result is not None else empty
-    model = floor = shot = empty
-    floor_grid = shot_grid = empty
+    empty = {"mu": np.empty(0), "sigma": np.empty(0)}
+    curves = {"model": empty, "floor": empty, "shot": empty}
     if result is not None:
-        model = np.sqrt(np.maximum(np.asarray(result.sigma_n2(grid)), 0.0))
+        grid = mu_grid(positive, log=True)
+        curves["model"] = {"mu": grid,
+                           "sigma": np.sqrt(np.maximum(np.asarray(result.sigma_n2(grid)), 0.0))}
         if result.sigma_c2 > 0:
-            floor_grid, floor = grid, np.full_like(grid, math.sqrt(result.sigma_c2))
+            curves["floor"] = {"mu": grid, "sigma": np.full_like(grid, math.sqrt(result.sigma_c2))}
         if result.A > 0:
-            shot_grid, shot = grid, np.sqrt(result.A * grid)
-    layers: list[hv.Element] = [
-        hv.Curve((grid, model), kdims=["mu"], vdims=["sigma"],
-                 label="\u221a(A\u00b7\u03bc + \u03c3\u00b2_C)").opts(
-            color=FIT_COLOR, line_width=2),
-        hv.Curve((floor_grid, floor), kdims=["mu"], vdims=["sigma"],
-                 label="read-noise floor \u221a\u03c3\u00b2_C").opts(
-            color="#6f42c1", line_dash="dashed", line_width=1.5),
-        hv.Curve((shot_grid, shot), kdims=["mu"], vdims=["sigma"],
-                 label="shot noise \u221a(A\u00b7\u03bc)").opts(
-            color="#2a9d8f", line_dash="dotted", line_width=2)]
-    layers += _point_layers(df, "mu", "sigma", "sigma_err", xlabel, ylabel)
-    ylim: tuple[float, float] | tuple[None, None] = (None, None)
-    lows = [float(s) for s in df["sigma"] if s > 0]
-    if result is not None and result.sigma_c2 > 0:
-        lows.append(math.sqrt(result.sigma_c2))
-    if lows:  # a quarter of the lowest noise shown: the asymptote does not squash the points
-        highs = [float(s) for s in df["sigma"] if s > 0] or lows
-        ylim = (0.25 * min(lows), 1.6 * max(highs))
-    return _framewise(layers).opts(
-        responsive=True, height=height, logx=True, logy=True, show_grid=True, ylim=ylim,
-        title="Temporal noise against signal (log-log, EMVA 1288 style)", xlabel=xlabel,
-        ylabel=ylabel, legend_position="bottom_right", framewise=True,
-        hooks=[hide_empty_legend_items])
+            curves["shot"] = {"mu": grid, "sigma": np.sqrt(result.A * grid)}
+    return {**curves, **_point_columns(df, "sigma", "sigma_err")}
+
+
+def loglog_limits(columns: Mapping[str, Mapping[str, Any]]) -> tuple[float, float] | None:
+    """The log-log plot's σ range: from a quarter of the lowest noise shown (the points and the
+    read-noise floor) to 1.6 times the highest point, so the shot-noise asymptote does not squash
+    the points; None when nothing is drawn."""
+    points = np.concatenate([np.asarray(columns[k]["sigma"], float) for k in ("used",
+                                                                            "excluded")])
+    points = points[np.isfinite(points) & (points > 0)]
+    floor = np.asarray(columns["floor"]["sigma"], float)
+    lows = [float(points.min())] if points.size else []
+    if floor.size:
+        lows.append(float(floor[0]))
+    if not lows:
+        return None
+    high = float(points.max()) if points.size else max(lows)
+    return 0.25 * min(lows), 1.6 * high
+
+
+_XLABEL = "\u03bc \u2212 b\u2080 (DN)"
+_TOOLS = "pan,wheel_zoom,box_zoom,reset,save"
+
+
+def _figure(title: str, ylabel: str, height: int, **kw: Any) -> Any:
+    from bokeh.plotting import figure
+
+    fig = figure(title=title, height=height, sizing_mode="stretch_width", tools=_TOOLS,
+                 x_axis_label=_XLABEL, y_axis_label=ylabel, output_backend="canvas", **kw)
+    fig.toolbar.logo = None
+    return fig
+
+
+def _point_renderers(fig: Any, sources: Mapping[str, Any], y: str, ylabel: str,
+                     legend: list[Any]) -> list[Any]:
+    """Error bars and markers of the used (filled) and excluded (hollow, grey) levels."""
+    from bokeh.models import HoverTool, LegendItem
+
+    marks = []
+    for name, color, label in (("used", USED_COLOR, "used levels"),
+                               ("excluded", EXCLUDED_COLOR, "excluded levels")):
+        src = sources[name]
+        bars = fig.segment(x0="mu", y0="lo", x1="mu", y1="hi", source=src, line_color=color,
+                           line_width=1.5)
+        if name == "used":
+            dots = fig.scatter("mu", y, source=src, size=8, color=color)
+        else:
+            dots = fig.scatter("mu", y, source=src, size=10, fill_alpha=0.0, line_color=color,
+                               line_width=2)
+        legend.append(LegendItem(label=label, renderers=[bars, dots]))
+        marks.append(dots)
+    fig.add_tools(HoverTool(renderers=marks, tooltips=[
+        ("level", "@level"), (_XLABEL, "@mu{0.000}"), (ylabel, f"@{{{y}}}{{0.0000}}"),
+        ("\u00b1", "@err{0.0000}"), ("pairs", "@n_pairs"), ("status", "@status"),
+        ("reason", "@reason")]))
+    return marks
+
+
+class PtcFigures:
+    """The three photon-transfer plots of the page, built once as Bokeh figures; :meth:`update`
+    gives them new points and fit by replacing their sources' data (no new figure: the browser
+    only redraws).
+
+    Attributes
+    ----------
+    transfer, residual, loglog
+        The figures: σ̂²_N against μ with the fitted line and its 1-σ band (eq. 41); the
+        residuals in units of each point's standard error with lines at 0, ±1 and ±3 (the robust
+        mode's limit); temporal noise against signal on log axes (EMVA 1288 style) with the
+        model, the read-noise floor and the shot-noise asymptote.
+    sources
+        ``(figure name, layer) -> ColumnDataSource``.
+    """
+
+    def __init__(self, height: int = _HEIGHT, loglog_height: int = 600):
+        from bokeh.models import ColumnDataSource, Legend, LegendItem, Range1d, Span
+
+        cols = transfer_columns(())
+        self.sources: dict[tuple[str, str], Any] = {}
+
+        def src(fig: str, layer: str, data: Mapping[str, Any]) -> Any:
+            self.sources[(fig, layer)] = ColumnDataSource(dict(data))
+            return self.sources[(fig, layer)]
+
+        # ---- sigma^2_N against mu
+        t = _figure("Photon transfer: noise variance against mean signal",
+                    "\u03c3\u0302\u00b2_N (DN\u00b2)", height)
+        band = src("transfer", "band", cols["band"])
+        items: list[Any] = []
+        area = t.varea(x="mu", y1="lower", y2="upper", source=band, fill_color=FIT_COLOR,
+                       fill_alpha=0.25)
+        line = t.line("mu", "var", source=band, line_color=FIT_COLOR, line_width=2)
+        items += [LegendItem(label="fit \u00b11\u03c3", renderers=[area]),
+                  LegendItem(label="\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C",
+                             renderers=[line])]
+        _point_renderers(t, {k: src("transfer", k, cols[k]) for k in ("used", "excluded")},
+                         "var", "\u03c3\u0302\u00b2_N (DN\u00b2)", items)
+        t.add_layout(Legend(items=items, location="top_left"))
+        self.transfer = t
+
+        # ---- residuals
+        rcols = residual_columns(None)
+        r = _figure("Residuals in units of each point's standard error", "residual / \u03c3",
+                    220, y_range=Range1d(-3.8, 3.8), x_range=t.x_range)
+        for k, dash in ((0, "solid"), (1, "dashed"), (3, "dotted")):
+            for sign in ((1,) if k == 0 else (1, -1)):
+                r.add_layout(Span(location=sign * k, dimension="width",
+                                  line_color="#444444" if k == 0 else "#999999",
+                                  line_dash=dash, line_width=1))
+        _point_renderers(r, {k: src("residual", k, rcols[k]) for k in ("used", "excluded")},
+                         "residual", "residual / \u03c3", [])
+        self.residual = r
+
+        # ---- log-log
+        lcols = loglog_columns(())
+        lg = _figure("Temporal noise against signal (log-log, EMVA 1288 style)",
+                     "\u03c3\u0302_N (DN)", loglog_height, x_axis_type="log", y_axis_type="log",
+                     y_range=Range1d(0.1, 10.0))
+        litems: list[Any] = []
+        for key, label, style in (
+                ("model", "\u221a(A\u00b7\u03bc + \u03c3\u00b2_C)",
+                 dict(line_color=FIT_COLOR, line_width=2)),
+                ("floor", "read-noise floor \u221a\u03c3\u00b2_C",
+                 dict(line_color="#6f42c1", line_dash="dashed", line_width=1.5)),
+                ("shot", "shot noise \u221a(A\u00b7\u03bc)",
+                 dict(line_color="#2a9d8f", line_dash="dotted", line_width=2))):
+            curve = lg.line("mu", "sigma", source=src("loglog", key, lcols[key]), **style)
+            litems.append(LegendItem(label=label, renderers=[curve]))
+        _point_renderers(lg, {k: src("loglog", k, lcols[k]) for k in ("used", "excluded")},
+                         "sigma", "\u03c3\u0302_N (DN)", litems)
+        lg.add_layout(Legend(items=litems, location="bottom_right"))
+        self.loglog = lg
+        for fig in (t, r, lg):
+            fig.xgrid.grid_line_alpha = fig.ygrid.grid_line_alpha = 0.6
+
+    def update(self, points: Sequence[PtcPoint], result: PhotonTransfer | None) -> None:
+        """Draw ``points`` and the fit ``result`` (None: the points only)."""
+        data = {"transfer": transfer_columns(points, result),
+                "residual": residual_columns(result),
+                "loglog": loglog_columns(points, result)}
+        for (fig, layer), source in self.sources.items():
+            source.data = dict(data[fig][layer])
+        self.residual.y_range.update(start=-residual_limit(data["residual"]),
+                                     end=residual_limit(data["residual"]))
+        limits = loglog_limits(data["loglog"])
+        if limits is not None:
+            self.loglog.y_range.update(start=limits[0], end=limits[1])
+        for fig in (self.transfer, self.loglog):   # no legend entry for what is not drawn
+            for item in fig.legend[0].items:
+                item.visible = any(len(r.data_source.data["mu"]) for r in item.renderers)
 
 
 def roi_box(x: int, y: int, w: int, h: int) -> hv.Rectangles:

@@ -150,18 +150,6 @@ def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
                     "levels the line passes through the points; add light levels to test it.")
 
 
-def _transfer_view(data: tuple) -> hv.Overlay:
-    return ptc_plots.transfer_plot(*data)
-
-
-def _residual_view(data: tuple) -> hv.Overlay:
-    return ptc_plots.residual_plot(data[1])
-
-
-def _loglog_view(data: tuple) -> hv.Overlay:
-    return ptc_plots.loglog_plot(*data)
-
-
 def _level_label(p: PtcPoint) -> str:
     return f"Level {p.level} (\u03bc {p.mu:.4g} DN)"
 
@@ -234,23 +222,22 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
                                             styles={"font-size": "0.9em"})
 
-        # the three plots are built once; every refit sends (points, fit) through one stream
-        # and HoloViews updates their Bokeh data sources in place (no new figure)
-        self.plot_stream = hv.streams.Pipe(data=((), None))
-        self.transfer_pane = pn.pane.HoloViews(
-            hv.DynamicMap(_transfer_view, streams=[self.plot_stream]),
-            sizing_mode="stretch_width", min_height=380, linked_axes=False,
-            css_classes=["ccd-ptc-plot"])
-        self.residual_pane = pn.pane.HoloViews(
-            hv.DynamicMap(_residual_view, streams=[self.plot_stream]),
-            sizing_mode="stretch_width", min_height=220, linked_axes=False)
-        # shown with a fit; its holder toggles (Panel 1.9 fails to sync ``visible`` from a
-        # HoloViews pane of a DynamicMap to its Bokeh figure)
+        # the three plots are built once (plain Bokeh); every refit replaces their sources'
+        # data (ptc_plots.PtcFigures.update), the browser only redraws
+        self.figures = ptc_plots.PtcFigures()
+        self.figures.transfer.css_classes = ["ccd-ptc-plot"]   # (a Bokeh pane shows the figure
+        self.figures.loglog.css_classes = ["ccd-ptc-loglog"]   # itself: the class goes on it)
+        self.transfer_pane = pn.pane.Bokeh(self.figures.transfer, sizing_mode="stretch_width",
+                                           min_height=380)
+        self.residual_pane = pn.pane.Bokeh(self.figures.residual, sizing_mode="stretch_width",
+                                           min_height=220)
+        # shown with a fit
         self.residual_box = pn.Column(self.residual_pane, sizing_mode="stretch_width",
                                       margin=0, visible=False)
-        self.loglog_pane = pn.pane.HoloViews(
-            hv.DynamicMap(_loglog_view, streams=[self.plot_stream]),
-            sizing_mode="stretch_width", min_height=600, linked_axes=False)
+        self.loglog_pane = pn.pane.Bokeh(self.figures.loglog, sizing_mode="stretch_width",
+                                         min_height=600)
+        #: what the plots draw now: (points, fit)
+        self.drawn: tuple = ((), None)
         self.plot_tabs = pn.Tabs(
             ("Linear: \u03c3\u00b2_N against \u03bc",
              pn.Column(self.transfer_pane, self.residual_box, sizing_mode="stretch_width")),
@@ -471,7 +458,8 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
     def _render(self) -> None:
         result, points = self.result, self._display_points()
-        self.plot_stream.send((points, result))
+        self.figures.update(points, result)
+        self.drawn = (points, result)
         self.residual_box.visible = result is not None
         table = ptc_plots.points_table(points, result)
         def fmt(column: str, spec: str) -> list[str]:

@@ -92,7 +92,7 @@ def test_demo_fit_equals_photon_transfer(state, healey94, demo_pt):
                                      "q\u00b2/12", "b\u2080", "\u03c7\u00b2", "\u03bd", "Q"}
     assert page.verdict_alert.visible and page.verdict_alert.alert_type == "success"
     assert "acceptable" in page.verdict_alert.object.lower()
-    drawn_points, drawn_fit = page.plot_stream.data      # what the three plots draw
+    drawn_points, drawn_fit = page.drawn                  # what the three plots draw
     assert len(drawn_points) == 8 and drawn_fit is page.result
     assert len(page.points_table.object) == 8
     assert page.level_select.value == list(range(1, 9))
@@ -123,7 +123,7 @@ def test_too_few_levels_is_an_alert_and_the_points_stay(state, healey94):
     page.level_select.value = [1, 2]
     assert page.result is None
     assert page.error_alert.visible and "need at least 3" in page.error_alert.object
-    assert len(page.plot_stream.data[0]) == 8 and page.plot_stream.data[1] is None  # points
+    assert len(page.drawn[0]) == 8 and page.drawn[1] is None  # points
     assert page.parameter_table.object.empty and not page.verdict_alert.visible
     assert list(page.points_table.object["status"]).count("excluded") == 6
     page.level_select.value = [1, 2, 3]
@@ -200,7 +200,7 @@ def test_two_levels_show_the_points_and_why_there_is_no_fit(state, tmp_path):
     page = _page(state, root)
     assert page.result is None and len(page.points) == 2
     assert page.error_alert.visible and "need at least 3" in page.error_alert.object
-    assert len(page.plot_stream.data[0]) == 2 and page.plot_stream.data[1] is None
+    assert len(page.drawn[0]) == 2 and page.drawn[1] is None
 
 
 def test_no_session_and_session_change(state, healey94, assets):
@@ -258,61 +258,69 @@ def test_format_pm_and_verdicts(demo_pt):
 
 
 # ------------------------------------------------------------------------- plot functions ---
-def _elements(overlay: hv.Overlay, kind: type, *, empty: bool = False) -> list:
-    """The layers of type ``kind`` (with ``empty``, also the layers without data: the plots keep
-    every layer whatever the data, so the page can update them in place)."""
-    return [el for el in overlay if type(el) is kind and (empty or len(el))]
-
-
-def test_transfer_plot_band_line_and_points(healey94):
+def test_transfer_columns_band_line_and_points(healey94):
     pt = photon_transfer(healey94, exclude_levels=[2])
-    overlay = ptc_plots.transfer_plot(pt.points, pt)
-    (band,) = _elements(overlay, hv.Spread)
-    mu = band.dimension_values("mu")
+    cols = ptc_plots.transfer_columns(pt.points, pt)
+    band = cols["band"]
+    mu = band["mu"]
     value, std = pt.fit.predict(mu)
     # the band is exactly LineFit.predict: centre the line, half-width its std
-    np.testing.assert_array_equal(band.dimension_values("std"), std)
-    np.testing.assert_array_equal(band.dimension_values("var"), value)
+    np.testing.assert_array_equal(band["var"], value)
+    np.testing.assert_allclose(band["upper"] - band["var"], std, rtol=0, atol=1e-12)  # rounding
+    np.testing.assert_allclose(band["var"] - band["lower"], std, rtol=0, atol=1e-12)
     assert mu.min() <= min(p.mu for p in pt.points) and mu.max() >= max(p.mu for p in pt.points)
-    (line,) = [c for c in _elements(overlay, hv.Curve)]
-    np.testing.assert_allclose(line.dimension_values("var"), pt.A * mu + pt.sigma_c2,
-                               rtol=1e-12)
-    used, excluded = _elements(overlay, hv.Scatter)
-    assert list(used.dimension_values("level")) == [1, 3, 4, 5, 6, 7, 8]
-    assert list(excluded.dimension_values("level")) == [2]
-    assert list(excluded.dimension_values("reason")) == [USER_EXCLUDED]   # shown in the hover
-    bars_used, bars_excluded = _elements(overlay, hv.ErrorBars)
-    np.testing.assert_array_equal(bars_used.dimension_values("var_err"),
-                                  [p.var_err for p in pt.points if p.used])
-    # without a fit: points only
-    bare = ptc_plots.transfer_plot(pt.points)
-    assert not _elements(bare, hv.Spread) and not _elements(bare, hv.Curve)
-    # ... but the same layers, so a stream can switch between the two in place
-    assert [type(el) for el in bare] == [type(el) for el in overlay]
-    hv.render(overlay)  # builds a bokeh figure
+    np.testing.assert_allclose(band["var"], pt.A * mu + pt.sigma_c2, rtol=1e-12)
+    used, excluded = cols["used"], cols["excluded"]
+    assert used["level"] == [1, 3, 4, 5, 6, 7, 8]
+    assert excluded["level"] == [2] and excluded["reason"] == [USER_EXCLUDED]   # in the hover
+    np.testing.assert_array_equal(used["err"], [p.var_err for p in pt.points if p.used])
+    np.testing.assert_allclose(used["hi"] - used["var"], used["err"], rtol=1e-9)
+    # without a fit: the points only (the band empty, the same sources)
+    bare = ptc_plots.transfer_columns(pt.points)
+    assert len(bare["band"]["mu"]) == 0 and set(bare) == set(cols)
+    assert bare["used"]["level"] == used["level"] and bare["excluded"]["level"] == [2]
 
 
-def test_residual_and_loglog_plots(healey94):
+def test_residual_and_loglog_columns(healey94):
     pt = photon_transfer(healey94)
-    res = ptc_plots.residual_plot(pt)
-    (used,) = _elements(res, hv.Scatter)  # every level used: no hollow layer
+    res = ptc_plots.residual_columns(pt)
+    assert res["excluded"]["level"] == []   # every level used: no hollow point
     expected = [(p.var - (pt.A * p.mu + pt.sigma_c2)) / p.var_err for p in pt.points]
-    np.testing.assert_allclose(used.dimension_values("residual"), expected, rtol=1e-9)
-    lines = sorted(h.data for h in _elements(res, hv.HLine))
-    assert lines == [-3, -1, 0, 1, 3]
-    log = ptc_plots.loglog_plot(pt.points, pt)
-    (pts,) = _elements(log, hv.Scatter)
-    np.testing.assert_allclose(pts.dimension_values("sigma"),
-                               [math.sqrt(p.var) for p in pt.points])
-    model, floor, shot = _elements(log, hv.Curve)
-    grid = model.dimension_values("mu")
-    np.testing.assert_allclose(model.dimension_values("sigma") ** 2,
-                               pt.A * grid + pt.sigma_c2, rtol=1e-12)
-    np.testing.assert_allclose(floor.dimension_values("sigma"), math.sqrt(pt.sigma_c2))
-    np.testing.assert_allclose(shot.dimension_values("sigma") ** 2, pt.A * grid, rtol=1e-12)
-    assert log.opts.get().kwargs["logx"] and log.opts.get().kwargs["logy"]
-    hv.render(res)
-    hv.render(log)
+    np.testing.assert_allclose(res["used"]["residual"], expected, rtol=1e-9)
+    np.testing.assert_array_equal(res["used"]["err"], 1.0)
+    assert ptc_plots.residual_limit(res) == max(3.8, max(abs(v) for v in expected) + 1.2)
+    log = ptc_plots.loglog_columns(pt.points, pt)
+    np.testing.assert_allclose(log["used"]["sigma"], [math.sqrt(p.var) for p in pt.points])
+    np.testing.assert_allclose(log["used"]["err"],
+                               [p.var_err / (2 * math.sqrt(p.var)) for p in pt.points])
+    grid = log["model"]["mu"]
+    np.testing.assert_allclose(log["model"]["sigma"] ** 2, pt.A * grid + pt.sigma_c2,
+                               rtol=1e-12)
+    np.testing.assert_allclose(log["floor"]["sigma"], math.sqrt(pt.sigma_c2))
+    np.testing.assert_allclose(log["shot"]["sigma"] ** 2, pt.A * grid, rtol=1e-12)
+    lo, hi = ptc_plots.loglog_limits(log)
+    assert lo == pytest.approx(0.25 * min(min(log["used"]["sigma"]), math.sqrt(pt.sigma_c2)))
+    assert hi == pytest.approx(1.6 * max(log["used"]["sigma"]))
+    assert ptc_plots.residual_columns(None)["used"]["level"] == []
+    assert ptc_plots.loglog_limits(ptc_plots.loglog_columns(())) is None
+
+
+def test_figures_update_in_place_and_hide_empty_legend_entries(healey94):
+    pt = photon_transfer(healey94, exclude_levels=[2])
+    figs = ptc_plots.PtcFigures()
+    sources = dict(figs.sources)
+    figs.update(pt.points, pt)
+    assert figs.sources == sources                          # the same source objects
+    assert list(figs.sources[("transfer", "excluded")].data["level"]) == [2]
+    assert figs.loglog.y_range.start == pytest.approx(
+        ptc_plots.loglog_limits(ptc_plots.loglog_columns(pt.points, pt))[0])
+    assert all(item.visible for item in figs.transfer.legend[0].items)
+    every = photon_transfer(healey94).points                # all used, and no fit: the band,
+    figs.update(every, None)                                # the line, the hollow group empty
+    shown = {item.label.value: item.visible for item in figs.transfer.legend[0].items}
+    assert shown == {"fit \u00b11\u03c3": False,
+                     "\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C": False,
+                     "used levels": True, "excluded levels": False}
 
 
 def test_roi_box_follows_pixel_edges():
@@ -334,8 +342,8 @@ def test_each_choice_refits_and_draws_once(state, healey94, monkeypatch):
     page = _page(state, healey94)
     page.__panel__().get_root(Document())          # rendered: the plots follow their stream
     calls = []
-    draw = ptc_plots.transfer_plot
-    monkeypatch.setattr(ptc_plots, "transfer_plot",
+    draw = ptc_plots.transfer_columns
+    monkeypatch.setattr(ptc_plots, "transfer_columns",
                         lambda *a, **k: calls.append(1) or draw(*a, **k))
     page.level_select.value = [lv for lv in range(1, 9) if lv != 8]
     assert len(calls) == 1 and page.result.points[7].exclusion == "user"
