@@ -7,7 +7,6 @@ import math
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import holoviews as hv
 import numpy as np
 import pytest
 from bokeh.document import Document
