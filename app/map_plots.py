@@ -242,7 +242,11 @@ def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
     centre = overview_centre(layer)
     size = plots.fixed_size(image, frame_width) if frame_width is not None else {}
     screen = (size.get("frame_width", 600), size.get("frame_height", 600))
-    streams: list[Any] = [hv.streams.RangeXY(), hv.streams.PlotSize()]
+    # a fixed frame needs no PlotSize stream (its size is known here; each stream event is a
+    # round trip and a redraw)
+    streams: list[Any] = [hv.streams.RangeXY()]
+    if frame_width is None:
+        streams.append(hv.streams.PlotSize())
     streams.append(overview if overview is not None else Overview())
 
     def draw(x_range: Any = None, y_range: Any = None, width: Any = None, height: Any = None,

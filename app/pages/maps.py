@@ -627,7 +627,10 @@ class MapsPage(pn.viewable.Viewer):
         self._refresh()
 
     def _on_state_message(self, *events: Any) -> None:
-        self.status_pane.object = self.state.status if self.state.busy else ""
+        # the step and frame counts are in the header (a text changing four times a second
+        # here would make the browser lay this page out again each time)
+        self.status_pane.object = "Computing… (progress and **Cancel** in the header)" \
+            if self.state.busy else ""
         self._update_errors()
         self._update_info(self.state.session)
 
