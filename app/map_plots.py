@@ -26,8 +26,8 @@ map_grid(views, cols=2)
     The maps in one ``hv.Layout`` whose plots share (link) their x and y axes.
 crosshair(row, col)
     Lines marking the profile row and column on a map.
-row_profile(layer, row), column_profile(layer, col)
-    ``hv.Curve`` of one row / one column of a map.
+profile_columns(layer, row, col), ProfileFigures
+    One row and one column of a map as source columns, and their two Bokeh figures built once.
 pixel_values(layers, x, y)
     The value of every map at a cursor position (for the readout line).
 scaled_uint16(data, clim)
@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from . import plots
 
 __all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
-           "map_image", "map_view", "map_grid", "crosshair", "row_profile", "column_profile",
+           "map_image", "map_view", "map_grid", "crosshair", "profile_columns", "ProfileFigures",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
 
 #: map key -> title, in display order
@@ -295,34 +295,58 @@ def crosshair(row: int, col: int) -> hv.Overlay:
     return hv.HLine(float(row)).opts(**style) * hv.VLine(float(col)).opts(**style)
 
 
-def _profile(values: NDArray, kdim: str, layer: MapLayer | None, title: str, color: str,
-             label: str) -> hv.Curve:
-    # one value dimension name for every map: the plot is updated in place, only its label
-    # (the axis title) follows the map
-    vdim = hv.Dimension("value", label=layer.label if layer is not None else "value")
-    curve = hv.Curve((np.arange(values.size), values), kdims=[kdim], vdims=[vdim], label=label)
-    return curve.opts(framewise=True, responsive=True, height=220, tools=["hover"], title=title,
-                      color=color, line_width=1, interpolation="steps-mid")
-
-
-def row_profile(layer: MapLayer | None, row: int) -> hv.Curve:
-    """The values of ``row`` against the column x (an empty curve without a map)."""
+def profile_columns(layer: MapLayer | None, row: int, col: int) -> dict[str, dict[str, Any]]:
+    """The row ``row`` and the column ``col`` of a map (clipped to the map) as source columns:
+    ``{"row": {"x", "value"}, "col": {"x", "value"}}`` with ``x`` the column (row) index and the
+    clipped ``row``/``col`` used; empty without a map."""
     if layer is None:
-        return _profile(np.empty(0), "x (column)", None, "Row profile", "#1f3b57", "")
-    row = int(np.clip(row, 0, layer.data.shape[0] - 1))
-    values = np.asarray(layer.data[row], dtype=np.float64)
-    return _profile(values, "x (column)", layer, f"Row profile, y = {row}", "#1f3b57",
-                    f"row y = {row}")
+        empty = {"x": np.empty(0), "value": np.empty(0)}
+        return {"row": dict(empty), "col": dict(empty), "at": {"row": 0, "col": 0}}
+    h, w = layer.data.shape
+    row, col = int(np.clip(row, 0, h - 1)), int(np.clip(col, 0, w - 1))
+    return {"row": {"x": np.arange(w), "value": np.asarray(layer.data[row], dtype=np.float64)},
+            "col": {"x": np.arange(h), "value": np.asarray(layer.data[:, col], dtype=np.float64)},
+            "at": {"row": row, "col": col}}
 
 
-def column_profile(layer: MapLayer | None, col: int) -> hv.Curve:
-    """The values of column ``col`` against the row y (an empty curve without a map)."""
-    if layer is None:
-        return _profile(np.empty(0), "y (row)", None, "Column profile", "#8c2d04", "")
-    col = int(np.clip(col, 0, layer.data.shape[1] - 1))
-    values = np.asarray(layer.data[:, col], dtype=np.float64)
-    return _profile(values, "y (row)", layer, f"Column profile, x = {col}", "#8c2d04",
-                    f"column x = {col}")
+class ProfileFigures:
+    """The row and column profiles of the selected map, built once as Bokeh figures (steps
+    centred on the pixels); :meth:`update` replaces their data, titles and axis labels."""
+
+    def __init__(self, height: int = 220):
+        from bokeh.models import ColumnDataSource, HoverTool
+        from bokeh.plotting import figure
+
+        self.sources: dict[str, Any] = {}
+        self.figures: dict[str, Any] = {}
+        for key, xlabel, color in (("row", "x (column)", "#1f3b57"),
+                                   ("col", "y (row)", "#8c2d04")):
+            src = ColumnDataSource({"x": np.empty(0), "value": np.empty(0)})
+            fig = figure(height=height, sizing_mode="stretch_width", x_axis_label=xlabel,
+                         tools="pan,wheel_zoom,box_zoom,reset,save", output_backend="canvas",
+                         title="Row profile" if key == "row" else "Column profile")
+            fig.toolbar.logo = None
+            fig.step("x", "value", source=src, mode="center", line_color=color, line_width=1)
+            fig.add_tools(HoverTool(tooltips=[(xlabel, "@x"), ("value", "@value{0.00000}")],
+                                    mode="vline"))
+            self.sources[key], self.figures[key] = src, fig
+
+    @property
+    def row(self) -> Any:
+        return self.figures["row"]
+
+    @property
+    def col(self) -> Any:
+        return self.figures["col"]
+
+    def update(self, layer: MapLayer | None, row: int, col: int) -> None:
+        cols = profile_columns(layer, row, col)
+        at = cols["at"]
+        for key in ("row", "col"):
+            self.sources[key].data = cols[key]
+            self.figures[key].yaxis.axis_label = layer.label if layer is not None else ""
+        self.row.title.text = f"Row profile, y = {at['row']}" if layer else "Row profile"
+        self.col.title.text = f"Column profile, x = {at['col']}" if layer else "Column profile"
 
 
 def _format(value: float, layer: MapLayer) -> str:

@@ -289,16 +289,6 @@ def _table(df: pd.DataFrame | None = None, **kw: Any) -> pn.widgets.Tabulator:
 
 
 # ================================================================================ the page ====
-def _row_profile_view(data: tuple) -> hv.Curve:
-    layer, row, _ = data
-    return map_plots.row_profile(layer, row)
-
-
-def _column_profile_view(data: tuple) -> hv.Curve:
-    layer, _, col = data
-    return map_plots.column_profile(layer, col)
-
-
 class MapsPage(pn.viewable.Viewer):
     """Dark and fixed-pattern maps, planning and scene variation (see the module docstring)."""
 
@@ -421,17 +411,15 @@ class MapsPage(pn.viewable.Viewer):
         self.hist_row = pn.FlexBox(sizing_mode="stretch_width", css_classes=["ccd-histograms"])
         # side by side in a FlexBox: a Row of stretching plots nested this deep makes Bokeh
         # lay the map grid out at zero size
-        # built once: the sliders and the selected map reach both through one stream and
-        # HoloViews updates their data in place
-        self.profile_stream = hv.streams.Pipe(data=(None, 0, 0))
-        self.row_profile_pane = pn.pane.HoloViews(
-            hv.DynamicMap(_row_profile_view, streams=[self.profile_stream]),
-            sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
-            css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
-        self.col_profile_pane = pn.pane.HoloViews(
-            hv.DynamicMap(_column_profile_view, streams=[self.profile_stream]),
-            sizing_mode="stretch_width", height=240, min_width=300, linked_axes=False,
-            css_classes=["ccd-profile"], styles={"flex": "1 1 45%"})
+        # built once (plain Bokeh): the sliders and the selected map replace their data
+        self.profiles = map_plots.ProfileFigures()
+        self.row_profile_pane = pn.pane.Bokeh(
+            self.profiles.row, sizing_mode="stretch_width", height=240, min_width=300,
+            styles={"flex": "1 1 45%"})
+        self.col_profile_pane = pn.pane.Bokeh(
+            self.profiles.col, sizing_mode="stretch_width", height=240, min_width=300,
+            styles={"flex": "1 1 45%"})
+        self.profiles.row.css_classes = self.profiles.col.css_classes = ["ccd-profile"]
         self.map_note = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10),
                                          styles={"color": "#6c757d", "font-size": "0.9em"})
         self.dark_table = _stats_pane()
@@ -809,8 +797,7 @@ class MapsPage(pn.viewable.Viewer):
         self._update_profiles()
 
     def _update_profiles(self, event: Any = None) -> None:
-        self.profile_stream.send((self.active_layer, self.row_slider.value,
-                                  self.col_slider.value))
+        self.profiles.update(self.active_layer, self.row_slider.value, self.col_slider.value)
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
         hit = map_plots.pixel_values(self.layers, x, y)

@@ -150,17 +150,16 @@ def test_map_selection_switches_the_data(computed):
     page.active_select.value = "dark"
     assert page.active_layer.key == "dark"
     row = page.row_slider.value
-    curve = page.row_profile_pane.object[()]      # the frame its stream draws now
-    np.testing.assert_array_equal(curve.dimension_values(1), page.layers["dark"].data[row])
+    drawn = page.profiles.sources                 # what the two profile plots draw now
+    np.testing.assert_array_equal(drawn["row"].data["value"], page.layers["dark"].data[row])
     assert page.download_exr.filename == "dark.exr"
     assert page.clim_holder.objects[0] is page._sliders["dark"]
     page.active_select.value = "K"
-    np.testing.assert_array_equal(page.row_profile_pane.object[()].dimension_values(1),
-                                  page.layers["K"].data[row])
+    np.testing.assert_array_equal(drawn["row"].data["value"], page.layers["K"].data[row])
     # a column profile follows the column slider
     page.col_slider.value = 17
-    np.testing.assert_array_equal(page.col_profile_pane.object[()].dimension_values(1),
-                                  page.layers["K"].data[:, 17])
+    np.testing.assert_array_equal(drawn["col"].data["value"], page.layers["K"].data[:, 17])
+    assert page.profiles.col.title.text == "Column profile, x = 17"
     # the grid follows the shown maps
     page.shown_select.value = ["dark", "n1_used"]
     assert len(page.grid_pane.object) == 2
@@ -310,9 +309,10 @@ def test_map_plot_functions():
     hit = map_plots.pixel_values({"k": layer, "f": flags}, 3.4, 1.6)
     assert hit == (3, 2, {"k": f"{1 + 11 / 100:.5f}", "f": "normal"})
     assert map_plots.pixel_values({"k": layer}, 4.6, 0) is None
-    assert map_plots.row_profile(layer, 1).dimension_values(1).tolist() == \
-        (1 + plane[1] / 100).tolist()
-    assert map_plots.column_profile(layer, 9).dimension_values(1).size == 3  # clipped to x = 3
+    cols = map_plots.profile_columns(layer, 1, 9)
+    assert cols["row"]["value"].tolist() == (1 + plane[1] / 100).tolist()
+    assert cols["col"]["value"].tolist() == (1 + plane[:, 3] / 100).tolist()  # clipped to x = 3
+    assert cols["at"] == {"row": 1, "col": 3}
     with pytest.raises(ValueError):
         map_plots.scaled_uint16(plane, (1.0, 1.0))
 
@@ -385,7 +385,7 @@ def test_choices_on_computed_maps_update_the_plots_in_place(assets):
     assert len(figures) >= 2 + 2 + 2      # maps, their histograms, two profiles
 
     def profile_values() -> list[set]:
-        """The values the two profile plots draw (as sets: steps double the points)."""
+        """The values the two profile plots draw."""
         return [set(src.data["value"]) for src in models("ColumnDataSource").values()
                 if "value" in src.data]
 
