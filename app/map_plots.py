@@ -213,7 +213,7 @@ def overview_centre(layer: MapLayer) -> float:
     the median of the finite values otherwise."""
     if layer.kind == "diverging":
         return float(layer.centre)
-    finite = plots._sample(layer.data)
+    finite = plots.subsample(layer.data)
     finite = finite[np.isfinite(finite)]
     return float(np.median(finite)) if finite.size else 0.0
 

@@ -18,6 +18,8 @@ channel_data(array, channel=None, layout=None)
     One 2-D plane of a frame: a channel, the luminance, or the frame itself when mono.
 auto_clim(values, lower=0.5, upper=99.5)
     Colour range from percentiles of the finite values.
+subsample(values)
+    A regular subsample of at most a million values (for percentiles and medians).
 image_element(plane, ...)
     ``hv.Image`` of one plane in pixel coordinates (x = column, y = row, row 0 at the top).
 rasterized_image(image, clim=None, ...)
@@ -50,7 +52,7 @@ from ccdcore.errors import CcdError
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim",
            "image_element", "rasterized_image", "histogram_edges", "histogram_element",
-           "clim_span", "warm_up", "OVERVIEWS", "overview", "fixed_size"]
+           "clim_span", "warm_up", "OVERVIEWS", "overview", "fixed_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -138,7 +140,7 @@ def channel_data(array: NDArray, channel: str | None = None,
     return planes[channel]
 
 
-def _sample(values: NDArray) -> NDArray:
+def subsample(values: NDArray) -> NDArray:
     """A regular subsample of at most ``_PERCENTILE_SAMPLES`` values (all of them if fewer)."""
     flat = np.ravel(values)
     step = max(1, flat.size // _PERCENTILE_SAMPLES)
@@ -153,7 +155,7 @@ def auto_clim(values: NDArray, lower: float = 0.5, upper: float = 99.5) -> tuple
     """
     if not 0 <= lower < upper <= 100:
         raise ValueError(f"lower, upper: need 0 <= lower < upper <= 100, got {lower}, {upper}")
-    sample = _sample(values)
+    sample = subsample(values)
     if sample.dtype.kind == "f":
         sample = sample[np.isfinite(sample)]
     if sample.size == 0:
