@@ -88,15 +88,13 @@ class AppShell(param.Parameterized):
                                      stylesheets=[_CSS], sizing_mode="fixed")
                 rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
         self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
-        self.main = pn.Column(sizing_mode="stretch_width", css_classes=["ccd-main"])
-        #: slug -> the holder of each page in ``main``: empty until the first visit, then the
-        #: page, shown or hidden, never rebuilt. All holders are in ``main`` from the start, so
-        #: a first visit changes one holder's children, not ``main``'s (the browser then lays
-        #: out that page only).
+        #: slug -> the holder of each page (the template's main area shows each holder as its
+        #: own Bokeh root): empty until the first visit, then the page, shown or hidden, never
+        #: rebuilt. A change in one page then never makes the browser lay out another.
         self.holders: dict[str, pn.Column] = {
             spec.slug: pn.Column(sizing_mode="stretch_width", margin=0, visible=False,
-                                 css_classes=[f"ccd-page-{spec.slug}"]) for spec in PAGES}
-        self.main.objects = list(self.holders.values())
+                                 css_classes=["ccd-main", f"ccd-page-{spec.slug}"])
+            for spec in PAGES}
         self._show()
 
     def _go(self, slug: str, event: Any = None) -> None:
@@ -110,7 +108,7 @@ class AppShell(param.Parameterized):
         return self._pages[slug]
 
     def holder(self, slug: str) -> pn.Column:
-        """The holder of page ``slug`` in ``main``, holding the page (built on first call)."""
+        """The holder of page ``slug``, holding the page (built on first call)."""
         holder = self.holders[slug]
         if not holder.objects:
             holder.objects = [self.page_view(slug)]
@@ -214,8 +212,7 @@ def create_app(session_path: str | Path | None = None, *,
     template.sidebar.append(pn.pane.Markdown(
         "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
         stylesheets=[_CSS], margin=(12, 10), styles={"font-size": "0.85em", "color": "#6c757d"}))
-    # one Bokeh root per page: a change in one page never makes the browser lay out the others
-    for holder in shell.holders.values():
+    for holder in shell.holders.values():   # one Bokeh root per page
         template.main.append(holder)
     template.config.raw_css.append(_CSS)
     # handles for tests and for later pages
