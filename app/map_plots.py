@@ -26,6 +26,8 @@ map_grid(views, cols=2)
     The maps in one ``hv.Layout`` whose plots share (link) their x and y axes.
 crosshair(row, col)
     Lines marking the profile row and column on a map.
+histogram_figure(layer, clim)
+    The histogram of a map (Bokeh) with its colour range as a band that moves in place.
 profile_columns(layer, row, col), ProfileFigures
     One row and one column of a map as source columns, and their two Bokeh figures built once.
 pixel_values(layers, x, y)
@@ -51,7 +53,7 @@ from numpy.typing import NDArray
 from . import plots
 
 __all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
-           "map_image", "map_view", "map_grid", "crosshair", "profile_columns", "ProfileFigures",
+           "map_image", "map_view", "map_grid", "crosshair", "histogram_figure", "profile_columns", "ProfileFigures",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
 
 #: map key -> title, in display order
@@ -293,6 +295,39 @@ def crosshair(row: int, col: int) -> hv.Overlay:
     """A horizontal line at ``row`` and a vertical line at ``col`` (the profiles' position)."""
     style = dict(color="#00c853", line_width=1, line_dash="dashed", alpha=0.9)
     return hv.HLine(float(row)).opts(**style) * hv.VLine(float(col)).opts(**style)
+
+
+def histogram_figure(layer: MapLayer, clim: tuple[float, float], height: int = 200
+                     ) -> tuple[Any, Any]:
+    """The histogram of a map's finite values as a Bokeh figure, with the colour range ``clim``
+    as a translucent band; returns ``(figure, band)`` (move the band with
+    ``band.update(left=lo, right=hi)``: the histogram is not drawn again).
+
+    Counts read as plain numbers with thousands separators; integer maps get one bin per value
+    (:func:`app.plots.histogram_edges`), others 100 bins over their range.
+    """
+    from bokeh.models import BoxAnnotation, HoverTool, NumeralTickFormatter
+    from bokeh.plotting import figure
+
+    data = layer.data.astype(np.int32) if layer.integer else layer.data
+    flat = np.ravel(data)
+    if flat.dtype.kind == "f":
+        flat = flat[np.isfinite(flat)]
+    counts, edges = np.histogram(flat, bins=plots.histogram_edges(flat, 256 if layer.integer
+                                                                  else 100))
+    fig = figure(height=height, sizing_mode="stretch_width", title=f"Histogram of {layer.symbol}",
+                 x_axis_label=layer.label, y_axis_label="count", output_backend="canvas",
+                 tools="pan,wheel_zoom,box_zoom,reset,save")
+    fig.toolbar.logo = None
+    fig.yaxis.formatter = NumeralTickFormatter(format="0,0")
+    bars = fig.quad(left=edges[:-1], right=edges[1:], bottom=0, top=counts,
+                    fill_color="#4a6fa5", line_color=None)
+    fig.add_tools(HoverTool(renderers=[bars], tooltips=[
+        (layer.symbol, "@left{0.0000} \u2013 @right{0.0000}"), ("count", "@top{0,0}")]))
+    band = BoxAnnotation(left=float(clim[0]), right=float(clim[1]), fill_color="#f0ad4e",
+                         fill_alpha=0.2, line_alpha=0)
+    fig.add_layout(band)
+    return fig, band
 
 
 def profile_columns(layer: MapLayer | None, row: int, col: int) -> dict[str, dict[str, Any]]:

@@ -334,6 +334,7 @@ class MapsPage(pn.viewable.Viewer):
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
         self._sliders: dict[str, pn.widgets.EditableRangeSlider] = {}
+        self._band_watchers: list = []        # (slider, watcher) moving the histograms' bands
         self._shown_objects: tuple = (None, None)   # (dark, fp) the maps were built from
         self.plan_result: Any = None          # the planning panel's AcquisitionPlan
         self.budget: Any = None               # the chosen patch's variance budget
@@ -746,6 +747,9 @@ class MapsPage(pn.viewable.Viewer):
     @param.depends("layers", "shown", watch=True)
     @batched
     def _build_grid(self) -> None:
+        for slider, watcher in self._band_watchers:   # the previous histograms' bands
+            slider.param.unwatch(watcher)
+        self._band_watchers = []
         keys = [k for k in self.shown if k in self.layers]
         if not keys:
             self.grid_pane.object = None
@@ -766,14 +770,12 @@ class MapsPage(pn.viewable.Viewer):
             tap = hv.streams.SingleTap(x=None, y=None, source=view)
             tap.add_subscriber(self._on_tap)
             views.append(view * cross)
-            data = layer.data.astype(np.int32) if layer.integer else layer.data
-            hist = plots.histogram_element(data, vdim=layer.symbol, height=200,
-                                           bins=256 if layer.integer else 100).opts(
-                title=f"Histogram of {layer.symbol}", xlabel=layer.label)
-            span = hv.DynamicMap(pn.bind(plots.clim_span, slider.param.value))
-            hists.append(pn.pane.HoloViews(hist * span, linked_axes=False, height=220,
-                                           min_width=260, sizing_mode="stretch_width",
-                                           styles={"flex": "1 1 45%"}))
+            fig, band = map_plots.histogram_figure(layer, slider.value)
+            self._band_watchers.append((slider, slider.param.watch(
+                lambda e, band=band: band.update(left=float(e.new[0]), right=float(e.new[1])),
+                "value")))
+            hists.append(pn.pane.Bokeh(fig, height=220, min_width=260,
+                                       sizing_mode="stretch_width", styles={"flex": "1 1 45%"}))
         self.grid_views = views
         cols = 1 if len(views) == 1 else 2
         self.grid_pane.object = map_plots.map_grid(views, cols=cols)

@@ -401,6 +401,8 @@ def test_choices_on_computed_maps_update_the_plots_in_place(assets):
     slider.value = (lo, (lo + hi) / 2)
     mappers = [m for m in root.references() if type(m).__name__ == "LinearColorMapper"]
     assert any(m.high == pytest.approx((lo + hi) / 2) for m in mappers)
+    bands = [m for m in root.references() if type(m).__name__ == "BoxAnnotation"]
+    assert any(b.left == lo and b.right == pytest.approx((lo + hi) / 2) for b in bands)
     assert set(models("figure")) == figures
 
 
@@ -458,3 +460,19 @@ def test_zoomed_out_map_view_says_what_a_screen_pixel_shows():
     image = map_plots.map_view(flags, frame_width=40, overview=stream)[()]
     assert "largest of 4\u00d74 px" in image.opts.get().kwargs["title"]
     assert image.dimension_values(2).max() == 1
+
+
+def test_histogram_counts_every_finite_value_in_plain_numbers():
+    data = np.arange(12, dtype=np.float64).reshape(3, 4)
+    data[0, 0] = np.nan
+    layer = map_plots.MapLayer("d", "D", "D", "DN", data)
+    fig, band = map_plots.histogram_figure(layer, (2.0, 9.0))
+    (quads,) = [r for r in fig.renderers if type(r.glyph).__name__ == "Quad"]
+    assert sum(quads.data_source.data["top"]) == 11          # NaN left out
+    assert (band.left, band.right) == (2.0, 9.0)
+    assert fig.yaxis[0].formatter.format == "0,0"
+    counts = map_plots.MapLayer("n", "N", "n", "", np.array([[0, 1], [1, 3]], np.float32),
+                                kind="count")
+    fig, _ = map_plots.histogram_figure(counts, (0, 3))
+    (quads,) = [r for r in fig.renderers if type(r.glyph).__name__ == "Quad"]
+    assert list(quads.data_source.data["top"]) == [1, 2, 0, 1]   # one bin per value
