@@ -52,7 +52,8 @@ from numpy.typing import NDArray
 
 from . import plots
 
-__all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer", "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
+__all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer",
+           "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
            "map_image", "map_view", "map_grid", "crosshair", "histogram_figure",
            "profile_columns", "ProfileFigures",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
