@@ -312,11 +312,7 @@ def histogram_figure(layer: MapLayer, clim: tuple[float, float], height: int = 2
     from bokeh.plotting import figure
 
     data = layer.data.astype(np.int32) if layer.integer else layer.data
-    flat = np.ravel(data)
-    if flat.dtype.kind == "f":
-        flat = flat[np.isfinite(flat)]
-    counts, edges = np.histogram(flat, bins=plots.histogram_edges(flat, 256 if layer.integer
-                                                                  else 100))
+    counts, edges = plots.histogram_counts(data, 256 if layer.integer else 100)
     fig = figure(height=height, sizing_mode="stretch_width", title=f"Histogram of {layer.symbol}",
                  x_axis_label=layer.label, y_axis_label="count", output_backend="canvas",
                  tools="pan,wheel_zoom,box_zoom,reset,save")

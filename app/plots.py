@@ -26,6 +26,8 @@ rasterized_image(image, clim=None, ...)
     The datashader-rasterised, zoomable, greyscale view of an image with a hover tool.
 histogram_edges(values, bins=256)
     Bin edges for a frame's histogram (one bin per DN for small integer ranges).
+histogram_counts(values, bins=256)
+    Counts and edges of a plane's finite values.
 histogram_element(values, ...)
     ``hv.Histogram`` of a plane's values (``framewise=True`` so its axes follow the frame).
 clim_span(clim)
@@ -51,7 +53,8 @@ from ccdcore.errors import CcdError
 
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim",
-           "image_element", "rasterized_image", "histogram_edges", "histogram_element",
+           "image_element", "rasterized_image", "histogram_edges", "histogram_counts",
+           "histogram_element",
            "clim_span", "warm_up", "OVERVIEWS", "overview", "fixed_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
@@ -308,6 +311,14 @@ def histogram_edges(values: NDArray, bins: int = 256) -> NDArray:
     return np.linspace(lo, hi, bins + 1)
 
 
+def histogram_counts(values: NDArray, bins: int = 256) -> tuple[NDArray, NDArray]:
+    """``(counts, edges)`` of the finite values of a plane, binned by :func:`histogram_edges`."""
+    flat = np.ravel(values)
+    if flat.dtype.kind == "f":
+        flat = flat[np.isfinite(flat)]
+    return np.histogram(flat, bins=histogram_edges(flat, bins))
+
+
 def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim: str = "DN",
                       log: bool = False, height: int = 220) -> hv.Histogram:
     """``hv.Histogram`` of all values of a plane (non-finite values are left out).
@@ -316,11 +327,7 @@ def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim
     range sticks, see docs/notes.md). With ``log`` the counts axis is logarithmic. Counts read
     as plain numbers with thousands separators (``150,000``, not ``1.5e+5``).
     """
-    flat = np.ravel(values)
-    if flat.dtype.kind == "f":
-        flat = flat[np.isfinite(flat)]
-    edges = histogram_edges(flat, bins)
-    counts, edges = np.histogram(flat, bins=edges)
+    counts, edges = histogram_counts(values, bins)
     hist = hv.Histogram((edges, counts), kdims=[hv.Dimension(vdim)], vdims=["count"],
                         label=label)
     return hist.opts(framewise=True, responsive=True, height=height, color="#4a6fa5",
