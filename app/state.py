@@ -292,14 +292,15 @@ class AppState(param.Parameterized):
 
     # ---- computed results -----------------------------------------------------------------------
     def _run_safely(self, func: Callable[..., Any], args: tuple, kwargs: dict
-                    ) -> tuple[Any, str]:
-        """Call ``func`` (in a worker thread); the result, or the user-facing error message."""
+                    ) -> tuple[Any, str | None]:
+        """Call ``func`` (in a worker thread); the result and the user-facing error message
+        ("" when none, None when the user cancelled it)."""
         try:
             return func(*args, **kwargs), ""
         except CcdError as err:
             return None, str(err)
-        except Cancelled:
-            raise
+        except Cancelled:       # the user stopped it (AppState.cancel): no error to show
+            return None, None
         except Exception as err:  # a bug must reach the user as a message, not a traceback
             log.error("computing with %s failed:\n%s", getattr(func, "__name__", func),
                       traceback.format_exc())
@@ -308,11 +309,8 @@ class AppState(param.Parameterized):
     def _run_tracked(self, tracker: Tracker, func: Callable[..., Any], args: tuple,
                      kwargs: dict) -> tuple[Any, str | None]:
         """:meth:`_run_safely` reporting to ``tracker``; error ``None`` means cancelled."""
-        try:
-            with tracking(tracker):
-                return self._run_safely(func, args, kwargs)
-        except Cancelled:
-            return None, None
+        with tracking(tracker):
+            return self._run_safely(func, args, kwargs)
 
     def _show_progress(self, tracker: Tracker, label: str) -> None:
         if not tracker.cancelled:
