@@ -38,6 +38,9 @@ __all__ = ["create_app", "serve", "AppShell", "TITLE"]
 log = logging.getLogger(__name__)
 
 TITLE = "ccdcore \u00b7 radiometric camera calibration"
+#: the app's own scripts, served under STATIC_ROUTE
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+STATIC_ROUTE = "ccd-static"
 
 pn.extension("tabulator", sizing_mode="stretch_width", notifications=False)
 hv.extension("bokeh", logo=False)
@@ -262,6 +265,18 @@ def warm_up() -> None:
         _warmed = True
 
 
+def server_resources() -> dict[str, Any]:
+    """What a server of the app needs beside the app: its static folder (``pn.serve`` keyword
+    arguments), and the app's scripts, registered to load after BokehJS on every page.
+
+    ``app/static/bokeh_speed.js`` makes two BokehJS style reads cheap (docs/notes.md, "Where the
+    app's time goes"). It goes into Panel's global ``config.js_files``: BootstrapTemplate does
+    not emit a template's own ``js_files``.
+    """
+    pn.config.js_files["ccd_bokeh_speed"] = f"{STATIC_ROUTE}/bokeh_speed.js"
+    return {"static_dirs": {STATIC_ROUTE: str(STATIC_DIR)}}
+
+
 def serve(session_path: str | Path | None = None, port: int = 5006, show: bool = False,
           threaded: bool = False, address: str = "127.0.0.1") -> Any:
     """Serve the app on ``address:port`` (default 127.0.0.1:5006).
@@ -276,6 +291,6 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
     def app() -> pn.template.BaseTemplate:  # a plain function: Panel calls it per session
         return create_app(session_path)
 
-    return pn.serve({"/": app}, port=port, address=address,
-                    show=show, threaded=threaded, title="ccdcore", liveness=True,
-                    websocket_origin=origins, start=True)
+    return pn.serve({"/": app}, port=port, address=address, show=show, threaded=threaded,
+                    title="ccdcore", liveness=True, websocket_origin=origins, start=True,
+                    **server_resources())

@@ -166,7 +166,7 @@ def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
     server); every server is stopped after the test."""
     import panel as pn
 
-    from app.main import create_app
+    from app.main import create_app, server_resources
 
     def start(session_path: str | Path | None = None, allowed_roots=None,
               **server_options: Any) -> str:
@@ -177,7 +177,8 @@ def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
 
         pn.serve({"/": app},
                  port=port, address="127.0.0.1", threaded=True, show=False, liveness=True,
-                 websocket_origin=[f"127.0.0.1:{port}"], title="ccdcore", **server_options)
+                 websocket_origin=[f"127.0.0.1:{port}"], title="ccdcore",
+                 **{**server_resources(), **server_options})
         url = f"http://127.0.0.1:{port}"
         _wait_alive(url)
         return url

@@ -52,6 +52,8 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
 
     # a lab machine is offline: nothing may be fetched from another host
     assert _outside(requests) == []
+    # the app's BokehJS speed-ups (app/static/bokeh_speed.js) found what they patch
+    assert page.evaluate("() => window.ccdBokehSpeed") == ["css-variables", "base-font-size"]
 
 
 def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app, open_app,
