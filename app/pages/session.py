@@ -30,7 +30,6 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
-import holoviews as hv
 import numpy as np
 import pandas as pd
 import panel as pn
@@ -41,7 +40,9 @@ from ccdcore.errors import CcdError
 from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots
+from ..image_view import HistogramView, ImageView
 from ..state import AppState, assets_dir, demo_sessions
+from ._batch import batched
 from ._choices import set_choices
 
 __all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",
@@ -275,10 +276,19 @@ class SessionPage(pn.viewable.Viewer):
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                            sizing_mode="stretch_width",
                                            css_classes=["ccd-preview-error"])
-        self.image_pane = pn.pane.HoloViews(None, sizing_mode="fixed", css_classes=["ccd-image"],
-                                            linked_axes=False)
-        self.hist_pane = pn.pane.HoloViews(None, sizing_mode="stretch_width", height=240,
-                                           css_classes=["ccd-histogram"], linked_axes=False)
+        # built once (plain Bokeh): another frame or channel replaces their data
+        self.image_view = ImageView(frame_width=760, max_frame_height=640,
+                                    css_classes=["ccd-image"])
+        self.image_view.on_pointer = lambda x, y: self._on_pointer(x=x, y=y)
+        self.hist_view = HistogramView(height=240, css_classes=["ccd-histogram"])
+        # (shown with a frame; visibility goes on a Column around a Bokeh pane: setting it on
+        # the pane makes Panel copy the figure's stylesheets into the pane, which fails)
+        self.image_pane = pn.Column(pn.pane.Bokeh(self.image_view.figure), margin=0,
+                                    visible=False)
+        self.hist_pane = pn.Column(pn.pane.Bokeh(self.hist_view.figure, height=240,
+                                                 sizing_mode="stretch_width"),
+                                   sizing_mode="stretch_width", margin=0, visible=False)
+        self.clim_slider.param.watch(self._on_clim, "value")
         self.preview_body = pn.Column(
             self.frame_select, self.channel_select,
             pn.Row(self.clim_slider, self.auto_button, sizing_mode="stretch_width"),
@@ -450,8 +460,9 @@ class SessionPage(pn.viewable.Viewer):
     def _clear_preview(self, message: str = "") -> None:
         self._array = self._plane = self._shown = None
         self._planes = {}
-        self.image_pane.object = None
-        self.hist_pane.object = None
+        self.image_view.show(None)
+        self.hist_view.show(None)
+        self.image_pane.visible = self.hist_pane.visible = False
         self.frame_info.object = message
         self.channel_select.visible = False
 
@@ -508,6 +519,7 @@ class SessionPage(pn.viewable.Viewer):
         if self._array is not None and self._shown is not None:
             self._show_plane(self._shown)
 
+    @batched
     def _show_plane(self, rec: FrameRecord) -> None:
         """Show the current channel of the current frame: image, histogram, range, info."""
         array = self._array
@@ -530,15 +542,10 @@ class SessionPage(pn.viewable.Viewer):
             + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
             + f", {_size(array.shape)} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
-        element = plots.image_element(plane, label=rec.relpath)
-        image = plots.rasterized_image(element, title=Path(rec.relpath).name)
-        image = image.opts(**plots.fixed_size(element, 760, max_frame_height=640))  # square pixels
-        image = image.apply.opts(clim=self.clim_slider.param.value)
-        pointer = hv.streams.PointerXY(x=None, y=None, source=image)
-        pointer.add_subscriber(self._on_pointer)
-        span = hv.DynamicMap(pn.bind(plots.clim_span, self.clim_slider.param.value))
-        self.image_pane.object = image
-        self.hist_pane.object = plots.histogram_element(plane) * span
+        clim = self.clim_slider.value
+        self.image_view.show(plane, clim=clim, title=Path(rec.relpath).name, how="mean")
+        self.hist_view.show(plane, clim)
+        self.image_pane.visible = self.hist_pane.visible = True
         self.readout.object = "Move the cursor over the image to read pixel values."
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
@@ -557,6 +564,10 @@ class SessionPage(pn.viewable.Viewer):
         lo, hi = plots.auto_clim(self._plane)
         start, end = self.clim_slider.start, self.clim_slider.end
         self._set_clim((max(start, lo), min(end, hi)))
+
+    def _on_clim(self, event: Any) -> None:
+        self.image_view.set_clim(event.new)
+        self.hist_view.set_band(event.new)
 
     def _set_clim(self, clim: tuple[float, float]) -> None:
         """Set the colour range in two steps, widening first.

@@ -83,7 +83,7 @@ def test_session_page_preview_of_an_unreadable_frame_is_an_alert(state, unreadab
     assert page.preview_alert.visible and "bad.tif" in page.preview_alert.object
     page.frame = "dark/d0.tif"
     _run(page._on_frame())
-    assert not page.preview_alert.visible and page.image_pane.object is not None
+    assert not page.preview_alert.visible and page.image_view.plane is not None
 
 
 def test_plain_folder_shows_inference_and_writes_the_draft(state, plain_folder):

@@ -72,7 +72,9 @@ def test_selecting_a_table_row_previews_that_frame(state, healey94):
     expected = state.session.read(rec)
     np.testing.assert_array_equal(page._plane, expected)
     assert relpath in page.frame_info.object
-    assert page.image_pane.object is not None and page.hist_pane.object is not None
+    assert page.image_view.plane is not None and page.image_pane.visible and page.hist_pane.visible
+    np.testing.assert_array_equal(page.image_view.plane, expected)
+    assert page.hist_view.source.data["top"].sum() == expected.size
     # the colour range starts at the 0.5-99.5 % percentiles, inside the data range
     lo, hi = plots.auto_clim(expected)
     assert page.clim_slider.value == (max(lo, expected.min()), min(hi, expected.max()))
@@ -120,9 +122,9 @@ def test_unreadable_frame_then_a_good_one(state, unreadable_session):
     assert any("bad.tif" in a.object and a.alert_type == "danger" for a in page.problem_alerts)
     _show(page, "scene/bad.tif")
     assert page.preview_alert.visible and "scene/bad.tif" in page.preview_alert.object
-    assert page.image_pane.object is None
+    assert page.image_view.plane is None and not page.image_pane.visible
     _show(page, "dark/d1.tif")
-    assert not page.preview_alert.visible and page.image_pane.object is not None
+    assert not page.preview_alert.visible and page.image_view.plane is not None
 
 
 def test_plain_folder_warnings_are_yellow_and_inference_is_listed(state, plain_folder):
