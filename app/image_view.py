@@ -2,7 +2,10 @@
 
 A page builds its views once; showing another frame, channel or map, moving a colour range or
 zooming replaces the data of their sources and a few model properties, so the browser redraws
-without building a plot (docs/architecture.md, "How app pages draw and compute").
+without building a plot (docs/architecture.md, "How app pages draw and compute"). Every method
+that changes the figures holds the document's events (:func:`app.batch.batched`): that sends
+them as one message, and makes it safe to call from any callback of a served page (a raw Bokeh
+model changed outside Panel's document lock is refused).
 
 ImageView(frame_width=560, max_frame_height=560, cmap="gray", ...)
     A zoomable view of one 2-D plane at screen resolution (:func:`app.plots.overview`), with
@@ -23,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import plots
+from .batch import batched
 
 __all__ = ["ImageView", "HistogramView", "palette", "frame_size"]
 
@@ -130,6 +134,7 @@ class ImageView:
         self._box: Any = None
 
     # ------------------------------------------------------------------ data ----------------
+    @batched
     def show(self, plane: NDArray | None, *, clim: tuple[float, float] | None = None,
              title: str | None = None, how: str | None = None, centre: float | None = None,
              reset: bool = True) -> None:
@@ -165,6 +170,7 @@ class ImageView:
         else:
             self.redraw()
 
+    @batched
     def zoom_out(self) -> None:
         """Show the whole plane (the reset tool's extent too) in this view and its linked ones."""
         if self.plane is None:
@@ -175,6 +181,7 @@ class ImageView:
         for view in self.group:
             view.redraw()
 
+    @batched
     def resize(self, frame_width: int) -> None:
         """A new frame width (the height follows, square pixels)."""
         self.frame_width = int(frame_width)
@@ -184,6 +191,7 @@ class ImageView:
             self._drawn_for = None
             self.redraw()
 
+    @batched
     def set_clim(self, clim: tuple[float, float]) -> None:
         lo, hi = (float(c) for c in clim)
         self.mapper.update(low=lo, high=hi)
@@ -196,6 +204,7 @@ class ImageView:
         xr, yr = self.figure.x_range, self.figure.y_range
         return (float(xr.start), float(xr.end)), (float(yr.start), float(yr.end))
 
+    @batched
     def redraw(self) -> None:
         """Draw the visible part of the plane again (nothing when already drawn for it)."""
         if self.plane is None:
@@ -217,6 +226,7 @@ class ImageView:
             f"{self.title} \u00b7 {plots.OVERVIEWS[self.how]} of {factor}\u00d7{factor} px"
 
     # ------------------------------------------------------------------ marks ---------------
+    @batched
     def set_crosshair(self, row: float | None, col: float | None) -> None:
         """Dashed lines through row ``row`` and column ``col`` (``None``: hidden)."""
         if self._spans is None:
@@ -231,6 +241,7 @@ class ImageView:
         across.update(location=float(row or 0), visible=row is not None)
         down.update(location=float(col or 0), visible=col is not None)
 
+    @batched
     def set_box(self, box: tuple[int, int, int, int] | None) -> None:
         """Outline the pixels ``(x, y, w, h)`` (column, row, width, height; ``None``: hidden)."""
         if self._box is None:
@@ -301,6 +312,7 @@ class HistogramView:
         fig.add_layout(self.band)
         self.figure = fig
 
+    @batched
     def show(self, values: NDArray | None, clim: tuple[float, float] | None = None, *,
              bins: int | None = None, title: str | None = None, label: str | None = None
              ) -> None:
@@ -317,6 +329,7 @@ class HistogramView:
         if clim is not None:
             self.set_band(clim)
 
+    @batched
     def set_band(self, clim: tuple[float, float] | None) -> None:
         if clim is None:
             self.band.visible = False

@@ -30,7 +30,7 @@ import param
 
 from . import plots
 from .pages import PAGES, PageSpec, build_page, is_available
-from .pages._batch import batched
+from .batch import batched
 from .state import AppState, default_roots
 
 __all__ = ["create_app", "serve", "AppShell", "TITLE"]

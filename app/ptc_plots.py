@@ -25,16 +25,12 @@ residual_limit(columns), loglog_limits(columns)
     The y ranges of the residual and the log-log plots.
 PtcFigures
     The three figures with their sources; ``update(points, result)``.
-roi_box(x, y, w, h)
-    The ROI ``(x, y, w, h)`` as an ``hv.Rectangles`` outline in the pixel coordinates of
-    :func:`app.plots.image_element` (the frame preview stays a HoloViews view).
 """
 from __future__ import annotations
 
 import math
 from typing import Any, Mapping, Sequence
 
-import holoviews as hv
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
@@ -43,7 +39,7 @@ from ccdcore.noise import PhotonTransfer, PtcPoint
 
 __all__ = ["USED_COLOR", "EXCLUDED_COLOR", "FIT_COLOR", "points_table", "mu_grid",
            "transfer_columns", "residual_columns", "loglog_columns", "residual_limit",
-           "loglog_limits", "PtcFigures", "roi_box"]
+           "loglog_limits", "PtcFigures"]
 
 #: colour of the levels used by the fit
 USED_COLOR = "#1f5f99"
@@ -338,14 +334,3 @@ class PtcFigures:
             for item in fig.legend[0].items:
                 item.visible = any(len(r.data_source.data["mu"]) for r in item.renderers)
 
-
-def roi_box(x: int, y: int, w: int, h: int) -> hv.Rectangles:
-    """The ROI ``(x, y, w, h)`` (columns x..x+w−1, rows y..y+h−1) as a rectangle outline.
-
-    Pixel centres are at integer coordinates (:func:`app.plots.image_element`), so the outline
-    runs along the pixel edges: from (x − ½, y − ½) to (x + w − ½, y + h − ½).
-    """
-    x0, y0 = float(x) - 0.5, float(y) - 0.5
-    return hv.Rectangles([(x0, y0, x0 + float(w), y0 + float(h))]).opts(
-        fill_alpha=0.08, fill_color=FIT_COLOR, line_color=FIT_COLOR, line_width=2,
-        line_dash="dashed")

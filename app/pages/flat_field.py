@@ -60,7 +60,7 @@ from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
 from ..state import AppState
-from ._batch import batched
+from ..batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
 

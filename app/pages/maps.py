@@ -73,7 +73,7 @@ from ccdcore.session import ROLES, Session
 from .. import map_plots, plots
 from ..map_plots import MapLayer
 from ..state import AppState
-from ._batch import batched
+from ..batch import batched
 from ._choices import set_choices
 
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",

@@ -35,7 +35,6 @@ import math
 import traceback
 from typing import Any, Sequence
 
-import holoviews as hv
 import numpy as np
 import pandas as pd
 import panel as pn
@@ -48,8 +47,9 @@ from ccdcore.noise import (ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint, ph
 from ccdcore.session import FrameRecord, Session
 
 from .. import plots, ptc_plots
+from ..image_view import ImageView
 from ..state import AppState
-from ._batch import batched
+from ..batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
 
@@ -263,9 +263,15 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.roi_status = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                            sizing_mode="stretch_width")
-        self.preview_pane = pn.pane.HoloViews(None, sizing_mode="fixed", linked_axes=False,
-                                              css_classes=["ccd-ptc-preview"])
-        self.bounds_stream: hv.streams.BoundsXY | None = None
+        # built once (plain Bokeh): another frame replaces its data; a drawn box fills the
+        # inputs, the inputs move the outline
+        self.preview_view = ImageView(frame_width=560, max_frame_height=560, select=True,
+                                      css_classes=["ccd-ptc-preview"])
+        self.preview_view.on_box = self._on_bounds
+        self.preview_pane = pn.Column(pn.pane.Bokeh(self.preview_view.figure), margin=0,
+                                      visible=False)   # (see the Session page's image_pane)
+        for widget in (self.x_input, self.y_input, self.w_input, self.h_input):
+            widget.param.watch(self._on_roi_inputs, "value")
 
         levels_card = pn.Card(
             pn.pane.Markdown("Untick a level to leave it out; the fit follows at once.",
@@ -574,7 +580,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         """Show the chosen ptc frame with the ROI box (read in a worker thread)."""
         session, rec = self.state.session, self._records.get(self.frame)
         if session is None or rec is None:
-            self.preview_pane.object = None
+            self._clear_preview()
             return
         self._preview_request += 1
         request = self._preview_request
@@ -587,21 +593,26 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         if request != self._preview_request or session is not self.state.session:
             return
         if array is None:
-            self.preview_pane.object = None
+            self._clear_preview()
             self.preview_alert.param.update(object=f"**Cannot preview the frame:** {error}",
                                             visible=True)
             return
+        self._show_preview(plots.channel_data(array), rec.relpath)
+
+    @batched
+    def _show_preview(self, plane: np.ndarray, title: str) -> None:
+        """The frame's own pixel grid (luminance of colour), the ROI outlined on it."""
         self.preview_alert.visible = False
-        plane = plots.channel_data(array)  # the frame's own pixel grid (luminance of colour)
-        element = plots.image_element(plane, label=rec.relpath)
-        image = plots.rasterized_image(element, plots.auto_clim(plane), title=rec.relpath)
-        image = image.opts(tools=["hover", "box_select"], active_tools=["box_select", "wheel_zoom"],
-                           **plots.fixed_size(element, 560))             # square pixels
-        self.bounds_stream = hv.streams.BoundsXY(source=image, bounds=None)
-        self.bounds_stream.add_subscriber(lambda bounds: self._on_bounds(bounds))
-        box = hv.DynamicMap(pn.bind(ptc_plots.roi_box, self.x_input, self.y_input, self.w_input,
-                                    self.h_input))
-        self.preview_pane.object = image * box
+        self.preview_view.show(plane, clim=plots.auto_clim(plane), title=title, how="mean")
+        self.preview_view.set_box(self._pending_roi())
+        self.preview_pane.visible = True
+
+    def _clear_preview(self) -> None:
+        self.preview_view.show(None)
+        self.preview_pane.visible = False
+
+    def _on_roi_inputs(self, event: Any = None) -> None:
+        self.preview_view.set_box(self._pending_roi())
 
 
 def create_page(state: AppState) -> PhotonTransferPage:

@@ -42,7 +42,7 @@ from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 from .. import plots
 from ..image_view import HistogramView, ImageView
 from ..state import AppState, assets_dir, demo_sessions
-from ._batch import batched
+from ..batch import batched
 from ._choices import set_choices
 
 __all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",

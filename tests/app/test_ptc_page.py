@@ -160,13 +160,17 @@ def test_bad_roi_is_an_alert_and_keeps_the_fit(state, healey94, demo_pt):
 
 def test_box_drawn_on_the_preview_sets_the_inputs(state, healey94):
     page = _page(state, healey94)
-    assert page.preview_pane.object is not None and page.bounds_stream is not None
+    view = page.preview_view
+    assert view.plane is not None and page.preview_pane.visible and view.on_box is not None
     # pixel centres are at integers: the box takes the pixels whose centres it holds
-    page.bounds_stream.event(bounds=(-0.5, 9.6, 63.5, 41.4))
+    view.on_box((-0.5, 9.6, 63.5, 41.4))
     assert page._pending_roi() == (0, 10, 64, 32)
-    page.bounds_stream.event(bounds=(249.8, 180.0, 400.0, 300.0))  # clipped to the frame
+    # the outline follows the inputs, along the pixel edges
+    assert (view._box.left, view._box.top, view._box.right, view._box.bottom) == \
+        (-0.5, 9.5, 63.5, 41.5)
+    view.on_box((249.8, 180.0, 400.0, 300.0))  # clipped to the frame
     assert page._pending_roi() == (250, 180, 6, 12)
-    page.bounds_stream.event(bounds=(5.1, 5.2, 5.3, 5.4))  # inside one pixel: that pixel
+    view.on_box((5.1, 5.2, 5.3, 5.4))  # inside one pixel: that pixel
     assert page._pending_roi()[2:] == (1, 1)
 
 
@@ -320,11 +324,6 @@ def test_figures_update_in_place_and_hide_empty_legend_entries(healey94):
     assert shown == {"fit \u00b11\u03c3": False,
                      "\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C": False,
                      "used levels": True, "excluded levels": False}
-
-
-def test_roi_box_follows_pixel_edges():
-    box = ptc_plots.roi_box(10, 20, 64, 32)
-    assert list(box.array()[0]) == [9.5, 19.5, 73.5, 51.5]
 
 
 def _models(root) -> dict[str, list]:
