@@ -2,8 +2,8 @@
 
 The maps come straight from ccdcore's result objects (:class:`ccdcore.darkframe.DarkReference`,
 :class:`ccdcore.fixedpattern.FixedPattern`); nothing here estimates anything, it only arranges
-arrays for display. Every function returns a HoloViews element, a layout or plain numbers, so the
-pipeline is tested without a browser.
+arrays for display. Functions return views, HoloViews elements or plain numbers, so the pipeline is
+tested without a browser.
 
 Public objects
 --------------
@@ -17,17 +17,14 @@ map_layers(dark=None, fixed_pattern=None)
 default_clim(layer)
     The colour range a map opens with (0.5–99.5 % percentiles; symmetric about 1 for K̂; the
     category range for flags).
-map_image(layer), map_view(layer, clim=None, overview=None, frame_width=None)
-    ``hv.Image`` of a map and its zoomable view in the map's colour map, drawn at screen
-    resolution with a stated reduction (extreme or mean) when zoomed out.
-Overview, overview_how(layer, how), overview_centre(layer), overview_title(layer, f, how)
-    The stream of the overview choice and the pieces of a zoomed-out view.
-map_grid(views, cols=2)
-    The maps in one ``hv.Layout`` whose plots share (link) their x and y axes.
-crosshair(row, col)
-    Lines marking the profile row and column on a map.
-histogram_figure(layer, clim)
-    The histogram of a map (Bokeh) with its colour range as a band that moves in place.
+layer_view(layer, frame_width=380, link=None), show_layer(view, layer, clim, how)
+    A zoomable view (:class:`app.image_view.ImageView`) in the map's colour map, built once
+    per map key and linked to the others, and drawing a map in it at screen resolution with a
+    stated reduction (extreme or mean) when zoomed out.
+overview_how(layer, how), overview_centre(layer)
+    The reduction a zoomed-out view of a map uses, and the value "extreme" measures from.
+histogram_input(layer)
+    The values and bin count of a map's histogram (:class:`app.image_view.HistogramView`).
 profile_columns(layer, row, col), ProfileFigures
     One row and one column of a map as source columns, and their two Bokeh figures built once.
 pixel_values(layers, x, y)
@@ -44,18 +41,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 import holoviews as hv
 import numpy as np
 from numpy.typing import NDArray
 
 from . import plots
+from .image_view import ImageView
 
-__all__ = ["Overview", "overview_how", "overview_centre", "overview_title", "MapLayer",
+__all__ = ["overview_how", "overview_centre", "MapLayer",
            "MAP_TITLES", "FLAG_COLORS", "FLAG_LABELS", "map_layers", "default_clim",
-           "map_image", "map_view", "map_grid", "crosshair", "histogram_figure",
-           "profile_columns", "ProfileFigures",
+           "layer_view", "show_layer", "histogram_input", "profile_columns", "ProfileFigures",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
 
 #: map key -> title, in display order
@@ -195,17 +192,6 @@ def default_clim(layer: MapLayer) -> tuple[float, float]:
     return (lo, hi)
 
 
-def map_image(layer: MapLayer) -> hv.Image:
-    """``hv.Image`` of a map in pixel coordinates (x = column, y = row), see
-    :func:`app.plots.image_element`."""
-    return plots.image_element(layer.data, label=layer.title, vdim=layer.symbol)
-
-
-#: the stream carrying the page's overview choice (a key of :data:`app.plots.OVERVIEWS`) to
-#: every value map it shows; counts and flags always show the largest value
-Overview = hv.streams.Stream.define("Overview", how="extreme")
-
-
 def overview_how(layer: MapLayer, how: str) -> str:
     """The reduction a zoomed-out view of ``layer`` uses: ``how`` for values, ``"max"`` for
     counts and flags (a single rejected slope or hot pixel must stay visible)."""
@@ -222,110 +208,37 @@ def overview_centre(layer: MapLayer) -> float:
     return float(np.median(finite)) if finite.size else 0.0
 
 
-def overview_title(layer: MapLayer, factor: int, how: str) -> str:
-    """The map's title, saying how a screen pixel is made when the view is zoomed out."""
-    if factor <= 1:
-        return layer.title
-    return f"{layer.title} \u00b7 {plots.OVERVIEWS[how]} of {factor}\u00d7{factor} px"
-
-
-def map_view(layer: MapLayer, clim: tuple[float, float] | None = None, *,
-             overview: Any = None, frame_width: int | None = None) -> hv.DynamicMap:
-    """The zoomable view of a map in its colour map, with a hover tool.
-
-    Each zoom or pan draws the visible part of the map at screen resolution
-    (:func:`app.plots.overview`): when more map pixels than screen pixels are visible, each
-    screen pixel shows the extreme of its block (the value farthest from
-    :func:`overview_centre`), or the mean, as the ``overview`` stream (:data:`Overview`) says;
-    counts and flags show their maximum. The title says which, and the block size. With
-    ``frame_width`` the plot has that fixed width and square pixels (plots in a layout grid
-    need a fixed size).
-    """
-    image = map_image(layer)
-    clim = default_clim(layer) if clim is None else clim
-    centre = overview_centre(layer)
-    size = plots.fixed_size(image, frame_width) if frame_width is not None else {}
-    screen = (size.get("frame_width", 600), size.get("frame_height", 600))
-    # a fixed frame needs no PlotSize stream (its size is known here; each stream event is a
-    # round trip and a redraw)
-    streams: list[Any] = [hv.streams.RangeXY()]
-    if frame_width is None:
-        streams.append(hv.streams.PlotSize())
-    streams.append(overview if overview is not None else Overview())
-
-    def draw(x_range: Any = None, y_range: Any = None, width: Any = None, height: Any = None,
-             how: str = "extreme", **_: Any) -> hv.Image:
-        how = overview_how(layer, how)
-        data, bounds, factor = plots.overview(
-            layer.data, x_range, y_range, width or screen[0], height or screen[1], how=how,
-            centre=centre)
-        img = hv.Image(np.asarray(data)[::-1], bounds=bounds, kdims=["x", "y"],
-                       vdims=[hv.Dimension(layer.symbol, label=layer.label)],
-                       label=layer.title)
-        return img.opts(title=overview_title(layer, factor, how))
-
-    (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-    aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
-    opts: dict[str, Any] = dict(
-        cmap=layer.cmap, clim=tuple(float(c) for c in clim), clabel=layer.label, colorbar=True,
-        tools=["hover"], invert_yaxis=True, aspect=aspect, responsive=True,
-        xlabel="x (column)", ylabel="y (row)",
-        hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (layer.symbol, "@image")],
-        default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
-        active_tools=["wheel_zoom"])
-    opts.update(size)
-    if layer.kind == "flags":
+def layer_view(layer: MapLayer, *, frame_width: int = 380, link: Any = None) -> ImageView:
+    """A view for ``layer``'s maps (built once per map key, then fed with :func:`show_layer`):
+    its colour map and colour-bar label, the hover symbol; hot/dead flags as three labelled
+    categories. ``link``: another view to share the zoom with."""
+    flags = layer.kind == "flags"
+    view = ImageView(frame_width=frame_width, max_frame_height=560, cmap=layer.cmap,
+                     label=layer.label, symbol=layer.symbol, title=layer.title,
+                     link=link, levels=len(FLAG_COLORS) if flags else None)
+    if flags:
         from bokeh.models import FixedTicker
 
-        opts.update(color_levels=3, colorbar_opts={
-            "ticker": FixedTicker(ticks=[0, 1, 2]),
-            "major_label_overrides": {0: "normal", 1: "hot", 2: "dead"}})
-    return hv.DynamicMap(draw, streams=streams).opts(**opts)
+        view.color_bar.update(ticker=FixedTicker(ticks=list(FLAG_LABELS)),
+                              major_label_overrides={k: v for k, v in FLAG_LABELS.items()})
+    return view
 
 
-def map_grid(views: Sequence[Any], cols: int = 2) -> hv.Layout:
-    """The map views in one layout whose plots share their x and y axes (linked zoom and pan).
-
-    HoloViews links the axes of plots in a layout whose key dimensions are the same (here x and
-    y in pixels); ``shared_axes=True`` states it explicitly.
-    """
-    layout = hv.Layout(list(views)).cols(max(1, min(cols, len(views))))
-    return layout.opts(shared_axes=True, merge_tools=True)
-
-
-def crosshair(row: int, col: int) -> hv.Overlay:
-    """A horizontal line at ``row`` and a vertical line at ``col`` (the profiles' position)."""
-    style = dict(color="#00c853", line_width=1, line_dash="dashed", alpha=0.9)
-    return hv.HLine(float(row)).opts(**style) * hv.VLine(float(col)).opts(**style)
+def show_layer(view: ImageView, layer: MapLayer, clim: tuple[float, float], how: str) -> None:
+    """Draw ``layer`` in ``view`` in the colour range ``clim``, keeping the zoom (a zoomed-out
+    screen pixel shows :func:`overview_how` of its block; "extreme" measures from
+    :func:`overview_centre`)."""
+    how = overview_how(layer, how)
+    view.show(layer.data, clim=clim, title=layer.title, how=how,
+              centre=overview_centre(layer) if how == "extreme" else None, reset=False)
 
 
-def histogram_figure(layer: MapLayer, clim: tuple[float, float], height: int = 200
-                     ) -> tuple[Any, Any]:
-    """The histogram of a map's finite values as a Bokeh figure, with the colour range ``clim``
-    as a translucent band; returns ``(figure, band)`` (move the band with
-    ``band.update(left=lo, right=hi)``: the histogram is not drawn again).
-
-    Counts read as plain numbers with thousands separators; integer maps get one bin per value
-    (:func:`app.plots.histogram_edges`), others 100 bins over their range.
-    """
-    from bokeh.models import BoxAnnotation, HoverTool, NumeralTickFormatter
-    from bokeh.plotting import figure
-
-    data = layer.data.astype(np.int32) if layer.integer else layer.data
-    counts, edges = plots.histogram_counts(data, 256 if layer.integer else 100)
-    fig = figure(height=height, sizing_mode="stretch_width", title=f"Histogram of {layer.symbol}",
-                 x_axis_label=layer.label, y_axis_label="count", output_backend="canvas",
-                 tools="pan,wheel_zoom,box_zoom,reset,save")
-    fig.toolbar.logo = None
-    fig.yaxis.formatter = NumeralTickFormatter(format="0,0")
-    bars = fig.quad(left=edges[:-1], right=edges[1:], bottom=0, top=counts,
-                    fill_color="#4a6fa5", line_color=None)
-    fig.add_tools(HoverTool(renderers=[bars], tooltips=[
-        (layer.symbol, "@left{0.0000} \u2013 @right{0.0000}"), ("count", "@top{0,0}")]))
-    band = BoxAnnotation(left=float(clim[0]), right=float(clim[1]), fill_color="#f0ad4e",
-                         fill_alpha=0.2, line_alpha=0)
-    fig.add_layout(band)
-    return fig, band
+def histogram_input(layer: MapLayer) -> tuple[NDArray, int]:
+    """What a map's histogram counts: ``(values, bins)``; integer maps get one bin per value
+    (:func:`app.plots.histogram_edges`), others 100 bins over their range."""
+    if layer.integer:
+        return layer.data.astype(np.int32), 256
+    return layer.data, 100
 
 
 def profile_columns(layer: MapLayer | None, row: int, col: int) -> dict[str, dict[str, Any]]:

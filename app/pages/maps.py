@@ -52,10 +52,10 @@ import io
 import logging
 import math
 import tempfile
+from functools import partial
 from pathlib import Path
 from typing import Any
 
-import holoviews as hv
 import numpy as np
 import pandas as pd
 import panel as pn
@@ -71,9 +71,10 @@ from ccdcore.scene import variance_budget
 from ccdcore.session import ROLES, Session
 
 from .. import map_plots, plots
+from ..batch import batched
+from ..image_view import HistogramView, ImageView
 from ..map_plots import MapLayer
 from ..state import AppState
-from ..batch import batched
 from ._choices import set_choices
 
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
@@ -334,7 +335,12 @@ class MapsPage(pn.viewable.Viewer):
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
         self._sliders: dict[str, pn.widgets.EditableRangeSlider] = {}
-        self._band_watchers: list = []        # (slider, watcher) moving the histograms' bands
+        #: one view and one histogram per map key, built when the map is first shown, then
+        #: fed in place; every map view shares the first one's zoom (linked)
+        self.map_views: dict[str, ImageView] = {}
+        self.hist_views: dict[str, HistogramView] = {}
+        self._map_panes: dict[str, pn.pane.Bokeh] = {}
+        self._hist_panes: dict[str, pn.pane.Bokeh] = {}
         self._shown_objects: tuple = (None, None)   # (dark, fp) the maps were built from
         self.plan_result: Any = None          # the planning panel's AcquisitionPlan
         self.budget: Any = None               # the chosen patch's variance budget
@@ -369,8 +375,7 @@ class MapsPage(pn.viewable.Viewer):
         self.active_select = pn.widgets.Select.from_param(self.param.active,
                                                           label="Selected map", width=280)
         self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
-        # the zoomed-out views follow the choice through one stream, in place
-        self.overview_stream = map_plots.Overview(how=self.overview)
+        # the zoomed-out views follow the choice in place
         self.overview_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.overview, options={"extreme pixel": "extreme", "mean": "mean"},
             color="default", width=220,
@@ -378,7 +383,7 @@ class MapsPage(pn.viewable.Viewer):
                         "shows its block's pixel farthest from the centre (1 for K̂, the "
                         "median otherwise) or the block's mean; counts and flags show the "
                         "largest. The map's title says which.")
-        self.param.watch(lambda e: self.overview_stream.event(how=e.new), "overview")
+        self.param.watch(self._on_overview, "overview")
         self.auto_button = pn.widgets.Button(label="Auto (0.5–99.5 %)", align="end", width=150)
         self.auto_button.on_click(self._on_auto)
         self.row_slider = pn.widgets.IntSlider(label="Profile row y", start=0, end=1, value=0,
@@ -400,11 +405,10 @@ class MapsPage(pn.viewable.Viewer):
             color="default", embed=False, width=90,
             description="A 16-bit greyscale picture of the selected map scaled to the current "
                         "colour range (low end 0, high end 65535) — not the values")
-        # fixed size: the GridPlot's own (a stretching pane lays fixed-size plots out at zero
-        # size when nested in stretching columns)
-        self.grid_pane = pn.pane.HoloViews(None, sizing_mode="fixed", css_classes=["ccd-maps"],
-                                           linked_axes=False)
-        self.grid_views: list = []
+        # the shown maps' views side by side, wrapping (fixed-size figures; a GridBox whose
+        # children and column count change in one batch fails in BokehJS 3.9)
+        self.grid_pane = pn.FlexBox(flex_wrap="wrap", sizing_mode="stretch_width",
+                                    css_classes=["ccd-maps"])
         self.readout = pn.pane.Markdown(
             "Move the cursor over a map to read the values of every map; tap to set the "
             "profile row and column.", css_classes=["ccd-readout"], stylesheets=[_CSS],
@@ -724,6 +728,7 @@ class MapsPage(pn.viewable.Viewer):
                                                           else ""),
                 start=start, end=end, value=(lo, hi), step=step, sizing_mode="stretch_width",
                 disabled=layer.kind == "flags", format="0.[00000]")
+            sliders[key].param.watch(partial(self._on_clim, key), "value")
         self._sliders = sliders
         options = {l.title: k for k, l in layers.items()}
         shown = [k for k in self.shown if k in layers] or \
@@ -747,39 +752,60 @@ class MapsPage(pn.viewable.Viewer):
     @param.depends("layers", "shown", watch=True)
     @batched
     def _build_grid(self) -> None:
-        for slider, watcher in self._band_watchers:   # the previous histograms' bands
-            slider.param.unwatch(watcher)
-        self._band_watchers = []
+        """Show the chosen maps: their views (built on a map's first showing, then fed the new
+        data in place) in the grid, and their histograms."""
+        for key, view in self.map_views.items():   # maps gone: their data goes too
+            if key not in self.layers and view.plane is not None:
+                view.show(None)
+                self.hist_views[key].show(None)
         keys = [k for k in self.shown if k in self.layers]
-        if not keys:
-            self.grid_pane.object = None
-            self.hist_row.objects = []
-            self.grid_views = []
-            return
-        cross = hv.DynamicMap(pn.bind(map_plots.crosshair, self.row_slider.param.value,
-                                      self.col_slider.param.value))
-        views, hists = [], []
         frame_width = 640 if len(keys) == 1 else 380
+        maps, hists = [], []
         for key in keys:
-            layer, slider = self.layers[key], self._sliders[key]
-            view = map_plots.map_view(layer, slider.value, frame_width=frame_width,
-                                      overview=self.overview_stream).apply.opts(
-                clim=slider.param.value)
-            pointer = hv.streams.PointerXY(x=None, y=None, source=view)
-            pointer.add_subscriber(self._on_pointer)
-            tap = hv.streams.SingleTap(x=None, y=None, source=view)
-            tap.add_subscriber(self._on_tap)
-            views.append(view * cross)
-            fig, band = map_plots.histogram_figure(layer, slider.value)
-            self._band_watchers.append((slider, slider.param.watch(
-                lambda e, band=band: band.update(left=float(e.new[0]), right=float(e.new[1])),
-                "value")))
-            hists.append(pn.pane.Bokeh(fig, height=220, min_width=260,
-                                       sizing_mode="stretch_width", styles={"flex": "1 1 45%"}))
-        self.grid_views = views
-        cols = 1 if len(views) == 1 else 2
-        self.grid_pane.object = map_plots.map_grid(views, cols=cols)
+            layer, clim = self.layers[key], self._sliders[key].value
+            view = self.map_views.get(key)
+            if view is None:
+                link = next(iter(self.map_views.values()), None)
+                view = self.map_views[key] = map_plots.layer_view(
+                    layer, frame_width=frame_width, link=link)
+                view.on_pointer, view.on_tap = self._on_pointer, self._on_tap
+                self._map_panes[key] = pn.pane.Bokeh(view.figure)
+                self.hist_views[key] = HistogramView(height=200,
+                                                     title=f"Histogram of {layer.symbol}",
+                                                     label=layer.label, symbol=layer.symbol)
+                self._hist_panes[key] = pn.pane.Bokeh(
+                    self.hist_views[key].figure, height=220, min_width=260,
+                    sizing_mode="stretch_width", styles={"flex": "1 1 45%"})
+            else:
+                view.resize(frame_width)
+            if view.plane is not layer.data:
+                map_plots.show_layer(view, layer, clim, self.overview)
+                values, bins = map_plots.histogram_input(layer)
+                self.hist_views[key].show(values, clim, bins=bins)
+            view.set_crosshair(self.row_slider.value, self.col_slider.value)
+            maps.append(self._map_panes[key])
+            hists.append(self._hist_panes[key])
+        self.grid_pane.objects = maps
         self.hist_row.objects = hists
+
+    @property
+    def grid_views(self) -> list[ImageView]:
+        """The views of the shown maps, in display order."""
+        return [self.map_views[k] for k in self.shown if k in self.layers and k in self.map_views]
+
+    def _on_clim(self, key: str, event: Any) -> None:
+        if key in self.map_views:
+            self.map_views[key].set_clim(event.new)
+            self.hist_views[key].set_band(event.new)
+
+    @batched
+    def _on_overview(self, event: Any = None) -> None:
+        for key, view in self.map_views.items():
+            layer = self.layers.get(key)
+            if layer is not None and view.plane is layer.data:
+                how = map_plots.overview_how(layer, self.overview)
+                view.set_how(how, centre=map_plots.overview_centre(layer)
+                             if how == "extreme" else None)
 
     @param.depends("layers", "active", watch=True)
     @batched
@@ -798,8 +824,12 @@ class MapsPage(pn.viewable.Viewer):
             w.disabled = layer is None
         self._update_profiles()
 
+    @batched
     def _update_profiles(self, event: Any = None) -> None:
-        self.profiles.update(self.active_layer, self.row_slider.value, self.col_slider.value)
+        row, col = self.row_slider.value, self.col_slider.value
+        self.profiles.update(self.active_layer, row, col)
+        for view in self.grid_views:
+            view.set_crosshair(row, col)
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
         hit = map_plots.pixel_values(self.layers, x, y)

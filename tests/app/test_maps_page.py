@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import asyncio
 from concurrent.futures import ThreadPoolExecutor
-import holoviews as hv
 import numpy as np
 import pytest
 
 import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 import ccdcore.fixedpattern
 from app import map_plots, plots
+from app.image_view import HistogramView
 from app.pages import maps
 from app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
                             missing_sentences, scene_patch_frame)
@@ -54,12 +54,12 @@ def counted(assets):
     assert state.load(assets / "healey94")
     page = MapsPage(state, auto_compute=False)
     counts = {"correction_check": _Counter(ccdcore.fixedpattern.correction_check),
-              "map_grid": _Counter(map_plots.map_grid),
+              "show_layer": _Counter(map_plots.show_layer),
               "scene_fit_plot": _Counter(map_plots.scene_fit_plot),
               "budget_plot": _Counter(map_plots.budget_plot)}
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(ccdcore.fixedpattern, "correction_check", counts["correction_check"])
-        for name in ("map_grid", "scene_fit_plot", "budget_plot"):
+        for name in ("show_layer", "scene_fit_plot", "budget_plot"):
             mp.setattr(map_plots, name, counts[name])
         _run(page.compute())
     return page, {name: c.calls for name, c in counts.items()}
@@ -162,9 +162,15 @@ def test_map_selection_switches_the_data(computed):
     assert page.profiles.col.title.text == "Column profile, x = 17"
     # the grid follows the shown maps
     page.shown_select.value = ["dark", "n1_used"]
-    assert len(page.grid_pane.object) == 2
+    assert len(page.grid_pane.objects) == 2
     page.shown_select.value = ["K", "dark", "n_rejected", "flags"]
-    assert len(page.grid_pane.object) == 4
+    assert len(page.grid_pane.objects) == 4
+    assert [v.plane is page.layers[k].data for v, k in
+            zip(page.grid_views, ("K", "dark", "n_rejected", "flags"))] == [True] * 4
+    # the crosshair marks the profile row and column on every map
+    page.row_slider.value = 11
+    for view in page.grid_views:
+        assert (view._spans[0].location, view._spans[1].location) == (11, 17)
 
 
 def test_cursor_readout_and_tap(computed):
@@ -223,19 +229,21 @@ def test_export_bytes_of_a_small_map(tmp_path):
 
 
 def test_maps_share_linked_axes(computed):
-    """Zooming one map zooms all: the Bokeh figures of the grid share one x and one y range."""
-    layout = computed.grid_pane.object
-    assert isinstance(layout, hv.Layout) and len(layout) >= 2
-    plot = hv.renderer("bokeh").get_plot(layout)
-    figures = [p.handles["plot"] for p in plot.subplots.values()
-               if p is not None and "plot" in getattr(p, "handles", {})]
-    if not figures:  # subplots wrap the element plots in AdjointLayoutPlots
-        figures = [sp.handles["plot"] for p in plot.subplots.values()
-                   for sp in p.subplots.values() if sp is not None and "plot" in sp.handles]
-    assert len(figures) == len(layout)
+    """Zooming one map zooms all: the Bokeh figures of the grid share one x and one y range,
+    and a zoom draws the visible part of every map again."""
+    views = computed.grid_views
+    assert len(views) >= 2
+    figures = [v.figure for v in views]
+    assert [p.object for p in computed.grid_pane.objects] == figures
     assert len({id(f.x_range) for f in figures}) == 1
     assert len({id(f.y_range) for f in figures}) == 1
-
+    figures[0].x_range.update(start=9.5, end=29.5)
+    figures[0].y_range.update(start=49.5, end=39.5)
+    views[0]._ranges(None)
+    for view in views:
+        image = view.source.data["image"][0]
+        np.testing.assert_array_equal(image, view.plane[40:50, 10:30].astype(np.float32))
+    views[0].zoom_out()
 
 def test_planning_panel_with_the_papers_inputs(computed):
     page = computed
@@ -339,10 +347,10 @@ def test_the_correction_check_is_computed_once(counted):
 
 
 def test_compute_builds_each_plot_once(counted):
-    """One batch of state changes per compute: the map grid, the scene fit and the budget of
-    the chosen patch are each drawn once."""
+    """One batch of state changes per compute: each shown map (K̂ and D̂_D), the scene fit and
+    the budget of the chosen patch are each drawn once."""
     _, counts = counted
-    assert counts["map_grid"] == 1
+    assert counts["show_layer"] == 2
     assert counts["scene_fit_plot"] == 1
     assert counts["budget_plot"] == 1
 
@@ -444,35 +452,41 @@ def test_zoomed_out_map_view_says_what_a_screen_pixel_shows():
     data[40, 70] = 1.3                                   # one hot pixel
     layer = map_plots.MapLayer("K", "Fixed pattern K", "K", "", data, "RdBu_r",
                                kind="diverging", centre=1.0)
-    stream = map_plots.Overview(how="extreme")
-    view = map_plots.map_view(layer, frame_width=40, overview=stream)
-    image = view[()]
-    assert image.opts.get().kwargs["title"] == "Fixed pattern K \u00b7 extreme pixel of 4\u00d74 px"
-    assert np.nanmax(image.dimension_values(2)) == pytest.approx(1.3)
-    stream.event(how="mean")
-    image = view[()]
-    assert image.opts.get().kwargs["title"].endswith("mean of 4\u00d74 px")
-    assert np.nanmax(image.dimension_values(2)) == pytest.approx(1 + 0.3 / 16)
-    # counts and flags always show the largest value
+    view = map_plots.layer_view(layer, frame_width=40)
+    map_plots.show_layer(view, layer, (0.9, 1.1), "extreme")
+    image = view.source.data["image"][0]
+    assert view.figure.title.text == "Fixed pattern K \u00b7 extreme pixel of 4\u00d74 px"
+    assert np.nanmax(image) == pytest.approx(1.3)
+    assert (view.mapper.low, view.mapper.high) == (0.9, 1.1)
+    map_plots.show_layer(view, layer, (0.9, 1.1), "mean")
+    image = view.source.data["image"][0]
+    assert view.figure.title.text.endswith("mean of 4\u00d74 px")
+    assert np.nanmax(image) == pytest.approx(1 + 0.3 / 16)
+    # counts and flags always show the largest value; flags as three labelled categories
     flags = map_plots.MapLayer("flags", "Hot / dead", "flag", "", np.zeros((100, 160)),
-                               kind="flags")
+                               list(map_plots.FLAG_COLORS), kind="flags")
     flags.data[3, 3] = 1
-    image = map_plots.map_view(flags, frame_width=40, overview=stream)[()]
-    assert "largest of 4\u00d74 px" in image.opts.get().kwargs["title"]
-    assert image.dimension_values(2).max() == 1
+    view = map_plots.layer_view(flags, frame_width=40)
+    map_plots.show_layer(view, flags, map_plots.default_clim(flags), "mean")
+    assert "largest of 4\u00d74 px" in view.figure.title.text
+    assert view.source.data["image"][0].max() == 1
+    assert view.mapper.palette == list(map_plots.FLAG_COLORS)
+    assert view.color_bar.major_label_overrides == {0: "normal", 1: "hot", 2: "dead"}
 
 
 def test_histogram_counts_every_finite_value_in_plain_numbers():
     data = np.arange(12, dtype=np.float64).reshape(3, 4)
     data[0, 0] = np.nan
     layer = map_plots.MapLayer("d", "D", "D", "DN", data)
-    fig, band = map_plots.histogram_figure(layer, (2.0, 9.0))
-    (quads,) = [r for r in fig.renderers if type(r.glyph).__name__ == "Quad"]
-    assert sum(quads.data_source.data["top"]) == 11          # NaN left out
-    assert (band.left, band.right) == (2.0, 9.0)
-    assert fig.yaxis[0].formatter.format == "0,0"
+    values, bins = map_plots.histogram_input(layer)
+    assert bins == 100
+    hist = HistogramView()
+    hist.show(values, (2.0, 9.0), bins=bins)
+    assert sum(hist.source.data["top"]) == 11          # NaN left out
+    assert (hist.band.left, hist.band.right) == (2.0, 9.0)
+    assert hist.figure.yaxis[0].formatter.format == "0,0"
     counts = map_plots.MapLayer("n", "N", "n", "", np.array([[0, 1], [1, 3]], np.float32),
                                 kind="count")
-    fig, _ = map_plots.histogram_figure(counts, (0, 3))
-    (quads,) = [r for r in fig.renderers if type(r.glyph).__name__ == "Quad"]
-    assert list(quads.data_source.data["top"]) == [1, 2, 0, 1]   # one bin per value
+    values, bins = map_plots.histogram_input(counts)
+    hist.show(values, bins=bins)
+    np.testing.assert_array_equal(hist.source.data["top"], [1, 2, 0, 1])   # one bin per value
