@@ -23,15 +23,12 @@ subsample(values)
 image_element(plane, ...)
     ``hv.Image`` of one plane in pixel coordinates (x = column, y = row, row 0 at the top).
 rasterized_image(image, clim=None, ...)
-    The datashader-rasterised, zoomable, greyscale view of an image with a hover tool.
+    The datashader-rasterised, zoomable, greyscale view of an image with a hover tool (the
+    Flat field page's maps; the other pages draw with :class:`app.image_view.ImageView`).
 histogram_edges(values, bins=256)
     Bin edges for a frame's histogram (one bin per DN for small integer ranges).
 histogram_counts(values, bins=256)
     Counts and edges of a plane's finite values.
-histogram_element(values, ...)
-    ``hv.Histogram`` of a plane's values (``framewise=True`` so its axes follow the frame).
-clim_span(clim)
-    ``hv.VSpan`` marking the colour range on the histogram.
 OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
     that reduction of the visible part of a map.
@@ -45,7 +42,6 @@ from typing import Any
 
 import holoviews as hv
 import numpy as np
-from bokeh.models import NumeralTickFormatter
 from numpy.typing import NDArray
 
 from ccdcore.channels import check_layout, split_channels
@@ -54,8 +50,7 @@ from ccdcore.errors import CcdError
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim",
            "image_element", "rasterized_image", "histogram_edges", "histogram_counts",
-           "histogram_element",
-           "clim_span", "warm_up", "OVERVIEWS", "overview", "fixed_size", "subsample"]
+           "warm_up", "OVERVIEWS", "overview", "fixed_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -317,28 +312,6 @@ def histogram_counts(values: NDArray, bins: int = 256) -> tuple[NDArray, NDArray
     if flat.dtype.kind == "f":
         flat = flat[np.isfinite(flat)]
     return np.histogram(flat, bins=histogram_edges(flat, bins))
-
-
-def histogram_element(values: NDArray, *, bins: int = 256, label: str = "", vdim: str = "DN",
-                      log: bool = False, height: int = 220) -> hv.Histogram:
-    """``hv.Histogram`` of all values of a plane (non-finite values are left out).
-
-    ``framewise=True`` makes the axes follow each new frame or channel (otherwise the first
-    range sticks, see docs/notes.md). With ``log`` the counts axis is logarithmic. Counts read
-    as plain numbers with thousands separators (``150,000``, not ``1.5e+5``).
-    """
-    counts, edges = histogram_counts(values, bins)
-    hist = hv.Histogram((edges, counts), kdims=[hv.Dimension(vdim)], vdims=["count"],
-                        label=label)
-    return hist.opts(framewise=True, responsive=True, height=height, color="#4a6fa5",
-                     line_color=None, logy=log, tools=["hover"], title="Histogram",
-                     yformatter=NumeralTickFormatter(format="0,0"))
-
-
-def clim_span(clim: tuple[float, float]) -> hv.VSpan:
-    """A translucent band over the histogram showing the colour range ``clim``."""
-    lo, hi = (float(c) for c in clim)
-    return hv.VSpan(lo, hi).opts(color="#f0ad4e", alpha=0.2, line_alpha=0)
 
 
 def warm_up() -> float:
