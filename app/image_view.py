@@ -170,6 +170,11 @@ class ImageView:
         else:
             self.redraw()
 
+    def release(self) -> None:
+        """Let go of the plane (the browser session ended: no figure changes, nothing is sent)."""
+        self.plane = None
+        self._drawn_for = None
+
     @batched
     def zoom_out(self) -> None:
         """Show the whole plane (the reset tool's extent too) in this view and its linked ones."""

@@ -110,6 +110,16 @@ class AppShell(param.Parameterized):
             self._pages[slug] = build_page(spec, self.state)
         return self._pages[slug]
 
+    def close(self) -> None:
+        """The browser session ended: the state drops its session and results
+        (:meth:`AppState.close`), and every built page lets go of the arrays it shows (its
+        ``release()``), with no redraw. Panel may hold the page objects a while longer."""
+        self.state.close()
+        for page in self._pages.values():
+            release = getattr(page, "release", None)
+            if callable(release):
+                release()
+
     def holder(self, slug: str) -> pn.Column:
         """The holder of page ``slug``, holding the page (built on first call)."""
         holder = self.holders[slug]
@@ -226,7 +236,7 @@ def create_app(session_path: str | Path | None = None, *,
     if doc is not None and doc.session_context is not None:
         # served: when the browser session ends, its results go (Bokeh destroys a session
         # some seconds after its last connection closed)
-        doc.on_session_destroyed(lambda context: state.close())
+        doc.on_session_destroyed(lambda context: shell.close())
     if session_path is not None:
         path = str(session_path)
         if doc is None or doc.session_context is None:

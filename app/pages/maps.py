@@ -793,6 +793,13 @@ class MapsPage(pn.viewable.Viewer):
         """The views of the shown maps, in display order."""
         return [self.map_views[k] for k in self.shown if k in self.layers and k in self.map_views]
 
+    def release(self) -> None:
+        """The browser session ended: drop the maps (no watcher runs, nothing is redrawn)."""
+        for view in self.map_views.values():
+            view.release()
+        with param.parameterized.discard_events(self):
+            self.layers = {}
+
     def _on_clim(self, key: str, event: Any) -> None:
         if key in self.map_views:
             self.map_views[key].set_clim(event.new)

@@ -611,6 +611,10 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.preview_view.show(None)
         self.preview_pane.visible = False
 
+    def release(self) -> None:
+        """The browser session ended: drop the frame shown (no redraw)."""
+        self.preview_view.release()
+
     def _on_roi_inputs(self, event: Any = None) -> None:
         self.preview_view.set_box(self._pending_roi())
 

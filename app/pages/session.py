@@ -565,6 +565,12 @@ class SessionPage(pn.viewable.Viewer):
         start, end = self.clim_slider.start, self.clim_slider.end
         self._set_clim((max(start, lo), min(end, hi)))
 
+    def release(self) -> None:
+        """The browser session ended: drop the frame shown (no redraw)."""
+        self.image_view.release()
+        self._array = self._plane = self._shown = None
+        self._planes = {}
+
     def _on_clim(self, event: Any) -> None:
         self.image_view.set_clim(event.new)
         self.hist_view.set_band(event.new)

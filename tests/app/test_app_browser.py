@@ -152,6 +152,15 @@ def test_closing_the_browser_session_releases_its_results(page: Page, serve_app,
 
     monkeypatch.setattr(AppState, "__init__", recording_init)
     monkeypatch.setattr(AppState, "close", recording_close)
+    from app.main import AppShell
+    shells: list[AppShell] = []
+    shell_init = AppShell.__init__
+
+    def recording_shell(self, state, **params):
+        shell_init(self, state, **params)
+        shells.append(self)
+
+    monkeypatch.setattr(AppShell, "__init__", recording_shell)
     url = serve_app(healey94, check_unused_sessions_milliseconds=300,
                     unused_session_lifetime_milliseconds=300)
     open_app(url)
@@ -160,6 +169,13 @@ def test_closing_the_browser_session_releases_its_results(page: Page, serve_app,
     expect(page.get_by_text("Fit acceptable")).to_be_visible(timeout=TIMEOUT)
     [state] = [s for s in states if s.results.ptc is not None]   # this tab's
     assert state.session is not None and state not in closed
+    [shell] = [sh for sh in shells if sh.state is state]
+    deadline = time.monotonic() + 30
+    while shell._pages["photon_transfer"].preview_view.plane is None \
+            and time.monotonic() < deadline:            # the ROI preview reads its frame
+        time.sleep(0.2)
+    assert shell._pages["session"].image_view.plane is not None
+    assert shell._pages["photon_transfer"].preview_view.plane is not None
 
     page.close()
     deadline = time.monotonic() + 30
@@ -168,3 +184,7 @@ def test_closing_the_browser_session_releases_its_results(page: Page, serve_app,
     assert state in closed
     assert state.session is None and state.results.ptc is None
     assert state.results.ptc_points is None and state.results.estimates is None
+    # the pages let go of the frames they showed
+    assert shell._pages["session"].image_view.plane is None
+    assert shell._pages["session"]._plane is None
+    assert shell._pages["photon_transfer"].preview_view.plane is None
