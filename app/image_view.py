@@ -16,7 +16,7 @@ HistogramView(height=220, ...)
 palette(cmap, n=256)
     A colour-map name (as HoloViews names them) or a list of colours -> a list of colours.
 frame_size(shape, frame_width, max_frame_height)
-    The frame size giving square pixels.
+    The frame size giving square pixels (:func:`app.plots.frame_size`).
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import plots
+from .plots import frame_size
 from .batch import batched
 
 __all__ = ["ImageView", "HistogramView", "palette", "frame_size"]
@@ -42,15 +43,6 @@ def palette(cmap: Any, n: int = 256) -> list[str]:
 
     return list(process_cmap(cmap, ncolors=n))
 
-
-def frame_size(shape: tuple[int, int], frame_width: int, max_frame_height: int = 560
-               ) -> tuple[int, int]:
-    """``(width, height)`` of a plot frame showing an ``(H, W)`` plane with square pixels:
-    ``frame_width`` wide, narrower when it would be taller than ``max_frame_height``."""
-    h, w = int(shape[0]), int(shape[1])
-    ratio = h / max(w, 1)
-    width = min(float(frame_width), max_frame_height / max(ratio, 1e-9))
-    return max(int(round(width)), 1), max(int(round(width * ratio)), 1)
 
 
 class ImageView:

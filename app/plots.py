@@ -32,6 +32,8 @@ histogram_counts(values, bins=256)
 OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
     that reduction of the visible part of a map.
+frame_size(shape, frame_width, max_frame_height=560), fixed_size(image, frame_width, ...)
+    A plot frame giving square pixels, as a size and as HoloViews options.
 warm_up()
     Run the datashader/numba rasterisation once per common dtype (first call compiles).
 """
@@ -50,7 +52,7 @@ from ccdcore.errors import CcdError
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim",
            "image_element", "rasterized_image", "histogram_edges", "histogram_counts",
-           "warm_up", "OVERVIEWS", "overview", "fixed_size", "subsample"]
+           "warm_up", "OVERVIEWS", "overview", "fixed_size", "frame_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -271,6 +273,16 @@ def overview(plane: NDArray, x_range: tuple[float, float] | None,
     return out, (c0 - 0.5, r0 - 0.5, c0 - 0.5 + nw * f, r0 - 0.5 + nh * f), f
 
 
+def frame_size(shape: tuple[float, float], frame_width: int, max_frame_height: int = 560
+               ) -> tuple[int, int]:
+    """``(width, height)`` of a plot frame showing an ``(H, W)`` plane with square pixels:
+    ``frame_width`` wide, narrower when it would be taller than ``max_frame_height``."""
+    h, w = float(shape[0]), float(shape[1])
+    ratio = h / max(w, 1e-9)
+    width = min(float(frame_width), max_frame_height / max(ratio, 1e-9))
+    return max(int(round(width)), 1), max(int(round(width * ratio)), 1)
+
+
 def fixed_size(image: hv.Image, frame_width: int, max_frame_height: int = 560) -> dict[str, Any]:
     """Plot options giving ``image`` square pixels in a fixed frame ``frame_width`` wide (narrower
     when the frame would be taller than ``max_frame_height``).
@@ -281,10 +293,9 @@ def fixed_size(image: hv.Image, frame_width: int, max_frame_height: int = 560) -
     Panel layouts.
     """
     (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-    ratio = (y1 - y0) / max(x1 - x0, 1e-9)
-    width = min(float(frame_width), max_frame_height / max(ratio, 1e-9))
+    width, height = frame_size((y1 - y0, x1 - x0), frame_width, max_frame_height)
     return dict(responsive=False, aspect=None, data_aspect=None,
-                frame_width=int(round(width)), frame_height=int(round(width * ratio)))
+                frame_width=width, frame_height=height)
 
 
 def histogram_edges(values: NDArray, bins: int = 256) -> NDArray:

@@ -48,26 +48,25 @@ def _get(url: str, timeout: float) -> int:
         return r.status
 
 
-def rss_mb(pid: int) -> float | None:
-    """Resident set size of ``pid`` in MB (``VmRSS`` of /proc/PID/status), None if gone."""
+def _status_mb(pid: int, field: str) -> float | None:
+    """A ``/proc/PID/status`` memory field (``VmRSS``, ``VmHWM``) of ``pid`` in MB, None if gone."""
     try:
         for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) / 1024
     except (OSError, ValueError, IndexError):
         pass
     return None
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of ``pid`` in MB, None if gone."""
+    return _status_mb(pid, "VmRSS")
 
 
 def hwm_mb(pid: int) -> float | None:
-    """Peak resident set size of ``pid`` in MB (``VmHWM``), None if gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
+    """Peak resident set size of ``pid`` in MB, None if gone."""
+    return _status_mb(pid, "VmHWM")
 
 
 class Server:
