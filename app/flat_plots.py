@@ -3,7 +3,7 @@
 Everything shown comes from ccdcore's result objects (:mod:`ccdcore.flatfield`,
 :mod:`ccdcore.uniformity`); nothing here estimates anything, it only arranges numbers and arrays
 for display ("value ± error" text is :func:`ccdcore.common.format_pm`'s). Every function returns
-a HoloViews element, a layout, a DataFrame or a string, so the pipeline is tested without a
+a HoloViews element, arrays, a DataFrame or a string, so the pipeline is tested without a
 browser.
 
 Public objects
@@ -12,10 +12,8 @@ CHANNEL_COLORS
     Line colour per channel name (``R``, ``G``, ``B``, ``L``, ``G1``, ``G2``).
 group_label(key)
     ``(level, exposure)`` of a flat group as a short label: ``"L3 · 40 ms"``.
-map_view(plane, title, vdim, cmap="viridis", clim=None)
-    A rasterised, zoomable map (G, O, a frame's channel) with hover.
-flag_points(flags)
-    ``hv.Points`` marking the flagged pixels of a channel (empty when none).
+flagged_pixels(flags)
+    Rows and columns of the flagged pixels of a channel (the page marks them on G).
 snup_frame(before, after)
     The per-channel SNUP table of a frame before and after correction (display strings).
 averaging_plot(result), averaging_frame(result)
@@ -43,10 +41,9 @@ from ccdcore.common import format_pm
 from ccdcore.flatfield import BaseStudy, KMapComparison, SettingsComparison, ZeroDark
 from ccdcore.uniformity import AveragingResult, Linearity, SnupResult
 
-from . import plots
 
-__all__ = ["CHANNEL_COLORS", "group_label", "map_view",
-           "flag_points", "snup_frame", "averaging_plot", "averaging_frame", "linearity_plot",
+__all__ = ["CHANNEL_COLORS", "group_label", "flagged_pixels",
+           "snup_frame", "averaging_plot", "averaging_frame", "linearity_plot",
            "linearity_frame", "study_heatmap", "study_frame", "zero_dark_frame",
            "settings_frame", "kmap_frame", "LEVEL_COLORS"]
 
@@ -76,30 +73,11 @@ def group_label(key: Sequence[Any] | None) -> str:
 
 
 # ------------------------------------------------------------------------------ images --------
-def map_view(plane: NDArray, title: str, vdim: str = "DN", cmap: str = "viridis",
-             clim: tuple[float, float] | None = None, *,
-             frame_width: int | None = None) -> hv.DynamicMap:
-    """The rasterised, zoomable view of a 2-D map or channel with hover (x, y, value).
-
-    ``frame_width`` fixes the frame's width and gives square pixels
-    (:func:`app.plots.fixed_size`); ``None`` (the default) stretches it to its container. Views
-    of the same pixel grid shown in panes with ``linked_axes=True`` share their x and y ranges
-    (Panel links plots whose axes carry the same dimensions), so zooming one zooms the others.
-    """
-    image = plots.image_element(np.asarray(plane), label=title, vdim=vdim)
-    clim = plots.auto_clim(plane) if clim is None else clim
-    view = plots.rasterized_image(image, clim, title=title).opts(cmap=cmap, clabel=vdim)
-    if frame_width is not None:
-        view = view.opts(**plots.fixed_size(image, frame_width))
-    return view
-
-
-def flag_points(flags: NDArray, limit: int = 20_000) -> hv.Points:
-    """Red crosses on the flagged pixels of one channel (at most ``limit`` of them)."""
+def flagged_pixels(flags: NDArray, limit: int = 20_000) -> tuple[NDArray, NDArray]:
+    """Rows and columns of the flagged pixels of one channel (the first ``limit`` of them in
+    raster order: more crosses than that would hide the map)."""
     rows, cols = np.nonzero(np.asarray(flags, dtype=bool))
-    rows, cols = rows[:limit], cols[:limit]
-    return hv.Points((cols.astype(float), rows.astype(float)), kdims=["x", "y"],
-                     label="flagged").opts(color="#ff3b30", marker="x", size=7)
+    return rows[:limit], cols[:limit]
 
 
 # ------------------------------------------------------------------------------ tables --------

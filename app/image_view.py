@@ -10,7 +10,7 @@ model changed outside Panel's document lock is refused).
 ImageView(frame_width=560, max_frame_height=560, cmap="gray", ...)
     A zoomable view of one 2-D plane at screen resolution (:func:`app.plots.overview`), with
     square pixels, a colour bar, a hover readout, optional linked zoom with other views, a
-    crosshair and a box; Python callbacks for the pointer, a tap and a drawn box.
+    crosshair, a box and marked pixels; Python callbacks for the pointer, a tap and a drawn box.
 HistogramView(height=220, ...)
     The histogram of a plane's finite values with the colour range as a band.
 palette(cmap, n=256)
@@ -124,6 +124,7 @@ class ImageView:
         self.figure = fig
         self._spans: tuple[Any, Any] | None = None
         self._box: Any = None
+        self._points: Any = None
 
     # ------------------------------------------------------------------ data ----------------
     @batched
@@ -253,6 +254,27 @@ class ImageView:
         x, y, w, h = box
         self._box.update(left=x - 0.5, right=x + w - 0.5, top=y - 0.5, bottom=y + h - 0.5,
                          visible=True)
+
+    @batched
+    def set_points(self, rows: NDArray | None, cols: NDArray | None) -> None:
+        """Red crosses on the pixels ``(rows[i], cols[i])`` (``None`` or empty: none), drawn
+        above the image at every zoom."""
+        if self._points is None:
+            if rows is None or len(rows) == 0:
+                return
+            from bokeh.models import ColumnDataSource
+
+            source = ColumnDataSource({"x": [], "y": []})
+            self._points = self.figure.scatter(
+                "x", "y", source=source, marker="x", size=8, line_color="#d62728",
+                line_width=1.5)
+        if rows is None or cols is None or len(rows) == 0:
+            self._points.data_source.data = {"x": [], "y": []}
+            self._points.visible = False
+            return
+        self._points.data_source.data = {"x": np.asarray(cols, dtype=float),
+                                         "y": np.asarray(rows, dtype=float)}
+        self._points.visible = True
 
     # ------------------------------------------------------------------ events --------------
     def _ranges(self, event: Any) -> None:

@@ -28,7 +28,6 @@ import holoviews as hv
 import panel as pn
 import param
 
-from . import plots
 from .pages import PAGES, PageSpec, build_page, is_available
 from .batch import batched
 from .state import AppState, default_roots
@@ -255,11 +254,14 @@ _warmed = False
 
 
 def warm_up() -> None:
-    """Import what later pages need and compile datashader's kernels, once per process.
+    """Import what the estimators need (scipy.stats and scipy.ndimage, about 0.5 s), once per
+    process: :func:`serve` runs this in a background thread once the server listens, so the
+    server answers at once and no page's first computation waits for the import.
 
-    The first rasterize costs 2–3 s (numba compiles) and scipy.stats about 0.5 s to import;
-    :func:`serve` runs this in a background thread once the server listens, so the server
-    answers at once and the first map is drawn without the wait (docs/notes.md).
+    The app compiles nothing at start: ccdcore's numba kernels are cached on disk
+    (``cache=True``), and the map views reduce pixels with numpy (:func:`app.plots.overview`)
+    rather than datashader, whose kernels numba compiled again in every server process (10 s
+    of CPU holding the interpreter against the first pages; docs/notes.md).
     """
     global _warmed
     with _warm_lock:
@@ -269,9 +271,7 @@ def warm_up() -> None:
         import scipy.ndimage  # noqa: F401  (the estimators' imports, off the event loop)
         import scipy.stats  # noqa: F401
 
-        seconds = plots.warm_up()
-        log.info("warm-up took %.1f s (datashader %.1f s)", time.perf_counter() - start,
-                 seconds)
+        log.info("warm-up took %.1f s", time.perf_counter() - start)
         _warmed = True
 
 

@@ -1,7 +1,8 @@
 """Pure plot-building functions for the app (no widgets, no state).
 
-Every function takes arrays and options and returns a HoloViews element (or plain numbers), so
-the plotting pipeline is tested without a browser and the page classes stay thin.
+Every function takes arrays and options and returns arrays or plain numbers, so the plotting
+pipeline is tested without a browser and the page classes stay thin; the pages draw images with
+:class:`app.image_view.ImageView`.
 
 Public objects
 --------------
@@ -20,11 +21,6 @@ auto_clim(values, lower=0.5, upper=99.5)
     Colour range from percentiles of the finite values.
 subsample(values)
     A regular subsample of at most a million values (for percentiles and medians).
-image_element(plane, ...)
-    ``hv.Image`` of one plane in pixel coordinates (x = column, y = row, row 0 at the top).
-rasterized_image(image, clim=None, ...)
-    The datashader-rasterised, zoomable, greyscale view of an image with a hover tool (the
-    Flat field page's maps; the other pages draw with :class:`app.image_view.ImageView`).
 histogram_edges(values, bins=256)
     Bin edges for a frame's histogram (one bin per DN for small integer ranges).
 histogram_counts(values, bins=256)
@@ -32,17 +28,12 @@ histogram_counts(values, bins=256)
 OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
     that reduction of the visible part of a map.
-frame_size(shape, frame_width, max_frame_height=560), fixed_size(image, frame_width, ...)
-    A plot frame giving square pixels, as a size and as HoloViews options.
-warm_up()
-    Run the datashader/numba rasterisation once per common dtype (first call compiles).
+frame_size(shape, frame_width, max_frame_height=560)
+    The size of a plot frame giving square pixels.
 """
 from __future__ import annotations
 
-import time
-from typing import Any
 
-import holoviews as hv
 import numpy as np
 from numpy.typing import NDArray
 
@@ -50,9 +41,8 @@ from ccdcore.channels import check_layout, split_channels
 from ccdcore.errors import CcdError
 
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
-           "auto_clim",
-           "image_element", "rasterized_image", "histogram_edges", "histogram_counts",
-           "warm_up", "OVERVIEWS", "overview", "fixed_size", "frame_size", "subsample"]
+           "auto_clim", "histogram_edges", "histogram_counts", "OVERVIEWS", "overview",
+           "frame_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -167,46 +157,6 @@ def auto_clim(values: NDArray, lower: float = 0.5, upper: float = 99.5) -> tuple
     return (lo, hi)
 
 
-def image_element(plane: NDArray, *, label: str = "", vdim: str = "DN") -> hv.Image:
-    """``hv.Image`` of a 2-D plane in pixel coordinates.
-
-    Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)``; the element is meant to be shown
-    with ``invert_yaxis=True`` (as :func:`rasterized_image` does) so row 0 is at the top, as in
-    the file.
-    """
-    if plane.ndim != 2:
-        raise ValueError(f"plane: expected a 2-D array, got shape {plane.shape}")
-    h, w = plane.shape
-    # hv.Image puts data[0] at the top of its bounds; flipping puts row r at y = r.
-    return hv.Image(plane[::-1], bounds=(-0.5, -0.5, w - 0.5, h - 0.5),
-                    kdims=["x", "y"], vdims=[hv.Dimension(vdim, label=vdim)], label=label)
-
-
-def rasterized_image(image: hv.Image, clim: tuple[float, float] | None = None, *,
-                     dynamic: bool = True, title: str = "") -> hv.DynamicMap:
-    """The zoomable greyscale view of ``image``: datashader ``rasterize`` + hover tool.
-
-    Zooming re-rasterises at screen resolution (``dynamic=True``); the hover tool shows ``x``,
-    ``y`` (pixel column and row) and the value under the cursor (the mean of the pixels under a
-    screen pixel when zoomed out, the pixel itself when zoomed in).
-    """
-    from holoviews.operation.datashader import rasterize  # datashader loads on first use
-
-    vdim = image.vdims[0].name
-    (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-    aspect = max(0.25, min(4.0, (x1 - x0) / max(y1 - y0, 1e-9)))
-    out = rasterize(image, dynamic=dynamic, aggregator="mean")
-    opts: dict[str, Any] = dict(
-        cmap="gray", colorbar=True, tools=["hover"], invert_yaxis=True, aspect=aspect,
-        responsive=True, title=title, xlabel="x (column)", ylabel="y (row)",
-        hover_tooltips=[("x", "$x{0}"), ("y", "$y{0}"), (vdim, "@image")],
-        default_tools=["pan", "wheel_zoom", "box_zoom", "reset", "save"],
-        active_tools=["wheel_zoom"])
-    if clim is not None:
-        opts["clim"] = tuple(float(c) for c in clim)
-    return out.opts(**opts)
-
-
 #: how a zoomed-out map view reduces the map pixels under one screen pixel (name -> what the
 #: title says): a mean hides a single hot pixel or a pixel-scale pattern, the extreme keeps it
 OVERVIEWS: dict[str, str] = {
@@ -222,7 +172,7 @@ def overview(plane: NDArray, x_range: tuple[float, float] | None,
              ) -> tuple[NDArray, tuple[float, float, float, float], int]:
     """The visible part of ``plane`` reduced to at most ``width`` × ``height`` screen pixels.
 
-    Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)`` (:func:`image_element`). The
+    Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)`` (row 0 at the top). The
     columns and rows that ``x_range``, ``y_range`` (``None``: all) overlap are cut out (at
     least one); when they are more than the screen pixels, square blocks of ``f`` × ``f`` map
     pixels (``f`` the smallest integer that fits) become one value each:
@@ -283,21 +233,6 @@ def frame_size(shape: tuple[float, float], frame_width: int, max_frame_height: i
     return max(int(round(width)), 1), max(int(round(width * ratio)), 1)
 
 
-def fixed_size(image: hv.Image, frame_width: int, max_frame_height: int = 560) -> dict[str, Any]:
-    """Plot options giving ``image`` square pixels in a fixed frame ``frame_width`` wide (narrower
-    when the frame would be taller than ``max_frame_height``).
-
-    Both frame sizes are fixed (the axes, title and colour bar come on top); show it in a pane
-    with ``sizing_mode="fixed"``: a stretching pane stretches the plot and its pixels, and a
-    ``frame_width`` with an ``aspect`` is laid out at zero size inside nested stretching
-    Panel layouts.
-    """
-    (x0, x1), (y0, y1) = image.range("x"), image.range("y")
-    width, height = frame_size((y1 - y0, x1 - x0), frame_width, max_frame_height)
-    return dict(responsive=False, aspect=None, data_aspect=None,
-                frame_width=width, frame_height=height)
-
-
 def histogram_edges(values: NDArray, bins: int = 256) -> NDArray:
     """Bin edges for the histogram of ``values``.
 
@@ -323,18 +258,3 @@ def histogram_counts(values: NDArray, bins: int = 256) -> tuple[NDArray, NDArray
     if flat.dtype.kind == "f":
         flat = flat[np.isfinite(flat)]
     return np.histogram(flat, bins=histogram_edges(flat, bins))
-
-
-def warm_up() -> float:
-    """Rasterise a small image of each common dtype once and return the seconds it took.
-
-    datashader compiles its numba kernels on first use (about 2–3 s, docs/notes.md); calling this at
-    server start moves that cost out of the first user's click.
-    """
-    from holoviews.operation.datashader import rasterize
-
-    start = time.perf_counter()
-    for dtype in (np.uint8, np.uint16, np.float32, np.float64):
-        plane = np.arange(64 * 48, dtype=np.float64).reshape(48, 64).astype(dtype)
-        rasterize(image_element(plane), dynamic=False, aggregator="mean", width=32, height=24)
-    return time.perf_counter() - start

@@ -37,12 +37,10 @@ through :meth:`app.state.AppState.compute`; results are cached in ``state.result
 from __future__ import annotations
 
 import logging
-import traceback
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, Sequence
 
-import holoviews as hv
 import numpy as np
 import pandas as pd
 import panel as pn
@@ -59,6 +57,7 @@ from ccdcore.simulate.truth import find_truth
 from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
+from ..image_view import ImageView
 from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
@@ -171,48 +170,28 @@ def default_frame(rec: BaseRecommendation | None, groups: dict) -> str | None:
 IMAGE_WIDTH = 400
 
 
-def _image_pane(css_class: str) -> pn.pane.HoloViews:
-    """A pane for one zoomable image whose axes Panel links with the page's other image panes."""
-    return pn.pane.HoloViews(None, sizing_mode="fixed", linked_axes=True,
-                             css_classes=[css_class])
+def _image_view(cmap: str, label: str, css_class: str, link: ImageView | None = None
+                ) -> ImageView:
+    """One zoomable image of the page (built once, fed in place), zoom linked with ``link``."""
+    return ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH, cmap=cmap,
+                     label=label, symbol=label, link=link, css_classes=[css_class])
+
+
+def _view_pane(view: ImageView) -> pn.Column:
+    """The pane of a view (a Column around it: ``visible`` on a Bokeh pane fails)."""
+    return pn.Column(pn.pane.Bokeh(view.figure), margin=0, visible=False)
 
 
 def _in_document(doc: Any, callback: Any) -> None:
     """Run ``callback`` in a callback of ``doc`` (the browser session's document, holding its
-    lock, so replaced plots and linked ranges reach the browser; model changes made from a
-    coroutine after a worker thread can get lost), or at once without a served document."""
+    lock, so model changes reach the browser; changes made from a coroutine after a worker
+    thread can get lost), or at once without a served document."""
     doc = doc if doc is not None else pn.state.curdoc
     if doc is None or doc.session_context is None:
         callback()
         return
     with set_curdoc(doc):
         pn.state.execute(callback, schedule=True)
-
-
-def _link_image_axes(container: pn.viewable.Viewable, panes: Sequence[pn.pane.HoloViews],
-                     doc: Any = None) -> None:
-    """Share the x and y ranges of the image panes' plots (linked zoom and pan).
-
-    Panel links panes with ``linked_axes=True`` by a pre-processing hook when a root is
-    rendered or a pane updates; inside a template (the app's) the hook does not reach these
-    panes, so the page runs the same hook (:func:`panel.pane.holoviews.link_axes`) itself, for
-    every browser root the panes are shown in. An hv.Layout of the two views would link them
-    too, but its fixed-size bokeh grid collapses to zero-size figures inside the template.
-    """
-    from types import SimpleNamespace
-
-    from panel.pane.holoviews import link_axes
-
-    def link() -> None:
-        refs = set().union(*(getattr(p, "_plots", {}).keys() for p in panes))
-        for ref in refs:
-            try:
-                link_axes(container, SimpleNamespace(ref={"id": ref}))
-            except Exception:  # linking is a convenience: never break the page for it
-                log.warning("linking the image axes failed:\n%s", traceback.format_exc())
-
-    # after the pane updates, which in a served session may land on the next tick
-    _in_document(doc, link)
 
 
 def _table(df: pd.DataFrame, css_class: str, **kw: Any) -> pn.pane.DataFrame:
@@ -295,11 +274,13 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.snup_table = _table(pd.DataFrame(), "ccd-flat-snup")
         self.frame_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                          sizing_mode="stretch_width")
-        # Two panes whose plots Panel links (linked_axes=True: same x, y dimensions share their
-        # ranges). An hv.Layout of the two collapses to zero-size figures inside the app's
-        # template (bokeh grid of fixed-size figures), so the views are side by side in a Row.
-        self.before_pane = _image_pane("ccd-flat-before")
-        self.after_pane = _image_pane("ccd-flat-after")
+        # two views sharing their x and y ranges (linked zoom), the pointer read in both
+        self.before_view = _image_view("gray", "DN", "ccd-flat-before")
+        self.after_view = _image_view("gray", "DN", "ccd-flat-after", link=self.before_view)
+        for view in (self.before_view, self.after_view):
+            view.on_pointer = lambda x, y: self._on_pointer(x=x, y=y)
+        self.before_pane = _view_pane(self.before_view)
+        self.after_pane = _view_pane(self.after_view)
         # a FlexBox, not a Row: on a narrow window (1024 px) the second view wraps below the
         # first instead of overflowing the card
         self.pair_pane = pn.FlexBox(self.before_pane, self.after_pane,
@@ -309,8 +290,10 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                                         sizing_mode="stretch_width", css_classes=["ccd-readout"])
 
         # maps
-        self.g_pane = _image_pane("ccd-flat-gmap")
-        self.o_pane = _image_pane("ccd-flat-omap")
+        self.g_view = _image_view("viridis", "G", "ccd-flat-gmap")
+        self.o_view = _image_view("magma", "O (DN)", "ccd-flat-omap", link=self.g_view)
+        self.g_pane = _view_pane(self.g_view)
+        self.o_pane = _view_pane(self.o_view)
         self.maps_pane = pn.FlexBox(self.g_pane, self.o_pane, sizing_mode="stretch_width",
                                     css_classes=["ccd-flat-maps"])
         self.map_readout = pn.pane.Markdown("", sizing_mode="stretch_width")
@@ -714,20 +697,19 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     def _render_maps(self) -> None:
         flat = self.flat
         if flat is None or self.channel not in channel_names(flat.layout):
-            self.g_pane.object = self.o_pane.object = None
+            for view in (self.g_view, self.o_view):
+                view.show(None)
+            self.g_pane.visible = self.o_pane.visible = False
             return
         G = self._plane(flat.G, flat.layout)
         O = self._plane(flat.O, flat.layout)
         flags = self._plane(flat.flags, flat.layout)
-        g_view = flat_plots.map_view(G, f"G \u2014 channel {self.channel}", "G", "viridis",
-                                     frame_width=IMAGE_WIDTH)
-        o_view = flat_plots.map_view(O, f"O \u2014 channel {self.channel} (DN)", "O",
-                                     "magma", frame_width=IMAGE_WIDTH)
-        if flags.any():
-            g_view = g_view * flat_plots.flag_points(flags)
-        self.g_pane.object = g_view
-        self.o_pane.object = o_view
-        _link_image_axes(self.maps_pane, [self.g_pane, self.o_pane], self._doc)
+        self.g_view.show(G, clim=plots.auto_clim(G), title=f"G \u2014 channel {self.channel}")
+        self.o_view.show(O, clim=plots.auto_clim(O),
+                         title=f"O \u2014 channel {self.channel} (DN)")
+        rows, cols = flat_plots.flagged_pixels(flags)
+        self.g_view.set_points(rows, cols)
+        self.g_pane.visible = self.o_pane.visible = True
         self.map_readout.object = (
             f"Channel {self.channel}: G from {float(G.min()):.4f} to {float(G.max()):.4f} "
             f"(mean {float(G.mean()):.4f}); O from {float(O.min()):.2f} to "
@@ -738,7 +720,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         if view is None:
             self.snup_title.object = ""
             self.snup_table.object = pd.DataFrame()
-            self.before_pane.object = self.after_pane.object = None
+            self._hide_pair()
             return
         self.snup_title.object = (
             f"**SNUP of `{view.relpath}`** (100\u00b7\u03c3/mean \u00b1 standard error, eq. 5), "
@@ -750,23 +732,29 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     def _render_pair(self) -> None:
         view, flat = self.view, self.flat
         if view is None or flat is None or self.channel not in channel_names(flat.layout):
-            self.before_pane.object = self.after_pane.object = None
+            self._hide_pair()
             return
         raw = self._plane(view.raw, flat.layout)
         cor = self._plane(view.corrected, flat.layout)
         clim = plots.auto_clim(np.concatenate([np.ravel(raw), np.ravel(cor)]))
-        before = flat_plots.map_view(raw, f"Before \u2014 {self.channel}", "DN", "gray", clim,
-                                     frame_width=IMAGE_WIDTH)
-        after = flat_plots.map_view(cor, f"After \u2014 {self.channel}", "DN", "gray", clim,
-                                    frame_width=IMAGE_WIDTH)
-        for source in (before, after):
-            stream = hv.streams.PointerXY(x=None, y=None, source=source)
-            stream.add_subscriber(self._on_pointer)
-        self.before_pane.object = before
-        self.after_pane.object = after
-        _link_image_axes(self.pair_pane, [self.before_pane, self.after_pane], self._doc)
+        self.before_view.show(raw, clim=clim, title=f"Before \u2014 {self.channel}")
+        self.after_view.show(cor, clim=clim, title=f"After \u2014 {self.channel}")
+        self.before_pane.visible = self.after_pane.visible = True
         self.readout.object = ("Move the cursor over either image to read the pixel before and "
                                "after correction.")
+
+    @batched
+    def _hide_pair(self) -> None:
+        for view in (self.before_view, self.after_view):
+            view.show(None)
+        self.before_pane.visible = self.after_pane.visible = False
+
+    def release(self) -> None:
+        """Let go of the frames and maps shown (the browser session ended; nothing is sent)."""
+        for view in (self.before_view, self.after_view, self.g_view, self.o_view):
+            view.release()
+        self.flat = self.view = self.recommendation = None
+        self._study = self._zero = None
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
         view, flat = self.view, self.flat

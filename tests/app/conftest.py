@@ -153,7 +153,7 @@ def _wait_alive(url: str, timeout: float = 20.0) -> None:
 
 @pytest.fixture(scope="session")
 def warmed() -> None:
-    """Compile datashader's kernels once for the whole run (as ``serve`` does)."""
+    """Import the estimators' scipy modules once for the whole run (as ``serve`` does)."""
     from app.main import warm_up
 
     warm_up()

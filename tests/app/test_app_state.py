@@ -118,9 +118,6 @@ def test_every_page_builds(state):
 
 def test_plot_functions():
     plane = np.arange(12, dtype=np.uint16).reshape(3, 4)
-    img = plots.image_element(plane)
-    # row r of the file is at y = r (the view inverts the y axis so row 0 is on top)
-    assert img[0, 0] == 0 and img[3, 2] == 11
     edges = plots.histogram_edges(plane)
     assert len(edges) == 13 and edges[0] == -0.5           # one bin per DN
     lo, hi = plots.auto_clim(np.arange(1000.0))
@@ -131,18 +128,6 @@ def test_plot_functions():
     assert plots.channel_planes(rgb[..., 0]) == {}                  # mono: the frame itself
     assert plots.channel_data(rgb, "R").max() == 200
     assert plots.channel_data(rgb, "L").max() == pytest.approx(200 * 0.2126, rel=1e-6)
-
-
-def test_fixed_size_gives_square_pixels():
-    from app import plots
-
-    wide = plots.image_element(np.zeros((64, 96), np.uint8))
-    o = plots.fixed_size(wide, 400)
-    assert (o["frame_width"], o["frame_height"]) == (400, round(400 * 64 / 96))
-    tall = plots.image_element(np.zeros((1024, 256), np.uint16))
-    o = plots.fixed_size(tall, 400, max_frame_height=560)   # 400 wide would be 1600 tall
-    assert (o["frame_width"], o["frame_height"]) == (140, 560)
-    assert not o["responsive"]
 
 
 @pytest.mark.parametrize("demo", ["healey94", "delasarte07"])

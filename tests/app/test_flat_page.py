@@ -95,7 +95,17 @@ def test_snup_table_is_ccdcores_before_and_after(loaded):
     assert loaded.view.after["G"].snup < loaded.view.before["G"].snup / 2  # it did correct
     # the maps shown are ccdcore's G and O of the chosen channel
     assert np.array_equal(loaded.flat.G, ff.G) and np.array_equal(loaded.flat.O, ff.O)
-    assert loaded.g_pane.object is not None and loaded.o_pane.object is not None
+    c = {"R": 0, "G": 1, "B": 2}[loaded.channel]
+    assert np.array_equal(loaded.g_view.plane, ff.G[..., c])
+    assert np.array_equal(loaded.o_view.plane, ff.O[..., c])
+    assert loaded.g_pane.visible and loaded.o_pane.visible
+    # before and after: the frame and its correction, zoomed together, one colour range
+    assert np.array_equal(loaded.before_view.plane, loaded.view.raw[..., c])
+    assert np.array_equal(loaded.after_view.plane, loaded.view.corrected[..., c])
+    assert loaded.after_view.figure.x_range is loaded.before_view.figure.x_range
+    assert loaded.o_view.figure.y_range is loaded.g_view.figure.y_range
+    assert (loaded.before_view.mapper.low, loaded.before_view.mapper.high) == \
+        (loaded.after_view.mapper.low, loaded.after_view.mapper.high)
     assert "0 flagged pixels" in loaded.flag_pane.object
     assert "4 dark frames at 0.04 s" in loaded.setup_pane.object
 

@@ -96,6 +96,24 @@ def test_events_reach_the_callbacks_and_marks_cover_pixel_edges():
     assert (across.location, down.location, across.visible) == (4.0, 7.0, True)
 
 
+def test_marked_pixels_are_crosses_at_their_centres():
+    from app.flat_plots import flagged_pixels
+
+    view = ImageView()
+    view.set_points(np.array([], int), np.array([], int))
+    assert view._points is None                       # nothing marked: no renderer added
+    flags = np.zeros((6, 8), bool)
+    flags[1, 5] = flags[4, 2] = True
+    rows, cols = flagged_pixels(flags)
+    view.set_points(rows, cols)
+    data = view._points.data_source.data
+    assert list(data["x"]) == [5.0, 2.0] and list(data["y"]) == [1.0, 4.0]   # x column, y row
+    assert view._points.visible
+    view.set_points(None, None)
+    assert not view._points.visible and len(view._points.data_source.data["x"]) == 0
+    assert len(flagged_pixels(np.ones((300, 300), bool), limit=100)[0]) == 100
+
+
 def test_clearing_shows_nothing_and_a_3d_array_is_refused():
     view = ImageView()
     view.show(np.ones((4, 4)), title="x")
