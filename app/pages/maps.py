@@ -52,7 +52,6 @@ import io
 import logging
 import math
 import tempfile
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -334,7 +333,11 @@ class MapsPage(pn.viewable.Viewer):
 
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
-        self._sliders: dict[str, pn.widgets.EditableRangeSlider] = {}
+        #: the colour range of each map (the one slider shows the selected map's), and the
+        #: slider's bounds, step, label and state per map
+        self.clims: dict[str, tuple[float, float]] = {}
+        self._clim_specs: dict[str, dict[str, Any]] = {}
+        self._syncing_clim = False
         #: one view and one histogram per map key, built when the map is first shown, then
         #: fed in place; every map view shares the first one's zoom (linked)
         self.map_views: dict[str, ImageView] = {}
@@ -374,7 +377,12 @@ class MapsPage(pn.viewable.Viewer):
             min_width=320)
         self.active_select = pn.widgets.Select.from_param(self.param.active,
                                                           label="Selected map", width=280)
-        self.clim_holder = pn.Column(sizing_mode="stretch_width", margin=0)
+        # one slider, reconfigured in place for the selected map (a widget swapped into the
+        # page is built again in the browser: 0.5 s per choice)
+        self.clim_slider = pn.widgets.EditableRangeSlider(
+            label="Colour range", start=0.0, end=1.0, value=(0.0, 1.0), step=0.001,
+            sizing_mode="stretch_width", format="0.[00000]", visible=False)
+        self.clim_slider.param.watch(self._on_clim, "value")
         # the zoomed-out views follow the choice in place
         self.overview_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.overview, options={"extreme pixel": "extreme", "mean": "mean"},
@@ -509,7 +517,7 @@ class MapsPage(pn.viewable.Viewer):
     def _build_layout(self) -> pn.viewable.Viewable:
         controls = pn.Column(
             pn.FlexBox(self.shown_select, self.active_select, sizing_mode="stretch_width"),
-            pn.Row(pn.Column(self.clim_holder, sizing_mode="stretch_width", min_width=300),
+            pn.Row(pn.Column(self.clim_slider, sizing_mode="stretch_width", min_width=300),
                    self.auto_button, sizing_mode="stretch_width"),
             pn.Row(pn.pane.Markdown("**Zoomed out**, a screen pixel of a map shows:",
                                     margin=(12, 10, 0, 10)),
@@ -711,7 +719,7 @@ class MapsPage(pn.viewable.Viewer):
     def _set_layers(self, layers: dict[str, MapLayer]) -> None:
         """Show ``layers``: new colour-range sliders, the choices, then (one batch of events)
         the grid and the selected map once each."""
-        sliders = {}
+        clims, specs = {}, {}
         for key, layer in layers.items():
             lo, hi = map_plots.default_clim(layer)
             finite = layer.data[np.isfinite(layer.data)]
@@ -723,13 +731,12 @@ class MapsPage(pn.viewable.Viewer):
             if not end > start:
                 end = start + 1.0
             step = 0.5 if layer.integer else (end - start) / 1000
-            sliders[key] = pn.widgets.EditableRangeSlider(
+            clims[key] = (lo, hi)
+            specs[key] = dict(
                 label=f"Colour range of {layer.symbol}" + (f" ({layer.unit})" if layer.unit
-                                                          else ""),
-                start=start, end=end, value=(lo, hi), step=step, sizing_mode="stretch_width",
-                disabled=layer.kind == "flags", format="0.[00000]")
-            sliders[key].param.watch(partial(self._on_clim, key), "value")
-        self._sliders = sliders
+                                                         else ""),
+                start=start, end=end, step=step, disabled=layer.kind == "flags")
+        self.clims, self._clim_specs = clims, specs
         options = {l.title: k for k, l in layers.items()}
         shown = [k for k in self.shown if k in layers] or \
             [k for k in DEFAULT_SHOWN if k in layers]
@@ -762,7 +769,7 @@ class MapsPage(pn.viewable.Viewer):
         frame_width = 640 if len(keys) == 1 else 380
         maps, hists = [], []
         for key in keys:
-            layer, clim = self.layers[key], self._sliders[key].value
+            layer, clim = self.layers[key], self.clims[key]
             view = self.map_views.get(key)
             if view is None:
                 link = next(iter(self.map_views.values()), None)
@@ -800,7 +807,12 @@ class MapsPage(pn.viewable.Viewer):
         with param.parameterized.discard_events(self):
             self.layers = {}
 
-    def _on_clim(self, key: str, event: Any) -> None:
+    def _on_clim(self, event: Any) -> None:
+        """The slider moved: the selected map's colour range, its view and histogram band."""
+        key = self.active
+        if self._syncing_clim or key not in self.clims:
+            return
+        self.clims[key] = tuple(event.new)
         if key in self.map_views:
             self.map_views[key].set_clim(event.new)
             self.hist_views[key].set_band(event.new)
@@ -819,10 +831,15 @@ class MapsPage(pn.viewable.Viewer):
     def _on_active(self) -> None:
         layer = self.active_layer
         if layer is None:
-            self.clim_holder.objects = []
+            self.clim_slider.visible = False
             self.map_note.object = ""
         else:
-            self.clim_holder.objects = [self._sliders[layer.key]]
+            self._syncing_clim = True
+            try:   # bounds, step, label and value at once (one message)
+                self.clim_slider.param.update(value=self.clims[layer.key], visible=True,
+                                              **self._clim_specs[layer.key])
+            finally:
+                self._syncing_clim = False
             self.map_note.object = f"**{html.escape(layer.title)}**: {html.escape(layer.note)}."
             for fmt, widget in (("exr", self.download_exr), ("fits", self.download_fits),
                                 ("png", self.download_png)):
@@ -859,9 +876,9 @@ class MapsPage(pn.viewable.Viewer):
     def _on_auto(self, event: Any = None) -> None:
         layer = self.active_layer
         if layer is not None:
-            slider = self._sliders[layer.key]
+            spec = self._clim_specs[layer.key]
             lo, hi = map_plots.default_clim(layer)
-            slider.value = (max(slider.start, lo), min(slider.end, hi))
+            self.clim_slider.value = (max(spec["start"], lo), min(spec["end"], hi))
 
     def export(self, fmt: str) -> bytes:
         """The selected map as the bytes of an EXR, FITS or PNG file (see :func:`export_bytes`;
@@ -869,7 +886,7 @@ class MapsPage(pn.viewable.Viewer):
         layer = self.active_layer
         if layer is None:
             raise CcdError("export", "no map to export: compute the maps first")
-        return export_bytes(layer, fmt, self._sliders[layer.key].value)
+        return export_bytes(layer, fmt, self.clims[layer.key])
 
     def _download(self, fmt: str) -> io.BytesIO | None:
         try:

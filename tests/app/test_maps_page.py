@@ -153,9 +153,18 @@ def test_map_selection_switches_the_data(computed):
     drawn = page.profiles.sources                 # what the two profile plots draw now
     np.testing.assert_array_equal(drawn["row"].data["value"], page.layers["dark"].data[row])
     assert page.download_exr.filename == "dark.exr"
-    assert page.clim_holder.objects[0] is page._sliders["dark"]
+    # the one colour-range slider now shows the dark map's range, bounds and label
+    spec = page._clim_specs["dark"]
+    assert page.clim_slider.value == page.clims["dark"] == map_plots.default_clim(
+        page.layers["dark"])
+    assert (page.clim_slider.start, page.clim_slider.end, page.clim_slider.label) == \
+        (spec["start"], spec["end"], "Colour range of D̂_D (DN)")
+    page.clim_slider.value = (spec["start"], spec["end"])     # moved for the dark map only
     page.active_select.value = "K"
     np.testing.assert_array_equal(drawn["row"].data["value"], page.layers["K"].data[row])
+    assert page.clim_slider.value == page.clims["K"] == map_plots.default_clim(page.layers["K"])
+    assert page.clims["dark"] == (spec["start"], spec["end"])
+    assert (page.map_views["K"].mapper.low, page.map_views["K"].mapper.high) == page.clims["K"]
     # a column profile follows the column slider
     page.col_slider.value = 17
     np.testing.assert_array_equal(drawn["col"].data["value"], page.layers["K"].data[:, 17])
@@ -188,7 +197,7 @@ def test_cursor_readout_and_tap(computed):
 def test_colour_range_and_auto(computed):
     page = computed
     page.active_select.value = "K"
-    slider = page._sliders["K"]
+    slider = page.clim_slider
     lo, hi = map_plots.default_clim(page.layers["K"])
     assert lo + hi == pytest.approx(2.0)    # diverging map centred on 1
     slider.value = (0.995, 1.001)
@@ -207,7 +216,7 @@ def test_export_reads_back_bit_exact(computed, tmp_path):
         assert back.dtype == np.float32
         np.testing.assert_array_equal(back, expected)
     # PNG: 16-bit grey levels of the map scaled to the current colour range
-    page._sliders["K"].value = (0.99, 1.01)
+    page.clim_slider.value = (0.99, 1.01)
     path = tmp_path / "K.png"
     path.write_bytes(page.export("png"))
     png = read_image(path)
@@ -404,7 +413,7 @@ def test_choices_on_computed_maps_update_the_plots_in_place(assets):
     page.row_slider.value = row + 3
     page.col_slider.value = 5
     assert set(dark[row + 3]) in profile_values() and set(dark[:, 5]) in profile_values()
-    slider = page._sliders["dark"]
+    slider = page.clim_slider
     lo, hi = slider.value
     slider.value = (lo, (lo + hi) / 2)
     mappers = [m for m in root.references() if type(m).__name__ == "LinearColorMapper"]
