@@ -27,6 +27,7 @@ from typing import Any, Iterable
 import holoviews as hv
 import panel as pn
 import param
+from panel.theme import Bootstrap
 
 from .pages import PAGES, PageSpec, build_page, is_available
 from .batch import batched
@@ -47,6 +48,34 @@ hv.extension("bokeh", logo=False)
 # (lab VMs, headless servers, CI) runs in software; the plots here have few glyphs, where Canvas
 # is as fast.
 hv.renderer("bokeh").webgl = False
+
+class AppDesign(Bootstrap):
+    """Panel's Bootstrap design without Bootstrap's own stylesheet inside every component.
+
+    Panel gives each component rendered with the first page its own copy of
+    ``bootstrap.min.css`` (220 kB, thousands of rules) in its shadow root; with some sixty of
+    them the browser spent a third of a page visit recomputing styles (docs/notes.md, "Where
+    the app's time goes"). The page's head still loads the stylesheet for the template, and the
+    components keep the design's theme sheets, which style them.
+    """
+
+    @classmethod
+    def _get_modifiers(cls, viewable: Any, theme: Any = None, isolated: bool = True) -> Any:
+        modifiers, child_modifiers = super()._get_modifiers(viewable, theme, isolated)
+        sheets = modifiers.get("stylesheets")
+        if sheets:
+            modifiers["stylesheets"] = [s for s in sheets if not _is_bootstrap_css(s)]
+        return modifiers, child_modifiers
+
+
+def _is_bootstrap_css(sheet: Any) -> bool:
+    """Whether ``sheet`` (a URL) is Bootstrap's own stylesheet (not Panel's theme for it)."""
+    return isinstance(sheet, str) and sheet.split("?")[0].endswith(BOOTSTRAP_CSS)
+
+
+#: the file name of Bootstrap's stylesheet in Panel's bundle
+BOOTSTRAP_CSS = "bootstrap5/css/bootstrap.min.css"
+
 
 _CSS = """
 .ccd-badge { display: inline-block; padding: 1px 7px; border-radius: 9px; font-size: 0.72em;
@@ -209,7 +238,7 @@ def create_app(session_path: str | Path | None = None, *,
     # list), so one session's events would change another session's document without its lock;
     # each session gets a spinner bound to its own state instead.
     template = pn.template.BootstrapTemplate(
-        title=TITLE, sidebar_width=250, header_background="#1f3b57", header_color="#ffffff",
+        design=AppDesign, title=TITLE, sidebar_width=250, header_background="#1f3b57", header_color="#ffffff",
         busy_indicator=None)
     template.header.append(pn.indicators.LoadingSpinner(
         value=state.param.busy, width=22, height=22, color="light", bgcolor="dark",

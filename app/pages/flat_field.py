@@ -62,6 +62,7 @@ from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
+from ._styles import TABLE_CSS
 
 __all__ = ["FlatFieldPage", "create_page", "FrameView", "frame_view", "kmap_comparison",
            "default_frame", "NO_FLAT_MESSAGE", "ZERO_DARK_MESSAGE"]
@@ -85,13 +86,6 @@ NO_FLAT_MESSAGE = (
 ZERO_DARK_MESSAGE = ("The offset setting clips the dark image at zero; information is lost "
                      "\u2014 raise the offset.")
 
-_TABLE_CSS = """
-table { width: 100%; border-collapse: collapse; font-size: 0.93em; }
-th { text-align: left !important; color: #495057; border-bottom: 2px solid #dee2e6;
-     padding: 4px 8px; white-space: nowrap; }
-td { text-align: left !important; padding: 4px 8px; border-bottom: 1px solid #eef0f2; }
-tr:nth-child(even) td { background: #f8f9fa; }
-"""
 
 _MUTED = {"font-size": "0.88em", "color": "#6c757d"}
 
@@ -196,7 +190,7 @@ def _in_document(doc: Any, callback: Any) -> None:
 
 def _table(df: pd.DataFrame, css_class: str, **kw: Any) -> pn.pane.DataFrame:
     return pn.pane.DataFrame(df, index=False, sizing_mode="stretch_width", escape=True,
-                             css_classes=[css_class], stylesheets=[_TABLE_CSS], **kw)
+                             css_classes=[css_class], stylesheets=[TABLE_CSS], **kw)
 
 
 # ----------------------------------------------------------------------------- the page -------

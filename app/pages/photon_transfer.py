@@ -52,6 +52,7 @@ from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
+from ._styles import TABLE_CSS
 
 __all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "verdict_message",
            "NO_PTC_MESSAGE"]
@@ -88,13 +89,6 @@ _VERDICTS = {
                        "log-log view; exclude them or try robust mode."),
 }
 
-_TABLE_CSS = """
-table { width: 100%; border-collapse: collapse; font-size: 0.95em; }
-th { text-align: left !important; color: #495057; border-bottom: 2px solid #dee2e6;
-     padding: 4px 8px; }
-td { text-align: left !important; padding: 4px 8px; border-bottom: 1px solid #eef0f2; }
-tr:nth-child(even) td { background: #f8f9fa; }
-"""
 
 _NAV_NOTE = ("Levels the estimator leaves out (clipped, beyond the linear range) stay out "
              "whatever their tick; the points table says why.")
@@ -210,7 +204,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.parameter_table = pn.pane.DataFrame(
             pd.DataFrame(columns=["quantity", "symbol", "value", "unit"]), index=False,
             sizing_mode="stretch_width", name="parameters", css_classes=["ccd-ptc-parameters"],
-            stylesheets=[_TABLE_CSS])
+            stylesheets=[TABLE_CSS])
 
         self.level_select = pn.widgets.CheckBoxGroup.from_param(
             self.param.levels, label="Levels in the fit", inline=False)
@@ -246,7 +240,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
         self.points_table = pn.pane.DataFrame(pd.DataFrame(), index=False,
                                               sizing_mode="stretch_width", name="points",
-                                              stylesheets=[_TABLE_CSS])
+                                              stylesheets=[TABLE_CSS])
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
 
         # ---- ROI

@@ -44,6 +44,7 @@ from ..image_view import HistogramView, ImageView
 from ..state import AppState, assets_dir, demo_sessions
 from ..batch import batched
 from ._choices import set_choices
+from ._styles import KEY_VALUE_CSS
 
 __all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",
            "MAX_ALERTS"]
@@ -233,7 +234,8 @@ class SessionPage(pn.viewable.Viewer):
                                        sizing_mode="stretch_width")
 
     def _build_session_widgets(self) -> None:
-        self.camera_pane = pn.pane.Markdown("No session loaded.", sizing_mode="stretch_width")
+        self.camera_pane = pn.pane.Markdown("No session loaded.", sizing_mode="stretch_width",
+                                            stylesheets=[KEY_VALUE_CSS])
         self.problems_column = pn.Column(sizing_mode="stretch_width", max_height=420,
                                          scroll=True, css_classes=["ccd-problems"])
         self.groups_table = pn.widgets.Tabulator(

@@ -54,6 +54,17 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
     assert _outside(requests) == []
     # the app's BokehJS speed-ups (app/static/bokeh_speed.js) found what they patch
     assert page.evaluate("() => window.ccdBokehSpeed") == ["css-variables", "base-font-size"]
+    # Bootstrap's stylesheet is loaded once by the page, in no component (app.main.AppDesign)
+    inside, outside = page.evaluate("""() => {
+        const roots = [];
+        const walk = (node) => { for (const el of node.querySelectorAll('*')) {
+            if (el.shadowRoot) { roots.push(el.shadowRoot); walk(el.shadowRoot); } } };
+        walk(document);
+        const sel = 'link[href*="bootstrap.min.css"]';
+        return [roots.reduce((n, r) => n + r.querySelectorAll(sel).length, 0),
+                document.querySelectorAll(sel).length];
+    }""")
+    assert (inside, outside) == (0, 1)
 
 
 def test_bad_path_shows_an_alert_and_the_app_keeps_working(page: Page, serve_app, open_app,
