@@ -233,3 +233,20 @@ def test_compute_reports_progress_and_cancel_stops_it(tmp_path):
     assert shown and all(0 <= p < 100 for p, _ in shown)
     assert "photon transfer: frame" in shown[0][1]
     assert state.results.estimates is None
+
+
+def test_warm_up_imports_every_built_page_once():
+    import sys
+
+    from app import main
+    from app.pages import PAGES, is_available
+
+    main.start_warm_up()
+    thread = main._warm_thread
+    main.start_warm_up()                          # once per process
+    assert main._warm_thread is thread or main._warmed
+    if thread is not None:
+        thread.join(timeout=120)
+    assert main._warmed
+    for spec in PAGES:
+        assert (spec.module in sys.modules) == is_available(spec)
