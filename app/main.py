@@ -29,6 +29,7 @@ import panel as pn
 import param
 from panel.theme import Bootstrap
 
+from . import plots
 from .pages import PAGES, PageSpec, build_page, is_available
 from .batch import batched
 from .state import AppState, default_roots
@@ -295,13 +296,18 @@ def start_warm_up() -> None:
 
 
 def prepare_first_page() -> None:
-    """Import the first page's module and the colour-map registry its views use (about 0.6 s)."""
+    """Import the first page's module and the colour-map registry its views use, and load the
+    map reduction's kernels for 8- and 16-bit frames (about 0.6 s; the kernels compile once
+    per machine, about 2 s, then load from numba's disk cache)."""
     import importlib
+
+    import numpy as np
 
     from .image_view import palette
 
     importlib.import_module(PAGES[0].module)
     palette("gray")
+    plots.load_kernels((np.uint8, np.uint16))
 
 
 def warm_up() -> None:
@@ -313,10 +319,10 @@ def warm_up() -> None:
     waits for an import on the event loop (Python's import lock makes a page built meanwhile
     wait for its own module only).
 
-    The app compiles nothing at start: ccdcore's numba kernels are cached on disk
-    (``cache=True``), and the map views reduce pixels with numpy (:func:`app.plots.overview`)
-    rather than datashader, whose kernels numba compiled again in every server process (10 s
-    of CPU holding the interpreter against the first pages; docs/notes.md).
+    The numba kernels (ccdcore's, and the map views' block reduction :func:`app.plots.overview`)
+    are cached on disk (``cache=True``): loading them takes milliseconds. The app does not use
+    datashader, whose kernels numba compiled again in every server process (10 s of CPU holding
+    the interpreter against the first pages; docs/notes.md).
     """
     global _warmed
     with _warm_lock:
@@ -329,6 +335,7 @@ def warm_up() -> None:
         for spec in PAGES:
             if is_available(spec):
                 importlib.import_module(spec.module)
+        plots.load_kernels()
         import scipy.ndimage  # noqa: F401  (the estimators' imports, off the event loop)
         import scipy.stats  # noqa: F401
 

@@ -27,13 +27,17 @@ histogram_counts(values, bins=256)
     Counts and edges of a plane's finite values.
 OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
-    that reduction of the visible part of a map.
+    that reduction of the visible part of a map (one compiled pass, :func:`load_kernels`).
+load_kernels(dtypes=None)
+    Compile or load the reduction's kernels ahead of the first zoom.
 frame_size(shape, frame_width, max_frame_height=560)
     The size of a plot frame giving square pixels.
 """
 from __future__ import annotations
 
+from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -206,21 +210,65 @@ def overview(plane: NDArray, x_range: tuple[float, float] | None,
     if f == 1:
         return crop, (c0 - 0.5, r0 - 0.5, c1 - 0.5, r1 - 0.5), 1
     nh, nw = -(-(r1 - r0) // f), -(-(c1 - c0) // f)
-    padded = np.full((nh * f, nw * f), np.nan, dtype=np.float64)
-    padded[:r1 - r0, :c1 - c0] = crop
-    blocks = padded.reshape(nh, f, nw, f).transpose(0, 2, 1, 3).reshape(nh, nw, f * f)
-    finite = np.isfinite(blocks)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        if how == "mean":
-            out = np.where(finite, blocks, 0.0).sum(axis=2) / finite.sum(axis=2)
-        elif how == "max":
-            out = np.where(finite, blocks, -np.inf).max(axis=2)
-        else:
-            dev = np.where(finite, np.abs(blocks - centre), -1.0)
-            pick = dev.argmax(axis=2)[..., None]
-            out = np.take_along_axis(blocks, pick, axis=2)[..., 0]
-    out[~finite.any(axis=2)] = np.nan
+    if crop.dtype == np.bool_:
+        crop = crop.view(np.uint8)
+    elif crop.dtype not in _KERNEL_DTYPES:      # one compiled kernel per dtype: the common ones
+        crop = crop.astype(np.float64)
+    out = _reduce_blocks(np.ascontiguousarray(crop), f, _MODES[how], float(centre))
     return out, (c0 - 0.5, r0 - 0.5, c0 - 0.5 + nw * f, r0 - 0.5 + nh * f), f
+
+
+#: the kernel's code for each reduction
+_MODES = {"mean": 0, "max": 1, "extreme": 2}
+#: the dtypes the kernel reads as they are (compiled once each, cached on disk); others are
+#: converted to float64 first
+_KERNEL_DTYPES = tuple(np.dtype(t) for t in (np.uint8, np.uint16, np.int32, np.int64,
+                                             np.float32, np.float64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _reduce_blocks(crop, f, mode, centre):  # pragma: no cover (compiled)
+    """Blocks of ``f`` × ``f`` pixels of ``crop`` (partial at the right and bottom edges) to one
+    value each, skipping non-finite pixels: their mean (``mode`` 0), largest value (1), or the
+    pixel farthest from ``centre`` (2; the first in row-major order on a tie). A block without a
+    finite pixel is NaN. One pass over the pixels, no copy of the crop."""
+    h, w = crop.shape
+    nh, nw = (h + f - 1) // f, (w + f - 1) // f
+    out = np.empty((nh, nw), np.float64)
+    for i in range(nh):
+        for j in range(nw):
+            total, count, best, pick = 0.0, 0, -np.inf, np.nan
+            for r in range(i * f, min(i * f + f, h)):
+                for c in range(j * f, min(j * f + f, w)):
+                    v = float(crop[r, c])
+                    if not np.isfinite(v):
+                        continue
+                    count += 1
+                    if mode == 0:
+                        total += v
+                    elif mode == 1:
+                        if v > best:
+                            best = v
+                    else:
+                        d = abs(v - centre)
+                        if d > best:
+                            best, pick = d, v
+            if count == 0:
+                out[i, j] = np.nan
+            elif mode == 0:
+                out[i, j] = total / count
+            elif mode == 1:
+                out[i, j] = best
+            else:
+                out[i, j] = pick
+    return out
+
+
+def load_kernels(dtypes: tuple[Any, ...] | None = None) -> None:
+    """Compile (first run on a machine) or load from the disk cache the block-reduction kernel
+    for ``dtypes`` (default: every dtype it reads as is), so no zoom waits for it."""
+    for dtype in dtypes or _KERNEL_DTYPES:
+        overview(np.zeros((4, 4), dtype), None, None, 2, 2, how="mean")
 
 
 def frame_size(shape: tuple[float, float], frame_width: int, max_frame_height: int = 560

@@ -456,6 +456,44 @@ def test_overview_blocks_mean_extreme_and_max():
         plots.overview(odd, None, None, 2, 3, how="median")
 
 
+def _blocks_reference(crop, f, how, centre):
+    """Block reduction written out block by block (what plots.overview must return)."""
+    nh, nw = -(-crop.shape[0] // f), -(-crop.shape[1] // f)
+    out = np.full((nh, nw), np.nan)
+    for i in range(nh):
+        for j in range(nw):
+            block = crop[i * f:(i + 1) * f, j * f:(j + 1) * f].astype(np.float64).ravel()
+            block = block[np.isfinite(block)]
+            if block.size == 0:
+                continue
+            if how == "mean":
+                out[i, j] = block.sum() / block.size
+            elif how == "max":
+                out[i, j] = block.max()
+            else:
+                out[i, j] = block[np.argmax(np.abs(block - centre))]
+    return out
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.float32, np.float64,
+                                   np.bool_, np.int16])
+def test_overview_equals_the_block_by_block_reduction(dtype):
+    rng = np.random.default_rng(11)
+    plane = (rng.random((53, 71)) * 200).astype(dtype)
+    if np.issubdtype(dtype, np.floating):
+        plane[rng.random(plane.shape) < 0.05] = np.nan
+        plane[0:4, 0:4] = np.nan                                # a block of NaN only
+    # the whole map, and the pixels ranges x 3.2..60.7, y 5.0..40.4 overlap (columns 3..61,
+    # rows 5..40)
+    for x_range, y_range, crop in ((None, None, plane), ((3.2, 60.7), (5.0, 40.4),
+                                                         plane[5:41, 3:62])):
+        for how in ("mean", "max", "extreme"):
+            out, _, f = plots.overview(plane, x_range, y_range, 7, 9, how=how, centre=100.0)
+            assert f > 1
+            np.testing.assert_allclose(out, _blocks_reference(crop, f, how, 100.0),
+                                       rtol=1e-12, equal_nan=True)
+
+
 def test_zoomed_out_map_view_says_what_a_screen_pixel_shows():
     data = np.ones((100, 160), dtype=np.float32)
     data[40, 70] = 1.3                                   # one hot pixel
