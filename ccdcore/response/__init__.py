@@ -1,0 +1,24 @@
+"""Camera response from exposure brackets (Tsin, Ramesh & Kanade 2001, sec. 2-4, and the classic
+methods beside it).
+
+Modules
+-------
+:mod:`ccdcore.response.brackets`
+    A session's bracket frames as pixel traces per channel, with the preprocessing of sec. 3.2
+    step 1 (boundary, blooming and clipped codes out).
+:mod:`ccdcore.response.scale`
+    The one scale every response curve is reported on, and the RMS comparison of curves.
+:mod:`ccdcore.response.classic`
+    Debevec & Malik (1997), Robertson, Borman & Stevenson (2003), Mitsunaga & Nayar (1999).
+
+See docs/response.md.
+"""
+from __future__ import annotations
+
+from .brackets import BracketData, bracket_data, load_bracket, preprocess
+from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
+from .scale import normalize, reference_codes, rms_error
+
+__all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "ClassicFit",
+           "debevec", "robertson", "mitsunaga_nayar", "normalize", "reference_codes",
+           "rms_error"]

@@ -1,0 +1,80 @@
+"""The scale every response curve is reported in, and curve comparisons.
+
+A response ``g`` maps a code ``z`` to a value proportional to the exposure ``a E`` (plus the
+white-balance offset ``b``, eq. 5 of Tsin et al. 2001). Its scale is free: ``s g`` explains the
+same images with ``E / s``; with free offsets (white balance on) so is a shift. ccdcore reports
+every method's ``g`` on one documented scale (docs/response.md):
+
+* the **scale** puts ``g(z_hi) = z_hi / (levels - 1)`` at the reference code
+  ``z_hi = round(0.9 (levels - 1))`` (229 for 8 bits): g reads as "fraction of full scale" near
+  the top, where every bracket has data;
+* where the offset is free too (white balance on), ``g(z_lo) = z_lo / (levels - 1)`` at
+  ``z_lo = round(0.2 (levels - 1))`` (51 for 8 bits) as well: these are the two fixed points of
+  sec. 3.2.
+
+Public objects
+--------------
+reference_codes(levels)
+    ``(z_lo, z_hi)``.
+normalize(g, levels, offset=False)
+    ``g`` scaled (and shifted when ``offset``) onto the reported scale; returns the new curve and
+    the factor (and shift) applied.
+rms_error(g, truth, z_range=(5, 250), offset=False)
+    RMS of ``g - truth`` over the codes in ``z_range`` after the free scale (and offset) of ``g``
+    is fitted to ``truth`` by least squares: the figure of sec. 4.1.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["reference_codes", "normalize", "rms_error", "aligned"]
+
+
+def reference_codes(levels: int) -> tuple[int, int]:
+    """The two reference codes ``(z_lo, z_hi)`` of a ``levels``-code response."""
+    top = int(levels) - 1
+    return int(round(0.2 * top)), int(round(0.9 * top))
+
+
+def normalize(g: ArrayLike, levels: int, offset: bool = False
+              ) -> tuple[NDArray[np.float64], float, float]:
+    """``(s g + c, s, c)``: ``g`` on the reported scale (``c = 0`` unless ``offset``)."""
+    g = np.asarray(g, dtype=np.float64)
+    lo, hi = reference_codes(levels)
+    top = float(levels - 1)
+    if offset:
+        span = g[hi] - g[lo]
+        if not span > 0:
+            raise ValueError("the response is not increasing between its reference codes")
+        s = (hi - lo) / top / span
+        c = lo / top - s * g[lo]
+    else:
+        if not g[hi] > 0:
+            raise ValueError("the response is not positive at its reference code")
+        s, c = hi / top / g[hi], 0.0
+    return s * g + c, float(s), float(c)
+
+
+def aligned(g: ArrayLike, truth: ArrayLike, z_range: tuple[int, int] = (5, 250),
+            offset: bool = False) -> NDArray[np.float64]:
+    """``g`` scaled (and shifted when ``offset``) to fit ``truth`` best over ``z_range``
+    (least squares); the whole curve is returned."""
+    g = np.asarray(g, dtype=np.float64)
+    truth = np.asarray(truth, dtype=np.float64)
+    z = np.arange(int(z_range[0]), int(z_range[1]) + 1)
+    x, y = g[z], truth[z]
+    if offset:
+        A = np.stack([x, np.ones_like(x)], axis=1)
+        (s, c), *_ = np.linalg.lstsq(A, y, rcond=None)
+    else:
+        s, c = float(x @ y) / float(x @ x), 0.0
+    return s * g + c
+
+
+def rms_error(g: ArrayLike, truth: ArrayLike, z_range: tuple[int, int] = (5, 250),
+              offset: bool = False) -> float:
+    """RMS of the aligned ``g`` against ``truth`` over ``z_range`` (inclusive)."""
+    z = np.arange(int(z_range[0]), int(z_range[1]) + 1)
+    d = aligned(g, truth, z_range, offset)[z] - np.asarray(truth, dtype=np.float64)[z]
+    return float(np.sqrt(np.mean(d * d)))
