@@ -10,6 +10,9 @@ Modules
     The one scale every response curve is reported on, and the RMS comparison of curves.
 :mod:`ccdcore.response.classic`
     Debevec & Malik (1997), Robertson, Borman & Stevenson (2003), Mitsunaga & Nayar (1999).
+:mod:`ccdcore.response.hdr`
+    HDR radiance with per-pixel sigma from a calibrated camera (eqs. 9, 18, 19), with bounds and
+    flags where no code is usable.
 
 See docs/response.md.
 """
@@ -17,8 +20,9 @@ from __future__ import annotations
 
 from .brackets import BracketData, bracket_data, load_bracket, preprocess
 from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
+from .hdr import HdrResult, ResponseModel, merge
 from .scale import normalize, reference_codes, rms_error
 
 __all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "ClassicFit",
-           "debevec", "robertson", "mitsunaga_nayar", "normalize", "reference_codes",
-           "rms_error"]
+           "debevec", "robertson", "mitsunaga_nayar", "HdrResult", "ResponseModel", "merge",
+           "normalize", "reference_codes", "rms_error"]
