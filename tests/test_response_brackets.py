@@ -77,6 +77,8 @@ def test_mismatched_shapes_codes_beyond_the_bits_and_all_saturated():
                         files=["f0.tif", "f1.tif"])
     with pytest.raises(CcdError, match=r"f0\.tif: code 300 exceeds"):
         br.bracket_data([a + 200, a], [1, 2], 8, files=["f0.tif", "f1.tif"])
+    with pytest.raises(CcdError, match=r"f1\.tif: uint8 samples, .* uint16.*mixed cameras"):
+        br.bracket_data([a, a.astype(np.uint8)], [1, 2], 8, files=["f0.tif", "f1.tif"])
     with pytest.raises(CcdError, match="no usable pixel"):
         br.bracket_data([a * 0 + 255, a * 0 + 255], [1, 2], 8, files=["f0.tif", "f1.tif"])
 

@@ -19,6 +19,8 @@ bracket_data(frames, t, bits, ...)
     The same from arrays already in memory.
 preprocess(frame, levels, ...)
     The usable-observation mask of one frame: boundary, blooming and clipped codes removed.
+bloom_mask(plane, levels, radius=3)
+    The pixels within a radius of a saturated pixel.
 BAYER_MAD_FACTOR
     The paper's correction of the MAD sigma for channels interpolated from a Bayer mosaic (eq. 12).
 """
@@ -34,7 +36,8 @@ from scipy import ndimage
 from .. import channels as chan
 from ..errors import CcdError
 
-__all__ = ["BracketData", "load_bracket", "bracket_data", "preprocess", "BAYER_MAD_FACTOR",
+__all__ = ["BracketData", "load_bracket", "bracket_data", "preprocess", "bloom_mask",
+           "BAYER_MAD_FACTOR",
            "DEFAULT_BLOOM_RADIUS", "DEFAULT_BORDER"]
 
 #: radius (pixels) around a saturated pixel whose codes are dropped (sec. 2: "usually 3 pixels")
@@ -115,18 +118,25 @@ def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLO
     z = np.asarray(frame)
     if z.ndim != 2:
         raise CcdError("bracket", f"expected a 2-D channel, got shape {z.shape}")
-    saturated = z >= levels - 1
-    usable = (z > 0) & ~saturated
-    if bloom_radius > 0 and saturated.any():
-        r = int(bloom_radius)
-        yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-        disk = (yy * yy + xx * xx) <= r * r
-        usable &= ~ndimage.binary_dilation(saturated, structure=disk)
+    usable = (z > 0) & (z < levels - 1) & ~bloom_mask(z, levels, bloom_radius)
     if border > 0:
         b = int(border)
         usable[:b, :] = usable[-b:, :] = False
         usable[:, :b] = usable[:, -b:] = False
     return usable
+
+
+def bloom_mask(plane: ArrayLike, levels: int, radius: int = DEFAULT_BLOOM_RADIUS
+               ) -> NDArray[np.bool_]:
+    """Pixels within ``radius`` (a Euclidean disk) of a saturated pixel (code ``levels - 1``) of
+    the 2-D ``plane``, the saturated ones included: where blooming may have spilled charge."""
+    z = np.asarray(plane)
+    saturated = z >= levels - 1
+    if radius <= 0 or not saturated.any():
+        return np.zeros(z.shape, bool)
+    r = int(radius)
+    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
+    return ndimage.binary_dilation(saturated, structure=(yy * yy + xx * xx) <= r * r)
 
 
 def _check_times(t: Sequence[Any], files: Sequence[str]) -> NDArray[np.float64]:
@@ -173,6 +183,10 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
                               f"{arrays[0].shape}")
         if not np.issubdtype(a.dtype, np.integer):
             raise CcdError(f, f"expected integer codes, got {a.dtype}")
+        if a.dtype != arrays[0].dtype:
+            raise CcdError(f, f"{a.dtype} samples, the bracket's first frame has "
+                              f"{arrays[0].dtype}: frames of one camera setting share a bit "
+                              "depth (mixed cameras?)")
         if a.size and int(a.max()) >= levels:
             raise CcdError(f, f"code {int(a.max())} exceeds the camera's {bits} bits")
     order = np.argsort(times, kind="stable")
@@ -223,9 +237,6 @@ def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
     if cam.bits is None:
         raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] bits in the "
                                  "manifest (the response has 2**bits values)")
-    names = {getattr(r, "camera", None) for r in records} - {None}
-    if len(names) > 1:
-        raise CcdError(files[0], f"the bracket mixes cameras ({', '.join(sorted(names))})")
     frames = [session.read(r) for r in records]
     if bayer_interpolated is None:
         bayer_interpolated = bool(getattr(cam, "bayer", None)) and cam.layout == "rgb"

@@ -47,11 +47,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
-
 from .. import channels as chan
 from ..errors import CcdError
-from .brackets import DEFAULT_BLOOM_RADIUS
+from .brackets import DEFAULT_BLOOM_RADIUS, bloom_mask
 
 __all__ = ["ResponseModel", "HdrResult", "merge", "noise_sigma", "FLAG_OK", "FLAG_DARK",
            "FLAG_SATURATED", "FLAG_BLOOMED"]
@@ -115,15 +113,6 @@ def noise_sigma(model: ResponseModel, z: ArrayLike, k: int) -> NDArray[np.float6
     return np.sqrt(var)
 
 
-def _bloom_mask(plane: NDArray, levels: int, radius: int) -> NDArray[np.bool_]:
-    saturated = plane >= levels - 1
-    if radius <= 0 or not saturated.any():
-        return np.zeros(plane.shape, bool)
-    r = int(radius)
-    yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return ndimage.binary_dilation(saturated, structure=(yy * yy + xx * xx) <= r * r)
-
-
 def _merge_plane(planes: list[NDArray], model: ResponseModel, bloom_radius: int
                  ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     L = model.levels
@@ -135,7 +124,7 @@ def _merge_plane(planes: list[NDArray], model: ResponseModel, bloom_radius: int
     if int(z.max()) >= L or int(z.min()) < 0:
         raise CcdError("bracket", f"codes outside 0..{L - 1} of the calibration's response")
     clipped = (z <= 0) | (z >= L - 1)
-    bloomed = np.stack([_bloom_mask(p, L, bloom_radius) for p in z])
+    bloomed = np.stack([bloom_mask(p, L, bloom_radius) for p in z])
     usable = ~clipped & ~bloomed
     fallback = ~clipped
     a = model.a[:, None, None]
