@@ -99,13 +99,6 @@ class BracketData:
         extra = BAYER_MAD_FACTOR.get(self.channel[:1], 1.0) if self.bayer_interpolated else 1.0
         return 1.483 * extra
 
-    def take(self, columns: ArrayLike) -> "BracketData":
-        """The same bracket restricted to the pixel columns ``columns`` (for bootstraps)."""
-        idx = np.asarray(columns)
-        return BracketData(self.z[:, idx], self.valid[:, idx], self.t, self.levels, self.channel,
-                           self.shape, self.pixels[idx] if self.pixels.size else self.pixels,
-                           self.bayer_interpolated, self.files)
-
 
 def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
                border: int = DEFAULT_BORDER) -> NDArray[np.bool_]:
@@ -213,12 +206,12 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
 
 def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
                  bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
-                 bayer_interpolated: bool | None = None) -> dict[str, BracketData]:
+                 bayer_interpolated: bool = False) -> dict[str, BracketData]:
     """The bracket ``stack`` of ``session`` (the first when ``None``) per channel.
 
     Exposure times come from the manifest (``exposure`` of each frame); the bit depth from the
-    camera (``[camera] bits``). ``bayer_interpolated`` (eq. 12's factor) defaults to whether the
-    session's camera names a Bayer pattern while its frames are colour.
+    camera (``[camera] bits``). Pass ``bayer_interpolated=True`` when the colour frames were
+    interpolated from a Bayer mosaic (eq. 12's extra factor): the manifest does not record it.
     """
     stacks = session.bracket_stacks(role)
     if not stacks:
@@ -238,8 +231,6 @@ def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
         raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] bits in the "
                                  "manifest (the response has 2**bits values)")
     frames = [session.read(r) for r in records]
-    if bayer_interpolated is None:
-        bayer_interpolated = bool(getattr(cam, "bayer", None)) and cam.layout == "rgb"
     return bracket_data(frames, [r.exposure for r in records], cam.bits, layout=cam.layout,
                         bayer_interpolated=bayer_interpolated, files=files,
                         bloom_radius=bloom_radius, border=border)
