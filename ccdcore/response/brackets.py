@@ -99,6 +99,13 @@ class BracketData:
         extra = BAYER_MAD_FACTOR.get(self.channel[:1], 1.0) if self.bayer_interpolated else 1.0
         return 1.483 * extra
 
+    def take(self, columns: ArrayLike) -> "BracketData":
+        """The same bracket restricted to the pixel columns ``columns`` (a subsample of pixels)."""
+        idx = np.asarray(columns)
+        return BracketData(self.z[:, idx], self.valid[:, idx], self.t, self.levels, self.channel,
+                           self.shape, self.pixels[idx] if self.pixels.size else self.pixels,
+                           self.bayer_interpolated, self.files)
+
 
 def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
                border: int = DEFAULT_BORDER) -> NDArray[np.bool_]:
