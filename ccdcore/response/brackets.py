@@ -36,7 +36,7 @@ from scipy import ndimage
 from .. import channels as chan
 from ..errors import CcdError
 
-__all__ = ["BracketData", "load_bracket", "bracket_data", "preprocess", "bloom_mask",
+__all__ = ["BracketData", "load_bracket", "bracket_data", "preprocess", "bloom_mask", "kept_mask",
            "BAYER_MAD_FACTOR",
            "DEFAULT_BLOOM_RADIUS", "DEFAULT_BORDER"]
 
@@ -84,6 +84,15 @@ class BracketData:
     pixels: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     bayer_interpolated: bool = False
     files: tuple[str, ...] = ()
+    kept: NDArray[np.bool_] | None = None
+
+    @property
+    def observed(self) -> NDArray[np.bool_]:
+        """``(N, P)``: observations not removed as outliers (boundary, blooming) -- the usable
+        ones plus the clipped codes (0, ``levels - 1``), which say "at or beyond the clip level"."""
+        if self.kept is not None:
+            return self.kept
+        return self.valid | (self.z <= 0) | (self.z >= self.levels - 1)
 
     @property
     def n_images(self) -> int:
@@ -104,7 +113,8 @@ class BracketData:
         idx = np.asarray(columns)
         return BracketData(self.z[:, idx], self.valid[:, idx], self.t, self.levels, self.channel,
                            self.shape, self.pixels[idx] if self.pixels.size else self.pixels,
-                           self.bayer_interpolated, self.files)
+                           self.bayer_interpolated, self.files,
+                           None if self.kept is None else self.kept[:, idx])
 
 
 def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
@@ -124,6 +134,20 @@ def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLO
         usable[:b, :] = usable[-b:, :] = False
         usable[:, :b] = usable[:, -b:] = False
     return usable
+
+
+def kept_mask(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
+              border: int = DEFAULT_BORDER) -> NDArray[np.bool_]:
+    """Observations of one 2-D channel frame that are not outliers: the boundary and the
+    unsaturated pixels within ``bloom_radius`` of a saturated one are dropped; clipped codes stay
+    (they are observations of "at or beyond the clip level")."""
+    z = np.asarray(frame)
+    kept = ~(bloom_mask(z, levels, bloom_radius) & (z < levels - 1))
+    if border > 0:
+        b = int(border)
+        kept[:b, :] = kept[-b:, :] = False
+        kept[:, :b] = kept[:, -b:] = False
+    return kept
 
 
 def bloom_mask(plane: ArrayLike, levels: int, radius: int = DEFAULT_BLOOM_RADIUS
@@ -201,10 +225,12 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
         h, w = planes[0].shape
         valid = np.stack([preprocess(p, levels, bloom_radius=bloom_radius, border=border)
                           for p in planes]).reshape(len(planes), -1)
+        kept = np.stack([kept_mask(p, levels, bloom_radius=bloom_radius, border=border)
+                         for p in planes]).reshape(len(planes), -1)
         z = np.stack([p.reshape(-1) for p in planes]).astype(np.int32)
         keep = np.flatnonzero(valid.any(axis=0))
         out[name] = BracketData(z[:, keep], valid[:, keep], times, levels, name, (h, w), keep,
-                                bayer_interpolated and lay == "rgb", files)
+                                bayer_interpolated and lay == "rgb", files, kept[:, keep])
     if all(not d.valid.any() for d in out.values()):
         raise CcdError(files[0], "no usable pixel in the bracket: every code is clipped "
                                  "(all dark or all saturated) or near a saturated pixel")

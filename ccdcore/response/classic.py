@@ -116,14 +116,12 @@ from scipy.optimize import isotonic_regression
 
 from ..errors import CcdError
 from .brackets import BracketData
-from .scale import normalize, reference_codes
+from .scale import MAX_NODES, Knots, normalize, reference_codes
 
 __all__ = ["ClassicFit", "debevec", "robertson", "mitsunaga_nayar", "MAX_NODES",
            "DEBEVEC_SMOOTHNESS", "DEBEVEC_SAMPLES", "MN_MAX_DEGREE", "MN_MAX_ITER", "MN_TOL",
            "MN_RATIO_FLOOR", "MN_MIN_PAIRS"]
 
-#: most codes at which g is estimated; deeper codes share knots (g linear in between)
-MAX_NODES = 1024
 #: Debevec & Malik: lambda, gsolve's row factor ``l`` for one observation per code
 DEBEVEC_SMOOTHNESS = 20.0
 #: Debevec & Malik: pixels sampled into the linear system
@@ -170,32 +168,6 @@ class ClassicFit:
 
 
 # ------------------------------------------------------------------------------ helpers ------
-class _Grid:
-    """g at ``n`` knots spread evenly over the codes (every code up to MAX_NODES levels)."""
-
-    def __init__(self, levels: int):
-        self.levels = int(levels)
-        self.n = min(self.levels, MAX_NODES)
-        self.identity = self.n == self.levels
-        self.step = (self.levels - 1) / (self.n - 1)
-        self.codes = np.linspace(0.0, self.levels - 1, self.n)
-
-    def locate(self, z: NDArray) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """Knot ``j0`` and fraction ``f``: g(z) = (1 - f) g[j0] + f g[j0 + 1]."""
-        if self.identity:
-            return np.asarray(z, dtype=np.int64), np.zeros(np.shape(z))
-        u = np.asarray(z, dtype=np.float64) / self.step
-        j0 = np.clip(np.floor(u).astype(np.int64), 0, self.n - 2)
-        return j0, u - j0
-
-    def terms(self, z: NDArray) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
-        """The knots and coefficients each code contributes to (one or two terms)."""
-        j0, f = self.locate(z)
-        if self.identity:
-            return [(j0, np.ones(np.shape(z)))]
-        return [(j0, 1.0 - f), (j0 + 1, f)]
-
-
 @dataclass(frozen=True, eq=False)
 class _Checked:
     where: str
@@ -387,7 +359,7 @@ def debevec(data: BracketData, *, smoothness: float = DEBEVEC_SMOOTHNESS,
     if int(samples) < 1:
         raise CcdError("samples", f"must be >= 1, got {samples}")
     levels = chk.levels
-    grid = _Grid(levels)
+    grid = Knots(levels)
     G = grid.n
     cols = _stratified_sample(chk, int(samples), int(seed))
     z = chk.z[:, cols]
@@ -477,7 +449,7 @@ def _solve(A: NDArray, b: NDArray) -> NDArray[np.float64]:
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def _to_codes(grid: _Grid, g_nodes: NDArray, known_nodes: NDArray[np.bool_]
+def _to_codes(grid: Knots, g_nodes: NDArray, known_nodes: NDArray[np.bool_]
               ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
     """Knot values to every code; a code is known when it lies between known knots."""
     if grid.identity:
@@ -514,7 +486,7 @@ def robertson(data: BracketData, *, max_iter: int = 50, tol: float = 1e-6) -> Cl
     if int(max_iter) < 1:
         raise CcdError("max_iter", f"must be >= 1, got {max_iter}")
     levels = chk.levels
-    grid = _Grid(levels)
+    grid = Knots(levels)
     G = grid.n
     use = chk.valid.sum(axis=0) >= 2
     z = chk.z[:, use]

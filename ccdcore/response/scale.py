@@ -19,6 +19,9 @@ reference_codes(levels)
 normalize(g, levels, offset=False)
     ``g`` scaled (and shifted when ``offset``) onto the reported scale; returns the new curve and
     the factor (and shift) applied.
+Knots(levels)
+    The knots at which estimators solve for g (every code up to ``MAX_NODES`` levels, evenly
+    spread beyond), with linear interpolation between them.
 rms_error(g, truth, z_range=(5, 250), offset=False)
     RMS of ``g - truth`` over the codes in ``z_range`` after the free scale (and offset) of ``g``
     is fitted to ``truth`` by least squares: the figure of sec. 4.1.
@@ -28,7 +31,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["reference_codes", "normalize", "rms_error", "aligned"]
+__all__ = ["reference_codes", "normalize", "rms_error", "aligned", "Knots", "MAX_NODES"]
+
+#: most knots at which a response is estimated (deeper codes are interpolated linearly)
+MAX_NODES = 1024
 
 
 def reference_codes(levels: int) -> tuple[int, int]:
@@ -78,3 +84,29 @@ def rms_error(g: ArrayLike, truth: ArrayLike, z_range: tuple[int, int] = (5, 250
     z = np.arange(int(z_range[0]), int(z_range[1]) + 1)
     d = aligned(g, truth, z_range, offset)[z] - np.asarray(truth, dtype=np.float64)[z]
     return float(np.sqrt(np.mean(d * d)))
+
+
+class Knots:
+    """g at ``n`` knots spread evenly over the codes (every code up to MAX_NODES levels)."""
+
+    def __init__(self, levels: int):
+        self.levels = int(levels)
+        self.n = min(self.levels, MAX_NODES)
+        self.identity = self.n == self.levels
+        self.step = (self.levels - 1) / (self.n - 1)
+        self.codes = np.linspace(0.0, self.levels - 1, self.n)
+
+    def locate(self, z: NDArray) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Knot ``j0`` and fraction ``f``: g(z) = (1 - f) g[j0] + f g[j0 + 1]."""
+        if self.identity:
+            return np.asarray(z, dtype=np.int64), np.zeros(np.shape(z))
+        u = np.asarray(z, dtype=np.float64) / self.step
+        j0 = np.clip(np.floor(u).astype(np.int64), 0, self.n - 2)
+        return j0, u - j0
+
+    def terms(self, z: NDArray) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
+        """The knots and coefficients each code contributes to (one or two terms)."""
+        j0, f = self.locate(z)
+        if self.identity:
+            return [(j0, np.ones(np.shape(z)))]
+        return [(j0, 1.0 - f), (j0 + 1, f)]

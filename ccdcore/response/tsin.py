@@ -1,0 +1,864 @@
+"""Statistical calibration of the imaging process: Tsin, Ramesh & Kanade (2001), sec. 3.
+
+The camera (eq. 3) images radiance E through white balance and the response f::
+
+    z = f(a E + N_s + N_c1 + b) + N_c2
+
+and the inverse response g = f^-1 obeys g(z) = a E + b up to noise (eqs. 5, 8). From one channel
+of an exposure bracket (a static scene at N exposure settings) :func:`estimate` recovers g at
+every code with its confidence band, the scale a_k and offset b_k of every image (white balance)
+and the three noise terms, by the iterative algorithm of sec. 3.2:
+
+1. preprocessing (:mod:`ccdcore.response.brackets`): boundary and blooming pixels out, pixel
+   traces; here the pools P(j, ẑ, ε) of the pixels of image j at code ẑ (ε = 1/2, one code;
+   bins of codes beyond 10 bits) and each pool's trace: the images in which the pool is
+   readable (at most ``clip_fraction`` of its pixels clipped there);
+2. g initialised as the straight line through the two fixed points, a_k at the nominal exposure
+   times, b_k = 0;
+3. every pixel's radiance from its trace, eq. 9, with constant weights;
+4. the prediction errors, eq. 10;
+5. per pool, their 66 % trimmed mean (eq. 11) and MAD sigma (eq. 12, c = 1.483 times the Bayer
+   factor 1.265 green / 1.333 red and blue for interpolated colour);
+6. the linearised model of every pool's mean error in Δg, Δa, Δb (eq. 13), averaged from every
+   pixel's own linearisation; the smoothness term; the fixed points of g and one fixed b_k;
+7. the weighted least squares for the updates (eq. 15) with the a-priori bound on a_k;
+8. the update with step η (eq. 16);
+9. monotonicity by pool-adjacent-violators (PAV);
+10. repeat from 3 until ‖η Δg‖₁ (per knot) is below the tolerance.
+
+Then σ_s, σ_c1, σ_c2 by non-negative least squares from eq. 17, each with its error, and the
+covariance of g, a, b (the confidence band) from the spread of the pools' pixels.
+
+Departures from the paper, each for a measured reason (docs/response.md):
+
+* **Instrumented pools** (``pools="instrument"``, the default). The paper's pool P(k, ẑ) predicts
+  the code ẑ_k that selected it, from a radiance that includes that same code. A pool chosen by
+  a noisy code holds pixels whose radiance regresses towards the bulk of the scene (Tweedie's
+  formula), so its mean error is not zero even at the true g: on the sec. 4.1 simulation, near
+  the darkest codes (E >= 0) and at every image's brightest code, and the printed algorithm
+  converges to a curve with an RMS error of 6e-3 (``pools="paper"`` keeps it for comparison).
+  Here the pool of image j at code ẑ predicts the *other* images k of its trace, from the
+  radiance of the images other than j (eqs. 9-10 with image j left out). Given the pool, the
+  noise of every image k != j is independent of the selection, so each mean error is zero at the
+  truth whatever the scene's radiance distribution: image j acts as an instrument. Eq. 13 keeps
+  its form (the sum runs over the pool's trace). Which images join a pool's trace depends only on
+  the pool (its clipped fraction), never on one pixel's own noise, so the clipping biases no
+  mean either.
+* **Smoothness on g**, not on Δg: a penalty λ Σ (g(z-1) - 2 g(z) + g(z+1))² in eq. 15. The
+  printed term on Δg only damps the steps and leaves the fixed point unregularised: codes seen by
+  a few pools then wander. ``smoothness`` is the bandwidth in 8-bit code steps (λ = bandwidth^4
+  times the median data weight of a knot).
+* **Fixed points.** With white balance on (free a_k, b_k) g has a free scale and offset: the two
+  fixed points z_lo, z_hi of :func:`ccdcore.response.scale.reference_codes` and b of the shortest
+  exposure at 0. A common factor on every a_k only rescales E; the a-priori bound (a Gaussian of
+  relative width ``a_prior`` around the nominal times) fixes it. With white balance off a_k are
+  the nominal times and b_k = 0: only z_hi is fixed.
+* **Shot noise** is linear in the signal, σ² = σ_s² a E + σ_c1² + g'(z)² σ_c2² (eq. 7 reads
+  a²E² as extracted; sec. 2 says the shot variance is proportional to E t). Eq. 17 carries the
+  factor (a_k / a_i)² that eq. 13 implies (image i enters the error of image k scaled by
+  a_k / a_i), and σ_c2 includes the quantisation (1/12 DN²).
+* **Weights.** A pool's row in eq. 15 is weighted by the variance of its trimmed mean (Tukey and
+  McLaughlin: winsorised variance / ((1 - 2α)² n)), the paper's σ̂² over the pool size.
+
+Public objects
+--------------
+TsinOptions
+    The estimator's settings.
+ChannelResponse
+    One channel's response with its band, a_k, b_k, the noise terms, iterations, the pools and
+    the prediction errors of one pool before and after calibration (the paper's Fig. 3c-d).
+estimate(data, options)
+    The algorithm of sec. 3.2 on one channel.
+noise_terms(data, g, a, b)
+    σ_s, σ_c1, σ_c2 (eq. 17) for any response, e.g. a classic method's.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import isotonic_regression, nnls
+
+from ..errors import CcdError
+from .brackets import BracketData
+from .scale import Knots, normalize, reference_codes
+
+__all__ = ["TsinOptions", "ChannelResponse", "PoolTable", "estimate", "noise_terms", "TRIM"]
+
+#: the fraction of a pool's prediction errors the trimmed mean keeps (eq. 11: "66 percent")
+TRIM = 0.66
+#: relative efficiency of the MAD for Gaussian data (weights of the eq. 17 fit)
+_MAD_EFFICIENCY = 0.37
+
+
+@dataclass(frozen=True)
+class TsinOptions:
+    """Settings of :func:`estimate`.
+
+    white_balance
+        Estimate a_k, b_k (True) or take a_k = nominal exposure, b_k = 0 (False).
+    pools
+        ``"instrument"`` (default): the pool of image j predicts the other images of its trace
+        from a radiance without image j; ``"paper"``: the pool of image k predicts image k
+        itself from every usable code, as printed (biased; kept for comparison).
+    a_prior
+        Relative standard deviation of the a-priori bound on a_k around the nominal times.
+    smoothness
+        Bandwidth of the smoothness term on g, in 8-bit code steps.
+    eta
+        Step of the update, eq. 16.
+    tol
+        Stop when the mean |η Δg| per knot is below this (g on a 0..1 scale).
+    max_iter
+        Most iterations.
+    min_pool
+        Fewest pixels a pool's prediction of one image needs to count (sec. 4.1: 100); small
+        brackets lower it to what their size allows (at least 10).
+    clip_fraction
+        An image joins a pool's trace when at most this fraction of the pool's pixels is
+        clipped (0 or the top code) in it.
+    mad_factor
+        Eq. 12's c; ``None``: 1.483 times the Bayer factor of the data's channel.
+    groups
+        Blocks of pixels (bands of rows of the frame) over which the covariance is estimated.
+    """
+
+    white_balance: bool = False
+    pools: str = "instrument"
+    a_prior: float = 0.05
+    smoothness: float = 10.0
+    eta: float = 1.0
+    tol: float = 1e-5
+    max_iter: int = 30
+    min_pool: int = 100
+    clip_fraction: float = 0.02
+    mad_factor: float | None = None
+    groups: int = 64
+
+    def check(self) -> None:
+        if self.pools not in ("instrument", "paper"):
+            raise CcdError("response", f"pools must be 'instrument' or 'paper', got {self.pools!r}")
+        for name in ("a_prior", "eta", "tol"):
+            if not getattr(self, name) > 0:
+                raise CcdError("response", f"{name} must be positive, got {getattr(self, name)}")
+        if not self.smoothness >= 0:
+            raise CcdError("response", f"smoothness must be >= 0, got {self.smoothness}")
+        if not 0 <= self.clip_fraction < 0.5:
+            raise CcdError("response", f"clip_fraction must be in [0, 0.5), got "
+                                       f"{self.clip_fraction}")
+        if self.max_iter < 1 or self.min_pool < 2 or self.groups < 4:
+            raise CcdError("response", "max_iter >= 1, min_pool >= 2 and groups >= 4 are needed")
+
+
+@dataclass(frozen=True, eq=False)
+class PoolTable:
+    """The counted pools of the last iteration, one row per (pool image j, code, predicted image
+    k): size, trimmed-mean error (eq. 11), MAD sigma (eq. 12) and the standard error of the
+    trimmed mean, in units of g."""
+
+    j: NDArray[np.int64]
+    code: NDArray[np.float64]
+    k: NDArray[np.int64]
+    n: NDArray[np.int64]
+    error: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    se: NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class ChannelResponse:
+    """One channel's response, white balance and noise, on the reported scale of
+    :mod:`ccdcore.response.scale` (g(z_hi) = z_hi / (levels - 1), and g(z_lo) = z_lo /
+    (levels - 1) with white balance).
+
+    ``g``, ``g_err``: per code (``g_err`` is zero at the fixed points, which carry no error by
+    definition, and is the statistical 1-sigma band elsewhere); ``a``, ``b`` per image in
+    increasing exposure order with ``a_err``, ``b_err``; ``t`` the nominal times; noise terms
+    (σ_s, σ_c1 in units of g, σ_c2 in codes) with errors, ``None`` where not estimated.
+    """
+
+    channel: str
+    method: str
+    g: NDArray[np.float64]
+    g_err: NDArray[np.float64]
+    a: NDArray[np.float64]
+    a_err: NDArray[np.float64]
+    b: NDArray[np.float64]
+    b_err: NDArray[np.float64]
+    t: NDArray[np.float64]
+    sigma_s: float | None = None
+    sigma_c1: float | None = None
+    sigma_c2: float | None = None
+    sigma_s_err: float | None = None
+    sigma_c1_err: float | None = None
+    sigma_c2_err: float | None = None
+    iterations: int = 0
+    converged: bool = True
+    white_balance: bool = False
+    pools: PoolTable | None = None
+    history: tuple[dict[str, float], ...] = ()
+    pool_errors: dict[str, Any] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+    @property
+    def levels(self) -> int:
+        return int(self.g.size)
+
+
+# ------------------------------------------------------------------------------ kernels ------
+@numba.njit(cache=True)
+def _pool_counts(pb, obs, clip, K):  # pragma: no cover - compiled
+    """seen[j, m, i]: pixels of pool (j, m) observed in image i; clipped[j, m, i] those clipped."""
+    N, P = pb.shape
+    seen = np.zeros((N, K, N), np.int64)
+    clipped = np.zeros((N, K, N), np.int64)
+    for p in range(P):
+        for j in range(N):
+            if not obs[j, p] or clip[j, p]:
+                continue
+            m = pb[j, p]
+            for i in range(N):
+                if obs[i, p]:
+                    seen[j, m, i] += 1
+                    if clip[i, p]:
+                        clipped[j, m, i] += 1
+    return seen, clipped
+
+
+@numba.njit(cache=True)
+def _pool_members(pb, obs, clip, K):  # pragma: no cover - compiled
+    """The pixels of every pool (j, m), pool by pool (CSR: ``start`` indexed j * K + m)."""
+    N, P = pb.shape
+    counts = np.zeros(N * K + 1, np.int64)
+    for p in range(P):
+        for j in range(N):
+            if obs[j, p] and not clip[j, p]:
+                counts[j * K + pb[j, p] + 1] += 1
+    start = np.cumsum(counts)
+    members = np.empty(start[-1], np.int64)
+    cur = start[:-1].copy()
+    for p in range(P):
+        for j in range(N):
+            if obs[j, p] and not clip[j, p]:
+                q = j * K + pb[j, p]
+                members[cur[q]] = p
+                cur[q] += 1
+    return start, members
+
+
+@numba.njit(cache=True)
+def _trace(q, j, m, mflag, inc, paper, idx):  # pragma: no cover - compiled
+    """The images of membership q's trace within pool (j, m), written to idx; their number.
+    ``mflag`` bit 0: observed, bit 1: clipped."""
+    N = mflag.shape[1]
+    ns = 0
+    for i in range(N):
+        fl = mflag[q, i]
+        if not fl & 1:
+            continue
+        if paper:
+            if not fl & 2:
+                idx[ns] = i
+                ns += 1
+        elif i != j and inc[j, m, i]:
+            idx[ns] = i
+            ns += 1
+    return ns
+
+
+@numba.njit(cache=True)
+def _row_counts(start, mflag, inc, paper, K):  # pragma: no cover - compiled
+    N = mflag.shape[1]
+    counts = np.zeros((N, K, N), np.int64)
+    idx = np.empty(N, np.int64)
+    for j in range(N):
+        for m in range(K):
+            for q in range(start[j * K + m], start[j * K + m + 1]):
+                ns = _trace(q, j, m, mflag, inc, paper, idx)
+                if ns < 2:
+                    continue
+                if paper:
+                    counts[j, m, j] += 1
+                else:
+                    for kk in range(ns):
+                        counts[j, m, idx[kk]] += 1
+    return counts
+
+
+@numba.njit(cache=True)
+def _knot(code, step, identity, K):  # pragma: no cover - compiled
+    """Knot j0 and fraction f of a code: g(z) = (1 - f) g[j0] + f g[j0 + 1]."""
+    if identity:
+        return code, 0.0
+    u = code / step
+    j0 = min(int(u), K - 2)
+    return j0, u - j0
+
+
+@numba.njit(cache=True)
+def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb, K, step,
+          identity, want_noise):  # pragma: no cover - compiled
+    """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
+    linearisations (eq. 13) and, when asked, the rows' eq. 17 regressors.
+
+    A pixel's error for image k of its trace is e = a_k Ê + b_k - g(ẑ_k) with
+    Ê = Σ_i w (g(ẑ_i) - b_i) / a_i; its derivative in g is a_k u - δ(ẑ_k) with
+    u = Σ_i (w / a_i) δ(ẑ_i), the same u for every k. So u (and the like terms of a, b and
+    eq. 17) are summed once per pool, less the pixels whose trace lacks k, and only the
+    δ(ẑ_k) terms per row. The pool's pixels' traces are read from ``mz``, ``mflag``: copies in
+    pool order, so that the pass streams through memory.
+    """
+    N = mz.shape[1]
+    R = offsets.size - 1
+    ncol = K + (2 * N if wb else 0)
+    J = np.zeros((R, ncol))
+    X = np.zeros((R, 3))
+    resid = np.empty(offsets[R])
+    egrp = np.empty(offsets[R], np.int32)
+    cursor = offsets[:R].copy()
+    idx = np.empty(N, np.int64)
+    gv = np.empty(N)
+    jv = np.empty(N, np.int64)
+    fv = np.empty(N)
+    # pool sums: [0:K] u in g, [K:K+N] w/a_i (b), [K+N:K+2N] w (g_i - b_i)/a_i^2 (a), then
+    # Σ Ê, and the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a²
+    nu = K + 2 * N + 4
+    U = np.zeros(nu)
+    C = np.zeros((N, nu))             # the same sums over the pixels lacking image k
+    H = np.zeros((N, K))              # per row: Σ δ(ẑ_k)
+    Hs = np.zeros((N, 5))             # per row: n, Σ w(g_k - b_k)/a_k, Σ (1-2w), Σ (1-2w) v_k,
+    miss = np.empty(N, np.bool_)      #          Σ (1-2w) g'_k²
+    ux = np.zeros(8)
+    cols = np.zeros(8, np.int64)
+    for j in range(N):
+        for m in range(K):
+            q0 = start[j * K + m]
+            q1 = start[j * K + m + 1]
+            if q1 == q0:
+                continue
+            any_row = False
+            for k in range(N):
+                if rowid[j, m, k] >= 0:
+                    any_row = True
+            if not any_row:
+                continue
+            U[:] = 0.0
+            C[:, :] = 0.0
+            H[:, :] = 0.0
+            Hs[:, :] = 0.0
+            for q in range(q0, q1):
+                ns = _trace(q, j, m, mflag, inc, paper, idx)
+                if ns < 2:
+                    continue
+                w = 1.0 / ns
+                nmiss = 0
+                for k in range(N):
+                    miss[k] = (not paper) and rowid[j, m, k] >= 0
+                for kk in range(ns):
+                    miss[idx[kk]] = False
+                for k in range(N):
+                    if miss[k]:
+                        nmiss += 1
+                E = 0.0
+                for ii in range(ns):
+                    i = idx[ii]
+                    jq, f = _knot(mz[q, i], step, identity, K)
+                    jv[i] = jq
+                    fv[i] = f
+                    gv[i] = gk[jq] if f == 0.0 else (1.0 - f) * gk[jq] + f * gk[jq + 1]
+                    E += w * (gv[i] - b[i]) / a[i]
+                for ii in range(ns):
+                    i = idx[ii]
+                    c = w / a[i]
+                    f = fv[i]
+                    ux[0] = c * (1.0 - f)
+                    cols[0] = jv[i]
+                    nterm = 1
+                    if f != 0.0:
+                        ux[1] = c * f
+                        cols[1] = jv[i] + 1
+                        nterm = 2
+                    if wb:
+                        ux[nterm] = c
+                        cols[nterm] = K + i
+                        ux[nterm + 1] = c * (gv[i] - b[i]) / a[i]
+                        cols[nterm + 1] = K + N + i
+                        nterm += 2
+                    if want_noise:
+                        gpi = gpc[mz[q, i]]
+                        ux[nterm] = c * c * max(gv[i] - b[i], 0.0)
+                        cols[nterm] = K + 2 * N + 1
+                        ux[nterm + 1] = c * c
+                        cols[nterm + 1] = K + 2 * N + 2
+                        ux[nterm + 2] = c * c * gpi * gpi
+                        cols[nterm + 2] = K + 2 * N + 3
+                        nterm += 3
+                    for t in range(nterm):
+                        U[cols[t]] += ux[t]
+                    if nmiss:
+                        for k in range(N):
+                            if miss[k]:
+                                for t in range(nterm):
+                                    C[k, cols[t]] += ux[t]
+                U[K + 2 * N] += E
+                if nmiss:
+                    for k in range(N):
+                        if miss[k]:
+                            C[k, K + 2 * N] += E
+                for kk in range(ns):
+                    k = idx[kk]
+                    if paper and k != j:
+                        continue
+                    r = rowid[j, m, k]
+                    if r < 0:
+                        continue
+                    e = a[k] * E + b[k] - gv[k]
+                    pos = cursor[r]
+                    resid[pos] = e
+                    egrp[pos] = mgrp[q]
+                    cursor[r] = pos + 1
+                    f = fv[k]
+                    if f == 0.0:
+                        H[k, jv[k]] += 1.0
+                    else:
+                        H[k, jv[k]] += 1.0 - f
+                        H[k, jv[k] + 1] += f
+                    Hs[k, 0] += 1.0
+                    Hs[k, 1] += w * (gv[k] - b[k]) / a[k]
+                    if want_noise:
+                        gpk = gpc[mz[q, k]]
+                        Hs[k, 2] += 1.0 - 2.0 * w
+                        Hs[k, 3] += (1.0 - 2.0 * w) * max(gv[k] - b[k], 0.0)
+                        Hs[k, 4] += (1.0 - 2.0 * w) * gpk * gpk
+            for k in range(N):
+                r = rowid[j, m, k]
+                if r < 0 or (paper and k != j):
+                    continue
+                ak = a[k]
+                for t in range(K):
+                    J[r, t] = ak * (U[t] - C[k, t]) - H[k, t]
+                if wb:
+                    for i in range(N):
+                        J[r, K + N + i] = -ak * (U[K + i] - C[k, K + i])
+                        J[r, K + i] = -ak * (U[K + N + i] - C[k, K + N + i])
+                    J[r, K + N + k] += Hs[k, 0]
+                    J[r, K + k] = (U[K + 2 * N] - C[k, K + 2 * N]) - Hs[k, 1]
+                if want_noise:
+                    a2 = ak * ak
+                    X[r, 0] = a2 * (U[K + 2 * N + 1] - C[k, K + 2 * N + 1]) + Hs[k, 3]
+                    X[r, 1] = a2 * (U[K + 2 * N + 2] - C[k, K + 2 * N + 2]) + Hs[k, 2]
+                    X[r, 2] = a2 * (U[K + 2 * N + 3] - C[k, K + 2 * N + 3]) + Hs[k, 4]
+    return J, X, resid, egrp
+
+
+@numba.njit(cache=True)
+def _row_stats(resid, offsets, trim, mad_c):  # pragma: no cover - compiled
+    """Per row (``resid`` sorted within each row): trimmed mean (eq. 11), MAD sigma (eq. 12),
+    standard error of the trimmed mean (Tukey-McLaughlin) and the winsorising limits."""
+    R = offsets.size - 1
+    tm = np.empty(R)
+    sig = np.empty(R)
+    se = np.empty(R)
+    lo = np.empty(R)
+    hi = np.empty(R)
+    wmean = np.empty(R)
+    alpha = 0.5 * (1.0 - trim)
+    for r in range(R):
+        x = resid[offsets[r]:offsets[r + 1]]
+        n = x.size
+        g = int(math.floor(alpha * n))
+        tm[r] = x[g:n - g].mean()
+        lo[r] = x[g]
+        hi[r] = x[n - g - 1]
+        w = np.minimum(np.maximum(x, lo[r]), hi[r])
+        wm = w.mean()
+        wmean[r] = wm
+        sw2 = ((w - wm) ** 2).sum() / (n - 1)
+        se[r] = math.sqrt(sw2 / (n * trim * trim))
+        sig[r] = mad_c * _sorted_mad(x, tm[r])
+    return tm, sig, se, lo, hi, wmean
+
+
+@numba.njit(cache=True)
+def _sorted_mad(x, c):  # pragma: no cover - compiled
+    """median |x - c| of a sorted array by merging the deviations on either side of c."""
+    n = x.size
+    right = np.searchsorted(x, c)
+    left = right - 1
+    half = n // 2
+    prev = 0.0
+    cur = 0.0
+    for step in range(half + 1):
+        dl = c - x[left] if left >= 0 else np.inf
+        dr = x[right] - c if right < n else np.inf
+        prev = cur
+        if dl <= dr:
+            cur = dl
+            left -= 1
+        else:
+            cur = dr
+            right += 1
+    if n % 2 == 1:
+        return cur
+    return 0.5 * (prev + cur)
+
+
+@numba.njit(cache=True)
+def _group_sums(resid, egrp, offsets, lo, hi, wmean, trim, G):  # pragma: no cover - compiled
+    """Per row and block of pixels: the summed influence of the row's pixels on its trimmed
+    mean (winsorised deviation / ((1 - 2α) n))."""
+    R = offsets.size - 1
+    S = np.zeros((R, G))
+    for r in range(R):
+        n = offsets[r + 1] - offsets[r]
+        for q in range(offsets[r], offsets[r + 1]):
+            v = min(max(resid[q], lo[r]), hi[r])
+            S[r, egrp[q]] += (v - wmean[r]) / (trim * n)
+    return S
+
+
+# ------------------------------------------------------------------------------ helpers ------
+@dataclass
+class _Setup:
+    data: BracketData
+    knots: Knots
+    start: NDArray[np.int64]         # pools' CSR into the memberships
+    mz: NDArray[np.uint16]           # (M, N) codes of each membership's pixel
+    mflag: NDArray[np.uint8]         # (M, N) bit 0 observed, bit 1 clipped
+    mgrp: NDArray[np.int32]          # (M,) block of the membership's pixel
+    inc: NDArray[np.bool_]           # (N, K, N) image i in the trace of pool (j, m)
+    rowid: NDArray[np.int64]         # (N, K, N) row of (pool j, m; image k), -1 if not counted
+    offsets: NDArray[np.int64]       # rows' CSR into the residuals
+    rows: NDArray[np.int64]          # (R, 3): j, m, k
+    paper: bool
+    min_pool: int
+    row_of: NDArray[np.float64] | None = None
+
+
+def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
+    N, P = data.z.shape
+    L = int(data.levels)
+    where = data.files[0] if data.files else "bracket"
+    if N < 2:
+        raise CcdError(where, f"a bracket needs at least two exposures, got {N}")
+    knots = Knots(L)
+    K = knots.n
+    z = np.asarray(data.z)
+    j0, fr = knots.locate(z)
+    pb = np.ascontiguousarray(np.asarray(j0) + (np.asarray(fr) > 0.5), np.int64)
+    obs = np.ascontiguousarray(data.observed, np.bool_)
+    clip = (z <= 0) | (z >= L - 1)
+    G = int(opts.groups)
+    if data.pixels.size == P and data.shape[0] * data.shape[1] > 0:
+        grp = data.pixels.astype(np.int64) * G // (data.shape[0] * data.shape[1])
+    else:
+        grp = np.arange(P, dtype=np.int64) * G // max(P, 1)
+    grp = np.clip(grp, 0, G - 1).astype(np.int32)
+    paper = opts.pools == "paper"
+    seen, nclip = _pool_counts(pb, obs, clip, K)
+    inc = (seen > 0) & (nclip <= opts.clip_fraction * seen)
+    for j in range(N):
+        inc[j, :, j] = False
+    start, members = _pool_members(pb, obs, clip, K)
+    mz = np.ascontiguousarray(z.T.astype(np.uint16)[members])
+    mflag = np.ascontiguousarray((obs.astype(np.uint8) | (clip.astype(np.uint8) << 1)).T[members])
+    mgrp = grp[members]
+    counts = _row_counts(start, mflag, inc, paper, K)
+    # small brackets: lower the pool threshold to what their size allows (at least 10)
+    per_code = P / max(1, K)
+    min_pool = int(max(10, min(opts.min_pool, 0.4 * per_code)))
+    ok = counts >= min_pool
+    rows = np.argwhere(ok)
+    if rows.shape[0] < 3:
+        raise CcdError(where, f"too few pixel pools with at least {min_pool} pixels "
+                              f"({rows.shape[0]}): the bracket needs more pixels, or exposures "
+                              "that overlap (each code seen in at least two images)")
+    rowid = np.full(counts.shape, -1, np.int64)
+    rowid[ok] = np.arange(rows.shape[0])
+    offsets = np.zeros(rows.shape[0] + 1, np.int64)
+    np.cumsum(counts[ok], out=offsets[1:])
+    return _Setup(data, knots, start, mz, mflag, mgrp, inc, rowid, offsets, rows, paper,
+                  min_pool)
+
+
+def _slopes(knots: Knots, gk: NDArray, levels: int) -> NDArray[np.float64]:
+    """g'(z) at every code, in units of g per code (central differences on the knots)."""
+    codes = knots.codes
+    d = np.gradient(gk, codes) if knots.n > 2 else np.full(knots.n, (gk[-1] - gk[0]) /
+                                                           max(codes[-1] - codes[0], 1))
+    return np.interp(np.arange(levels, dtype=np.float64), codes, d)
+
+
+def _pass(s: _Setup, a, b, gk, wb, want_noise=False):
+    """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``."""
+    L = int(s.data.levels)
+    gpc = _slopes(s.knots, gk, L) if want_noise else np.zeros(L)
+    J, X, resid, egrp = _rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
+                              s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
+                              np.asarray(gk, np.float64), gpc, wb, s.knots.n,
+                              float(s.knots.step), bool(s.knots.identity), want_noise)
+    return J, X, resid, egrp
+
+
+def _sorted_rows(s: _Setup, resid: NDArray) -> NDArray[np.float64]:
+    """The residuals sorted within each row, by one vectorised sort: each row's values are
+    shifted into an interval of their own."""
+    if s.row_of is None:
+        s.row_of = np.repeat(np.arange(s.offsets.size - 1, dtype=np.float64),
+                             np.diff(s.offsets))
+    width = 2.0 * float(np.max(np.abs(resid))) + 1.0 if resid.size else 1.0
+    shift = s.row_of * width
+    out = np.sort(resid + shift)
+    out -= shift
+    return out
+
+
+def _second_differences(n: int) -> NDArray[np.float64]:
+    D = np.zeros((max(n - 2, 0), n))
+    r = np.arange(n - 2)
+    D[r, r] = 1.0
+    D[r, r + 1] = -2.0
+    D[r, r + 2] = 1.0
+    return D
+
+
+def _pav(g: NDArray, weights: NDArray) -> NDArray[np.float64]:
+    """Pool-adjacent-violators (sec. 3.2, step 9): the non-decreasing least-squares fit."""
+    return np.asarray(isotonic_regression(g, weights=np.maximum(weights, 1e-12)).x, np.float64)
+
+
+def noise_fit(X: NDArray, sig: NDArray, n: NDArray) -> tuple[NDArray, NDArray, float]:
+    """Eq. 17 by non-negative least squares: ``(σ_s², σ_c1², σ_c2²)``, their standard errors and
+    the reduced chi-square. Rows: per pool, the regressors ``X`` (mean over its pixels of
+    Σ_i c_i² (g - b), Σ_i c_i², Σ_i c_i² g'²) and the measured MAD sigma ``sig``; weights from
+    the MAD's sampling variance (2 σ⁴ / (0.37 n))."""
+    y = sig ** 2
+    sw = np.sqrt(_MAD_EFFICIENCY * n / 2.0) / np.maximum(y, 1e-30)
+    A = X * sw[:, None]
+    scale = np.maximum(np.abs(A).max(axis=0), 1e-30)
+    theta_s, _ = nnls(A / scale, y * sw)
+    theta = theta_s / scale
+    dof = max(1, y.size - 3)
+    chi2 = float(np.sum((A @ theta - y * sw) ** 2)) / dof
+    try:
+        cov = np.linalg.inv(A.T @ A) * max(chi2, 1.0)
+        err = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    except np.linalg.LinAlgError:
+        err = np.full(3, np.nan)
+    return theta, err, chi2
+
+
+def _sqrt_err(v: float, e: float) -> tuple[float, float]:
+    s = math.sqrt(max(v, 0.0))
+    if s > 0:
+        return s, e / (2 * s)
+    return 0.0, math.sqrt(max(e, 0.0))
+
+
+# ------------------------------------------------------------------------------ estimate ------
+def estimate(data: BracketData, options: TsinOptions | None = None, *,
+             progress: Callable[[float, str], None] | None = None,
+             _start: tuple | None = None) -> ChannelResponse:
+    """The iterative calibration of sec. 3.2 on one channel of a bracket.
+
+    Returns the response, white balance and noise on the reported scale, with the 1-sigma
+    covariance of g, a and b (a sandwich estimate over blocks of pixels, so correlated
+    neighbours count once) and the noise terms' errors. Raises :class:`CcdError` naming the
+    bracket's first file when it cannot calibrate (too few exposures or pools).
+    """
+    opts = options or TsinOptions()
+    opts.check()
+    s = _setup(data, opts)
+    N = data.n_images
+    L = int(data.levels)
+    K = s.knots.n
+    wb = bool(opts.white_balance)
+    mad_c = float(opts.mad_factor) if opts.mad_factor else data.mad_factor
+    t = np.asarray(data.t, np.float64)
+    a = t.copy()
+    b = np.zeros(N)
+    z_lo, z_hi = reference_codes(L)
+    k_hi = int(round(z_hi / s.knots.step))
+    k_lo = int(round(z_lo / s.knots.step))
+    gk = s.knots.codes / (L - 1.0)          # the straight line through both fixed points
+    D = _second_differences(K)
+    P_s = D.T @ D
+    bw = opts.smoothness * (K - 1) / 255.0
+    pa = 1.0 / (opts.a_prior * t) ** 2
+    history: list[dict[str, float]] = []
+    before: dict[str, Any] = {}
+    converged = False
+    n = np.diff(s.offsets).astype(np.float64)
+    # With white balance, g is first estimated at the nominal a_k, b_k = 0 (phase 1), then
+    # a_k and b_k are freed (phase 2): from the straight line the bilinear problem's first
+    # linearisation is too poor for all three at once.
+    phase = 1
+    if _start is not None:             # diagnostics: start from (g per knot, a, b)
+        gk, a, b = (np.array(v, np.float64) for v in _start)
+        phase = 2
+    it = 0
+    step = float("inf")
+    while it < opts.max_iter:
+        it += 1
+        free_wb = wb and phase == 2
+        ncol = K + (2 * N if free_wb else 0)
+        fixed = np.zeros(ncol, bool)
+        fixed[k_hi] = True
+        if free_wb:
+            fixed[k_lo] = True
+            fixed[K + N] = True                  # b of the shortest exposure
+        free = ~fixed
+        # the pass also collects eq. 17's regressors: the last one serves the noise fit and
+        # the covariance (it lies within one step below the tolerance of the result)
+        J, X, resid, egrp = _pass(s, a, b, gk, free_wb, want_noise=True)
+        tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
+                                                mad_c)
+        if it == 1:
+            before = _pick_pool(s, resid, gk)
+        Jm = J / n[:, None]
+        W = 1.0 / np.maximum(se, 1e-12) ** 2
+        JW = Jm * W[:, None]
+        H = JW.T @ Jm
+        dg = np.diag(H)[:K]
+        lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
+        Hs = H.copy()
+        Hs[:K, :K] += lam * P_s
+        rhs = -(Jm.T @ (W * tm))
+        rhs[:K] -= lam * (P_s @ gk)
+        if free_wb:
+            Hs[K:K + N, K:K + N] += np.diag(pa)
+            rhs[K:K + N] -= pa * (a - t)
+        delta = np.zeros(ncol)
+        Hf = Hs[np.ix_(free, free)]
+        try:
+            delta[free] = np.linalg.solve(Hf, rhs[free])
+        except np.linalg.LinAlgError:
+            delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
+        gk_new = _pav(gk + opts.eta * delta[:K], dg + lam)
+        if free_wb:
+            a_new = a + opts.eta * delta[K:K + N]
+            b_new = b + opts.eta * delta[K + N:]
+            # the fixed points stay exact after PAV (an affine map carries a and b along)
+            sc = (z_hi - z_lo) / (L - 1.0) / (gk_new[k_hi] - gk_new[k_lo])
+            c = z_lo / (L - 1.0) - sc * gk_new[k_lo]
+            gk_new = sc * gk_new + c
+            a_new, b_new = sc * a_new, sc * b_new + c
+            b_new = b_new - b_new[0] * a_new / a_new[0]
+            if np.any(a_new <= 0):
+                raise CcdError(data.files[0] if data.files else "bracket",
+                               "the white-balance scale of an image went non-positive: the "
+                               "bracket does not constrain it (too few overlapping codes)")
+            a, b = a_new, b_new
+        else:
+            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
+        step = float(np.mean(np.abs(gk_new - gk)))
+        gk = gk_new
+        chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
+        history.append({"iteration": it, "phase": phase, "step": step, "chi2": chi2,
+                        "pools": int(tm.size)})
+        if progress is not None:
+            progress(min(0.9, it / opts.max_iter), f"iteration {it}: mean |Δg| {step:.1e}")
+        if step < opts.tol:
+            if wb and phase == 1:
+                phase = 2
+                continue
+            converged = True
+            break
+    # covariance, noise terms and the pool's errors from the last pass
+    after = _pick_pool(s, resid, gk, like=before)
+    Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
+    Psi = JW.T @ Sg                                   # (ncol, G)
+    G = Sg.shape[1]
+    meat = (Psi @ Psi.T) * (G / (G - 1.0))
+    if free_wb:
+        # the prior on a is information, not data: its variance adds to the sandwich's meat
+        meat[K:K + N, K:K + N] += np.diag(pa)
+    cov = np.zeros((ncol, ncol))
+    try:
+        Hi = np.linalg.inv(Hs[np.ix_(free, free)])
+        cov[np.ix_(free, free)] = Hi @ meat[np.ix_(free, free)] @ Hi
+    except np.linalg.LinAlgError:
+        cov[np.ix_(free, free)] = np.nan
+    err = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    theta_n, theta_e, chi2n = noise_fit(X / n[:, None], sig, n)
+    # onto the reported scale (g on every code)
+    codes = np.arange(L, dtype=np.float64)
+    g_codes = np.interp(codes, s.knots.codes, gk)
+    gerr_codes = np.interp(codes, s.knots.codes, err[:K])
+    g_rep, sc, c = normalize(g_codes, L, offset=wb)
+    a_rep, b_rep = a * sc, b * sc + c
+    has_ab = err.size == K + 2 * N
+    a_err = err[K:K + N] * sc if has_ab else np.zeros(N)
+    b_err = err[K + N:] * sc if has_ab else np.zeros(N)
+    ss, ss_e = _sqrt_err(theta_n[0] * sc, theta_e[0] * sc)
+    s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
+    s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
+    notes = []
+    if not converged:
+        notes.append(f"stopped after {opts.max_iter} iterations (last mean |Δg| {step:.1e}, "
+                     f"tolerance {opts.tol:.0e})")
+    if s.min_pool < opts.min_pool:
+        notes.append(f"pools of at least {s.min_pool} pixels counted (the bracket is small; "
+                     f"sec. 4.1 used {opts.min_pool})")
+    if theta_n[2] == 0 or theta_n[0] == 0:
+        notes.append("a noise term was forced to 0 by the non-negative fit (sec. 4.1: when g and "
+                     "g'² look alike, shot and output noise cannot be told apart)")
+    pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
+                      n.astype(np.int64), tm * sc, sig * sc, se * sc)
+    return ChannelResponse(
+        channel=data.channel, method="tsin", g=g_rep, g_err=gerr_codes * sc, a=a_rep, a_err=a_err,
+        b=b_rep, b_err=b_err, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
+        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
+        white_balance=wb, pools=pools, history=tuple(history),
+        pool_errors={"pool_image": before["pool_image"], "code": before["code"],
+                     "predicted_image": before["predicted_image"], "before": before["values"],
+                     "after": after["values"]},
+        notes=tuple(notes))
+
+
+def _pick_pool(s: _Setup, resid: NDArray, gk: NDArray, like: dict | None = None
+               ) -> dict[str, Any]:
+    """The relative prediction errors of one pool (the paper's Fig. 3c-d shows the pool at code
+    199 of 255): the largest row whose pool code is nearest 78 % of full scale."""
+    if like and "row" in like:
+        r = int(like["row"])
+    else:
+        target = 0.78 * (s.data.levels - 1)
+        codes = s.knots.codes[s.rows[:, 1]]
+        n = np.diff(s.offsets)
+        d = np.abs(codes - target)
+        cand = np.flatnonzero(d == d.min())
+        r = int(cand[np.argmax(n[cand])])
+    j, m, k = (int(v) for v in s.rows[r])
+    gm = float(gk[m]) if gk[m] > 0 else 1.0
+    vals = resid[s.offsets[r]:s.offsets[r + 1]] / gm
+    return {"row": r, "pool_image": j, "code": float(s.knots.codes[m]), "predicted_image": k,
+            "values": vals.copy()}
+
+
+def noise_terms(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,
+                b: ArrayLike | None = None, *, options: TsinOptions | None = None
+                ) -> dict[str, float]:
+    """σ_s, σ_c1, σ_c2 (eq. 17) and their errors for a given response (any method's ``g`` on
+    every code; ``a`` = nominal times and ``b`` = 0 when not given), from the same pools as
+    :func:`estimate`."""
+    opts = options or TsinOptions()
+    s = _setup(data, opts)
+    g = np.asarray(g, np.float64)
+    gk = np.interp(s.knots.codes, np.arange(g.size, dtype=np.float64), g)
+    a = np.asarray(data.t if a is None else a, np.float64)
+    b = np.zeros(data.n_images) if b is None else np.asarray(b, np.float64)
+    mad_c = float(opts.mad_factor) if opts.mad_factor else data.mad_factor
+    _, X, resid, _ = _pass(s, a, b, gk, False, want_noise=True)
+    n = np.diff(s.offsets).astype(np.float64)
+    _, sig, _, _, _, _ = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
+    th, te, chi2 = noise_fit(X / n[:, None], sig, n)
+    ss, ss_e = _sqrt_err(th[0], te[0])
+    s1, s1_e = _sqrt_err(th[1], te[1])
+    s2, s2_e = _sqrt_err(th[2], te[2])
+    return {"sigma_s": ss, "sigma_c1": s1, "sigma_c2": s2, "sigma_s_err": ss_e,
+            "sigma_c1_err": s1_e, "sigma_c2_err": s2_e, "chi2": chi2}
