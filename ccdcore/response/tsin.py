@@ -100,13 +100,13 @@ class TsinOptions:
     """Settings of :func:`estimate`.
 
     white_balance
-        Estimate a_k, b_k (True) or take a_k = nominal exposure, b_k = 0 (False).
+        Estimate a_k, b_k as well (sec. 3.2). Not available: with free a_k and b_k the
+        iteration does not yet converge on the sec. 4.1 simulation (docs/response.md); ``True``
+        is refused with that message. a_k are the nominal exposure times and b_k = 0.
     pools
         ``"instrument"`` (default): the pool of image j predicts the other images of its trace
         from a radiance without image j; ``"paper"``: the pool of image k predicts image k
         itself from every usable code, as printed (biased; kept for comparison).
-    a_prior
-        Relative standard deviation of the a-priori bound on a_k around the nominal times.
     smoothness
         Bandwidth of the smoothness term on g, in 8-bit code steps.
     eta
@@ -124,12 +124,11 @@ class TsinOptions:
     mad_factor
         Eq. 12's c; ``None``: 1.483 times the Bayer factor of the data's channel.
     groups
-        Blocks of pixels (bands of rows of the frame) over which the covariance is estimated.
+        Blocks of pixels (bands of rows of the frame) over which the band of g is estimated.
     """
 
     white_balance: bool = False
     pools: str = "instrument"
-    a_prior: float = 0.05
     smoothness: float = 10.0
     eta: float = 1.0
     tol: float = 1e-5
@@ -139,19 +138,23 @@ class TsinOptions:
     mad_factor: float | None = None
     groups: int = 64
 
-    def check(self) -> None:
+    def check(self, where: str = "response") -> None:
+        """Raise :class:`CcdError` (naming ``where``) for settings the estimator cannot use."""
+        if self.white_balance:
+            raise CcdError(where, "estimating white balance (free a_k, b_k) is not available: "
+                                  "the iteration does not converge on simulated brackets yet "
+                                  "(docs/response.md); calibrate with the nominal exposure times")
         if self.pools not in ("instrument", "paper"):
-            raise CcdError("response", f"pools must be 'instrument' or 'paper', got {self.pools!r}")
-        for name in ("a_prior", "eta", "tol"):
+            raise CcdError(where, f"pools must be 'instrument' or 'paper', got {self.pools!r}")
+        for name in ("eta", "tol"):
             if not getattr(self, name) > 0:
-                raise CcdError("response", f"{name} must be positive, got {getattr(self, name)}")
+                raise CcdError(where, f"{name} must be positive, got {getattr(self, name)}")
         if not self.smoothness >= 0:
-            raise CcdError("response", f"smoothness must be >= 0, got {self.smoothness}")
+            raise CcdError(where, f"smoothness must be >= 0, got {self.smoothness}")
         if not 0 <= self.clip_fraction < 0.5:
-            raise CcdError("response", f"clip_fraction must be in [0, 0.5), got "
-                                       f"{self.clip_fraction}")
+            raise CcdError(where, f"clip_fraction must be in [0, 0.5), got {self.clip_fraction}")
         if self.max_iter < 1 or self.min_pool < 2 or self.groups < 4:
-            raise CcdError("response", "max_iter >= 1, min_pool >= 2 and groups >= 4 are needed")
+            raise CcdError(where, "max_iter >= 1, min_pool >= 2 and groups >= 4 are needed")
 
 
 @dataclass(frozen=True, eq=False)
@@ -300,22 +303,21 @@ def _knot(code, step, identity, K):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb, K, step,
+def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, step,
           identity, want_noise):  # pragma: no cover - compiled
     """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
     linearisations (eq. 13) and, when asked, the rows' eq. 17 regressors.
 
     A pixel's error for image k of its trace is e = a_k Ê + b_k - g(ẑ_k) with
     Ê = Σ_i w (g(ẑ_i) - b_i) / a_i; its derivative in g is a_k u - δ(ẑ_k) with
-    u = Σ_i (w / a_i) δ(ẑ_i), the same u for every k. So u (and the like terms of a, b and
-    eq. 17) are summed once per pool, less the pixels whose trace lacks k, and only the
+    u = Σ_i (w / a_i) δ(ẑ_i), the same u for every k. So u (and the like terms of eq. 17)
+    are summed once per pool, less the pixels whose trace lacks k, and only the
     δ(ẑ_k) terms per row. The pool's pixels' traces are read from ``mz``, ``mflag``: copies in
     pool order, so that the pass streams through memory.
     """
     N = mz.shape[1]
     R = offsets.size - 1
-    ncol = K + (2 * N if wb else 0)
-    J = np.zeros((R, ncol))
+    J = np.zeros((R, K))
     X = np.zeros((R, 3))
     resid = np.empty(offsets[R])
     egrp = np.empty(offsets[R], np.int32)
@@ -324,14 +326,13 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb,
     gv = np.empty(N)
     jv = np.empty(N, np.int64)
     fv = np.empty(N)
-    # pool sums: [0:K] u in g, [K:K+N] w/a_i (b), [K+N:K+2N] w (g_i - b_i)/a_i^2 (a), then
-    # Σ Ê, and the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a²
-    nu = K + 2 * N + 4
+    # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a²
+    nu = K + 3
     U = np.zeros(nu)
     C = np.zeros((N, nu))             # the same sums over the pixels lacking image k
     H = np.zeros((N, K))              # per row: Σ δ(ẑ_k)
-    Hs = np.zeros((N, 5))             # per row: n, Σ w(g_k - b_k)/a_k, Σ (1-2w), Σ (1-2w) v_k,
-    miss = np.empty(N, np.bool_)      #          Σ (1-2w) g'_k²
+    Hs = np.zeros((N, 3))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²
+    miss = np.empty(N, np.bool_)
     ux = np.zeros(8)
     cols = np.zeros(8, np.int64)
     for j in range(N):
@@ -382,20 +383,14 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb,
                         ux[1] = c * f
                         cols[1] = jv[i] + 1
                         nterm = 2
-                    if wb:
-                        ux[nterm] = c
-                        cols[nterm] = K + i
-                        ux[nterm + 1] = c * (gv[i] - b[i]) / a[i]
-                        cols[nterm + 1] = K + N + i
-                        nterm += 2
                     if want_noise:
                         gpi = gpc[mz[q, i]]
                         ux[nterm] = c * c * max(gv[i] - b[i], 0.0)
-                        cols[nterm] = K + 2 * N + 1
+                        cols[nterm] = K
                         ux[nterm + 1] = c * c
-                        cols[nterm + 1] = K + 2 * N + 2
+                        cols[nterm + 1] = K + 1
                         ux[nterm + 2] = c * c * gpi * gpi
-                        cols[nterm + 2] = K + 2 * N + 3
+                        cols[nterm + 2] = K + 2
                         nterm += 3
                     for t in range(nterm):
                         U[cols[t]] += ux[t]
@@ -404,11 +399,6 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb,
                             if miss[k]:
                                 for t in range(nterm):
                                     C[k, cols[t]] += ux[t]
-                U[K + 2 * N] += E
-                if nmiss:
-                    for k in range(N):
-                        if miss[k]:
-                            C[k, K + 2 * N] += E
                 for kk in range(ns):
                     k = idx[kk]
                     if paper and k != j:
@@ -427,13 +417,11 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb,
                     else:
                         H[k, jv[k]] += 1.0 - f
                         H[k, jv[k] + 1] += f
-                    Hs[k, 0] += 1.0
-                    Hs[k, 1] += w * (gv[k] - b[k]) / a[k]
                     if want_noise:
                         gpk = gpc[mz[q, k]]
-                        Hs[k, 2] += 1.0 - 2.0 * w
-                        Hs[k, 3] += (1.0 - 2.0 * w) * max(gv[k] - b[k], 0.0)
-                        Hs[k, 4] += (1.0 - 2.0 * w) * gpk * gpk
+                        Hs[k, 0] += 1.0 - 2.0 * w
+                        Hs[k, 1] += (1.0 - 2.0 * w) * max(gv[k] - b[k], 0.0)
+                        Hs[k, 2] += (1.0 - 2.0 * w) * gpk * gpk
             for k in range(N):
                 r = rowid[j, m, k]
                 if r < 0 or (paper and k != j):
@@ -441,17 +429,11 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wb,
                 ak = a[k]
                 for t in range(K):
                     J[r, t] = ak * (U[t] - C[k, t]) - H[k, t]
-                if wb:
-                    for i in range(N):
-                        J[r, K + N + i] = -ak * (U[K + i] - C[k, K + i])
-                        J[r, K + i] = -ak * (U[K + N + i] - C[k, K + N + i])
-                    J[r, K + N + k] += Hs[k, 0]
-                    J[r, K + k] = (U[K + 2 * N] - C[k, K + 2 * N]) - Hs[k, 1]
                 if want_noise:
                     a2 = ak * ak
-                    X[r, 0] = a2 * (U[K + 2 * N + 1] - C[k, K + 2 * N + 1]) + Hs[k, 3]
-                    X[r, 1] = a2 * (U[K + 2 * N + 2] - C[k, K + 2 * N + 2]) + Hs[k, 2]
-                    X[r, 2] = a2 * (U[K + 2 * N + 3] - C[k, K + 2 * N + 3]) + Hs[k, 4]
+                    X[r, 0] = a2 * (U[K] - C[k, K]) + Hs[k, 1]
+                    X[r, 1] = a2 * (U[K + 1] - C[k, K + 1]) + Hs[k, 0]
+                    X[r, 2] = a2 * (U[K + 2] - C[k, K + 2]) + Hs[k, 2]
     return J, X, resid, egrp
 
 
@@ -593,13 +575,13 @@ def _slopes(knots: Knots, gk: NDArray, levels: int) -> NDArray[np.float64]:
     return np.interp(np.arange(levels, dtype=np.float64), codes, d)
 
 
-def _pass(s: _Setup, a, b, gk, wb, want_noise=False):
+def _pass(s: _Setup, a, b, gk, want_noise=False):
     """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``."""
     L = int(s.data.levels)
     gpc = _slopes(s.knots, gk, L) if want_noise else np.zeros(L)
     J, X, resid, egrp = _rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
                               s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
-                              np.asarray(gk, np.float64), gpc, wb, s.knots.n,
+                              np.asarray(gk, np.float64), gpc, s.knots.n,
                               float(s.knots.step), bool(s.knots.identity), want_noise)
     return J, X, resid, egrp
 
@@ -661,139 +643,91 @@ def _sqrt_err(v: float, e: float) -> tuple[float, float]:
 
 # ------------------------------------------------------------------------------ estimate ------
 def estimate(data: BracketData, options: TsinOptions | None = None, *,
-             progress: Callable[[float, str], None] | None = None,
-             _start: tuple | None = None) -> ChannelResponse:
+             progress: Callable[[float, str], None] | None = None) -> ChannelResponse:
     """The iterative calibration of sec. 3.2 on one channel of a bracket.
 
-    Returns the response, white balance and noise on the reported scale, with the 1-sigma
-    covariance of g, a and b (a sandwich estimate over blocks of pixels, so correlated
-    neighbours count once) and the noise terms' errors. Raises :class:`CcdError` naming the
-    bracket's first file when it cannot calibrate (too few exposures or pools).
+    Returns the response and noise on the reported scale, with the 1-sigma band of g (a
+    sandwich estimate over blocks of pixels: one pixel's noise enters many pools' rows, and
+    neighbours of an interpolated colour frame are correlated) and the noise terms' errors.
+    ``progress(fraction, message)`` is called after every iteration. Raises
+    :class:`CcdError` naming the bracket's first file when it cannot calibrate.
     """
     opts = options or TsinOptions()
-    opts.check()
+    opts.check(data.files[0] if data.files else "bracket")
     s = _setup(data, opts)
     N = data.n_images
     L = int(data.levels)
     K = s.knots.n
-    wb = bool(opts.white_balance)
     mad_c = float(opts.mad_factor) if opts.mad_factor else data.mad_factor
     t = np.asarray(data.t, np.float64)
-    a = t.copy()
+    a = t.copy()                                  # step 2: the nominal exposures, b = 0
     b = np.zeros(N)
-    z_lo, z_hi = reference_codes(L)
+    _, z_hi = reference_codes(L)
     k_hi = int(round(z_hi / s.knots.step))
-    k_lo = int(round(z_lo / s.knots.step))
-    gk = s.knots.codes / (L - 1.0)          # the straight line through both fixed points
-    D = _second_differences(K)
-    P_s = D.T @ D
+    gk = s.knots.codes / (L - 1.0)          # step 2: the straight line through the fixed points
+    P_s = _second_differences(K)
+    P_s = P_s.T @ P_s
     bw = opts.smoothness * (K - 1) / 255.0
-    pa = 1.0 / (opts.a_prior * t) ** 2
+    free = np.ones(K, bool)
+    free[k_hi] = False
     history: list[dict[str, float]] = []
     before: dict[str, Any] = {}
     converged = False
     n = np.diff(s.offsets).astype(np.float64)
-    # With white balance, g is first estimated at the nominal a_k, b_k = 0 (phase 1), then
-    # a_k and b_k are freed (phase 2): from the straight line the bilinear problem's first
-    # linearisation is too poor for all three at once.
-    phase = 1
-    if _start is not None:             # diagnostics: start from (g per knot, a, b)
-        gk, a, b = (np.array(v, np.float64) for v in _start)
-        phase = 2
-    it = 0
     step = float("inf")
-    while it < opts.max_iter:
-        it += 1
-        free_wb = wb and phase == 2
-        ncol = K + (2 * N if free_wb else 0)
-        fixed = np.zeros(ncol, bool)
-        fixed[k_hi] = True
-        if free_wb:
-            fixed[k_lo] = True
-            fixed[K + N] = True                  # b of the shortest exposure
-        free = ~fixed
-        # the pass also collects eq. 17's regressors: the last one serves the noise fit and
-        # the covariance (it lies within one step below the tolerance of the result)
-        J, X, resid, egrp = _pass(s, a, b, gk, free_wb, want_noise=True)
+    it = 0
+    for it in range(1, opts.max_iter + 1):
+        # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
+        # the pass also collects eq. 17's regressors: the last pass serves the noise fit and
+        # the band (it lies within one step below the tolerance of the result)
+        J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True)
         tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
                                                 mad_c)
         if it == 1:
             before = _pick_pool(s, resid, gk)
+        # steps 6-7: eq. 13 per pool, eq. 15 with the smoothness term and the fixed point
         Jm = J / n[:, None]
         W = 1.0 / np.maximum(se, 1e-12) ** 2
         JW = Jm * W[:, None]
         H = JW.T @ Jm
-        dg = np.diag(H)[:K]
+        dg = np.diag(H)
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
-        Hs = H.copy()
-        Hs[:K, :K] += lam * P_s
-        rhs = -(Jm.T @ (W * tm))
-        rhs[:K] -= lam * (P_s @ gk)
-        if free_wb:
-            Hs[K:K + N, K:K + N] += np.diag(pa)
-            rhs[K:K + N] -= pa * (a - t)
-        delta = np.zeros(ncol)
+        Hs = H + lam * P_s
+        rhs = -(Jm.T @ (W * tm)) - lam * (P_s @ gk)
+        delta = np.zeros(K)
         Hf = Hs[np.ix_(free, free)]
         try:
             delta[free] = np.linalg.solve(Hf, rhs[free])
         except np.linalg.LinAlgError:
             delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
-        gk_new = _pav(gk + opts.eta * delta[:K], dg + lam)
-        if free_wb:
-            a_new = a + opts.eta * delta[K:K + N]
-            b_new = b + opts.eta * delta[K + N:]
-            # the fixed points stay exact after PAV (an affine map carries a and b along)
-            sc = (z_hi - z_lo) / (L - 1.0) / (gk_new[k_hi] - gk_new[k_lo])
-            c = z_lo / (L - 1.0) - sc * gk_new[k_lo]
-            gk_new = sc * gk_new + c
-            a_new, b_new = sc * a_new, sc * b_new + c
-            b_new = b_new - b_new[0] * a_new / a_new[0]
-            if np.any(a_new <= 0):
-                raise CcdError(data.files[0] if data.files else "bracket",
-                               "the white-balance scale of an image went non-positive: the "
-                               "bracket does not constrain it (too few overlapping codes)")
-            a, b = a_new, b_new
-        else:
-            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
+        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed point
+        gk_new = _pav(gk + opts.eta * delta, dg + lam)
+        gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
         step = float(np.mean(np.abs(gk_new - gk)))
         gk = gk_new
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
-        history.append({"iteration": it, "phase": phase, "step": step, "chi2": chi2,
-                        "pools": int(tm.size)})
+        history.append({"iteration": it, "step": step, "chi2": chi2, "pools": int(tm.size)})
         if progress is not None:
-            progress(min(0.9, it / opts.max_iter), f"iteration {it}: mean |Δg| {step:.1e}")
-        if step < opts.tol:
-            if wb and phase == 1:
-                phase = 2
-                continue
+            progress(min(0.95, it / 4.0), f"iteration {it}: mean |Δg| {step:.1e}")
+        if step < opts.tol:                       # step 10
             converged = True
             break
-    # covariance, noise terms and the pool's errors from the last pass
+    # the band, the noise terms and the pool's errors from the last pass
     after = _pick_pool(s, resid, gk, like=before)
     Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
-    Psi = JW.T @ Sg                                   # (ncol, G)
+    Psi = JW.T @ Sg                                   # (K, G)
     G = Sg.shape[1]
     meat = (Psi @ Psi.T) * (G / (G - 1.0))
-    if free_wb:
-        # the prior on a is information, not data: its variance adds to the sandwich's meat
-        meat[K:K + N, K:K + N] += np.diag(pa)
-    cov = np.zeros((ncol, ncol))
+    cov = np.zeros((K, K))
     try:
         Hi = np.linalg.inv(Hs[np.ix_(free, free)])
         cov[np.ix_(free, free)] = Hi @ meat[np.ix_(free, free)] @ Hi
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    theta_n, theta_e, chi2n = noise_fit(X / n[:, None], sig, n)
-    # onto the reported scale (g on every code)
+    theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
-    g_codes = np.interp(codes, s.knots.codes, gk)
-    gerr_codes = np.interp(codes, s.knots.codes, err[:K])
-    g_rep, sc, c = normalize(g_codes, L, offset=wb)
-    a_rep, b_rep = a * sc, b * sc + c
-    has_ab = err.size == K + 2 * N
-    a_err = err[K:K + N] * sc if has_ab else np.zeros(N)
-    b_err = err[K + N:] * sc if has_ab else np.zeros(N)
+    g_rep, sc, _ = normalize(np.interp(codes, s.knots.codes, gk), L)
     ss, ss_e = _sqrt_err(theta_n[0] * sc, theta_e[0] * sc)
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
@@ -809,11 +743,13 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                      "g'² look alike, shot and output noise cannot be told apart)")
     pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
                       n.astype(np.int64), tm * sc, sig * sc, se * sc)
+    zeros = np.zeros(N)
     return ChannelResponse(
-        channel=data.channel, method="tsin", g=g_rep, g_err=gerr_codes * sc, a=a_rep, a_err=a_err,
-        b=b_rep, b_err=b_err, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
+        channel=data.channel, method="tsin", g=g_rep,
+        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=zeros, b=b * sc,
+        b_err=zeros.copy(), t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
         sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
-        white_balance=wb, pools=pools, history=tuple(history),
+        pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],
                      "predicted_image": before["predicted_image"], "before": before["values"],
                      "after": after["values"]},
@@ -853,7 +789,7 @@ def noise_terms(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,
     a = np.asarray(data.t if a is None else a, np.float64)
     b = np.zeros(data.n_images) if b is None else np.asarray(b, np.float64)
     mad_c = float(opts.mad_factor) if opts.mad_factor else data.mad_factor
-    _, X, resid, _ = _pass(s, a, b, gk, False, want_noise=True)
+    _, X, resid, _ = _pass(s, a, b, gk, want_noise=True)
     n = np.diff(s.offsets).astype(np.float64)
     _, sig, _, _, _, _ = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
     th, te, chi2 = noise_fit(X / n[:, None], sig, n)
