@@ -219,14 +219,25 @@ def _print_product(product: Any, folder: Path) -> None:
         pl = est["plan"]
         print(f"  plan           n1 = {pl['n1_required']} card/lamp positions needed, "
               f"n2 = {pl['n2_required']} frames per position")
+    if "response" in est:
+        r = est["response"]
+        noise = "; ".join(
+            f"{c}: σ_s {_fmt(r['sigma_s'][i])}, σ_c1 {_fmt(r['sigma_c1'][i])}, "
+            f"σ_c2 {_fmt(r['sigma_c2'][i])} DN" for i, c in enumerate(r["channels"]))
+        print(f"  response       g per channel ({', '.join(r['channels'])}, {r['levels']} "
+              f"codes) by {r['method']}; noise {noise}")
     for name, sv in est.get("scene", {}).items():
         print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
               "(relative variance of the surface)")
-    print(f"  maps           {', '.join(sorted(product.maps))}")
+    print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
     for warning in product.warnings:
         _say("warning", warning)
     for note in product.notes:
         _say("note", note)
+
+
+def _fmt(v: Any) -> str:
+    return "–" if v is None else f"{float(v):.4g}"
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
@@ -276,9 +287,105 @@ def _cmd_snup(args: argparse.Namespace) -> int:
 def _cmd_apply(args: argparse.Namespace) -> int:
     from .product import apply_product
 
-    written = apply_product(args.calib, args.images, args.out_dir, compression=args.compression)
+    written = apply_product(args.calib, args.images, args.out_dir, compression=args.compression,
+                            linearise=args.linearise)
     for path in written:
         print(path)
+    return 0
+
+
+def _print_response(res: Any) -> None:
+    from .response.methods import METHODS
+    from .response.scale import reference_codes
+
+    _, z_hi = reference_codes(res.levels)
+    print(f"inverse response by {METHODS[res.method].label} from {len(res.files)} exposures "
+          f"({', '.join(f'{t:.4g}' for t in res.t)} s), {res.levels} codes; scale: "
+          f"g({z_hi}) = {z_hi / (res.levels - 1):.4g}")
+    top = res.levels - 1
+    codes = sorted({round(top * f) for f in (0.05, 0.1, 0.25, 0.5, 0.75, 0.95)})
+    print(f"  {'code':>7} " + " ".join(f"{c:>17}" for c in res.channels))
+    for z in codes:
+        print(f"  {z:>7} " + " ".join(
+            f"{format_pm(float(r.g[z]), float(r.g_err[z])):>17}" for r in res.responses))
+    for ch, r in zip(res.channels, res.responses):
+        noise = ", ".join(f"{label} = {format_pm(v, e, unit=u)}" for label, v, e, u in (
+            ("σ_s", r.sigma_s, r.sigma_s_err, ""), ("σ_c1", r.sigma_c1, r.sigma_c1_err, ""),
+            ("σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
+        state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
+                 + ("" if r.converged else ", not converged"))
+        print(f"  {ch}: noise (eq. 7) {noise or 'not estimated'}; {state}")
+        for note in r.notes:
+            _say("note", note, indent="    ")
+
+
+def _cmd_response(args: argparse.Namespace) -> int:
+    from .response.methods import session_response
+
+    res = session_response(args.session, args.method, stack=args.stack,
+                           bloom_radius=args.bloom_radius)
+    if args.json:
+        _print_json(res.to_dict())
+    else:
+        _print_response(res)
+    return 0
+
+
+def _cmd_hdr(args: argparse.Namespace) -> int:
+    from .io import write_image, write_map
+    from .product import load_product
+    from .response.brackets import load_bracket
+    from .response.hdr import merge
+    from .response.methods import response_of
+    from .session import open_session
+
+    session = open_session(args.session)
+    session.raise_if_invalid()
+    stacks = session.bracket_stacks("bracket")
+    stack = args.stack if args.stack is not None else (next(iter(stacks)) if stacks else None)
+    brackets = load_bracket(session, stack, bloom_radius=args.bloom_radius)
+    if args.calib is not None:
+        models = load_product(args.calib).response_models(args.calib)
+        first = next(iter(brackets.values()))
+        for ch, m in models.items():
+            if m.levels != first.levels:
+                raise CcdError(args.calib, f"its response has {m.levels} codes, the bracket's "
+                                           f"camera {first.levels}: another camera?")
+            # the product's a, b were its own bracket's nominal times: take this one's
+            models[ch] = type(m)(m.g, first.t.copy(), np.zeros(first.n_images), m.sigma_s,
+                                 m.sigma_c1, m.sigma_c2)
+        source = f"response of {args.calib}"
+    else:
+        res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius)
+        models = res.models()
+        source = "response estimated from this bracket (sec. 3.2)"
+    records = session.bracket_stacks("bracket")[stack]
+    records = sorted(records, key=lambda r: r.exposure)
+    frames = [session.read(r) for r in records]
+    out = merge(frames, models, layout=session.camera.layout, bloom_radius=args.bloom_radius)
+    folder = Path(args.out_dir)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CcdError(folder, f"cannot create the folder: {exc.strerror}") from None
+    outputs = {(folder / n).resolve() for n in ("radiance.exr", "sigma.exr", "flags.png")}
+    for rec in records:
+        if Path(rec.path).resolve() in outputs:
+            raise CcdError(rec.relpath, "an output would overwrite this input; choose another "
+                                        "-o folder")
+    paths = [write_map(folder / "radiance.exr", out.radiance),
+             write_map(folder / "sigma.exr", out.sigma),
+             write_image(folder / "flags.png", out.flag_image())]
+    if args.json:
+        _print_json({"source": source, "channels": list(out.channels),
+                     "files": [str(p) for p in paths],
+                     "flags": {"ok": int(np.sum(out.flag_image() == 0)),
+                               "flagged": int(np.sum(out.flag_image() != 0))}})
+    else:
+        print(f"HDR radiance of {len(frames)} exposures ({source}), channels "
+              f"{', '.join(out.channels)}")
+        for p in paths:
+            print(f"  {p}")
     return 0
 
 
@@ -375,6 +482,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compression", choices=["none", "zip"], default="none",
                    help="TIFF/EXR compression of the float32 outputs (default none: about six "
                         "times faster to write than zip, a quarter larger)")
+    p.add_argument("--linearise", action="store_true",
+                   help="map the codes through the product's inverse response g instead "
+                        "(values linear in exposure)")
 
     p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
                      "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
@@ -384,18 +494,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="channel layout (default: from the file; give it for mosaicked raw data)")
     json_flag(p)
 
-    p = verb("response", "inverse camera response per channel",
-             _not_built("response", "response-curve estimation"), needs="bracket frames")
-    p.add_argument("session", type=Path, help=_SESSION_HELP)
-    p.add_argument("--method", choices=["tsin", "debevec", "robertson", "mitsunaga"],
-                   default="tsin", help="estimation method (default tsin)")
+    from .response.brackets import DEFAULT_BLOOM_RADIUS
+    from .response.methods import METHODS
+
+    def bracket_args(p: argparse.ArgumentParser) -> None:
+        p.add_argument("session", type=Path, help=_SESSION_HELP)
+        p.add_argument("--stack", type=int, default=None,
+                       help="which bracket of the session (its 'stack'; default the first)")
+        p.add_argument("--bloom-radius", type=int, default=DEFAULT_BLOOM_RADIUS, metavar="R",
+                       help="pixels within R of a saturated pixel are dropped as blooming "
+                            f"(default {DEFAULT_BLOOM_RADIUS}; 0 keeps them)")
+
+    p = verb("response", "inverse camera response g per channel, with its band and the noise "
+                         "terms (Tsin et al. 2001 and classic methods)", _cmd_response,
+             needs="an exposure bracket (role = bracket, one exposure per frame)")
+    bracket_args(p)
+    p.add_argument("--method", choices=list(METHODS), default="tsin",
+                   help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
     json_flag(p)
 
-    p = verb("hdr", "HDR radiance map and its sigma map", _not_built("hdr", "HDR radiance"),
-             needs="bracket frames")
-    p.add_argument("session", type=Path, help=_SESSION_HELP)
-    p.add_argument("--calib", type=Path, help="a calibration product with response curves")
-    p.add_argument("-o", "--out-dir", type=Path, required=True, help="folder for the outputs")
+    p = verb("hdr", "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
+             _cmd_hdr, needs="an exposure bracket; a product's response with --calib")
+    bracket_args(p)
+    p.add_argument("--calib", type=Path,
+                   help="a calibration product with a response (default: estimate it from "
+                        "this bracket)")
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for radiance.exr, sigma.exr and flags.png")
+    json_flag(p)
 
     p = verb("change", "illumination-invariant change and shadow masks",
              _not_built("change", "change detection"), needs="reference and target brackets")

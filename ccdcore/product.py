@@ -76,7 +76,7 @@ def _no_progress(step: str, fraction: float) -> None:
 ESTIMATE_STEPS: tuple[tuple[str, float], ...] = (
     ("photon transfer", 0.0), ("dark reference", 0.15), ("fixed pattern", 0.3),
     ("planning", 0.55), ("correction check", 0.6), ("scene variation", 0.65),
-    ("flat field", 0.85), ("done", 1.0))
+    ("flat field", 0.8), ("response", 0.9), ("done", 1.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,6 +171,57 @@ class CalibrationProduct:
         if "flat_G" in self.maps:
             return "flat_field"
         return "fixed_pattern" if "K" in self.maps else "dark"
+
+    def response_models(self, where: Any = PRODUCT_FILE) -> dict[str, Any]:
+        """Channel -> :class:`ccdcore.response.hdr.ResponseModel` from the ``response``
+        estimate (g per code, nominal a_k, b_k, noise terms), checked: a clear error names
+        ``where`` when the product has no response or a damaged one."""
+        from .response.hdr import ResponseModel
+
+        r = self.estimates.get("response")
+        if not isinstance(r, dict):
+            raise CcdError(where, "the calibration product has no response curve: calibrate "
+                                  "a session with an exposure bracket (role = bracket)")
+        try:
+            names = [str(c) for c in r["channels"]]
+            out = {}
+            for i, c in enumerate(names):
+                g = np.asarray(r["g"][i], np.float64)
+                a = np.asarray(r["a"][i], np.float64)
+                b = np.asarray(r["b"][i], np.float64)
+                if g.ndim != 1 or g.size < 2 or not np.all(np.isfinite(g)) \
+                        or np.any(np.diff(g) < 0):
+                    raise ValueError(f"g of channel {c} is not a finite non-decreasing curve")
+                if a.shape != b.shape or not np.all(a > 0):
+                    raise ValueError(f"a, b of channel {c} do not match or a is not positive")
+                out[c] = ResponseModel(g, a, b, float(r["sigma_s"][i] or 0.0),
+                                       float(r["sigma_c1"][i] or 0.0),
+                                       float(r["sigma_c2"][i] or 0.0))
+        except (KeyError, IndexError, TypeError, ValueError) as exc:
+            raise CcdError(where, f"damaged response estimate: {exc}") from None
+        return out
+
+    def linearise(self, frame: np.ndarray, *, name: str | None = None) -> np.ndarray:
+        """Codes mapped through the inverse response g of each channel (float32, on g's
+        reported scale: linear in exposure, 0.9 at the code 90 % up the range)."""
+        from .channels import channel_slices
+
+        models = self.response_models()
+        d = np.asarray(frame)
+        if not np.issubdtype(d.dtype, np.integer):
+            raise CcdError(name, f"linearising needs the camera's integer codes, got {d.dtype}")
+        layout = self.camera.layout if self.camera.layout else None
+        out = np.empty(d.shape, np.float32)
+        for ch, idx in channel_slices(d.shape, layout).items():
+            if ch not in models:
+                raise CcdError(name, f"the product has no response for channel {ch}")
+            g = models[ch].g
+            plane = d[idx]
+            if plane.size and (int(plane.min()) < 0 or int(plane.max()) >= g.size):
+                raise CcdError(name, f"codes beyond the response's {g.size} levels (another "
+                                     "camera or bit depth?)")
+            out[idx] = g[plane].astype(np.float32)
+        return out
 
     def correct(self, frame: np.ndarray, *, name: str | None = None) -> np.ndarray:
         """Correct one frame, float32.
@@ -401,6 +452,10 @@ REQUIREMENTS: tuple[Requirement, ...] = (
                 "the flat-field gain/offset maps G, O (de Lasarte et al. 2007)",
                 "flat fields of a uniform source (role = flat, level, exposure) and dark frames "
                 "at their exposure"),
+    Requirement("response", ("bracket",),
+                "the inverse response g and the noise terms (Tsin et al. 2001, sec. 3.2)",
+                "an exposure bracket of a static scene (role = bracket, one exposure per "
+                "frame, e.g. 8 exposures a factor of 1.4 apart)"),
 )
 
 
@@ -469,6 +524,7 @@ class Estimates:
     scene: dict[str, SceneVariation] | None = None
     correction_check: CorrectionCheck | None = None
     flat: FlatField | None = None
+    response: Any = None
     skipped: tuple[Skipped, ...] = ()
 
     @property
@@ -476,7 +532,7 @@ class Estimates:
         """The names of the estimates that were made (:data:`REQUIREMENTS` names)."""
         have = {"noise": self.noise, "dark": self.dark, "fixed_pattern": self.fixed_pattern,
                 "plan": self.plan, "correction_check": self.correction_check,
-                "scene": self.scene, "flat_field": self.flat}
+                "scene": self.scene, "flat_field": self.flat, "response": self.response}
         return tuple(k for k, v in have.items() if v is not None)
 
 
@@ -519,20 +575,22 @@ def budget_inputs(dark: DarkReference, fp: FixedPattern, noise: PhotonTransfer,
 
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
-                 progress: Progress | None = None) -> Estimates:
+                 progress: Progress | None = None, response: bool = True) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
     An estimate whose frames are missing, or whose frames the method refuses (a
     :class:`CcdError`, e.g. one fixed-pattern configuration where eq. 49 needs several), is
     skipped and listed in :attr:`Estimates.skipped` with its reason; the others are still made.
     ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
-    excluded in the app) instead of computing it here.
+    excluded in the app) instead of computing it here; ``response=False`` leaves the response
+    of a bracket out (its step is then empty).
     """
     from .darkframe import dark_reference
     from .fixedpattern import correction_check, fixed_pattern_map
     from .flatfield import flat_field_from_session
     from .noise import photon_transfer
     from .planning import check_session_plan, plan_acquisition
+    from .response.methods import session_response
     from .scene import scene_variations
 
     report = progress or _no_progress
@@ -602,13 +660,17 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                                      **scene_error_terms(made["dark"], made["fixed_pattern"])))
     report("flat field", start["flat field"])
     attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto"))
+    report("response", start["response"])
+    if response:
+        attempt("response", (), lambda: session_response(session))
     plan = made.get("plan")
     warnings = tuple(check_session_plan(session, plan)) if plan is not None else ()
     report("done", start["done"])
     return Estimates(noise=made.get("noise"), dark=made.get("dark"),
                      fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
                      scene=made.get("scene"), correction_check=made.get("correction_check"),
-                     flat=made.get("flat_field"), skipped=tuple(skipped))
+                     flat=made.get("flat_field"), response=made.get("response"),
+                     skipped=tuple(skipped))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -623,7 +685,9 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
       fewer frames;
     - a ``max-intensity`` scene frame: the correction check (sec. VII-A);
     - ``scene`` frames with patches/ROIs, K̂ and the noise model: scene variation V_S (sec. VI);
-    - ``flat`` frames and darks: flat-field G/O maps (de Lasarte et al. 2007).
+    - ``flat`` frames and darks: flat-field G/O maps (de Lasarte et al. 2007);
+    - a ``bracket``: the inverse response g per channel with its band and the noise terms
+      (Tsin et al. 2001, sec. 3.2), for :func:`apply_product` (``linearise``) and the HDR merge.
 
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
@@ -679,6 +743,12 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         steps["flat_field"] = {"method": "gain/offset maps, de Lasarte et al. 2007",
                                "base": est["flat_field"]["base"],
                                "flag_rule": e.flat.flag_rule}
+    if e.response is not None:
+        est["response"] = {k: v for k, v in e.response.to_dict().items() if k != "files"}
+        steps["response"] = {"method": "Tsin, Ramesh & Kanade 2001 sec. 3.2 (instrumented "
+                                       "pools), nominal exposures",
+                             "bloom_radius": e.response.bloom_radius,
+                             "files": list(e.response.files)}
     if e.scene is not None:
         est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
         steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
@@ -703,7 +773,7 @@ COMPRESSIONS = ("none", "zip")
 
 def apply_product(product: CalibrationProduct | str | os.PathLike,
                   images: Iterable[str | os.PathLike], out_dir: str | os.PathLike, *,
-                  compression: str = "none") -> list[Path]:
+                  compression: str = "none", linearise: bool = False) -> list[Path]:
     """Correct each image with the product (eq. 51) into ``out_dir`` as float32.
 
     Output keeps the base name; TIFF, EXR and FITS keep their format, others become ``.tif``
@@ -714,9 +784,14 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
     default, because deflating float32 noise saves about a quarter of the size at ten times the
     write time (6x on 2048² frames, benchmarks/bench_apply.py); ``"zip"`` when disk space
     matters more.
+
+    ``linearise`` maps each image's codes through the product's inverse response g instead
+    (:meth:`CalibrationProduct.linearise`): values linear in exposure.
     """
     if not isinstance(product, CalibrationProduct):
         product = load_product(product)
+    if linearise:
+        product.response_models()          # a clear error before anything is read
     out_dir = Path(out_dir)
     images = [Path(p) for p in images]
     if not images:
@@ -732,7 +807,7 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
         if dst in seen:
             raise CcdError(src, f"has the same output name as {seen[dst]}")
         seen[dst] = src
-    shape = product.shape
+    shape = None if linearise else product.shape
     for src in images:  # check every header before writing anything
         header = read_header(src)
         if shape is not None and header.shape != shape:
@@ -743,6 +818,7 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
         attrs = ({"compression": compression} if dst.suffix.lower() in (".tif", ".tiff", ".exr")
                  else None)
         data, header = read_frame(src)
-        written.append(write_image(dst, product.correct(data, name=str(src)), attributes=attrs,
+        fix = product.linearise if linearise else product.correct
+        written.append(write_image(dst, fix(data, name=str(src)), attributes=attrs,
                                    exposure=header.exposure))
     return written

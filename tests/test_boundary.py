@@ -74,7 +74,7 @@ def test_one_fixed_pattern_configuration_gives_a_partial_product(h94, tmp_path, 
 
 def test_nothing_to_calibrate_exits_2_naming_the_roles(tmp_path, capsys):
     root = tmp_path / "t"
-    simulate("tsin01", root, seed=1, size=(32, 24))
+    simulate("change", root, seed=1, size=(32, 24))     # reference/target brackets only
     code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c")
     assert code == 2 and out == ""
     assert "nothing to calibrate" in err and len(err.strip().splitlines()) == 1
@@ -85,7 +85,7 @@ def test_nothing_to_calibrate_exits_2_naming_the_roles(tmp_path, capsys):
 
 def test_missing_frames_names_what_each_estimate_lacks(h94, tmp_path):
     session = open_session(h94)
-    assert [r.estimate for r, _ in missing_frames(session)] == ["flat_field"]
+    assert [r.estimate for r, _ in missing_frames(session)] == ["flat_field", "response"]
     root = _copy(h94, tmp_path / "s")
     _keep_frames(root, lambda b: 'role = "scene"' not in b)
     lacking = dict((r.estimate, roles) for r, roles in missing_frames(open_session(root)))

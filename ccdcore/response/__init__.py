@@ -10,6 +10,10 @@ Modules
     The one scale every response curve is reported on, and the RMS comparison of curves.
 :mod:`ccdcore.response.classic`
     Debevec & Malik (1997), Robertson, Borman & Stevenson (2003), Mitsunaga & Nayar (1999).
+:mod:`ccdcore.response.tsin`
+    The iterative estimator of sec. 3.2 (instrumented pools), its band and the noise terms.
+:mod:`ccdcore.response.methods`
+    The registry of methods (``METHODS``) and the response of a session's bracket.
 :mod:`ccdcore.response.hdr`
     HDR radiance with per-pixel sigma from a calibrated camera (eqs. 9, 18, 19), with bounds and
     flags where no code is usable.
@@ -21,8 +25,12 @@ from __future__ import annotations
 from .brackets import BracketData, bracket_data, load_bracket, preprocess
 from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
 from .hdr import HdrResult, ResponseModel, merge
+from .methods import METHODS, ResponseResult, response_of, session_response
+from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
 from .scale import normalize, reference_codes, rms_error
 
 __all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "ClassicFit",
            "debevec", "robertson", "mitsunaga_nayar", "HdrResult", "ResponseModel", "merge",
-           "normalize", "reference_codes", "rms_error"]
+           "normalize", "reference_codes", "rms_error", "METHODS", "ResponseResult",
+           "response_of", "session_response", "ChannelResponse", "TsinOptions", "estimate",
+           "noise_terms"]

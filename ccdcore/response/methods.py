@@ -1,0 +1,220 @@
+"""One registry of response estimators, and the response of a session's bracket.
+
+Every method returns, per channel, a :class:`ccdcore.response.tsin.ChannelResponse`: g on the
+reported scale (:mod:`ccdcore.response.scale`) with its 1-sigma band, a_k and b_k, and the noise
+terms of eq. 17:
+
+``tsin``
+    Tsin, Ramesh & Kanade (2001), sec. 3.2 (:func:`ccdcore.response.tsin.estimate`): the band
+    is the sandwich estimate of the pools' spread, the noise terms come with the estimate.
+``debevec``, ``robertson``, ``mitsunaga-nayar``
+    The classic methods of :mod:`ccdcore.response.classic`. They return g only; here the band is
+    a delete-one-block jackknife over 8 blocks of pixels (bands of rows of the frame, so that
+    correlated neighbours stay together), and the noise terms are fitted to eq. 17 with their g
+    on the same pools as ``tsin`` (:func:`ccdcore.response.tsin.noise_terms`).
+
+Public objects
+--------------
+METHODS
+    name -> :class:`Method` (label, paper, function); the CLI's and the app's choices.
+ResponseResult
+    The per-channel responses of one bracket, with ``to_dict()`` (the CLI's JSON).
+response_of(brackets, method, ...)
+    Estimate every channel of a bracket (:func:`ccdcore.response.brackets.load_bracket`).
+session_response(session, method, ...)
+    Load a session's bracket and estimate it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import CcdError
+from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
+from .classic import debevec, mitsunaga_nayar, robertson
+from .scale import reference_codes
+from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
+
+__all__ = ["METHODS", "Method", "ResponseResult", "response_of", "session_response",
+           "JACKKNIFE_BLOCKS"]
+
+#: blocks of pixels of the classic methods' jackknife band
+JACKKNIFE_BLOCKS = 8
+
+Progress = Callable[[float, str], None]
+
+
+@dataclass(frozen=True)
+class Method:
+    """A response estimator: ``run(data, progress)`` -> ChannelResponse."""
+
+    name: str
+    label: str
+    paper: str
+    run: Callable[[BracketData, Progress | None], ChannelResponse]
+
+
+def _tsin(data: BracketData, progress: Progress | None) -> ChannelResponse:
+    return estimate(data, TsinOptions(), progress=progress)
+
+
+def _blocks(data: BracketData, n: int) -> NDArray[np.int64]:
+    """Block of every pixel: bands of rows of the frame (or of the pixel order)."""
+    P = data.n_pixels
+    h, w = data.shape
+    if data.pixels.size == P and h * w > 0:
+        return np.minimum(data.pixels.astype(np.int64) * n // (h * w), n - 1)
+    return np.arange(P, dtype=np.int64) * n // max(P, 1)
+
+
+def _classic(name: str, fn: Callable[[BracketData], Any]
+             ) -> Callable[[BracketData, Progress | None], ChannelResponse]:
+    def run(data: BracketData, progress: Progress | None) -> ChannelResponse:
+        fit = fn(data)
+        g = np.asarray(fit.g, np.float64)
+        L = g.size
+        blocks = _blocks(data, JACKKNIFE_BLOCKS)
+        reps = []
+        for b in range(JACKKNIFE_BLOCKS):
+            if progress is not None:
+                progress((b + 1) / (JACKKNIFE_BLOCKS + 2), f"band: jackknife block {b + 1} "
+                                                          f"of {JACKKNIFE_BLOCKS}")
+            keep = np.flatnonzero(blocks != b)
+            try:
+                gb = np.asarray(fn(data.take(keep)).g, np.float64)
+            except CcdError:
+                continue
+            # on the reported scale g(z_hi) is fixed: compare the shapes there
+            reps.append(gb)
+        if len(reps) >= 3:
+            R = np.stack(reps)
+            m = len(reps)
+            g_err = np.sqrt((m - 1) / m * np.sum((R - R.mean(axis=0)) ** 2, axis=0))
+        else:
+            g_err = np.full(L, np.nan)
+        if progress is not None:
+            progress(0.95, "noise terms (eq. 17)")
+        try:
+            nz = noise_terms(data, g)
+        except CcdError:
+            nz = {}
+        t = np.asarray(data.t, np.float64)
+        zeros = np.zeros(t.size)
+        return ChannelResponse(
+            channel=data.channel, method=name, g=g, g_err=g_err, a=t.copy(), a_err=zeros,
+            b=zeros.copy(), b_err=zeros.copy(), t=t, sigma_s=nz.get("sigma_s"),
+            sigma_c1=nz.get("sigma_c1"), sigma_c2=nz.get("sigma_c2"),
+            sigma_s_err=nz.get("sigma_s_err"), sigma_c1_err=nz.get("sigma_c1_err"),
+            sigma_c2_err=nz.get("sigma_c2_err"), iterations=int(fit.iterations),
+            converged=bool(fit.converged), notes=tuple(fit.notes))
+    return run
+
+
+METHODS: dict[str, Method] = {
+    "tsin": Method("tsin", "Tsin, Ramesh & Kanade (sec. 3.2)",
+                   "Tsin, Ramesh & Kanade 2001, ICCV", _tsin),
+    "debevec": Method("debevec", "Debevec & Malik", "Debevec & Malik 1997, SIGGRAPH",
+                      _classic("debevec", debevec)),
+    "robertson": Method("robertson", "Robertson et al.",
+                        "Robertson, Borman & Stevenson 2003, J. Electronic Imaging",
+                        _classic("robertson", robertson)),
+    "mitsunaga-nayar": Method("mitsunaga-nayar", "Mitsunaga & Nayar",
+                              "Mitsunaga & Nayar 1999, CVPR",
+                              _classic("mitsunaga-nayar", mitsunaga_nayar)),
+}
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseResult:
+    """The responses of one bracket, one per channel in ``channels`` order."""
+
+    method: str
+    channels: tuple[str, ...]
+    responses: tuple[ChannelResponse, ...]
+    files: tuple[str, ...]
+    levels: int
+    t: NDArray[np.float64]
+    bloom_radius: int = DEFAULT_BLOOM_RADIUS
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def __getitem__(self, channel: str) -> ChannelResponse:
+        return self.responses[self.channels.index(channel)]
+
+    def models(self) -> dict[str, ChannelResponse]:
+        """channel -> response, as :func:`ccdcore.response.hdr.merge` takes them."""
+        return dict(zip(self.channels, self.responses))
+
+    def to_dict(self) -> dict[str, Any]:
+        """The CLI's JSON: per-channel lists in ``channels`` order (docs/cli.md)."""
+        def num(v: Any) -> Any:
+            if v is None:
+                return None
+            v = float(v)
+            return v if np.isfinite(v) else None
+
+        def arr(x: Any) -> list:
+            return [num(v) for v in np.asarray(x, np.float64)]
+
+        z_lo, z_hi = reference_codes(self.levels)
+        r = self.responses
+        return {
+            "method": self.method,
+            "channels": list(self.channels),
+            "levels": int(self.levels),
+            "scale": {"fixed_code": z_hi, "g_at_fixed_code": z_hi / (self.levels - 1),
+                      "offset": False},
+            "exposure_times": arr(self.t),
+            "files": list(self.files),
+            "g": [arr(c.g) for c in r],
+            "g_err": [arr(c.g_err) for c in r],
+            "a": [arr(c.a) for c in r],
+            "b": [arr(c.b) for c in r],
+            "a_err": [arr(c.a_err) for c in r],
+            "b_err": [arr(c.b_err) for c in r],
+            "sigma_s": [num(c.sigma_s) for c in r],
+            "sigma_c1": [num(c.sigma_c1) for c in r],
+            "sigma_c2": [num(c.sigma_c2) for c in r],
+            "sigma_s_err": [num(c.sigma_s_err) for c in r],
+            "sigma_c1_err": [num(c.sigma_c1_err) for c in r],
+            "sigma_c2_err": [num(c.sigma_c2_err) for c in r],
+            "iterations": [int(c.iterations) for c in r],
+            "converged": [bool(c.converged) for c in r],
+            "bloom_radius": int(self.bloom_radius),
+            "notes": {ch: list(c.notes) for ch, c in zip(self.channels, r)},
+        }
+
+
+def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
+                progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS
+                ) -> ResponseResult:
+    """Every channel of a bracket by ``method`` (a key of :data:`METHODS`)."""
+    if method not in METHODS:
+        raise CcdError("response", f"unknown method {method!r}; choose one of "
+                                   f"{', '.join(METHODS)}")
+    names = tuple(brackets)
+    if not names:
+        raise CcdError("response", "the bracket has no channel")
+    out = []
+    for i, name in enumerate(names):
+        def sub(frac: float, msg: str, i: int = i, name: str = name) -> None:
+            if progress is not None:
+                progress((i + frac) / len(names), f"channel {name}: {msg}")
+        out.append(METHODS[method].run(brackets[name], sub))
+    first = brackets[names[0]]
+    return ResponseResult(method, names, tuple(out), tuple(first.files), int(first.levels),
+                          np.asarray(first.t, np.float64), int(bloom_radius))
+
+
+def session_response(session: Any, method: str = "tsin", *, stack: Any = None,
+                     bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
+                     progress: Progress | None = None) -> ResponseResult:
+    """The response of a session's bracket ``stack`` (a path or an open session)."""
+    from ..session import open_session
+
+    if not hasattr(session, "bracket_stacks"):
+        session = open_session(session)
+    brackets = load_bracket(session, stack, bloom_radius=bloom_radius, border=border)
+    return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius)
