@@ -12,6 +12,8 @@ frozen_models(doc)
     changed meanwhile.
 batched(method)
     The decorator.
+in_document(doc, callback)
+    Run a callback holding a served document's lock (from a coroutine after a worker thread).
 """
 from __future__ import annotations
 
@@ -20,9 +22,9 @@ import functools
 from typing import Any, Callable, Iterator, TypeVar
 
 from panel.io import hold
-from panel.io.state import state
+from panel.io.state import set_curdoc, state
 
-__all__ = ["batched", "frozen_models"]
+__all__ = ["batched", "frozen_models", "in_document"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -75,3 +77,15 @@ def batched(method: F) -> F:
             return method(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def in_document(doc: Any, callback: Callable[[], Any]) -> None:
+    """Run ``callback`` in a callback of ``doc`` (the browser session's document, holding its
+    lock, so model changes reach the browser; changes made from a coroutine after a worker
+    thread can get lost), or at once without a served document."""
+    doc = doc if doc is not None else state.curdoc
+    if doc is None or doc.session_context is None:
+        callback()
+        return
+    with set_curdoc(doc):
+        state.execute(callback, schedule=True)

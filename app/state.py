@@ -140,6 +140,10 @@ class Results(param.Parameterized):
         "the acquisition plan, the scene variation, the correction check (computed once, on "
         "the max-intensity frame) and what was skipped, with why."))
     flat = param.ClassSelector(class_=FlatResults, doc="The Flat field page's results.")
+    response = param.Dict(default={}, doc=(
+        "The Response & HDR page's results: blooming radius -> {'responses': method -> "
+        "ccdcore.response.methods.ResponseResult, 'hdr': method -> "
+        "ccdcore.response.hdr.HdrResult}."))
 
     def __init__(self, **params: Any):
         params.setdefault("flat", FlatResults())
@@ -147,7 +151,8 @@ class Results(param.Parameterized):
 
     def clear(self) -> None:
         """Forget every result (one batch of events)."""
-        self.param.update(ptc=None, ptc_points=None, estimates=None, flat=FlatResults())
+        self.param.update(ptc=None, ptc_points=None, estimates=None, flat=FlatResults(),
+                          response={})
 
     def _part(self, name: str) -> Any:
         return None if self.estimates is None else getattr(self.estimates, name)

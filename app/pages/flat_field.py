@@ -45,7 +45,6 @@ import numpy as np
 import pandas as pd
 import panel as pn
 import param
-from panel.io.state import set_curdoc
 
 from ccdcore.channels import channel_names, split_channels
 from ccdcore.errors import CcdError
@@ -59,7 +58,7 @@ from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 from .. import flat_plots, plots
 from ..image_view import ImageView
 from ..state import AppState
-from ..batch import batched
+from ..batch import batched, in_document as _in_document
 from ._choices import set_choices
 from ._messages import PageMessages
 from ._styles import TABLE_CSS
@@ -174,18 +173,6 @@ def _image_view(cmap: str, label: str, css_class: str, link: ImageView | None = 
 def _view_pane(view: ImageView) -> pn.Column:
     """The pane of a view (a Column around it: ``visible`` on a Bokeh pane fails)."""
     return pn.Column(pn.pane.Bokeh(view.figure), margin=0, visible=False)
-
-
-def _in_document(doc: Any, callback: Any) -> None:
-    """Run ``callback`` in a callback of ``doc`` (the browser session's document, holding its
-    lock, so model changes reach the browser; changes made from a coroutine after a worker
-    thread can get lost), or at once without a served document."""
-    doc = doc if doc is not None else pn.state.curdoc
-    if doc is None or doc.session_context is None:
-        callback()
-        return
-    with set_curdoc(doc):
-        pn.state.execute(callback, schedule=True)
 
 
 def _table(df: pd.DataFrame, css_class: str, **kw: Any) -> pn.pane.DataFrame:

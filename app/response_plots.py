@@ -1,0 +1,165 @@
+"""The Response & HDR page's plots: plain Bokeh figures built once and fed in place.
+
+ResponseFigure
+    g(z) of every method as lines, the chosen method's 2-sigma band, the simulator's true g
+    (dashed) when the session has one.
+PoolHistogram
+    The relative prediction errors of one pool before and after calibration (Tsin et al. 2001,
+    Fig. 3c-d).
+tone_map(radiance, stops, curve)
+    A radiance plane for display only: gamma 2.2 or logarithmic, ``stops`` of exposure.
+histogram(values, bins)
+    Counts and edges of finite values, for :class:`PoolHistogram`.
+"""
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["ResponseFigure", "PoolHistogram", "tone_map", "histogram", "TONE_CURVES",
+           "METHOD_COLOURS"]
+
+#: display curves of the HDR radiance (the data are never changed)
+TONE_CURVES = ("gamma 2.2", "log")
+#: one colour per method (colour-blind safe, Okabe-Ito)
+METHOD_COLOURS = {"tsin": "#D55E00", "debevec": "#0072B2", "robertson": "#009E73",
+                  "mitsunaga-nayar": "#CC79A7"}
+
+
+def tone_map(radiance: NDArray, stops: float = 0.0, curve: str = "gamma 2.2"
+             ) -> NDArray[np.float64]:
+    """``radiance`` (one plane) scaled for display into [0, 1]: ``gamma 2.2`` maps the 99.5th
+    percentile times 2^stops to white; ``log`` spans four decades below that white point.
+    Non-finite values (no usable code) become NaN (drawn transparent)."""
+    E = np.asarray(radiance, np.float64)
+    ok = np.isfinite(E) & (E > 0)
+    if not ok.any():
+        return np.full(E.shape, np.nan)
+    white = float(np.percentile(E[ok], 99.5)) / 2.0 ** float(stops)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if curve == "log":
+            out = (np.log10(np.maximum(E, 1e-300) / white) + 4.0) / 4.0
+        elif curve == "gamma 2.2":
+            out = np.maximum(E, 0.0) / white
+            out = out ** (1 / 2.2)
+        else:
+            raise ValueError(f"unknown tone curve {curve!r}; one of {', '.join(TONE_CURVES)}")
+    out = np.clip(out, 0.0, 1.0)
+    out[~np.isfinite(E)] = np.nan
+    return out
+
+
+def histogram(values: NDArray, bins: int = 60, span: tuple[float, float] | None = None
+              ) -> tuple[NDArray, NDArray]:
+    """Counts and bin edges of the finite ``values`` over ``span`` (default their 0.5-99.5 %
+    range)."""
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return np.zeros(0), np.zeros(1)
+    if span is None:
+        span = (float(np.percentile(v, 0.5)), float(np.percentile(v, 99.5)))
+    lo, hi = span
+    if not hi > lo:
+        hi = lo + 1e-9
+    counts, edges = np.histogram(v, bins=bins, range=(lo, hi))
+    return counts.astype(np.float64), edges
+
+
+class ResponseFigure:
+    """g(z) per method, the chosen method's band, the true curve; sources updated in place."""
+
+    def __init__(self, methods: Sequence[str], labels: dict[str, str], *, height: int = 420):
+        from bokeh.models import ColumnDataSource, HoverTool, Legend
+        from bokeh.plotting import figure
+
+        self.fig = figure(height=height, sizing_mode="stretch_width",
+                          x_axis_label="code z", y_axis_label="g(z)  (linear, g(z_hi) fixed)",
+                          tools="pan,wheel_zoom,box_zoom,reset,save", toolbar_location="above",
+                          css_classes=["ccd-response-curves"])
+        self.band = ColumnDataSource({"z": [], "lo": [], "hi": []}, name="ccd-response-band")
+        self.fig.varea("z", "lo", "hi", source=self.band, fill_color="#D55E00",
+                       fill_alpha=0.25)
+        self.truth = ColumnDataSource({"z": [], "g": []})
+        truth_line = self.fig.line("z", "g", source=self.truth, line_dash="dashed",
+                                   line_color="black", line_width=1.5)
+        self.sources: dict[str, Any] = {}
+        self.lines: dict[str, Any] = {}
+        items = [("simulator's truth", [truth_line])]
+        for m in methods:
+            src = ColumnDataSource({"z": [], "g": [], "err": []})
+            line = self.fig.line("z", "g", source=src, line_width=2,
+                                 line_color=METHOD_COLOURS.get(m, "gray"))
+            self.sources[m] = src
+            self.lines[m] = line
+            items.append((labels.get(m, m), [line]))
+        self.truth_line = truth_line
+        self.fig.add_layout(Legend(items=items, location="top_left"))
+        self.fig.add_tools(HoverTool(renderers=list(self.lines.values()),
+                                     tooltips=[("z", "@z"), ("g", "@g{0.00000}"),
+                                               ("± 1σ", "@err{0.00000}")]))
+
+    def show(self, curves: dict[str, tuple[NDArray, NDArray]], chosen: str, compare: bool,
+             truth: NDArray | None = None) -> None:
+        """``curves``: method -> (g, g_err) on every code; the band is ±2σ of ``chosen``."""
+        for m, src in self.sources.items():
+            if m in curves:
+                g, err = curves[m]
+                z = np.arange(g.size)
+                src.data = {"z": z, "g": np.asarray(g), "err": np.nan_to_num(err)}
+            else:
+                src.data = {"z": [], "g": [], "err": []}
+            self.lines[m].visible = (m == chosen) or compare
+            self.lines[m].glyph.line_width = 3 if m == chosen else 1.5
+        if chosen in curves:
+            g, err = curves[chosen]
+            e = np.nan_to_num(np.asarray(err))
+            self.band.data = {"z": np.arange(g.size), "lo": g - 2 * e, "hi": g + 2 * e}
+        if truth is None:
+            self.truth.data = {"z": [], "g": []}
+            self.truth_line.visible = False
+        else:
+            self.truth.data = {"z": np.arange(truth.size), "g": truth}
+            self.truth_line.visible = True
+
+    def curve(self, method: str) -> NDArray:
+        """The g shown for ``method`` (tests)."""
+        return np.asarray(self.sources[method].data["g"])
+
+
+class PoolHistogram:
+    """Relative prediction errors of one pool, before and after calibration (Fig. 3c-d)."""
+
+    def __init__(self, *, height: int = 300):
+        from bokeh.models import ColumnDataSource, Legend
+        from bokeh.plotting import figure
+
+        self.fig = figure(height=height, sizing_mode="stretch_width",
+                          x_axis_label="prediction error e / g(z)  (%)",
+                          y_axis_label="pixels", tools="pan,wheel_zoom,reset,save",
+                          toolbar_location="above", css_classes=["ccd-response-pool"])
+        self.before = ColumnDataSource({"left": [], "right": [], "top": []})
+        self.after = ColumnDataSource({"left": [], "right": [], "top": []})
+        b = self.fig.quad(left="left", right="right", top="top", bottom=0, source=self.before,
+                          fill_color="#999999", fill_alpha=0.5, line_color=None)
+        a = self.fig.quad(left="left", right="right", top="top", bottom=0, source=self.after,
+                          fill_color="#D55E00", fill_alpha=0.6, line_color=None)
+        self.fig.add_layout(Legend(items=[("before (straight-line g)", [b]),
+                                          ("after calibration", [a])], location="top_right"))
+
+    def show(self, before: NDArray | None, after: NDArray | None) -> None:
+        vals = [np.asarray(v, np.float64) * 100 for v in (before, after) if v is not None]
+        if not vals or not any(v.size for v in vals):
+            self.before.data = self.after.data = {"left": [], "right": [], "top": []}
+            return
+        both = np.concatenate(vals)
+        both = both[np.isfinite(both)]
+        span = (float(np.percentile(both, 0.5)), float(np.percentile(both, 99.5)))
+        for src, v in ((self.before, before), (self.after, after)):
+            if v is None:
+                src.data = {"left": [], "right": [], "top": []}
+                continue
+            counts, edges = histogram(np.asarray(v) * 100, 60, span)
+            src.data = {"left": edges[:-1], "right": edges[1:], "top": counts}
