@@ -10,11 +10,21 @@ free scale is fitted over z = 5…250 (``ccdcore.response.scale``); the tables g
 sequences) and the spread (standard deviation over the sequences) -- the paper's Fig. 2 in
 numbers -- and the run time per sequence.
 
-Methods: ccdcore's Debevec & Malik, Robertson and Mitsunaga & Nayar
+Methods: ccdcore's estimator of sec. 3.2 (``ccdcore.response.tsin``, instrumented pools, and
+the pools as printed for comparison), Debevec & Malik, Robertson and Mitsunaga & Nayar
 (``ccdcore.response.classic``; brackets read as ``load_bracket`` does, without the blooming mask:
-this simulation has no blooming and OpenCV uses every pixel) and OpenCV's ``CalibrateDebevec``
+this simulation has no blooming and OpenCV uses every pixel), OpenCV's ``CalibrateDebevec``
 and ``CalibrateRobertson`` at their defaults (the grey frames given as three equal channels,
-which Robertson requires; codes without data, NaN in Robertson's curve, interpolated).
+which Robertson requires; codes without data, NaN in Robertson's curve, interpolated) and
+colour-hdri's ``camera_response_functions_Debevec1997`` at its defaults (Grossberg sampling,
+λ = 30, polynomial extrapolation). Every method is given the nominal exposure times, also in the
+white-balance study (ccdcore's sec. 3.2 estimator does not estimate white balance yet).
+
+The sec. 3.2 estimator's band is checked too: the fraction of codes 10..245 whose error lies
+within ±2σ of its band, over all sequences ("coverage").
+
+Then the HDR merge (eqs. 9, 18, 19, with the per-pixel sigma) against OpenCV's ``MergeDebevec``
+on one 256² × 8 sequence, both given the true response.
 
     .venv/bin/python benchmarks/bench_response.py                  # 50 sequences each
     .venv/bin/python benchmarks/bench_response.py --sequences 5    # quick
@@ -36,6 +46,8 @@ sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
 from ccdcore.response import bracket_data, debevec, mitsunaga_nayar, robertson  # noqa: E402
+from ccdcore.response.hdr import ResponseModel, merge  # noqa: E402
+from ccdcore.response.tsin import TsinOptions, estimate  # noqa: E402
 from ccdcore.response.scale import aligned, rms_error  # noqa: E402
 from ccdcore.simulate import tsin  # noqa: E402
 
@@ -81,12 +93,31 @@ def our_methods() -> dict[str, Callable]:
             return method(data).g
         return fn
 
-    return {"ccdcore Debevec": run(debevec), "ccdcore Robertson": run(robertson),
+    return {"ccdcore Tsin sec. 3.2": run(estimate),
+            "ccdcore sec. 3.2 as printed": run(lambda d: estimate(d, TsinOptions(pools="paper"))),
+            "ccdcore Debevec": run(debevec), "ccdcore Robertson": run(robertson),
             "ccdcore Mitsunaga-Nayar": run(mitsunaga_nayar)}
+
+
+def colour_methods() -> dict[str, Callable]:
+    from types import SimpleNamespace
+
+    import colour_hdri
+
+    def fn(frames, t):
+        data = np.stack([np.repeat((f / 255.0)[..., None], 3, axis=2) for f in frames], axis=-1)
+        n = len(frames)
+        stack = SimpleNamespace(data=data, f_number=np.ones(n), exposure_time=np.asarray(t),
+                                iso=np.full(n, 100.0))
+        crf = colour_hdri.camera_response_functions_Debevec1997(stack)
+        return _fill_nan(np.asarray(crf, np.float64)[:, 1])
+
+    return {"colour-hdri Debevec 1997": fn}
 
 
 def study(n: int, white_balance: bool, methods: dict[str, Callable]) -> None:
     errors: dict[str, list[np.ndarray]] = {m: [] for m in methods}
+    inside: list[float] = []
     rms: dict[str, list[float]] = {m: [] for m in methods}
     times: dict[str, list[float]] = {m: [] for m in methods}
     for s in range(n):
@@ -95,6 +126,12 @@ def study(n: int, white_balance: bool, methods: dict[str, Callable]) -> None:
             t0 = time.perf_counter()
             g = fn(frames, t)
             times[name].append(time.perf_counter() - t0)
+            if name == "ccdcore Tsin sec. 3.2" and not white_balance:
+                data = bracket_data(frames, t, 8, bloom_radius=0, border=0)["L"]
+                r = estimate(data)
+                codes = np.r_[10:230, 231:246]
+                err = (aligned(r.g, g_true) - g_true)[codes]
+                inside.append(float(np.mean(np.abs(err) <= 2 * r.g_err[codes])))
             errors[name].append(aligned(g, g_true) - g_true)
             rms[name].append(rms_error(g, g_true))
     label = "with white balance" if white_balance else "without white balance"
@@ -114,7 +151,34 @@ def study(n: int, white_balance: bool, methods: dict[str, Callable]) -> None:
             spread = float(np.sqrt(np.mean(band.std(axis=0) ** 2))) * 1e3
             cells.append(f"{bias:5.2f}/{spread:5.2f}")
         print(f"{name:26s} " + " ".join(f"{c:>12s}" for c in cells))
+    if inside:
+        print(f"sec. 3.2 band: {100 * np.mean(inside):.0f} % of codes 10..245 within ±2σ "
+              f"(range {100 * min(inside):.0f}-{100 * max(inside):.0f} % over the sequences)")
     print()
+
+
+def merge_timing(repeat: int = 5) -> None:
+    """The HDR merge (with sigma) against OpenCV's MergeDebevec, both with the true response."""
+    import cv2
+
+    frames, t, g_true = sequence(4242, False)
+    model = ResponseModel(g_true, np.asarray(t), np.zeros(len(t)), 0.015, 0.01, 1.0)
+    imgs = [np.repeat(f[..., None], 3, axis=2) for f in frames]
+    crf = np.repeat(np.maximum(g_true, 1e-6).astype(np.float32)[:, None, None], 3, axis=2)
+    merger = cv2.createMergeDebevec()
+    ours, theirs = [], []
+    for _ in range(repeat + 1):
+        t0 = time.perf_counter()
+        merge(frames, model, bloom_radius=0)
+        ours.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        merger.process(imgs, np.asarray(t, np.float32), crf)
+        theirs.append(time.perf_counter() - t0)
+    print(f"HDR merge of one 256² × 8 sequence (median of {repeat} after one warm-up):")
+    print(f"  ccdcore merge (radiance, sigma, flags; eqs. 9, 18, 19)  "
+          f"{_report.summary(ours[1:]).format()} s")
+    print(f"  OpenCV MergeDebevec (radiance, 3 channels)             "
+          f"{_report.summary(theirs[1:]).format()} s")
 
 
 def main() -> None:
@@ -124,12 +188,13 @@ def main() -> None:
     _report.header(__file__, args.sequences, warmup=0,
                    note="bias per band: RMS over the band's codes of the mean error; spread: "
                         "RMS over the codes of the standard deviation over the sequences")
-    methods = {**our_methods(), **opencv_methods()}
+    methods = {**our_methods(), **opencv_methods(), **colour_methods()}
     frames, t, _ = sequence(999, False)                # warm-up (numba caches, imports)
     for fn in methods.values():
         fn(frames, t)
     for wb in (False, True):
         study(args.sequences, wb, methods)
+    merge_timing()
     _report.footer()
 
 
