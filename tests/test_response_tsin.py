@@ -158,6 +158,21 @@ def test_noise_regressors_match_a_direct_sum():
     assert X[r] == pytest.approx(direct, rel=1e-10)
 
 
+def test_exposures_off_the_nominal_times_are_reported():
+    """A bracket whose true exposures are 5 % off the nominal times (white balance, shutter
+    errors): the misfit is said in a note, not hidden (the estimate of a_k is not available)."""
+    rng = np.random.default_rng(11)
+    E = sim.uniform_radiance(rng, (128, 128))
+    t = np.asarray(sim.exposure_times(8, math.sqrt(2.0), math.sqrt(2.0)))
+    a = t * np.array([1.0, 1.06, 0.95, 1.04, 0.97, 1.05, 0.96, 1.03])
+    frames = [sim.expose(E, a[k], 0.0, rng).z for k in range(t.size)]
+    data = bracket_data(frames, t, 8, bloom_radius=0, border=0)["L"]
+    r = T.estimate(data)
+    assert any("do not follow the nominal times" in n for n in r.notes)
+    clean, _ = sec41(11, size=(128, 128))
+    assert not any("nominal times" in n for n in T.estimate(clean).notes)
+
+
 def test_white_balance_is_refused_with_a_reason():
     data, _ = sec41(8, size=(32, 32))
     with pytest.raises(CcdError, match="white balance"):
