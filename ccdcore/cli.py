@@ -315,6 +315,9 @@ def _print_response(res: Any) -> None:
         state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
                  + ("" if r.converged else ", not converged"))
         print(f"  {ch}: noise (eq. 7) {noise or 'not estimated'}; {state}")
+        if r.white_balance:
+            gains = ", ".join(f"{a / t:.4f}" for a, t in zip(r.a, r.t))
+            print(f"  {ch}: gains a_k / t_k (gauge: zero mean and trend of the logs): {gains}")
         for note in r.notes:
             _say("note", note, indent="    ")
 
@@ -323,7 +326,7 @@ def _cmd_response(args: argparse.Namespace) -> int:
     from .response.methods import session_response
 
     res = session_response(args.session, args.method, stack=args.stack,
-                           bloom_radius=args.bloom_radius)
+                           bloom_radius=args.bloom_radius, white_balance=args.white_balance)
     if args.json:
         _print_json(res.to_dict())
     else:
@@ -356,7 +359,8 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                                  m.sigma_c1, m.sigma_c2)
         source = f"response of {args.calib}"
     else:
-        res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius)
+        res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius,
+                          white_balance=args.white_balance)
         models = res.models()
         source = "response estimated from this bracket (sec. 3.2)"
     records = session.bracket_stacks("bracket")[stack]
@@ -511,6 +515,9 @@ def build_parser() -> argparse.ArgumentParser:
     bracket_args(p)
     p.add_argument("--method", choices=list(METHODS), default="tsin",
                    help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
+    p.add_argument("--white-balance", action="store_true",
+                   help="estimate each image's gain a_k too (tsin; up to a common factor and a "
+                        "trend in the exposure, which no bracket fixes; offsets b_k stay 0)")
     json_flag(p)
 
     p = verb("hdr", "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
@@ -519,6 +526,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "this bracket)")
+    p.add_argument("--white-balance", action="store_true",
+                   help="without --calib: estimate each image's gain a_k too (see response)")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for radiance.exr, sigma.exr and flags.png")
     json_flag(p)

@@ -166,3 +166,16 @@ def test_damaged_response_in_product(tmp_path):
 def test_unknown_method():
     with pytest.raises(CcdError, match="unknown method"):
         session_response(DEMO, "gsolve")
+
+
+def test_cli_white_balance_gains(capsys):
+    code, out, err = run(capsys, "response", DEMO, "--white-balance", "--json")
+    assert code == 0, err
+    d = json.loads(out)
+    assert d["white_balance"] == [True]
+    a, t = np.asarray(d["a"][0]), np.asarray(d["exposure_times"])
+    la, lt = np.log(a / t), np.log(t) - np.log(t).mean()
+    assert abs(la.mean()) < 1e-6 and abs(la @ lt) < 1e-6           # the gauge holds
+    assert np.all(np.asarray(d["a_err"][0]) > 0)
+    code, out, err = run(capsys, "response", DEMO, "--white-balance", "--method", "robertson")
+    assert code == 2 and "white balance is estimated by the tsin method" in err

@@ -173,10 +173,40 @@ def test_exposures_off_the_nominal_times_are_reported():
     assert not any("nominal times" in n for n in T.estimate(clean).notes)
 
 
-def test_white_balance_is_refused_with_a_reason():
-    data, _ = sec41(8, size=(32, 32))
-    with pytest.raises(CcdError, match="white balance"):
-        T.estimate(data, T.TsinOptions(white_balance=True))
+def _gauged(a, t):
+    """The gains a bracket can tell: ln(a/t) with its mean and its trend in ln t removed."""
+    la, lt = np.log(a / t), np.log(t) - np.mean(np.log(t))
+    A = np.stack([np.ones(a.size), lt], axis=1)
+    coef = np.linalg.lstsq(A, la, rcond=None)[0]
+    return t * np.exp(la - A @ coef), coef[1]
+
+
+@pytest.mark.parametrize("seed", [1001, 1002])
+def test_white_balance_gains_within_half_a_percent(seed):
+    """Gains 5 % off the nominal times (offsets 0): the gains come back within 0.5 % once the
+    two directions no bracket fixes (common factor, trend in ln t) are set aside (the paper:
+    0.5 %), 0.08-0.21 % measured; and g matches the truth seen
+    through the same gauge, (z/255)^(1.2/(1+s)) for the true trend s."""
+    rng = np.random.default_rng(seed)
+    E = sim.uniform_radiance(rng, (256, 256))
+    t = np.asarray(sim.exposure_times(8, math.sqrt(2.0), math.sqrt(2.0)))
+    a = np.asarray(sim.white_balance(t, rng, enabled=True, channels=1, wb_sigma=0.05,
+                                     offset_sigma=0.0)[0], np.float64).ravel()
+    frames = [sim.expose(E, a[k], 0.0, rng).z for k in range(t.size)]
+    data = bracket_data(frames, t, 8, bloom_radius=0, border=0)["L"]
+    r = T.estimate(data, T.TsinOptions(white_balance=True, max_iter=60))
+    assert r.converged and r.white_balance
+    truth, trend = _gauged(a, t)
+    est, _ = _gauged(r.a, t)
+    assert np.max(np.abs(est / truth - 1)) < 0.005
+    # the band of a_k is statistical: the measured errors are up to 5.5 times it (the
+    # smoothing bias of g reaches the gains); documented, not hidden
+    assert np.all(np.isfinite(r.a_err)) and np.all(r.a_err > 0)
+    g_gauge = np.arange(256) / 255.0
+    g_gauge = g_gauge ** (1.2 / (1 + trend))
+    assert rms_error(r.g, g_gauge) < 1e-3
+    nominal = T.estimate(data)
+    assert rms_error(nominal.g, g_gauge) > 2 * rms_error(r.g, g_gauge)
 
 
 @pytest.mark.parametrize("bad", [dict(pools="median"), dict(eta=0), dict(smoothness=-1),

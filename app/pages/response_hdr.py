@@ -68,9 +68,10 @@ LABELS = {name: m.label for name, m in METHODS.items()}
 
 # ----------------------------------------------------------------------------- computing ------
 def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-                      progress: Callable[[str, float], None] | None = None
-                      ) -> dict[str, ResponseResult]:
-    """Every method of the registry on the session's first bracket."""
+                      progress: Callable[[str, float], None] | None = None,
+                      white_balance: bool = False) -> dict[str, ResponseResult]:
+    """Every method of the registry on the session's first bracket (the methods that can,
+    with the white-balance gains when ``white_balance``)."""
     brackets = load_bracket(session, bloom_radius=bloom_radius)
     out: dict[str, ResponseResult] = {}
     names = list(METHODS)
@@ -78,7 +79,8 @@ def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS
         def sub(frac: float, msg: str, i: int = i, name: str = name) -> None:
             if progress is not None:
                 progress(f"{LABELS[name]}: {msg}", (i + min(frac, 1.0)) / len(names))
-        out[name] = response_of(brackets, name, progress=sub, bloom_radius=bloom_radius)
+        out[name] = response_of(brackets, name, progress=sub, bloom_radius=bloom_radius,
+                                white_balance=white_balance and METHODS[name].white_balance)
     return out
 
 
@@ -122,6 +124,10 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                           doc="Display curve of the HDR radiance (the data are not changed).")
     stops = param.Number(default=0.0, bounds=(-6.0, 6.0), step=0.5,
                          doc="Display exposure of the HDR radiance, in stops.")
+    white_balance = param.Boolean(default=False, doc=(
+        "Estimate each image's gain a_k (white balance, exposure errors) by sec. 3.2, up to a "
+        "common factor and a trend in the exposure that no bracket fixes; offsets b_k stay 0. "
+        "The classic methods take the nominal times."))
     bloom_radius = param.Integer(default=DEFAULT_BLOOM_RADIUS, bounds=(0, 10), doc=(
         "Pixels within this radius of a saturated pixel are dropped as blooming (sec. 2); 0 "
         "keeps them (for scenes without bright areas, e.g. simulated per-pixel radiance)."))
@@ -157,6 +163,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                                                           name="Overlay all methods")
         self.bloom_input = pn.widgets.IntInput.from_param(self.param.bloom_radius,
                                                           name="Blooming radius (px)", width=150)
+        self.wb_box = pn.widgets.Checkbox.from_param(
+            self.param.white_balance, name="Estimate white-balance gains (sec. 3.2)")
         self.curves = ResponseFigure(list(METHODS), LABELS)
         self.pool_hist = PoolHistogram()
         self.curve_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
@@ -186,7 +194,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.rad_pane = pn.Column(pn.pane.Bokeh(self.rad_view.figure), margin=0, visible=False)
         self.sig_pane = pn.Column(pn.pane.Bokeh(self.sig_view.figure), margin=0, visible=False)
         controls = pn.FlexBox(self.method_select, self.channel_select, self.compare_box,
-                              self.bloom_input, sizing_mode="stretch_width")
+                              self.wb_box, self.bloom_input, sizing_mode="stretch_width")
         self.content = pn.Column(
             pn.Card(controls, pn.pane.Bokeh(self.curves.fig, sizing_mode="stretch_width"),
                     self.curve_note, title="Inverse response g(z) with its 2σ band",
@@ -248,7 +256,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
     def _on_tone(self) -> None:
         self._render_hdr()
 
-    @param.depends("bloom_radius", watch=True)
+    @param.depends("bloom_radius", "white_balance", watch=True)
     def _on_bloom(self) -> None:
         self._session = None
         if self.auto:
@@ -279,12 +287,13 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             return
         self._info("")
         self.content.visible = True
-        key = int(self.bloom_radius)
+        key = (int(self.bloom_radius), bool(self.white_balance))
         entry = self._cache.get(key)
         if entry is None:
             self.content.loading = True
             try:
-                found = await self.state.compute(compute_responses, session, key,
+                found = await self.state.compute(compute_responses, session, key[0],
+                                                 white_balance=key[1],
                                                  label="response curves", pass_progress=True)
             finally:
                 self.content.loading = False
@@ -308,7 +317,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         session = self._session
         if session is None or self.responses is None:
             return
-        entry = self._cache.get(int(self.bloom_radius))
+        entry = self._cache.get((int(self.bloom_radius), bool(self.white_balance)))
         method = self.method
         hdr = entry["hdr"].get(method) if entry else None
         if hdr is None:

@@ -54,11 +54,13 @@ class Method:
     name: str
     label: str
     paper: str
-    run: Callable[[BracketData, Progress | None], ChannelResponse]
+    run: Callable[..., ChannelResponse]
+    white_balance: bool = False      # the method can estimate the gains a_k
 
 
-def _tsin(data: BracketData, progress: Progress | None) -> ChannelResponse:
-    return estimate(data, TsinOptions(), progress=progress)
+def _tsin(data: BracketData, progress: Progress | None, white_balance: bool = False
+          ) -> ChannelResponse:
+    return estimate(data, TsinOptions(white_balance=white_balance), progress=progress)
 
 
 def _blocks(data: BracketData, n: int) -> NDArray[np.int64]:
@@ -115,7 +117,7 @@ def _classic(name: str, fn: Callable[[BracketData], Any]
 
 METHODS: dict[str, Method] = {
     "tsin": Method("tsin", "Tsin, Ramesh & Kanade (sec. 3.2)",
-                   "Tsin, Ramesh & Kanade 2001, ICCV", _tsin),
+                   "Tsin, Ramesh & Kanade 2001, ICCV", _tsin, white_balance=True),
     "debevec": Method("debevec", "Debevec & Malik", "Debevec & Malik 1997, SIGGRAPH",
                       _classic("debevec", debevec)),
     "robertson": Method("robertson", "Robertson et al.",
@@ -183,17 +185,22 @@ class ResponseResult:
             "iterations": [int(c.iterations) for c in r],
             "converged": [bool(c.converged) for c in r],
             "bloom_radius": int(self.bloom_radius),
+            "white_balance": [bool(c.white_balance) for c in r],
             "notes": {ch: list(c.notes) for ch, c in zip(self.channels, r)},
         }
 
 
 def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
-                progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS
-                ) -> ResponseResult:
-    """Every channel of a bracket by ``method`` (a key of :data:`METHODS`)."""
+                progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
+                white_balance: bool = False) -> ResponseResult:
+    """Every channel of a bracket by ``method`` (a key of :data:`METHODS`); ``white_balance``
+    estimates the gains a_k too (``tsin`` only)."""
     if method not in METHODS:
         raise CcdError("response", f"unknown method {method!r}; choose one of "
                                    f"{', '.join(METHODS)}")
+    if white_balance and not METHODS[method].white_balance:
+        raise CcdError("response", f"{METHODS[method].label} takes the nominal exposure times "
+                                   "as exact: white balance is estimated by the tsin method")
     names = tuple(brackets)
     if not names:
         raise CcdError("response", "the bracket has no channel")
@@ -202,7 +209,10 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
         def sub(frac: float, msg: str, i: int = i, name: str = name) -> None:
             if progress is not None:
                 progress((i + frac) / len(names), f"channel {name}: {msg}")
-        out.append(METHODS[method].run(brackets[name], sub))
+        if white_balance:
+            out.append(METHODS[method].run(brackets[name], sub, white_balance=True))
+        else:
+            out.append(METHODS[method].run(brackets[name], sub))
     first = brackets[names[0]]
     return ResponseResult(method, names, tuple(out), tuple(first.files), int(first.levels),
                           np.asarray(first.t, np.float64), int(bloom_radius))
@@ -210,11 +220,13 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
 
 def session_response(session: Any, method: str = "tsin", *, stack: Any = None,
                      bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
-                     progress: Progress | None = None) -> ResponseResult:
+                     progress: Progress | None = None, white_balance: bool = False
+                     ) -> ResponseResult:
     """The response of a session's bracket ``stack`` (a path or an open session)."""
     from ..session import open_session
 
     if not hasattr(session, "bracket_stacks"):
         session = open_session(session)
     brackets = load_bracket(session, stack, bloom_radius=bloom_radius, border=border)
-    return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius)
+    return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius,
+                       white_balance=white_balance)

@@ -6,9 +6,9 @@ The camera (eq. 3) images radiance E through white balance and the response f::
 
 and the inverse response g = f^-1 obeys g(z) = a E + b up to noise (eqs. 5, 8). From one channel
 of an exposure bracket (a static scene at N exposure settings) :func:`estimate` recovers g at
-every code with its confidence band and the three noise terms, by the iterative algorithm of
-sec. 3.2, with a_k the nominal exposure times and b_k = 0 (white balance is not estimated in this
-release: see the last departure below):
+every code with its confidence band, the three noise terms and, on request, the gains a_k of the
+images (white balance, exposure errors; the offsets b_k are held at 0, see the last departure
+below), by the iterative algorithm of sec. 3.2:
 
 1. preprocessing (:mod:`ccdcore.response.brackets`): boundary and blooming pixels out, pixel
    traces; here the pools P(j, ẑ, ε) of the pixels of image j at code ẑ (ε = 1/2, one code;
@@ -58,10 +58,13 @@ Departures from the paper, each for a measured reason (docs/response.md):
   a_k / a_i), and σ_c2 includes the quantisation (1/12 DN²).
 * **Weights.** A pool's row in eq. 15 is weighted by the variance of its trimmed mean (Tukey and
   McLaughlin: winsorised variance / ((1 - 2α)² n)), the paper's σ̂² over the pool size.
-* **White balance is not estimated.** With free a_k, b_k (and the a-priori bound) the iteration
-  wanders along the u-ambiguity on the sec. 4.1 simulation (docs/response.md);
-  ``white_balance=True`` is refused with that message, and a bracket whose exposures do not fit
-  the nominal times gets a note (the pools' chi²/dof above 3).
+* **White balance: gains only, in a gauge.** With free a_k and b_k and the a-priori bound of
+  sec. 3.2 the iteration wanders along the u-ambiguity on the sec. 4.1 simulation
+  (docs/response.md). With ``white_balance`` the gains a_k are estimated in steps at fixed g,
+  alternating with steps for g at fixed a_k (after g has converged at the nominal times), and
+  the two directions the bracket cannot fix are fixed by a gauge instead of a prior:
+  ln(a_k / t_k) has zero mean and zero trend in ln t_k. The offsets b_k stay 0. A bracket that
+  does not fit gets a note (the pools' chi²/dof above 3).
 
 Public objects
 --------------
@@ -108,9 +111,10 @@ class TsinOptions:
     """Settings of :func:`estimate`.
 
     white_balance
-        Estimate a_k, b_k as well (sec. 3.2). Not available: with free a_k and b_k the
-        iteration does not yet converge on the sec. 4.1 simulation (docs/response.md); ``True``
-        is refused with that message. a_k are the nominal exposure times and b_k = 0.
+        Estimate the gains a_k as well (white balance and exposure errors, sec. 3.2), up to the
+        gauge of the u-ambiguity: ln(a_k / t_k) keeps zero mean and zero trend in ln t_k. The
+        offsets b_k are held at 0 (their joint estimate does not converge yet,
+        docs/response.md). False: a_k are the nominal exposure times.
     pools
         ``"instrument"`` (default): the pool of image j predicts the other images of its trace
         from a radiance without image j; ``"paper"``: the pool of image k predicts image k
@@ -148,10 +152,6 @@ class TsinOptions:
 
     def check(self, where: str = "response") -> None:
         """Raise :class:`CcdError` (naming ``where``) for settings the estimator cannot use."""
-        if self.white_balance:
-            raise CcdError(where, "estimating white balance (free a_k, b_k) is not available: "
-                                  "the iteration does not converge on simulated brackets yet "
-                                  "(docs/response.md); calibrate with the nominal exposure times")
         if self.pools not in ("instrument", "paper"):
             raise CcdError(where, f"pools must be 'instrument' or 'paper', got {self.pools!r}")
         for name in ("eta", "tol"):
@@ -312,7 +312,7 @@ def _knot(code, step, identity, K):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, step,
-          identity, want_noise):  # pragma: no cover - compiled
+          identity, want_noise, with_a):  # pragma: no cover - compiled
     """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
     linearisations (eq. 13) and, when asked, the rows' eq. 17 regressors.
 
@@ -325,7 +325,7 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
     """
     N = mz.shape[1]
     R = offsets.size - 1
-    J = np.zeros((R, K))
+    J = np.zeros((R, K + (N if with_a else 0)))
     X = np.zeros((R, 3))
     resid = np.empty(offsets[R])
     egrp = np.empty(offsets[R], np.int32)
@@ -334,12 +334,14 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
     gv = np.empty(N)
     jv = np.empty(N, np.int64)
     fv = np.empty(N)
-    # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a²
-    nu = K + 3
+    # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a², then
+    # (with_a) Σ w (g_i - b_i)/a_i² per image and Σ Ê, for the derivatives in a
+    nu = K + 3 + N + 1
     U = np.zeros(nu)
     C = np.zeros((N, nu))             # the same sums over the pixels lacking image k
     H = np.zeros((N, K))              # per row: Σ δ(ẑ_k)
-    Hs = np.zeros((N, 3))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²
+    Hs = np.zeros((N, 4))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²,
+    #                                   Σ w (g_k - b_k)/a_k
     miss = np.empty(N, np.bool_)
     ux = np.zeros(8)
     cols = np.zeros(8, np.int64)
@@ -400,6 +402,10 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                         ux[nterm + 2] = c * c * gpi * gpi
                         cols[nterm + 2] = K + 2
                         nterm += 3
+                    if with_a:
+                        ux[nterm] = c * (gv[i] - b[i]) / a[i]
+                        cols[nterm] = K + 3 + i
+                        nterm += 1
                     for t in range(nterm):
                         U[cols[t]] += ux[t]
                     if nmiss:
@@ -407,6 +413,12 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                             if miss[k]:
                                 for t in range(nterm):
                                     C[k, cols[t]] += ux[t]
+                if with_a:
+                    U[K + 3 + N] += E
+                    if nmiss:
+                        for k in range(N):
+                            if miss[k]:
+                                C[k, K + 3 + N] += E
                 for kk in range(ns):
                     k = idx[kk]
                     if paper and k != j:
@@ -425,6 +437,8 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                     else:
                         H[k, jv[k]] += 1.0 - f
                         H[k, jv[k] + 1] += f
+                    if with_a:
+                        Hs[k, 3] += w * (gv[k] - b[k]) / a[k]
                     if want_noise:
                         gpk = gpc[mz[q, k]]
                         Hs[k, 0] += 1.0 - 2.0 * w
@@ -437,6 +451,10 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                 ak = a[k]
                 for t in range(K):
                     J[r, t] = ak * (U[t] - C[k, t]) - H[k, t]
+                if with_a:
+                    for i in range(N):
+                        J[r, K + i] = -ak * (U[K + 3 + i] - C[k, K + 3 + i])
+                    J[r, K + k] = (U[K + 3 + N] - C[k, K + 3 + N]) - Hs[k, 3]
                 if want_noise:
                     a2 = ak * ak
                     X[r, 0] = a2 * (U[K] - C[k, K]) + Hs[k, 1]
@@ -529,6 +547,25 @@ class _Setup:
     row_of: NDArray[np.float64] | None = None
 
 
+def _gain_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The gauge of the gains: steps δa = T y + off keep ln(a_k / t_k) at zero mean and zero
+    trend in ln t_k (linearised). A bracket cannot tell a_k^u (with g^u) from a_k, nor a common
+    factor of every a_k from the scale of E (sec. 3.2's u-ambiguity)."""
+    N = a.size
+    lt = np.log(t) - np.mean(np.log(t))
+    C = np.stack([np.ones(N), lt])
+    d0 = -np.linalg.pinv(C) @ (C @ np.log(a / t))
+    Q = np.linalg.svd(C)[2][2:].T
+    return a[:, None] * Q, a * d0
+
+
+def _gauged_gain_step(Haa, ra, a, t) -> NDArray[np.float64]:
+    """The Gauss-Newton step for the gains a_k at fixed g, within the gauge."""
+    T, off = _gain_gauge(a, t)
+    y = np.linalg.lstsq(T.T @ Haa @ T, T.T @ (ra - Haa @ off), rcond=None)[0]
+    return T @ y + off
+
+
 def _sample(data: BracketData) -> tuple[BracketData, int]:
     """The bracket, or an even sample of its pixels when one pass would store more than
     :data:`MAX_ENTRIES` errors; and the original pixel count (0 when not sampled)."""
@@ -594,14 +631,15 @@ def _slopes(knots: Knots, gk: NDArray, levels: int) -> NDArray[np.float64]:
     return np.interp(np.arange(levels, dtype=np.float64), codes, d)
 
 
-def _pass(s: _Setup, a, b, gk, want_noise=False):
+def _pass(s: _Setup, a, b, gk, want_noise=False, with_a=False):
     """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``."""
     L = int(s.data.levels)
     gpc = _slopes(s.knots, gk, L) if want_noise else np.zeros(L)
     J, X, resid, egrp = _rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
                               s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
                               np.asarray(gk, np.float64), gpc, s.knots.n,
-                              float(s.knots.step), bool(s.knots.identity), want_noise)
+                              float(s.knots.step), bool(s.knots.identity), want_noise,
+                              with_a)
     return J, X, resid, egrp
 
 
@@ -695,12 +733,17 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     converged = False
     n = np.diff(s.offsets).astype(np.float64)
     step = float("inf")
+    a_step = 0.0
+    fit_a = bool(opts.white_balance)
+    # with the gains a_k free: g first at the nominal times (phase 1), then steps for a at
+    # fixed g alternate with steps for g at fixed a (phase 2)
+    phase, mode = 1, "g"
     it = 0
     for it in range(1, opts.max_iter + 1):
         # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
         # the pass also collects eq. 17's regressors: the last pass serves the noise fit and
         # the band (it lies within one step below the tolerance of the result)
-        J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True)
+        J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a)
         tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
                                                 mad_c)
         if it == 1:
@@ -708,30 +751,54 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         # steps 6-7: eq. 13 per pool, eq. 15 with the smoothness term and the fixed point
         Jm = J / n[:, None]
         W = 1.0 / np.maximum(se, 1e-12) ** 2
-        JW = Jm * W[:, None]
-        H = JW.T @ Jm
+        JWfull = Jm * W[:, None]
+        JW = JWfull[:, :K]
+        H = JW.T @ Jm[:, :K]
         dg = np.diag(H)
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
         Hs = H + lam * P_s
-        rhs = -(Jm.T @ (W * tm)) - lam * (P_s @ gk)
-        delta = np.zeros(K)
-        Hf = Hs[np.ix_(free, free)]
-        try:
-            delta[free] = np.linalg.solve(Hf, rhs[free])
-        except np.linalg.LinAlgError:
-            delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
-        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed point
-        gk_new = _pav(gk + opts.eta * delta, dg + lam)
-        gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
-        step = float(np.mean(np.abs(gk_new - gk)))
-        gk = gk_new
+        if mode == "g":
+            rhs = -(Jm[:, :K].T @ (W * tm)) - lam * (P_s @ gk)
+            delta = np.zeros(K)
+            Hf = Hs[np.ix_(free, free)]
+            try:
+                delta[free] = np.linalg.solve(Hf, rhs[free])
+            except np.linalg.LinAlgError:
+                delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
+            # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed point
+            gk_new = _pav(gk + opts.eta * delta, dg + lam)
+            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
+            step = float(np.mean(np.abs(gk_new - gk)))
+            gk = gk_new
+        else:
+            Ja = Jm[:, K:]
+            d = _gauged_gain_step((Ja * W[:, None]).T @ Ja, -(Ja.T @ (W * tm)), a, t)
+            a_new = a + opts.eta * d
+            if np.any(a_new <= 0):
+                raise CcdError(data.files[0] if data.files else "bracket",
+                               "an image's gain went non-positive: the bracket does not "
+                               "constrain it")
+            a_step = float(np.max(np.abs(a_new / a - 1.0)))
+            a = a_new
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
-        history.append({"iteration": it, "step": step, "chi2": chi2, "pools": int(tm.size)})
+        history.append({"iteration": it, "phase": phase, "mode": mode, "step": step,
+                        "a_step": a_step, "chi2": chi2, "pools": int(tm.size)})
         if progress is not None:
-            progress(min(0.95, it / 4.0), f"iteration {it}: mean |Δg| {step:.1e}")
-        if step < opts.tol:                       # step 10
+            progress(min(0.95, it / (4.0 if not fit_a else 12.0)),
+                     f"iteration {it}: mean |Δg| {step:.1e}")
+        if not fit_a:
+            if step < opts.tol:                   # step 10
+                converged = True
+                break
+            continue
+        if phase == 1:
+            if step < max(opts.tol, 1e-4):
+                phase, mode = 2, "a"
+            continue
+        if mode == "g" and step < opts.tol and a_step < opts.tol:
             converged = True
             break
+        mode = "g" if mode == "a" else "a"
     # the band, the noise terms and the pool's errors from the last pass
     after = _pick_pool(s, resid, gk, like=before)
     Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
@@ -745,6 +812,26 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    a_err = np.zeros(N)
+    if fit_a and J.shape[1] == K + N:
+        # g and the gains together (the gains' error comes mostly through g): the sandwich
+        # in the coordinates of the free knots and the gauge's free directions of a
+        Tg, _ = _gain_gauge(a, t)
+        fk = np.flatnonzero(free)
+        Tf = np.zeros((K + N, fk.size + Tg.shape[1]))
+        Tf[fk, np.arange(fk.size)] = 1.0
+        Tf[K:, fk.size:] = Tg
+        Hfull = JWfull.T @ Jm
+        Hfull[:K, :K] += lam * P_s
+        A = Tf.T @ Hfull @ Tf
+        try:
+            Ai = np.linalg.inv(A)
+            Psi_f = Tf.T @ (JWfull.T @ Sg)
+            cov_f = Tf @ Ai @ ((Psi_f @ Psi_f.T) * (G / (G - 1.0))) @ Ai @ Tf.T
+            a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:], 0.0))
+            err = np.sqrt(np.maximum(np.diag(cov_f)[:K], 0.0))
+        except np.linalg.LinAlgError:
+            a_err = np.full(N, np.nan)
     theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
     g_rep, sc, _ = normalize(np.interp(codes, s.knots.codes, gk), L)
@@ -762,11 +849,17 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         notes.append(f"pools of at least {s.min_pool} pixels counted (the bracket is small; "
                      f"sec. 4.1 used {opts.min_pool})")
     chi2_last = history[-1]["chi2"] if history else float("nan")
+    if fit_a:
+        notes.append("gains a_k estimated (white balance, exposure errors) with ln(a_k/t_k) of "
+                     "zero mean and zero trend in ln t_k: the bracket cannot fix those two "
+                     "(sec. 3.2's u-ambiguity); offsets b_k held at 0")
     if chi2_last > 3.0:
+        cause = ("the offsets b_k are not 0 (not estimated)" if fit_a else
+                 "the exposures do not follow the nominal times (white balance or shutter "
+                 "errors? estimate the gains)")
         notes.append(f"the pools' errors are {math.sqrt(chi2_last):.1f} times their expected "
-                     f"size (chi²/dof {chi2_last:.0f}): the exposures do not follow the nominal "
-                     "times (white balance or shutter errors?) or the scene moved; this "
-                     "release takes a_k as the nominal times, so g is distorted")
+                     f"size (chi²/dof {chi2_last:.0f}): {cause}, or the scene moved; g is "
+                     "distorted")
     if theta_n[2] == 0 or theta_n[0] == 0:
         notes.append("a noise term was forced to 0 by the non-negative fit (sec. 4.1: when g and "
                      "g'² look alike, shot and output noise cannot be told apart)")
@@ -775,10 +868,10 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     zeros = np.zeros(N)
     return ChannelResponse(
         channel=data.channel, method="tsin", g=g_rep,
-        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=zeros, b=b * sc,
+        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=a_err * sc, b=b * sc,
         b_err=zeros.copy(), t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
         sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
-        pools=pools, history=tuple(history),
+        white_balance=fit_a, pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],
                      "predicted_image": before["predicted_image"], "before": before["values"],
                      "after": after["values"]},

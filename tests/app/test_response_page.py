@@ -48,14 +48,14 @@ def test_every_method_is_drawn_with_its_curve(shown):
 
 def test_method_choice_moves_the_band_without_recomputing(shown):
     state, page = shown
-    cached = state.results.response[page.bloom_radius]["responses"]
+    cached = state.results.response[(page.bloom_radius, False)]["responses"]
     page.method = "robertson"
     band = page.curves.band.data
     np.testing.assert_allclose(band["lo"], page.responses["robertson"]["L"].g
                                - 2 * page.responses["robertson"]["L"].g_err)
-    assert state.results.response[page.bloom_radius]["responses"] is cached
+    assert state.results.response[(page.bloom_radius, False)]["responses"] is cached
     _run(page.show_hdr())
-    assert page.hdr is state.results.response[page.bloom_radius]["hdr"]["robertson"]
+    assert page.hdr is state.results.response[(page.bloom_radius, False)]["hdr"]["robertson"]
     page.method = "tsin"
 
 
@@ -112,3 +112,17 @@ def test_unusable_bracket_shows_an_error_and_the_app_goes_on(assets, tmp_path):
     assert page.error_alert.visible and "saturated" in page.error
     assert "s0_k00.tif" in page.error
     assert page.responses is None
+
+
+def test_white_balance_gains_on_the_page(assets):
+    """Ticking the gains recomputes sec. 3.2 with them (cached apart); the table shows a_k / t_k
+    off 1 only for that method."""
+    state, page = _page(assets / "tsin01")
+    page.param.update(white_balance=True)
+    page._session = None
+    _run(page.refresh())
+    assert (3, True) in state.results.response and (3, False) in state.results.response
+    c = page.responses["tsin"]["L"]
+    assert c.white_balance and not np.allclose(c.a, c.t)
+    assert np.allclose(page.responses["debevec"]["L"].a, c.t)
+    assert "a_k / t_k" in page.ab_table.object.columns
