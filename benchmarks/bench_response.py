@@ -18,7 +18,8 @@ and ``CalibrateRobertson`` at their defaults (the grey frames given as three equ
 which Robertson requires; codes without data, NaN in Robertson's curve, interpolated) and
 colour-hdri's ``camera_response_functions_Debevec1997`` at its defaults (Grossberg sampling,
 λ = 30, polynomial extrapolation). Every method is given the nominal exposure times, also in the
-white-balance study (ccdcore's sec. 3.2 estimator does not estimate white balance yet).
+white-balance study, except "sec. 3.2 + gains", which estimates the gains a_k (not the offsets
+b_k) in the gauge of the u-ambiguity.
 
 The sec. 3.2 estimator's band is checked too: the fraction of codes 10..245 whose error lies
 within ±2σ of its band, over all sequences ("coverage").
@@ -94,6 +95,8 @@ def our_methods() -> dict[str, Callable]:
         return fn
 
     return {"ccdcore Tsin sec. 3.2": run(estimate),
+            "ccdcore sec. 3.2 + gains": run(lambda d: estimate(
+                d, TsinOptions(white_balance=True, max_iter=60))),
             "ccdcore sec. 3.2 as printed": run(lambda d: estimate(d, TsinOptions(pools="paper"))),
             "ccdcore Debevec": run(debevec), "ccdcore Robertson": run(robertson),
             "ccdcore Mitsunaga-Nayar": run(mitsunaga_nayar)}
