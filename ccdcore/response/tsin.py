@@ -325,7 +325,7 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
     """
     N = mz.shape[1]
     R = offsets.size - 1
-    J = np.zeros((R, K + (N if with_a else 0)))
+    J = np.zeros((R, K + (2 * N if with_a else 0)))
     X = np.zeros((R, 3))
     resid = np.empty(offsets[R])
     egrp = np.empty(offsets[R], np.int32)
@@ -336,15 +336,15 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
     fv = np.empty(N)
     # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a², then
     # (with_a) Σ w (g_i - b_i)/a_i² per image and Σ Ê, for the derivatives in a
-    nu = K + 3 + N + 1
+    nu = K + 3 + N + 1 + N
     U = np.zeros(nu)
     C = np.zeros((N, nu))             # the same sums over the pixels lacking image k
     H = np.zeros((N, K))              # per row: Σ δ(ẑ_k)
-    Hs = np.zeros((N, 4))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²,
-    #                                   Σ w (g_k - b_k)/a_k
+    Hs = np.zeros((N, 5))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²,
+    #                                   Σ w (g_k - b_k)/a_k, n
     miss = np.empty(N, np.bool_)
-    ux = np.zeros(8)
-    cols = np.zeros(8, np.int64)
+    ux = np.zeros(10)
+    cols = np.zeros(10, np.int64)
     for j in range(N):
         for m in range(K):
             q0 = start[j * K + m]
@@ -405,7 +405,9 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                     if with_a:
                         ux[nterm] = c * (gv[i] - b[i]) / a[i]
                         cols[nterm] = K + 3 + i
-                        nterm += 1
+                        ux[nterm + 1] = c
+                        cols[nterm + 1] = K + 4 + N + i
+                        nterm += 2
                     for t in range(nterm):
                         U[cols[t]] += ux[t]
                     if nmiss:
@@ -439,6 +441,7 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                         H[k, jv[k] + 1] += f
                     if with_a:
                         Hs[k, 3] += w * (gv[k] - b[k]) / a[k]
+                        Hs[k, 4] += 1.0
                     if want_noise:
                         gpk = gpc[mz[q, k]]
                         Hs[k, 0] += 1.0 - 2.0 * w
@@ -455,6 +458,9 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                     for i in range(N):
                         J[r, K + i] = -ak * (U[K + 3 + i] - C[k, K + 3 + i])
                     J[r, K + k] = (U[K + 3 + N] - C[k, K + 3 + N]) - Hs[k, 3]
+                    for i in range(N):
+                        J[r, K + N + i] = -ak * (U[K + 4 + N + i] - C[k, K + 4 + N + i])
+                    J[r, K + N + k] += Hs[k, 4]
                 if want_noise:
                     a2 = ak * ak
                     X[r, 0] = a2 * (U[K] - C[k, K]) + Hs[k, 1]
@@ -559,10 +565,21 @@ def _gain_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return a[:, None] * Q, a * d0
 
 
-def _gauged_gain_step(Haa, ra, a, t) -> NDArray[np.float64]:
-    """The Gauss-Newton step for the gains a_k at fixed g, within the gauge."""
-    T, off = _gain_gauge(a, t)
-    y = np.linalg.lstsq(T.T @ Haa @ T, T.T @ (ra - Haa @ off), rcond=None)[0]
+def _ab_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Steps (δa, δb) = T y + off: the gains in their gauge (:func:`_gain_gauge`), b_0 = 0
+    (the offsets are defined up to b_k + c a_k)."""
+    N = a.size
+    Tg, off_a = _gain_gauge(a, t)
+    T = np.zeros((2 * N, Tg.shape[1] + N - 1))
+    T[:N, :Tg.shape[1]] = Tg
+    T[N + 1:, Tg.shape[1]:] = np.eye(N - 1)
+    return T, np.concatenate([off_a, np.zeros(N)])
+
+
+def _gauged_ab_step(H, r, a, t) -> NDArray[np.float64]:
+    """The Gauss-Newton step for the gains and offsets at fixed g, within the gauge."""
+    T, off = _ab_gauge(a, t)
+    y = np.linalg.lstsq(T.T @ H @ T, T.T @ (r - H @ off), rcond=None)[0]
     return T @ y + off
 
 
@@ -771,9 +788,10 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             step = float(np.mean(np.abs(gk_new - gk)))
             gk = gk_new
         else:
-            Ja = Jm[:, K:]
-            d = _gauged_gain_step((Ja * W[:, None]).T @ Ja, -(Ja.T @ (W * tm)), a, t)
-            a_new = a + opts.eta * d
+            Jab = Jm[:, K:]
+            d = _gauged_ab_step((Jab * W[:, None]).T @ Jab, -(Jab.T @ (W * tm)), a, t)
+            b = b + opts.eta * d[N:]
+            a_new = a + opts.eta * d[:N]
             if np.any(a_new <= 0):
                 raise CcdError(data.files[0] if data.files else "bracket",
                                "an image's gain went non-positive: the bracket does not "
@@ -813,12 +831,13 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         cov[np.ix_(free, free)] = np.nan
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
     a_err = np.zeros(N)
-    if fit_a and J.shape[1] == K + N:
-        # g and the gains together (the gains' error comes mostly through g): the sandwich
-        # in the coordinates of the free knots and the gauge's free directions of a
-        Tg, _ = _gain_gauge(a, t)
+    b_err = np.zeros(N)
+    if fit_a and J.shape[1] == K + 2 * N:
+        # g, the gains and the offsets together (their errors come mostly through g): the
+        # sandwich in the coordinates of the free knots and the gauge's free directions
+        Tg, _ = _ab_gauge(a, t)
         fk = np.flatnonzero(free)
-        Tf = np.zeros((K + N, fk.size + Tg.shape[1]))
+        Tf = np.zeros((K + 2 * N, fk.size + Tg.shape[1]))
         Tf[fk, np.arange(fk.size)] = 1.0
         Tf[K:, fk.size:] = Tg
         Hfull = JWfull.T @ Jm
@@ -828,13 +847,15 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             Ai = np.linalg.inv(A)
             Psi_f = Tf.T @ (JWfull.T @ Sg)
             cov_f = Tf @ Ai @ ((Psi_f @ Psi_f.T) * (G / (G - 1.0))) @ Ai @ Tf.T
-            a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:], 0.0))
+            a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:K + N], 0.0))
+            b_err = np.sqrt(np.maximum(np.diag(cov_f)[K + N:], 0.0))
             err = np.sqrt(np.maximum(np.diag(cov_f)[:K], 0.0))
         except np.linalg.LinAlgError:
             a_err = np.full(N, np.nan)
     theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
-    g_rep, sc, _ = normalize(np.interp(codes, s.knots.codes, gk), L)
+    # the reported scale (with offsets free, both fixed points: g(z_lo) too); a, b follow
+    g_rep, sc, c0 = normalize(np.interp(codes, s.knots.codes, gk), L, offset=fit_a)
     ss, ss_e = _sqrt_err(theta_n[0] * sc, theta_e[0] * sc)
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
@@ -850,11 +871,12 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                      f"sec. 4.1 used {opts.min_pool})")
     chi2_last = history[-1]["chi2"] if history else float("nan")
     if fit_a:
-        notes.append("gains a_k estimated (white balance, exposure errors) with ln(a_k/t_k) of "
-                     "zero mean and zero trend in ln t_k: the bracket cannot fix those two "
-                     "(sec. 3.2's u-ambiguity); offsets b_k held at 0")
+        notes.append("gains a_k and offsets b_k estimated (white balance, exposure errors), "
+                     "with ln(a_k/t_k) of zero mean and zero trend in ln t_k (the bracket cannot "
+                     "fix those two: sec. 3.2's u-ambiguity) and b of the shortest exposure 0 "
+                     "(before the reported scale's shift)")
     if chi2_last > 3.0:
-        cause = ("the offsets b_k are not 0 (not estimated)" if fit_a else
+        cause = ("the gains and offsets do not explain the exposures" if fit_a else
                  "the exposures do not follow the nominal times (white balance or shutter "
                  "errors? estimate the gains)")
         notes.append(f"the pools' errors are {math.sqrt(chi2_last):.1f} times their expected "
@@ -865,11 +887,10 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                      "g'² look alike, shot and output noise cannot be told apart)")
     pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
                       n.astype(np.int64), tm * sc, sig * sc, se * sc)
-    zeros = np.zeros(N)
     return ChannelResponse(
         channel=data.channel, method="tsin", g=g_rep,
-        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=a_err * sc, b=b * sc,
-        b_err=zeros.copy(), t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
+        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=a_err * sc,
+        b=b * sc + c0, b_err=b_err * sc, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
         sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
         white_balance=fit_a, pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],
