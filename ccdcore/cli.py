@@ -516,8 +516,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=list(METHODS), default="tsin",
                    help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
     p.add_argument("--white-balance", action="store_true",
-                   help="estimate each image's gain a_k too (tsin; up to a common factor and a "
-                        "trend in the exposure, which no bracket fixes; offsets b_k stay 0)")
+                   help="estimate each image's gain a_k and offset b_k too (tsin; up to a common "
+                        "factor and a trend in the exposure, which no bracket fixes)")
     json_flag(p)
 
     p = verb("hdr", "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
@@ -527,7 +527,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a calibration product with a response (default: estimate it from "
                         "this bracket)")
     p.add_argument("--white-balance", action="store_true",
-                   help="without --calib: estimate each image's gain a_k too (see response)")
+                   help="without --calib: estimate the gains and offsets too (see response)")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for radiance.exr, sigma.exr and flags.png")
     json_flag(p)

@@ -125,8 +125,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
     stops = param.Number(default=0.0, bounds=(-6.0, 6.0), step=0.5,
                          doc="Display exposure of the HDR radiance, in stops.")
     white_balance = param.Boolean(default=False, doc=(
-        "Estimate each image's gain a_k (white balance, exposure errors) by sec. 3.2, up to a "
-        "common factor and a trend in the exposure that no bracket fixes; offsets b_k stay 0. "
+        "Estimate each image's gain a_k and offset b_k (white balance, exposure errors) by "
+        "sec. 3.2, up to a common factor and a trend in the exposure that no bracket fixes. "
         "The classic methods take the nominal times."))
     bloom_radius = param.Integer(default=DEFAULT_BLOOM_RADIUS, bounds=(0, 10), doc=(
         "Pixels within this radius of a saturated pixel are dropped as blooming (sec. 2); 0 "
@@ -164,7 +164,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.bloom_input = pn.widgets.IntInput.from_param(self.param.bloom_radius,
                                                           name="Blooming radius (px)", width=150)
         self.wb_box = pn.widgets.Checkbox.from_param(
-            self.param.white_balance, name="Estimate white-balance gains (sec. 3.2)")
+            self.param.white_balance, name="Estimate white balance a_k, b_k (sec. 3.2)")
         self.curves = ResponseFigure(list(METHODS), LABELS)
         self.pool_hist = PoolHistogram()
         self.curve_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)

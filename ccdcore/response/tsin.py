@@ -6,9 +6,9 @@ The camera (eq. 3) images radiance E through white balance and the response f::
 
 and the inverse response g = f^-1 obeys g(z) = a E + b up to noise (eqs. 5, 8). From one channel
 of an exposure bracket (a static scene at N exposure settings) :func:`estimate` recovers g at
-every code with its confidence band, the three noise terms and, on request, the gains a_k of the
-images (white balance, exposure errors; the offsets b_k are held at 0, see the last departure
-below), by the iterative algorithm of sec. 3.2:
+every code with its confidence band, the three noise terms and, on request, the gains a_k and
+offsets b_k of the images (white balance, exposure errors; see the last departure below), by the
+iterative algorithm of sec. 3.2:
 
 1. preprocessing (:mod:`ccdcore.response.brackets`): boundary and blooming pixels out, pixel
    traces; here the pools P(j, ẑ, ε) of the pixels of image j at code ẑ (ε = 1/2, one code;
@@ -58,13 +58,14 @@ Departures from the paper, each for a measured reason (docs/response.md):
   a_k / a_i), and σ_c2 includes the quantisation (1/12 DN²).
 * **Weights.** A pool's row in eq. 15 is weighted by the variance of its trimmed mean (Tukey and
   McLaughlin: winsorised variance / ((1 - 2α)² n)), the paper's σ̂² over the pool size.
-* **White balance: gains only, in a gauge.** With free a_k and b_k and the a-priori bound of
-  sec. 3.2 the iteration wanders along the u-ambiguity on the sec. 4.1 simulation
-  (docs/response.md). With ``white_balance`` the gains a_k are estimated in steps at fixed g,
-  alternating with steps for g at fixed a_k (after g has converged at the nominal times), and
-  the two directions the bracket cannot fix are fixed by a gauge instead of a prior:
-  ln(a_k / t_k) has zero mean and zero trend in ln t_k. The offsets b_k stay 0. A bracket that
-  does not fit gets a note (the pools' chi²/dof above 3).
+* **White balance in a gauge, by alternating steps.** With a joint step for g, a_k, b_k and the
+  a-priori bound of sec. 3.2 the iteration wanders along the u-ambiguity on the sec. 4.1
+  simulation (docs/response.md). With ``white_balance`` g first converges at the nominal times;
+  then steps for (a_k, b_k) at fixed g alternate with steps for g at fixed (a_k, b_k), and the
+  two directions no bracket fixes are fixed by a gauge instead of the prior: ln(a_k / t_k) has
+  zero mean and zero trend in ln t_k; b of the shortest exposure is 0 (sec. 3.2's fixed b_k).
+  g is then reported on both fixed points. A bracket that does not fit gets a note (the pools'
+  chi²/dof above 3).
 
 Public objects
 --------------
@@ -111,10 +112,9 @@ class TsinOptions:
     """Settings of :func:`estimate`.
 
     white_balance
-        Estimate the gains a_k as well (white balance and exposure errors, sec. 3.2), up to the
-        gauge of the u-ambiguity: ln(a_k / t_k) keeps zero mean and zero trend in ln t_k. The
-        offsets b_k are held at 0 (their joint estimate does not converge yet,
-        docs/response.md). False: a_k are the nominal exposure times.
+        Estimate the gains a_k and offsets b_k as well (white balance and exposure errors,
+        sec. 3.2), in the gauge of the u-ambiguity: ln(a_k / t_k) keeps zero mean and zero trend
+        in ln t_k, b_0 = 0. False: a_k are the nominal exposure times, b_k = 0.
     pools
         ``"instrument"`` (default): the pool of image j predicts the other images of its trace
         from a radiance without image j; ``"paper"``: the pool of image k predicts image k
