@@ -337,16 +337,16 @@ def _cmd_response(args: argparse.Namespace) -> int:
 def _cmd_hdr(args: argparse.Namespace) -> int:
     from .io import write_image, write_map
     from .product import load_product
-    from .response.brackets import load_bracket
+    from .response.brackets import bracket_records, load_bracket
     from .response.hdr import merge
     from .response.methods import response_of
     from .session import open_session
 
     session = open_session(args.session)
     session.raise_if_invalid()
-    stacks = session.bracket_stacks("bracket")
-    stack = args.stack if args.stack is not None else (next(iter(stacks)) if stacks else None)
-    brackets = load_bracket(session, stack, bloom_radius=args.bloom_radius)
+    records = bracket_records(session, args.stack)
+    frames = [session.read(r) for r in records]          # read once: traces and merge
+    brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius, frames=frames)
     if args.calib is not None:
         models = load_product(args.calib).response_models(args.calib)
         first = next(iter(brackets.values()))
@@ -363,9 +363,6 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                           white_balance=args.white_balance)
         models = res.models()
         source = "response estimated from this bracket (sec. 3.2)"
-    records = session.bracket_stacks("bracket")[stack]
-    records = sorted(records, key=lambda r: r.exposure)
-    frames = [session.read(r) for r in records]
     out = merge(frames, models, layout=session.camera.layout, bloom_radius=args.bloom_radius)
     folder = Path(args.out_dir)
     try:

@@ -37,7 +37,7 @@ import param
 
 from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
-from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, load_bracket
+from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
 from ccdcore.response.hdr import FLAG_OK, HdrResult, merge
 from ccdcore.response.methods import METHODS, ResponseResult, response_of
 from ccdcore.session import Session
@@ -87,9 +87,7 @@ def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS
 def compute_hdr(session: Session, result: ResponseResult,
                 bloom_radius: int = DEFAULT_BLOOM_RADIUS) -> HdrResult:
     """The bracket merged with ``result``'s calibration (eqs. 9, 18, 19)."""
-    stacks = session.bracket_stacks("bracket")
-    records = sorted(next(iter(stacks.values())), key=lambda r: r.exposure)
-    frames = [session.read(r) for r in records]
+    frames = [session.read(r) for r in bracket_records(session)]
     return merge(frames, result.models(), layout=session.camera.layout,
                  bloom_radius=bloom_radius)
 
@@ -261,11 +259,6 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self._session = None
         if self.auto:
             pn.state.execute(self.refresh)
-
-    def _set_error(self, text: str) -> None:
-        self.error = text
-        self.error_alert.object = f"**Error:** {text}" if text else ""
-        self.error_alert.visible = bool(text)
 
     # ------------------------------------------------------------------------ computing ---
     @property

@@ -36,7 +36,7 @@ from scipy import ndimage
 from .. import channels as chan
 from ..errors import CcdError
 
-__all__ = ["BracketData", "load_bracket", "bracket_data", "preprocess", "bloom_mask", "kept_mask",
+__all__ = ["BracketData", "load_bracket", "bracket_records", "bracket_data", "preprocess", "bloom_mask", "kept_mask",
            "BAYER_MAD_FACTOR",
            "DEFAULT_BLOOM_RADIUS", "DEFAULT_BORDER"]
 
@@ -237,15 +237,9 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
     return out
 
 
-def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
-                 bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
-                 bayer_interpolated: bool = False) -> dict[str, BracketData]:
-    """The bracket ``stack`` of ``session`` (the first when ``None``) per channel.
-
-    Exposure times come from the manifest (``exposure`` of each frame); the bit depth from the
-    camera (``[camera] bits``). Pass ``bayer_interpolated=True`` when the colour frames were
-    interpolated from a Bayer mosaic (eq. 12's extra factor): the manifest does not record it.
-    """
+def bracket_records(session: Any, stack: Any = None, *, role: str = "bracket") -> list[Any]:
+    """The frame records of the bracket ``stack`` of ``session`` (the first when ``None``), in
+    increasing exposure when every frame has one; a clear error when there is no such bracket."""
     stacks = session.bracket_stacks(role)
     if not stacks:
         raise CcdError(getattr(session, "root", "session"),
@@ -257,13 +251,31 @@ def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
         raise CcdError(getattr(session, "root", "session"),
                        f"no bracket stack {stack!r}; the session has "
                        f"{', '.join(str(s) for s in stacks)}")
-    records = stacks[stack]
+    records = list(stacks[stack])
+    if all(isinstance(r.exposure, (int, float)) for r in records):
+        records.sort(key=lambda r: r.exposure)
+    return records
+
+
+def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
+                 bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
+                 bayer_interpolated: bool = False, frames: Sequence[ArrayLike] | None = None
+                 ) -> dict[str, BracketData]:
+    """The bracket ``stack`` of ``session`` (the first when ``None``) per channel.
+
+    Exposure times come from the manifest (``exposure`` of each frame); the bit depth from the
+    camera (``[camera] bits``). Pass ``bayer_interpolated=True`` when the colour frames were
+    interpolated from a Bayer mosaic (eq. 12's extra factor): the manifest does not record it.
+    ``frames``: the frames already read, in :func:`bracket_records` order (not read again).
+    """
+    records = bracket_records(session, stack, role=role)
     cam = session.camera
     files = [r.relpath for r in records]
     if cam.bits is None:
         raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] bits in the "
                                  "manifest (the response has 2**bits values)")
-    frames = [session.read(r) for r in records]
+    if frames is None:
+        frames = [session.read(r) for r in records]
     return bracket_data(frames, [r.exposure for r in records], cam.bits, layout=cam.layout,
                         bayer_interpolated=bayer_interpolated, files=files,
                         bloom_radius=bloom_radius, border=border)
