@@ -216,6 +216,8 @@ def rgb_timing() -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sequences", type=int, default=50)
+    ap.add_argument("--study", choices=("both", "plain", "white-balance"), default="both",
+                    help="which study to run (default both), then the timings")
     args = ap.parse_args()
     _report.header(__file__, args.sequences, warmup=0,
                    note="bias per band: RMS over the band's codes of the mean error; spread: "
@@ -225,7 +227,8 @@ def main() -> None:
     for fn in methods.values():
         fn(frames, t)
     for wb in (False, True):
-        study(args.sequences, wb, methods)
+        if args.study == "both" or args.study == ("white-balance" if wb else "plain"):
+            study(args.sequences, wb, methods)
     merge_timing()
     rgb_timing()
     _report.footer()

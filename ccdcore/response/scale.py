@@ -8,9 +8,10 @@ every method's ``g`` on one documented scale (docs/response.md):
 * the **scale** puts ``g(z_hi) = z_hi / (levels - 1)`` at the reference code
   ``z_hi = round(0.9 (levels - 1))`` (229 for 8 bits): g reads as "fraction of full scale" near
   the top, where every bracket has data;
-* where the offset is free too (white balance on), ``g(z_lo) = z_lo / (levels - 1)`` at
-  ``z_lo = round(0.2 (levels - 1))`` (51 for 8 bits) as well: these are the two fixed points of
-  sec. 3.2.
+* where the offsets are free too (white balance on), an offset of g and one of the radiance
+  are free as well; estimators fit with ``g(z_lo)`` fixed too, at ``z_lo = round(0.2 (levels -
+  1))`` (51 for 8 bits: the two fixed points of sec. 3.2), and report the offsets b_k of
+  smallest norm (``ccdcore.response.tsin``).
 
 Public objects
 --------------

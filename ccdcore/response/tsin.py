@@ -58,13 +58,13 @@ Departures from the paper, each for a measured reason (docs/response.md):
   a_k / a_i), and σ_c2 includes the quantisation (1/12 DN²).
 * **Weights.** A pool's row in eq. 15 is weighted by the variance of its trimmed mean (Tukey and
   McLaughlin: winsorised variance / ((1 - 2α)² n)), the paper's σ̂² over the pool size.
-* **White balance in a gauge, by alternating steps.** With a joint step for g, a_k, b_k and the
-  a-priori bound of sec. 3.2 the iteration wanders along the u-ambiguity on the sec. 4.1
-  simulation (docs/response.md). With ``white_balance`` g first converges at the nominal times;
-  then steps for (a_k, b_k) at fixed g alternate with steps for g at fixed (a_k, b_k), and the
-  two directions no bracket fixes are fixed by a gauge instead of the prior: ln(a_k / t_k) has
-  zero mean and zero trend in ln t_k; b of the shortest exposure is 0 (sec. 3.2's fixed b_k).
-  g is then reported on both fixed points. A bracket that does not fit gets a note (the pools'
+* **White balance in a gauge.** With a joint step for g, a_k, b_k and the a-priori bound of
+  sec. 3.2 the iteration wanders along the u-ambiguity on the sec. 4.1 simulation
+  (docs/response.md). With ``white_balance`` g first comes near at the nominal times; then g,
+  a_k and b_k take joint steps in which every direction no bracket fixes is fixed by a gauge
+  instead of the prior: g keeps both fixed points, ln(a_k / t_k) has zero mean and zero trend in
+  ln t_k, b of the shortest exposure is 0 (sec. 3.2's fixed b_k). g is then reported with the
+  offsets of smallest norm and g(z_hi) fixed. A bracket that does not fit gets a note (the pools'
   chi²/dof above 3).
 
 Public objects
@@ -137,6 +137,10 @@ class TsinOptions:
         Eq. 12's c; ``None``: 1.483 times the Bayer factor of the data's channel.
     groups
         Blocks of pixels (bands of rows of the frame) over which the band of g is estimated.
+    gain_prior
+        With ``white_balance``: the a-priori bound on the gains (sec. 3.2), the standard
+        deviation of ln(a_k / t_k) a priori (0: none). Within the gauge it only holds the
+        directions the data leave loose, e.g. the gain of an image that is nearly all saturated.
     """
 
     white_balance: bool = False
@@ -149,6 +153,7 @@ class TsinOptions:
     clip_fraction: float = 0.02
     mad_factor: float | None = None
     groups: int = 64
+    gain_prior: float = 0.1
 
     def check(self, where: str = "response") -> None:
         """Raise :class:`CcdError` (naming ``where``) for settings the estimator cannot use."""
@@ -157,6 +162,8 @@ class TsinOptions:
         for name in ("eta", "tol"):
             if not getattr(self, name) > 0:
                 raise CcdError(where, f"{name} must be positive, got {getattr(self, name)}")
+        if not self.gain_prior >= 0:
+            raise CcdError(where, f"gain_prior must be >= 0, got {self.gain_prior}")
         if not self.smoothness >= 0:
             raise CcdError(where, f"smoothness must be >= 0, got {self.smoothness}")
         if not 0 <= self.clip_fraction < 0.5:
@@ -553,6 +560,13 @@ class _Setup:
     row_of: NDArray[np.float64] | None = None
 
 
+#: the largest relative change of a gain a_k in one step of the white-balance fit
+MAX_GAIN_STEP = 0.05
+#: the white-balance fit stops when three steps in a row lower its objective by less than
+#: this fraction each
+FLAT = 1e-5
+
+
 def _gain_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The gauge of the gains: steps δa = T y + off keep ln(a_k / t_k) at zero mean and zero
     trend in ln t_k (linearised). A bracket cannot tell a_k^u (with g^u) from a_k, nor a common
@@ -563,6 +577,13 @@ def _gain_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     d0 = -np.linalg.pinv(C) @ (C @ np.log(a / t))
     Q = np.linalg.svd(C)[2][2:].T
     return a[:, None] * Q, a * d0
+
+
+def _in_gauge(a, t) -> NDArray[np.float64]:
+    """The gains with ln(a_k / t_k) of zero mean and zero trend in ln t_k."""
+    la, lt = np.log(a / t), np.log(t) - np.mean(np.log(t))
+    C = np.stack([np.ones(a.size), lt], axis=1)
+    return t * np.exp(la - C @ np.linalg.lstsq(C, la, rcond=None)[0])
 
 
 def _ab_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -576,11 +597,39 @@ def _ab_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     return T, np.concatenate([off_a, np.zeros(N)])
 
 
-def _gauged_ab_step(H, r, a, t) -> NDArray[np.float64]:
-    """The Gauss-Newton step for the gains and offsets at fixed g, within the gauge."""
-    T, off = _ab_gauge(a, t)
-    y = np.linalg.lstsq(T.T @ H @ T, T.T @ (r - H @ off), rcond=None)[0]
-    return T @ y + off
+def _joint_frame(free, a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Steps (δg, δa, δb) = T y + off: the knots marked ``free`` and the gains and offsets in
+    their gauge (:func:`_ab_gauge`)."""
+    K, N = free.size, a.size
+    Tg, off_ab = _ab_gauge(a, t)
+    fk = np.flatnonzero(free)
+    T = np.zeros((K + 2 * N, fk.size + Tg.shape[1]))
+    T[fk, np.arange(fk.size)] = 1.0
+    T[K:, fk.size:] = Tg
+    return T, np.concatenate([np.zeros(K), off_ab])
+
+
+def _least_offsets(gk, a, b, k_hi):
+    """``(g + c, b + c - beta a, D)``: the offsets of smallest norm and the Jacobian ``D`` of
+    the reported (g, a, b) -- g then scaled to its value at knot ``k_hi`` -- on the fitted ones.
+
+    With offsets free the bracket cannot tell an offset c of g (with every b_k + c) nor an
+    offset beta of the radiance (with every b_k - beta a_k): g(z) = a_k E + b_k fits as well.
+    Of that family the reported one has the smallest offsets, i.e. b is orthogonal to 1 and
+    to a -- the truth's offsets are small and unrelated to the gains."""
+    K, N = gk.size, a.size
+    A = np.stack([np.ones(N), -a], axis=1)
+    pinv = np.linalg.pinv(A)                        # (c, beta) = pinv @ (-b)
+    c, beta = pinv @ (-b)
+    g_new, b_new = gk + c, b + c - beta * a
+    # d g_new / d b = -pinv[0] on every knot; d b_new / d b = I - A pinv
+    D = np.eye(K + 2 * N)
+    D[:K, K + N:] = -pinv[0][None, :]
+    D[K + N:, K + N:] = np.eye(N) - A @ pinv
+    # then g / g[k_hi] (the reported scale): its Jacobian on g
+    S = np.eye(K) - np.outer(g_new / g_new[k_hi], np.eye(K)[k_hi])
+    D[:K] = S @ D[:K]
+    return g_new, b_new, D
 
 
 def _sample(data: BracketData) -> tuple[BracketData, int]:
@@ -737,14 +786,16 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     t = np.asarray(data.t, np.float64)
     a = t.copy()                                  # step 2: the nominal exposures, b = 0
     b = np.zeros(N)
-    _, z_hi = reference_codes(L)
+    z_lo, z_hi = reference_codes(L)
     k_hi = int(round(z_hi / s.knots.step))
+    k_lo = int(round(z_lo / s.knots.step))
     gk = s.knots.codes / (L - 1.0)          # step 2: the straight line through the fixed points
     P_s = _second_differences(K)
     P_s = P_s.T @ P_s
     bw = opts.smoothness * (K - 1) / 255.0
     free = np.ones(K, bool)
     free[k_hi] = False
+    free[k_lo] = True
     history: list[dict[str, float]] = []
     before: dict[str, Any] = {}
     converged = False
@@ -752,9 +803,13 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     step = float("inf")
     a_step = 0.0
     fit_a = bool(opts.white_balance)
-    # with the gains a_k free: g first at the nominal times (phase 1), then steps for a at
-    # fixed g alternate with steps for g at fixed a (phase 2)
-    phase, mode = 1, "g"
+    # with the gains a_k free: g first at the nominal times (phase 1), then g, the gains and
+    # the offsets together (phase 2); with offsets free g(z) and s g(z) + c fit alike, so g
+    # keeps both fixed points throughout (eq. 15's two fixed points)
+    phase = 1
+    kept: tuple | None = None                    # the last accepted state of phase 2
+    radius = 1.0                                 # of the trust region, in MAX_GAIN_STEP
+    flat = 0                                     # accepted steps in a row that gained < FLAT
     it = 0
     for it in range(1, opts.max_iter + 1):
         # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
@@ -774,7 +829,31 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         dg = np.diag(H)
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
         Hs = H + lam * P_s
-        if mode == "g":
+        chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
+        if phase == 2:
+            # the objective of the gains' step: the pools' χ² and the a-priori bound
+            cost = float(np.sum(W * tm ** 2))
+            if opts.gain_prior:
+                cost += float(np.sum((np.log(a / t) / opts.gain_prior) ** 2))
+            # a step of the gains that made the fit worse is taken back and the next one
+            # shortened (near a nearly saturated image the linearised step can mislead)
+            if kept is not None and cost > kept[0]:
+                chi2_bad = chi2
+                cost, chi2, gk, a, b = kept
+                radius *= 0.25
+                history.append({"iteration": it, "phase": phase, "step": step,
+                                "a_step": a_step, "chi2": chi2_bad, "pools": int(tm.size),
+                                "rejected": True})
+                if radius < 1e-3:
+                    converged = True             # no step of any length improves the fit
+                    break
+                continue
+            flat = flat + 1 if kept is not None and kept[0] - cost < FLAT * kept[0] else 0
+            if flat >= 3:
+                converged = True                 # the fit no longer improves: flat
+                break
+            kept = (cost, chi2, gk, a, b)
+        if phase == 1:
             rhs = -(Jm[:, :K].T @ (W * tm)) - lam * (P_s @ gk)
             delta = np.zeros(K)
             Hf = Hs[np.ix_(free, free)]
@@ -782,24 +861,46 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                 delta[free] = np.linalg.solve(Hf, rhs[free])
             except np.linalg.LinAlgError:
                 delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
-            # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed point
-            gk_new = _pav(gk + opts.eta * delta, dg + lam)
-            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
-            step = float(np.mean(np.abs(gk_new - gk)))
-            gk = gk_new
         else:
-            Jab = Jm[:, K:]
-            d = _gauged_ab_step((Jab * W[:, None]).T @ Jab, -(Jab.T @ (W * tm)), a, t)
-            b = b + opts.eta * d[N:]
-            a_new = a + opts.eta * d[:N]
+            # g, the gains and the offsets in one step, within the gauge (_joint_frame)
+            Tf, off = _joint_frame(free, a, t)
+            Hfull = JWfull.T @ Jm
+            Hfull[:K, :K] += lam * P_s
+            grad = -(Jm.T @ (W * tm))
+            grad[:K] -= lam * (P_s @ gk)
+            if opts.gain_prior:
+                # the a-priori bound on a_k (sec. 3.2): ln(a_k / t_k) ~ N(0, gain_prior²); it
+                # only holds directions the data leave loose (a nearly saturated image)
+                ia = np.arange(K, K + N)
+                Hfull[ia, ia] += 1.0 / (a * opts.gain_prior) ** 2
+                grad[K:K + N] -= np.log(a / t) / (a * opts.gain_prior ** 2)
+            y = np.linalg.lstsq(Tf.T @ Hfull @ Tf, Tf.T @ (grad - Hfull @ off), rcond=None)[0]
+            d = Tf @ y + off
+            # a trust region: no gain moves by more than MAX_GAIN_STEP in one step (far from
+            # the solution the linearised step overshoots along the loosely held directions)
+            rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
+            if rel > MAX_GAIN_STEP * radius:
+                d = d * (MAX_GAIN_STEP * radius / rel)
+            radius = min(1.0, 2.0 * radius)
+            delta = d[:K]
+            a_new = a + opts.eta * d[K:K + N]
             if np.any(a_new <= 0):
                 raise CcdError(data.files[0] if data.files else "bracket",
                                "an image's gain went non-positive: the bracket does not "
                                "constrain it")
+            a_new = _in_gauge(a_new, t)              # exactly, whatever the step's length
             a_step = float(np.max(np.abs(a_new / a - 1.0)))
-            a = a_new
-        chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
-        history.append({"iteration": it, "phase": phase, "mode": mode, "step": step,
+            a, b = a_new, b + opts.eta * d[K + N:]
+        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed points
+        gk_new = _pav(gk + opts.eta * delta, dg + lam)
+        if free[k_lo]:
+            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
+        else:                                     # PAV may have moved a fixed point
+            span = (gk[k_hi] - gk[k_lo]) / (gk_new[k_hi] - gk_new[k_lo])
+            gk_new = gk[k_lo] + (gk_new - gk_new[k_lo]) * span
+        step = float(np.mean(np.abs(gk_new - gk)))
+        gk = gk_new
+        history.append({"iteration": it, "phase": phase, "step": step,
                         "a_step": a_step, "chi2": chi2, "pools": int(tm.size)})
         if progress is not None:
             progress(min(0.95, it / (4.0 if not fit_a else 12.0)),
@@ -810,13 +911,18 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                 break
             continue
         if phase == 1:
-            if step < max(opts.tol, 1e-4):
-                phase, mode = 2, "a"
+            # g at the nominal times only needs to come near: once it has, or once its fit
+            # stops improving (gains far off the nominal times then pull it away), the gains
+            # are freed, and g(z_lo) is held where it is (with offsets free, g and s g + c fit
+            # alike: both fixed points)
+            worse = len(history) > 1 and chi2 > history[-2]["chi2"]
+            if step < max(opts.tol, 1e-4) or worse:
+                phase = 2
+                free[k_lo] = False
             continue
-        if mode == "g" and step < opts.tol and a_step < opts.tol:
+        if step < opts.tol and a_step < opts.tol:
             converged = True
             break
-        mode = "g" if mode == "a" else "a"
     # the band, the noise terms and the pool's errors from the last pass
     after = _pick_pool(s, resid, gk, like=before)
     Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
@@ -835,11 +941,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     if fit_a and J.shape[1] == K + 2 * N:
         # g, the gains and the offsets together (their errors come mostly through g): the
         # sandwich in the coordinates of the free knots and the gauge's free directions
-        Tg, _ = _ab_gauge(a, t)
-        fk = np.flatnonzero(free)
-        Tf = np.zeros((K + 2 * N, fk.size + Tg.shape[1]))
-        Tf[fk, np.arange(fk.size)] = 1.0
-        Tf[K:, fk.size:] = Tg
+        Tf, _ = _joint_frame(free, a, t)
         Hfull = JWfull.T @ Jm
         Hfull[:K, :K] += lam * P_s
         A = Tf.T @ Hfull @ Tf
@@ -847,15 +949,17 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             Ai = np.linalg.inv(A)
             Psi_f = Tf.T @ (JWfull.T @ Sg)
             cov_f = Tf @ Ai @ ((Psi_f @ Psi_f.T) * (G / (G - 1.0))) @ Ai @ Tf.T
-            a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:K + N], 0.0))
-            b_err = np.sqrt(np.maximum(np.diag(cov_f)[K + N:], 0.0))
-            err = np.sqrt(np.maximum(np.diag(cov_f)[:K], 0.0))
         except np.linalg.LinAlgError:
-            a_err = np.full(N, np.nan)
+            cov_f = np.full((K + 2 * N, K + 2 * N), np.nan)
+        gk, b, D = _least_offsets(gk, a, b, k_hi)
+        cov_f = D @ cov_f @ D.T
+        a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:K + N], 0.0))
+        b_err = np.sqrt(np.maximum(np.diag(cov_f)[K + N:], 0.0))
+        err = np.sqrt(np.maximum(np.diag(cov_f)[:K], 0.0))
     theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
-    # the reported scale (with offsets free, both fixed points: g(z_lo) too); a, b follow
-    g_rep, sc, c0 = normalize(np.interp(codes, s.knots.codes, gk), L, offset=fit_a)
+    # the reported scale: g(z_hi) = z_hi / (L - 1); a, b follow
+    g_rep, sc, c0 = normalize(np.interp(codes, s.knots.codes, gk), L)
     ss, ss_e = _sqrt_err(theta_n[0] * sc, theta_e[0] * sc)
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
@@ -872,9 +976,9 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     chi2_last = history[-1]["chi2"] if history else float("nan")
     if fit_a:
         notes.append("gains a_k and offsets b_k estimated (white balance, exposure errors), "
-                     "with ln(a_k/t_k) of zero mean and zero trend in ln t_k (the bracket cannot "
-                     "fix those two: sec. 3.2's u-ambiguity) and b of the shortest exposure 0 "
-                     "(before the reported scale's shift)")
+                     "with ln(a_k/t_k) of zero mean and zero trend in ln t_k and the offsets b_k "
+                     "of smallest norm (the bracket cannot fix those: a common gain, sec. 3.2's "
+                     "u-ambiguity, an offset of g and one of the radiance)")
     if chi2_last > 3.0:
         cause = ("the gains and offsets do not explain the exposures" if fit_a else
                  "the exposures do not follow the nominal times (white balance or shutter "
