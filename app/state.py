@@ -145,6 +145,10 @@ class Results(param.Parameterized):
         "{'responses': method -> "
         "ccdcore.response.methods.ResponseResult, 'hdr': method -> "
         "ccdcore.response.hdr.HdrResult}."))
+    change = param.Dict(default={}, doc=(
+        "The Change detection page's results: the detector's options (as a tuple) -> "
+        "(ccdcore.change.ChangeResult, inputs: the radiance maps with their sigmas) of "
+        "ccdcore.change.session_change."))
 
     def __init__(self, **params: Any):
         params.setdefault("flat", FlatResults())
@@ -153,7 +157,7 @@ class Results(param.Parameterized):
     def clear(self) -> None:
         """Forget every result (one batch of events)."""
         self.param.update(ptc=None, ptc_points=None, estimates=None, flat=FlatResults(),
-                          response={})
+                          response={}, change={})
 
     def _part(self, name: str) -> Any:
         return None if self.estimates is None else getattr(self.estimates, name)

@@ -334,6 +334,67 @@ def _cmd_response(args: argparse.Namespace) -> int:
     return 0
 
 
+def _out_folder(out_dir: Path, names: Sequence[str], records: Sequence[Any]) -> Path:
+    """The output folder, created; a clear error when an output would overwrite an input."""
+    folder = Path(out_dir)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CcdError(folder, f"cannot create the folder: {exc.strerror}") from None
+    outputs = {(folder / n).resolve() for n in names}
+    for rec in records:
+        if Path(rec.path).resolve() in outputs:
+            raise CcdError(rec.relpath, "an output would overwrite this input; choose another "
+                                        "-o folder")
+    return folder
+
+
+def _cmd_change(args: argparse.Namespace) -> int:
+    from .change import ChangeOptions, session_change
+    from .io import write_image, write_map
+    from .response.brackets import bracket_records
+    from .session import open_session
+
+    session = open_session(args.session)
+    session.raise_if_invalid()
+    opts = ChangeOptions(pfa=args.pfa)
+    opts.check()
+    names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
+    records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
+    folder = _out_folder(args.out_dir, names, records)
+    res, inputs = session_change(session, opts, calib=args.calib,
+                                 bloom_radius=args.bloom_radius)
+    change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
+    d2 = np.where(res.valid, res.d2_best, np.nan).astype(np.float32)
+    paths = [write_image(folder / names[0], change),
+             write_image(folder / names[1], res.labels),
+             write_map(folder / names[2], d2),
+             write_map(folder / names[3], res.predicted.astype(np.float32))]
+    summary = res.to_dict()
+    if args.json:
+        _print_json({"source": inputs["source"], "channels": list(inputs["channels"]),
+                     **summary, "files": [str(p) for p in paths]})
+        return 0
+    print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
+    print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "
+          f"(χ²_{res.dof}: {summary['threshold_chi2']:.3g}; observed on the background "
+          f"{summary['pfa_observed']:.3g}, {summary['pfa_observed_at_chi2_threshold']:.3g} at "
+          "the χ² threshold)")
+    for c in res.clusters:
+        what = "background" if c.label == 0 else f"shadow {c.label}"
+        print(f"  cluster {c.label} ({what}): {c.pixels} pixels, median d² {c.d2_median:.2f}")
+        for row, err in zip(c.M, np.sqrt(np.diag(c.M_cov)).reshape(c.M.shape)):
+            print("    " + "  ".join(f"{v:8.4f} ± {e:.4f}" for v, e in zip(row, err)))
+    print(f"  changed pixels {summary['changed_pixels']}, undetermined "
+          f"{summary['undetermined_pixels']}; background mean d² "
+          f"{summary['background_d2_mean']:.2f}")
+    for n in res.notes:
+        print(f"  note: {n}")
+    for p in paths:
+        print(f"  {p}")
+    return 0
+
+
 def _cmd_hdr(args: argparse.Namespace) -> int:
     from .io import write_image, write_map
     from .product import load_product
@@ -364,16 +425,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
         models = res.models()
         source = "response estimated from this bracket (sec. 3.2)"
     out = merge(frames, models, layout=session.camera.layout, bloom_radius=args.bloom_radius)
-    folder = Path(args.out_dir)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CcdError(folder, f"cannot create the folder: {exc.strerror}") from None
-    outputs = {(folder / n).resolve() for n in ("radiance.exr", "sigma.exr", "flags.png")}
-    for rec in records:
-        if Path(rec.path).resolve() in outputs:
-            raise CcdError(rec.relpath, "an output would overwrite this input; choose another "
-                                        "-o folder")
+    folder = _out_folder(args.out_dir, ("radiance.exr", "sigma.exr", "flags.png"), records)
     paths = [write_map(folder / "radiance.exr", out.radiance),
              write_map(folder / "sigma.exr", out.sigma),
              write_image(folder / "flags.png", out.flag_image())]
@@ -398,13 +450,6 @@ def _cmd_app(args: argparse.Namespace) -> int:
     print(f"serving the ccdcore app on http://127.0.0.1:{args.port} (Ctrl+C to stop)", flush=True)
     serve(args.session, port=args.port, show=False)
     return 0
-
-
-def _not_built(verb: str, what: str) -> Callable[[argparse.Namespace], int]:
-    def run(args: argparse.Namespace) -> int:
-        raise CcdError(None, f"{what} is not built yet in this version")
-
-    return run
 
 
 # --------------------------------------------------------------------------------------------
@@ -529,12 +574,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="folder for radiance.exr, sigma.exr and flags.png")
     json_flag(p)
 
-    p = verb("change", "illumination-invariant change and shadow masks",
-             _not_built("change", "change detection"), needs="reference and target brackets")
+    p = verb("change", "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
+             _cmd_change, needs="reference and target brackets (roles reference, target)")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--pfa", type=float, default=0.01,
                    help="false-alarm probability per background pixel (default 0.01)")
-    p.add_argument("-o", "--out-dir", type=Path, required=True, help="folder for the outputs")
+    p.add_argument("--calib", type=Path,
+                   help="a calibration product with a response (default: estimate it from "
+                        "the reference bracket)")
+    p.add_argument("--bloom-radius", type=int, default=DEFAULT_BLOOM_RADIUS, metavar="R",
+                   help="pixels within R of a saturated pixel are dropped as blooming "
+                        f"(default {DEFAULT_BLOOM_RADIUS}; 0 keeps them)")
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
     json_flag(p)
 
     p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)

@@ -39,14 +39,6 @@ def test_unknown_verb_and_bad_arguments_exit_2(capsys):
         assert "error:" in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize("verb", [["change", "S", "-o", "O"]])
-def test_verbs_not_built_say_so(capsys, verb):
-    code, out, err = run(capsys, *verb)
-    assert code == 2
-    assert out == ""
-    assert "not built yet" in err and len(err.strip().splitlines()) == 1
-
-
 def test_simulate_writes_session_and_truth(capsys, tmp_path):
     code, out, err = run(capsys, "simulate", "healey94", str(tmp_path / "h"), "--seed", "3",
                          "--size", "40x32", "--json")

@@ -244,7 +244,7 @@ def bracket_records(session: Any, stack: Any = None, *, role: str = "bracket") -
     if not stacks:
         raise CcdError(getattr(session, "root", "session"),
                        f"no '{role}' frames: capture an exposure bracket of a static scene "
-                       "(role = \"bracket\", one 'exposure' per frame)")
+                       f"(role = \"{role}\", one 'exposure' per frame)")
     if stack is None:
         stack = next(iter(stacks))
     if stack not in stacks:

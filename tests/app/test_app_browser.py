@@ -89,7 +89,7 @@ def test_coming_pages_are_marked_and_honest(page: Page, serve_app, open_app):
     url = serve_app(None)
     open_app(url)
     expect(page.get_by_text("coming").first).to_be_visible(timeout=TIMEOUT)
-    page.get_by_role("button", name=re.compile("Change detection")).click()
+    page.get_by_role("button", name=re.compile("Walkthrough")).click()
     expect(page.get_by_text("Not built yet.", exact=True)).to_be_visible(timeout=TIMEOUT)
 
 

@@ -1,0 +1,206 @@
+"""Illumination-invariant change detection, Tsin, Ramesh & Kanade (2001) sec. 5: ccdcore.change.
+
+On the ``change`` preset at 256x192 (seed 0: a background lit anew, two shades of shadow, three
+new objects; brackets of 7 exposures) against the simulator's truth. Tolerances:
+
+* the issue's: recall and precision of the change mask >= 0.9, shadow called change <= 5 %,
+  background false alarms within a factor 2 of the requested P = 0.01;
+* the mean background d² near 3 (χ² with 3 degrees of freedom; the paper measured 3.38 ± 0.51
+  over 21 scenes): within 0.5;
+* each M within 5 of its own standard errors (from M's sandwich covariance) of the truth, plus
+  0.5 % of the entry's scale for the response's own error (g is estimated from the reference
+  bracket; both brackets share it, so it only enters through the radiance's shape).
+"""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from ccdcore import change as CH
+from ccdcore.cli import main
+from ccdcore.errors import CcdError
+from ccdcore.io import read_image, write_image
+from ccdcore.session import open_session
+from ccdcore.simulate import change as sim
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    root = tmp_path_factory.mktemp("change") / "s0"
+    sim.simulate(root, seed=0, size=(256, 192))
+    truth = json.loads((root / "truth.json").read_text())
+    changed = np.asarray(read_image(root / "truth/change_mask.png")) > 0
+    shadow = np.asarray(read_image(root / "truth/shadow_mask.png"))
+    result, inputs = CH.session_change(open_session(root), CH.ChangeOptions(pfa=0.01))
+    return root, truth, changed, shadow, result, inputs
+
+
+def test_change_mask_recall_precision_and_shadows(scene):
+    _, _, changed, shadow, r, _ = scene
+    called = r.labels == CH.LABEL_CHANGE
+    tp = np.count_nonzero(called & changed)
+    assert tp / changed.sum() >= 0.9
+    assert tp / called.sum() >= 0.9
+    assert np.count_nonzero(called & (shadow > 0)) / np.count_nonzero(shadow > 0) <= 0.05
+    # the two shades are found as clusters 1 and 2, most of each in one cluster
+    for shade in (1, 2):
+        labels, n = np.unique(r.labels[shadow == shade], return_counts=True)
+        assert labels[np.argmax(n)] in (1, 2) and n.max() / n.sum() > 0.95
+
+
+def test_false_alarm_rate_and_background_d2(scene):
+    _, _, changed, shadow, r, _ = scene
+    background = ~changed & (shadow == 0)
+    observed = np.mean(r.labels[background] != 0)
+    assert 0.005 <= observed <= 0.02
+    d = r.to_dict()
+    assert d["pfa_requested"] == 0.01
+    assert abs(d["pfa_observed"] - 0.01) < 0.002          # the calibration's own sample
+    assert abs(d["background_d2_mean"] - 3.0) < 0.5
+    assert d["threshold_chi2"] == pytest.approx(stats.chi2.isf(0.01, 3))
+    assert d["dof"] == 3
+    # a stricter P: fewer pixels called, a higher threshold; M is not refitted
+    labels, thr = r.at(0.001)
+    assert thr > r.threshold
+    assert np.count_nonzero(labels == 255) < np.count_nonzero(r.labels == 255)
+    assert np.mean(labels[background] != 0) < 0.003
+
+
+def test_transforms_close_to_the_simulators(scene):
+    _, truth, _, shadow, r, _ = scene
+    # the radiance is on the response's reported scale, the same for both brackets: M is free
+    # of it, up to the response's small shape error
+    want = [np.asarray(truth["M"])] + [np.asarray(m) for m in truth["M_shadows"]]
+    assert len(r.clusters) == 3
+    for c in r.clusters[1:]:                                # match shades by their cluster
+        assert c.pixels > 1000
+    order = [0]
+    for c in r.clusters[1:]:
+        shade = np.bincount(shadow[r.labels == c.label], minlength=3)[1:].argmax() + 1
+        order.append(shade)
+    for c, k in zip(r.clusters, order):
+        err = np.sqrt(np.diag(c.M_cov)).reshape(3, 3)
+        assert np.all(err > 0) and np.all(np.isfinite(err))
+        tol = 5 * err + 0.005 * np.abs(want[k]).max()
+        assert np.all(np.abs(c.M - want[k]) <= tol), (k, c.M, want[k])
+
+
+def test_empirical_threshold_corrects_a_wrong_noise_scale(scene):
+    """Sigmas 30 % too small make d² about twice χ²: the χ² threshold would call several
+    times P of the background changed, the calibrated threshold keeps it near P."""
+    _, _, changed, shadow, _, inp = scene
+    r = CH.detect(inp["E_ref"], 0.7 * inp["sigma_ref"], inp["E_tgt"], 0.7 * inp["sigma_tgt"],
+                  CH.ChangeOptions(pfa=0.01))
+    background = ~changed & (shadow == 0)
+    assert r.scale == pytest.approx(1 / 0.49, rel=0.15)
+    assert 0.005 <= np.mean(r.labels[background] != 0) <= 0.02
+    d = r.to_dict()
+    assert d["pfa_observed_at_chi2_threshold"] > 4 * 0.01
+    assert any("times χ²" in n for n in r.notes)
+
+
+def test_prediction_d2_matches_the_clusters_map(scene):
+    _, _, _, _, r, inp = scene
+    c = r.clusters[0]
+    d2 = CH.prediction_d2(inp["E_ref"], inp["sigma_ref"], inp["E_tgt"], inp["sigma_tgt"], c.M,
+                          c.M_cov)
+    np.testing.assert_allclose(d2[r.valid], r.d2[..., 0][r.valid], rtol=1e-9)
+    np.testing.assert_allclose(r.predicted, inp["E_ref"] @ c.M, rtol=1e-12)
+
+
+def test_mono_scene_has_one_degree_of_freedom():
+    """A grey camera: M is 1x1 (a gain); d² is χ² with 1 degree of freedom."""
+    rng = np.random.default_rng(3)
+    E = rng.uniform(0.05, 0.6, (120, 160))
+    s = 0.002 + 0.01 * E
+    Et = 0.8 * E
+    Et[40:70, 50:90] = rng.uniform(0.05, 0.6, (30, 40))      # a new object
+    st = 0.002 + 0.01 * Et
+    Eo = E + s * rng.standard_normal(E.shape)
+    Eto = Et + st * rng.standard_normal(E.shape)
+    r = CH.detect(Eo, s, Eto, st, CH.ChangeOptions(pfa=0.01, max_clusters=1))
+    assert r.dof == 1 and r.clusters[0].M.shape == (1, 1)
+    assert r.clusters[0].M[0, 0] == pytest.approx(0.8, abs=5 * np.sqrt(r.clusters[0].M_cov[0, 0]))
+    bg = np.ones(E.shape, bool)
+    bg[40:70, 50:90] = False
+    assert abs(np.mean(r.d2[..., 0][bg]) - 1.0) < 0.1
+    assert 0.005 <= np.mean(r.labels[bg] != 0) <= 0.02
+
+
+def test_bad_input_is_named():
+    E = np.full((20, 30, 3), 0.2)
+    s = np.full((20, 30, 3), 0.01)
+    with pytest.raises(CcdError, match="differs from the ref"):
+        CH.detect(E, s, E[:, :20], s[:, :20], names=("ref", "tgt"))
+    bad = E.copy()
+    bad[3, 4, 1] = np.nan
+    with pytest.raises(CcdError, match="NaN"):
+        CH.detect(bad, s, E, s)
+    with pytest.raises(CcdError, match="saturated or dark in every exposure"):
+        CH.detect(E, np.full_like(s, np.inf), E, s)
+    with pytest.raises(CcdError, match="false-alarm"):
+        CH.detect(E, s, E, s, CH.ChangeOptions(pfa=0.0))
+
+
+def test_undetermined_pixels_are_labelled_and_noted(scene):
+    _, _, _, _, _, inp = scene
+    s = inp["sigma_ref"].copy()
+    s[:30, :, :] = np.inf                                  # saturated in every exposure
+    r = CH.detect(inp["E_ref"], s, inp["E_tgt"], inp["sigma_tgt"])
+    assert np.all(r.labels[:30] == CH.LABEL_UNDETERMINED)
+    assert not np.any(r.labels[30:] == CH.LABEL_UNDETERMINED)
+    assert any("label 254" in n for n in r.notes)
+
+
+# -- the command line -------------------------------------------------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+DEMO = ROOT / "assets" / "change"
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_cli_change_writes_masks_maps_and_json(capsys, tmp_path):
+    code, out, err = run(capsys, "change", DEMO, "-o", tmp_path / "c", "--json")
+    assert code == 0, err
+    d = json.loads(out)
+    for key in ("M", "clusters", "threshold", "pfa_requested", "pfa_observed",
+                "background_d2_mean", "changed_pixels"):
+        assert key in d
+    mask = read_image(tmp_path / "c" / "change_mask.png")
+    labels = read_image(tmp_path / "c" / "labels.png")
+    d2 = read_image(tmp_path / "c" / "d2.exr")
+    pred = read_image(tmp_path / "c" / "predicted_target.exr")
+    assert mask.shape == labels.shape == d2.shape == (96, 128)
+    assert pred.shape == (96, 128, 3)
+    assert set(np.unique(mask)) <= {0, 255}
+    assert np.count_nonzero(mask == 255) == d["changed_pixels"] == np.count_nonzero(labels == 255)
+    assert [c["label"] for c in d["clusters"]] == list(range(len(d["clusters"])))
+    assert len(d["M"]) == len(d["clusters"]) and np.shape(d["M"][0]) == (3, 3)
+    truth = read_image(DEMO / "truth" / "change_mask.png") > 0
+    assert np.count_nonzero((mask == 255) & truth) / truth.sum() >= 0.9
+    code, out, err = run(capsys, "change", DEMO, "-o", tmp_path / "c")   # human summary
+    assert code == 0 and "cluster 0 (background)" in out
+
+
+def test_cli_change_bad_input(capsys, tmp_path):
+    code, out, err = run(capsys, "change", ROOT / "assets" / "tsin01", "-o", tmp_path / "x")
+    assert code == 2 and out == "" and "'reference'" in err
+    assert len(err.strip().splitlines()) == 1
+    code, out, err = run(capsys, "change", DEMO, "--pfa", "0.7", "-o", tmp_path / "x")
+    assert code == 2 and "false-alarm" in err
+    # a target bracket of another framing
+    root = tmp_path / "s"
+    shutil.copytree(DEMO, root)
+    for f in sorted((root / "target").glob("*.tif")):
+        write_image(f, read_image(f)[:80])
+    code, out, err = run(capsys, "change", root, "-o", tmp_path / "y")
+    assert code == 2 and out == "" and "target/k00.tif" in err and "Traceback" not in err
