@@ -29,7 +29,7 @@ from . import plots
 from .plots import frame_size
 from .batch import batched
 
-__all__ = ["ImageView", "HistogramView", "palette", "frame_size"]
+__all__ = ["ImageView", "HistogramView", "palette", "frame_size", "view_pane"]
 
 _TOOLS = "pan,wheel_zoom,box_zoom,reset,save"
 
@@ -298,6 +298,18 @@ class ImageView:
         except (KeyError, TypeError, ValueError):
             return
         self.on_box(box)  # type: ignore[arg-type]
+
+
+def view_pane(view: "ImageView") -> Any:
+    """A view in a Panel Column, hidden until it has data (``visible`` on a Bokeh pane fails),
+    as wide as the figure: Panel would otherwise take the figure's nominal ``width`` (600 px,
+    unused beside ``frame_width``) as the Column's minimum width, and two views in a row would
+    overflow the page."""
+    import panel as pn
+
+    view.figure.width = None
+    return pn.Column(pn.pane.Bokeh(view.figure, sizing_mode=None), margin=0, visible=False,
+                     sizing_mode=None)
 
 
 class HistogramView:

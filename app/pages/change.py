@@ -49,7 +49,7 @@ from ccdcore.session import Session
 from ..batch import batched, in_document
 from ..change_plots import (D2Histogram, RgbView, label_colour, label_name, label_rgb,
                             log_colours, tone_map_rgb, white_point)
-from ..image_view import ImageView
+from ..image_view import ImageView, view_pane
 from ..state import AppState
 from ._messages import PageMessages
 from ._styles import KEY_VALUE_CSS, TABLE_CSS
@@ -98,16 +98,6 @@ def compute_change(session: Session, options: ChangeOptions | None = None,
 def _table(css_class: str) -> pn.pane.DataFrame:
     return pn.pane.DataFrame(pd.DataFrame(), index=False, sizing_mode="stretch_width",
                              escape=True, css_classes=[css_class], stylesheets=[TABLE_CSS])
-
-
-def _view_pane(view: ImageView) -> pn.Column:
-    """A view in a Column shown once it has data (``visible`` on a Bokeh pane fails), as wide
-    as the figure: Panel would otherwise take the figure's nominal ``width`` (600 px, unused
-    beside ``frame_width``) as the Column's minimum width, and two views in a row would
-    overflow the page."""
-    view.figure.width = None
-    return pn.Column(pn.pane.Bokeh(view.figure, sizing_mode=None), margin=0, visible=False,
-                     sizing_mode=None)
 
 
 def _percent(p: float) -> str:
@@ -213,7 +203,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
         for view in self.views:
             view.on_pointer = self._on_pointer
         self.labels_pane, self.ref_pane, self.tgt_pane, self.pred_pane, self.d2_pane = (
-            _view_pane(v) for v in self.views)
+            view_pane(v) for v in self.views)
         self.readout = pn.pane.Markdown("Move the cursor over an image to read the radiance, "
                                         "d² and the label of a pixel.",
                                         sizing_mode="stretch_width", styles=_MUTED,

@@ -44,7 +44,7 @@ from ccdcore.session import Session
 from ccdcore.simulate.truth import find_truth
 
 from ..batch import batched, in_document
-from ..image_view import ImageView
+from ..image_view import ImageView, view_pane
 from ..response_plots import TONE_CURVES, PoolHistogram, ResponseFigure, tone_map
 from ..state import AppState
 from ._messages import PageMessages
@@ -189,8 +189,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                                         css_classes=["ccd-hdr-readout"])
         self.hdr_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         # each view in a Column shown once it has data (``visible`` on a Bokeh pane fails)
-        self.rad_pane = pn.Column(pn.pane.Bokeh(self.rad_view.figure), margin=0, visible=False)
-        self.sig_pane = pn.Column(pn.pane.Bokeh(self.sig_view.figure), margin=0, visible=False)
+        self.rad_pane = view_pane(self.rad_view)
+        self.sig_pane = view_pane(self.sig_view)
         controls = pn.FlexBox(self.method_select, self.channel_select, self.compare_box,
                               self.wb_box, self.bloom_input, sizing_mode="stretch_width")
         self.content = pn.Column(
