@@ -7,9 +7,11 @@ new objects; brackets of 7 exposures) against the simulator's truth. Tolerances:
   background false alarms within a factor 2 of the requested P = 0.01;
 * the mean background d² near 3 (χ² with 3 degrees of freedom; the paper measured 3.38 ± 0.51
   over 21 scenes): within 0.5;
-* each M within 5 of its own standard errors (from M's sandwich covariance) of the truth, plus
-  0.5 % of the entry's scale for the response's own error (g is estimated from the reference
-  bracket; both brackets share it, so it only enters through the radiance's shape).
+* each M within 4 of its own standard errors (from M's sandwich covariance) of the truth, plus
+  0.1 % of the entry's scale for the response's own error (g is estimated from the reference
+  bracket; both brackets share it, so it only enters through the radiance's shape); measured
+  2.0-3.4 standard errors. Without the correction for the noise of the reference radiance
+  (errors in the variables) the diagonal is 0.4 % low, 5-25 standard errors.
 """
 from __future__ import annotations
 
@@ -86,7 +88,7 @@ def test_transforms_close_to_the_simulators(scene):
     for c, k in zip(r.clusters, order):
         err = np.sqrt(np.diag(c.M_cov)).reshape(3, 3)
         assert np.all(err > 0) and np.all(np.isfinite(err))
-        tol = 5 * err + 0.005 * np.abs(want[k]).max()
+        tol = 4 * err + 0.001 * np.abs(want[k]).max()
         assert np.all(np.abs(c.M - want[k]) <= tol), (k, c.M, want[k])
 
 
