@@ -5,8 +5,26 @@ TABLE_CSS
     A results table: left-aligned columns, a rule under the header, striped rows.
 KEY_VALUE_CSS
     A two-column Markdown table of names and values with an empty header row (hidden).
+heading(title, intro=None)
+    A page's title and its muted introduction, the first panes of every page.
 """
 from __future__ import annotations
+
+from typing import Any
+
+#: the colour of a page's introduction and notes
+MUTED = "#495057"
+
+
+def heading(title: str, intro: str | None = None) -> list[Any]:
+    """A page's title (``## title``) and, when given, its introduction, as Markdown panes."""
+    import panel as pn
+
+    panes = [pn.pane.Markdown(f"## {title}", css_classes=["ccd-page-title"])]
+    if intro:
+        panes.append(pn.pane.Markdown(intro, sizing_mode="stretch_width",
+                                      styles={"color": MUTED}))
+    return panes
 
 TABLE_CSS = """
 table { width: 100%; border-collapse: collapse; font-size: 0.95em; }

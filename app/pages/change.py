@@ -52,7 +52,7 @@ from ..change_plots import (D2Histogram, RgbView, label_colour, label_name, labe
 from ..image_view import ImageView, view_pane
 from ..state import AppState
 from ._messages import PageMessages
-from ._styles import KEY_VALUE_CSS, TABLE_CSS
+from ._styles import KEY_VALUE_CSS, TABLE_CSS, heading
 
 __all__ = ["ChangePage", "create_page", "compute_change", "PFA_STEPS", "no_brackets_message"]
 
@@ -252,8 +252,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
                  "under every cluster is a change; the threshold gives the chosen false-alarm "
                  "probability on the background.")
         return pn.Column(
-            pn.pane.Markdown("## Change detection", css_classes=["ccd-page-title"]),
-            pn.pane.Markdown(intro, sizing_mode="stretch_width", styles={"color": "#495057"}),
+            *heading("Change detection", intro),
             self.info_alert, self.error_alert, self.retry_button, self.progress_row,
             self.content,
             sizing_mode="stretch_width", name="Change detection")

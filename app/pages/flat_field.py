@@ -61,7 +61,7 @@ from ..state import AppState
 from ..batch import batched, in_document as _in_document
 from ._choices import set_choices
 from ._messages import PageMessages
-from ._styles import TABLE_CSS
+from ._styles import TABLE_CSS, heading
 
 __all__ = ["FlatFieldPage", "create_page", "FrameView", "frame_view", "kmap_comparison",
            "default_frame", "NO_FLAT_MESSAGE", "ZERO_DARK_MESSAGE"]
@@ -358,8 +358,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                  "SNUP = 100\u00b7\u03c3/mean (eq. 5) says how well. Choose the base image "
                  "inside the camera's linear range.")
         return pn.Column(
-            pn.pane.Markdown("## Flat field", css_classes=["ccd-page-title"]),
-            pn.pane.Markdown(intro, sizing_mode="stretch_width", styles={"color": "#495057"}),
+            *heading("Flat field", intro),
             self.info_alert, self.error_alert, self.content,
             sizing_mode="stretch_width", name="Flat field")
 

@@ -52,7 +52,7 @@ from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
 from ._messages import PageMessages
-from ._styles import TABLE_CSS
+from ._styles import TABLE_CSS, heading
 
 __all__ = ["PhotonTransferPage", "create_page", "parameter_frame", "verdict_message",
            "NO_PTC_MESSAGE"]
@@ -304,9 +304,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
                  "1994, eq. 41): the slope A is the gain in DN per electron, the intercept "
                  "\u03c3\u00b2_C holds the read noise and the quantisation noise (eq. 27).")
         return pn.Column(
-            pn.pane.Markdown("## Photon transfer", css_classes=["ccd-page-title"]),
-            pn.pane.Markdown(intro, sizing_mode="stretch_width",
-                             styles={"color": "#495057"}),
+            *heading("Photon transfer", intro),
             self.info_alert, self.error_alert, self.plan_alert, self.content,
             sizing_mode="stretch_width", name="Photon transfer")
 

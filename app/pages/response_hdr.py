@@ -48,7 +48,7 @@ from ..image_view import ImageView, view_pane
 from ..response_plots import TONE_CURVES, PoolHistogram, ResponseFigure, tone_map
 from ..state import AppState
 from ._messages import PageMessages
-from ._styles import TABLE_CSS
+from ._styles import TABLE_CSS, heading
 
 __all__ = ["ResponsePage", "create_page", "compute_responses", "compute_hdr",
            "NO_BRACKET_MESSAGE"]
@@ -226,8 +226,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                  "radiance merges the bracket with weights a_k/σ (eq. 18); its sigma (eq. 19) "
                  "says how far to trust each pixel.")
         return pn.Column(
-            pn.pane.Markdown("## Response & HDR", css_classes=["ccd-page-title"]),
-            pn.pane.Markdown(intro, sizing_mode="stretch_width", styles={"color": "#495057"}),
+            *heading("Response & HDR", intro),
             self.info_alert, self.error_alert, self.content,
             sizing_mode="stretch_width", name="Response & HDR")
 

@@ -13,13 +13,7 @@ from app import plots
 from app.pages import PAGES, build_page, is_available
 from app.pages.session import SessionPage, frames_frame, groups_frame
 from app.state import AppState, demo_sessions
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 @pytest.fixture

@@ -3,10 +3,8 @@ demo, that the false-alarm slider re-thresholds the same result in place, and wh
 a session without reference/target brackets or with brackets it cannot use."""
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import shutil
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -20,13 +18,7 @@ from app.pages.change import DEFAULT_PFA, PFA_STEPS, ChangePage, compute_change
 from app.state import AppState
 from ccdcore.change import LABEL_CHANGE, ChangeOptions
 from ccdcore.common import format_pm
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 def _page(path, **kw):

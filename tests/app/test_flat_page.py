@@ -2,8 +2,6 @@
 on the bundled ``delasarte07`` demo), the widgets are wired, and bad sessions become alerts."""
 from __future__ import annotations
 
-import asyncio
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import holoviews as hv
@@ -20,13 +18,7 @@ from ccdcore.flatfield import (BaseRecommendation, FlatField, base_image_study,
                                flat_field_from_session, recommend_base, zero_dark)
 from ccdcore.io import write_image
 from ccdcore.uniformity import snup, snup_vs_averaging
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,6 @@
 selection, export, linked axes, planning, and sessions that lack frames."""
 from __future__ import annotations
 
-import asyncio
-from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
@@ -20,13 +18,7 @@ from ccdcore.io import read_image
 from ccdcore.planning import check_session_plan, plan_acquisition
 from ccdcore.product import Requirement, budget_inputs, estimate_all, missing_frames
 from ccdcore.session import open_session
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 @pytest.fixture(scope="module")

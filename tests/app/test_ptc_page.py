@@ -1,10 +1,8 @@
 """The Photon transfer page without a browser: its wiring to ccdcore and its plot functions."""
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import math
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -22,13 +20,7 @@ from ccdcore.io import write_image
 from ccdcore.noise import USER_EXCLUDED, photon_transfer
 from ccdcore.planning import check_session_plan, plan_acquisition
 from ccdcore.product import Estimates
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 @pytest.fixture

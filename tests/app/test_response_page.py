@@ -2,9 +2,7 @@
 without a bracket or with a bracket it cannot use."""
 from __future__ import annotations
 
-import asyncio
 import shutil
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -13,13 +11,7 @@ from app.pages.response_hdr import NO_BRACKET_MESSAGE, ResponsePage
 from app.response_plots import tone_map
 from app.state import AppState
 from ccdcore.response.methods import METHODS
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one)."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 def _page(path, **kw):

@@ -1,13 +1,11 @@
 """Session page wiring, the app shell and the entry points, without a browser."""
 from __future__ import annotations
 
-import asyncio
 import socket
 import subprocess
 import sys
 import time
 import urllib.request
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +19,7 @@ from app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
 from app.state import AppState, is_allowed
 from ccdcore.io import write_image
 from ccdcore.session import open_session
-
-
-def _run(coro):
-    """Run a coroutine to completion in its own thread (the browser tests' event loop may be
-    running in this one), as the Panel server runs async callbacks on its loop."""
-    with ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, coro).result()
+from _coro import run as _run
 
 
 @pytest.fixture
