@@ -206,3 +206,11 @@ def test_cli_change_bad_input(capsys, tmp_path):
         write_image(f, read_image(f)[:80])
     code, out, err = run(capsys, "change", root, "-o", tmp_path / "y")
     assert code == 2 and out == "" and "target/k00.tif" in err and "Traceback" not in err
+    # a target bracket of another camera (16-bit samples)
+    other = tmp_path / "o"
+    shutil.copytree(DEMO, other)
+    for f in sorted((other / "target").glob("*.tif")):
+        write_image(f, read_image(f).astype(np.uint16) * 257)
+    code, out, err = run(capsys, "change", other, "-o", tmp_path / "z")
+    assert code == 2 and out == "" and "Traceback" not in err
+    assert "target/k00.tif" in err and "sample type" in err
