@@ -76,6 +76,8 @@ LABEL_CHANGE = 255
 LABEL_UNDETERMINED = 254
 #: the wide gate that defines the background's sample: χ² quantile 1 - GATE_P (times the scale)
 GATE_P = 1e-6
+#: candidates of the LTS search refined by C-steps (the best by their trimmed cost)
+LTS_REFINED = 5
 #: pixels the M-estimator refines each transform on (an even sample of the candidates)
 REFINE = 20_000
 
@@ -384,11 +386,11 @@ def _trial_costs_rgb(E, Et, var, var_t, Ms, h, out):  # pragma: no cover - compi
         base[i] = math.log(var_t[i, 0]) + math.log(var_t[i, 1]) + math.log(var_t[i, 2])
     for t in range(Ms.shape[0]):
         _d2_rgb_kernel(E, Et, var, var_t, Ms[t], R, False, False, d2, logdet, P)
-        order = np.argsort(d2)
+        cut = np.partition(d2, h - 1)[h - 1]         # the h smallest (ties: all counted)
         acc = 0.0
-        for q in range(h):
-            i = order[q]
-            acc += d2[i] + logdet[i] - base[i]
+        for i in range(n):
+            if d2[i] <= cut:
+                acc += d2[i] + logdet[i] - base[i]
         out[t] = acc
 
 
@@ -498,14 +500,17 @@ def _c_steps(E, Et, var, var_t, M, h: int, cost: float, max_steps: int = 20
 def _lts(E, Et, var, var_t, coverage: float, trials: int, rng: np.random.Generator
          ) -> tuple[NDArray, float]:
     """FAST-LTS for M (Rousseeuw & Van Driessen): elemental subsets of C pixels solved exactly,
-    each scored by its trimmed cost on a small even sample, the ten best refined by C-steps on
+    each scored by its trimmed cost on a small even sample, the five best refined by C-steps on
     all the pixels given; the cost is the sum of the h = coverage n smallest d²."""
     n, C = E.shape
     h = max(C * C + 1, int(round(coverage * n)))
     small = np.unique(np.linspace(0, n - 1, min(n, 600)).astype(np.int64))
     hs = max(C * C + 1, int(round(coverage * small.size)))
     Es, Ets, vs, vts = E[small], Et[small], var[small], var_t[small]
-    picks = np.stack([rng.choice(n, size=C, replace=False) for _ in range(int(trials))])
+    picks = rng.integers(0, n, size=(int(trials), C))
+    if C > 1:                                           # elemental subsets of distinct pixels
+        srt = np.sort(picks, axis=1)
+        picks = picks[np.all(srt[:, 1:] != srt[:, :-1], axis=1)]
     A, B = E[picks], Et[picks]                          # (T, C, C): rows are pixels
     ok = np.abs(np.linalg.det(A)) > 1e-12 * np.prod(np.linalg.norm(A, axis=2), axis=1)
     if not np.any(ok):
@@ -522,7 +527,7 @@ def _lts(E, Et, var, var_t, coverage: float, trials: int, rng: np.random.Generat
     scored = [(float(c), M) for c, M in zip(costs, Ms)]
     scored.sort(key=lambda c: c[0])
     best_cost, best = math.inf, scored[0][1]
-    for _, M in scored[:10]:
+    for _, M in scored[:LTS_REFINED]:
         M, cost = _c_steps(E, Et, var, var_t, M, h,
                            _trimmed_cost(E, Et, var, var_t, M, h))
         if cost < best_cost:
