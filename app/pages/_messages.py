@@ -18,6 +18,18 @@ class PageMessages:
     content: Any
     error: str
 
+    def _build_alerts(self, prefix: str) -> None:
+        """The page's two alerts, hidden, with CSS classes ``ccd-{prefix}-info`` and
+        ``ccd-{prefix}-error`` (the browser tests find them by those)."""
+        import panel as pn
+
+        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
+                                        sizing_mode="stretch_width",
+                                        css_classes=[f"ccd-{prefix}-info"])
+        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
+                                         sizing_mode="stretch_width",
+                                         css_classes=[f"ccd-{prefix}-error"])
+
     def _show_empty(self) -> None:
         if self.state.session is None:
             self._info("No session loaded: open one on the **Session** page.")

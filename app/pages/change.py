@@ -141,12 +141,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
 
     # ------------------------------------------------------------------------ building ----
     def _build(self) -> None:
-        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
-                                        sizing_mode="stretch_width",
-                                        css_classes=["ccd-change-info"])
-        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                         sizing_mode="stretch_width",
-                                         css_classes=["ccd-change-error"])
+        self._build_alerts("change")
         self.progress_bar = pn.indicators.Progress(value=-1, max=100, width=220, height=16,
                                                    bar_color="info", margin=(12, 10, 0, 10),
                                                    sizing_mode="fixed", active=True)

@@ -223,11 +223,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     # ================================================================ building the widgets ====
     def _build_widgets(self) -> None:
-        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
-                                        sizing_mode="stretch_width", css_classes=["ccd-flat-info"])
-        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                         sizing_mode="stretch_width",
-                                         css_classes=["ccd-flat-error"])
+        self._build_alerts("flat")
         self.zero_alert = pn.pane.Alert("", alert_type="warning", visible=False,
                                         sizing_mode="stretch_width",
                                         css_classes=["ccd-flat-zero"])

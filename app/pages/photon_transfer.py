@@ -192,11 +192,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
 
     # ================================================================ building the widgets ====
     def _build_widgets(self) -> None:
-        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
-                                        sizing_mode="stretch_width", css_classes=["ccd-ptc-info"])
-        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                         sizing_mode="stretch_width",
-                                         css_classes=["ccd-ptc-error"])
+        self._build_alerts("ptc")
         self.plan_alert = pn.pane.Alert("", alert_type="warning", visible=False,
                                         sizing_mode="stretch_width")
         self.verdict_alert = pn.pane.Alert("", alert_type="info", visible=False,

@@ -147,12 +147,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
 
     # ------------------------------------------------------------------------ building ----
     def _build(self) -> None:
-        self.info_alert = pn.pane.Alert("", alert_type="info", visible=False,
-                                        sizing_mode="stretch_width",
-                                        css_classes=["ccd-response-info"])
-        self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                         sizing_mode="stretch_width",
-                                         css_classes=["ccd-response-error"])
+        self._build_alerts("response")
         self.method_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.method, color="default", css_classes=["ccd-response-method"])
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
