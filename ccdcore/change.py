@@ -287,30 +287,11 @@ def _error_cov(E: NDArray, var: NDArray, var_t: NDArray, M: NDArray,
 
 def _chol_inv(S: NDArray) -> tuple[NDArray, NDArray]:
     """L⁻¹ with S = L Lᵀ (Cholesky) for symmetric positive definite (n, C, C) matrices, and
-    ln det S; closed form for C <= 3 (a batched LAPACK call per matrix is 30 times slower).
-    Cholesky is backward stable where the adjugate is not: Σ_e is ill-conditioned for a nearly
-    singular M."""
-    n, C = S.shape[0], S.shape[1]
-    tiny = 1e-300
-    if C == 1:
-        L11 = np.sqrt(np.maximum(S[:, 0, 0], tiny))
-        return (1.0 / L11)[:, None, None], 2.0 * np.log(L11)
-    if C == 3:
-        a, b, c = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2]
-        d, e, f = S[:, 1, 1], S[:, 1, 2], S[:, 2, 2]
-        l11 = np.sqrt(np.maximum(a, tiny))
-        l21, l31 = b / l11, c / l11
-        l22 = np.sqrt(np.maximum(d - l21 * l21, tiny))
-        l32 = (e - l21 * l31) / l22
-        l33 = np.sqrt(np.maximum(f - l31 * l31 - l32 * l32, tiny))
-        i11, i22, i33 = 1.0 / l11, 1.0 / l22, 1.0 / l33
-        i21 = -l21 * i11 * i22
-        i32 = -l32 * i22 * i33
-        i31 = -(l31 * i11 + l32 * i21) * i33
-        Li = np.zeros((n, 3, 3))
-        Li[:, 0, 0], Li[:, 1, 1], Li[:, 2, 2] = i11, i22, i33
-        Li[:, 1, 0], Li[:, 2, 1], Li[:, 2, 0] = i21, i32, i31
-        return Li, 2.0 * (np.log(l11) + np.log(l22) + np.log(l33))
+    ln det S (the RGB case has its compiled kernel, :func:`_d2_rgb_kernel`). Cholesky is
+    backward stable where the adjugate is not: Σ_e is ill-conditioned for a nearly singular M."""
+    if S.shape[1] == 1:
+        l11 = np.sqrt(np.maximum(S[:, 0, 0], 1e-300))
+        return (1.0 / l11)[:, None, None], 2.0 * np.log(l11)
     L = np.linalg.cholesky(S)
     return np.linalg.inv(L), 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)
 
