@@ -2,7 +2,8 @@
 
 A page using :class:`PageMessages` has ``state`` (the :class:`~app.state.AppState`),
 ``info_alert`` and ``error_alert`` (``pn.pane.Alert``), ``content`` (what the info message
-hides) and an ``error`` string that tests and the header read.
+hides), ``_session`` (the session it shows) and an ``error`` string that tests and the header
+read.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ class PageMessages:
     error_alert: Any
     content: Any
     error: str
+    _session: Any
 
     def _build_alerts(self, prefix: str) -> None:
         """The page's two alerts, hidden, with CSS classes ``ccd-{prefix}-info`` and
@@ -29,6 +31,20 @@ class PageMessages:
         self.error_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                          sizing_mode="stretch_width",
                                          css_classes=[f"ccd-{prefix}-error"])
+
+    def _new_session(self, busy: bool = False) -> Any:
+        """The loaded session when the page has not shown it yet (and not ``busy``): the page
+        takes it (``_session``) and clears its error. ``None`` when there is nothing to do; with
+        no session loaded the page says so."""
+        session = self.state.session
+        if session is None:
+            self._show_empty()
+            return None
+        if session is self._session or busy:
+            return None
+        self._session = session
+        self._set_error("")
+        return session
 
     def _show_empty(self) -> None:
         if self.state.session is None:

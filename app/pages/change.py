@@ -298,14 +298,9 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
     async def refresh(self) -> None:
         """Detect the changes between the session's reference and target brackets (cached),
         then show them."""
-        session = self.state.session
+        session = self._new_session(busy=self._computing)
         if session is None:
-            self._show_empty()
             return
-        if session is self._session or self._computing:
-            return
-        self._session = session
-        self._set_error("")
         self._info("")
         self.retry_button.visible = False
         missing = [role for role in ("reference", "target") if not session.bracket_stacks(role)]

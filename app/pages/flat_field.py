@@ -432,14 +432,9 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     async def refresh(self) -> None:
         """Show the current session: its settings, then :meth:`show_setting`."""
-        session = self.state.session
+        session = self._new_session()
         if session is None:
-            self._show_empty()
             return
-        if session is self._session:
-            return
-        self._session = session
-        self._set_error("")
         self.recommendation = self.flat = self.view = None
         if not session.by_role("flat"):
             self._info(NO_FLAT_MESSAGE)

@@ -322,14 +322,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     async def refresh(self) -> None:
         """Show the current session: its ptc frames' geometry, then the points and the fit (from
         ``state.results.ptc`` when another page already computed them for the full frame)."""
-        session = self.state.session
+        session = self._new_session()
         if session is None:
-            self._show_empty()
             return
-        if session is self._session:
-            return
-        self._session = session
-        self._set_error("")
         levels = session.ptc_levels()
         self.roi, self.base, self.result = None, None, None
         if not levels:

@@ -261,14 +261,9 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
 
     async def refresh(self) -> None:
         """Estimate every method on the session's bracket (cached), then show the HDR."""
-        session = self.state.session
+        session = self._new_session()
         if session is None:
-            self._show_empty()
             return
-        if session is self._session:
-            return
-        self._session = session
-        self._set_error("")
         if not session.bracket_stacks("bracket"):
             self._info(NO_BRACKET_MESSAGE)
             return
