@@ -93,6 +93,8 @@ def test_a_pilot_fixed_pattern_replaces_the_predicted_spread() -> None:
 def test_read_noise_in_electrons_gives_sigma_c2_by_eq_27() -> None:
     p = plan_captures(12, 0.5, read_noise_e=3.0)
     assert p.inputs["sigma_c2"] == pytest.approx((0.5 * 3.0) ** 2 + 1 / 12)
+    # here the q²/10 rule, not the minimum, sets the dark frames: ceil(2.333/0.1) = 24
+    assert p.group("Dark frames").count == math.ceil(p.inputs["sigma_c2"] / 0.1) == 24
     assert len(p.group("Exposure bracket").frames) >= MIN_BRACKET
 
 
