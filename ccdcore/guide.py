@@ -1,0 +1,592 @@
+"""The guided calibration: its steps, and the gate of each step (what passed, what failed, why,
+and what to capture or change next).
+
+The app's Walkthrough page shows these steps; the verdicts are made here, from ccdcore's own
+results, so that a script reaches the same verdicts as the page.
+
+Steps (:data:`STEPS`)
+    ``plan`` (:mod:`ccdcore.capture`), ``session`` (validation, :func:`session_gate`), ``dark``
+    (:func:`dark_step`), ``ptc`` (:func:`ptc_gate`), ``pattern`` (:func:`pattern_step`: K̂ with
+    the plan of sec. V-B, the flat field with SNUP on held-out flats), ``response``
+    (:func:`response_gate`), ``verify`` (:func:`verify`: a product applied to frames the
+    calibration did not use), ``export``.
+
+Gate rules (each also in the gate's own reasons, in words)
+    * session: an error fails; warnings pass with a warning; each problem gets the fix of its
+      code (:data:`FIXES`);
+    * dark: more than 0.5 % hot or dead pixels, or more than 1 % of the dark frames' values at
+      exactly zero (the offset clips the dark signal: de Lasarte's ZDI case) warn; the level per exposure and its
+      drift (DN/s, least squares over the exposures) are reported;
+    * photon transfer: Q ≥ 0.01 passes, 0.001 ≤ Q < 0.01 warns, Q < 0.001 fails (eq. 67: the
+      points scatter more than their errors allow); fewer than 3 levels used fails; σ(A)/A above
+      5 % warns;
+    * fixed pattern and flat field: fewer configurations or frames than the plan warn; a flat
+      correction that leaves a held-out flat less uniform than before fails;
+    * verify: the corrected frames' SNUP must not exceed the raw frames'; it passes when it is
+      within 1.5× the temporal-noise floor 100·σ_N(μ)/μ of the noise model.
+
+Public objects
+--------------
+STEPS, StepInfo, Gate, FIXES
+session_gate(session), dark_step(session), ptc_gate(noise), pattern_step(session, ...),
+response_gate(response), held_out_frames(session, product), verify(session, product, ...)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["STEPS", "StepInfo", "Gate", "FIXES", "session_gate", "DarkStep", "dark_step",
+           "ptc_gate", "PatternStep", "pattern_step", "response_gate", "VerifyRow",
+           "Verification", "held_out_frames", "verify", "HOT_DEAD_LIMIT", "ZERO_DARK_LIMIT"]
+
+#: fraction of hot + dead pixels above which the dark step warns
+HOT_DEAD_LIMIT = 0.005
+#: fraction of D̂_D pixels at exactly zero above which the dark step warns (clipped offset)
+ZERO_DARK_LIMIT = 0.01
+#: a corrected frame within this factor of the temporal-noise floor passes the verify step
+FLOOR_FACTOR = 1.5
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    """One step: ``slug`` (its URL name), ``title``, ``plain`` (what it does, in plain words)
+    and ``details`` (symbols and equation numbers)."""
+
+    slug: str
+    title: str
+    plain: str
+    details: str
+
+
+STEPS: tuple[StepInfo, ...] = (
+    StepInfo("plan", "Plan the captures",
+             "Before touching the camera: how many dark frames, which exposures for photon "
+             "transfer, how many card configurations and frames for the fixed-pattern map, "
+             "which flat-field exposures and which bracket — each sized from the camera's bit "
+             "depth and a rough noise model.",
+             "s: σ²_N(dark)/s ≤ q²/10 (sec. V-A); ladder: predicted σ(A) from eq. 66; n1, n2: "
+             "sec. V-B; flats: de Lasarte et al. 2007 (base in the linear range, N by SNUP); "
+             "bracket: Tsin et al. sec. 3.2."),
+    StepInfo("session", "Load and validate the session",
+             "Every file is opened once and every problem is listed with its fix; an estimate "
+             "only refuses the frames whose problems concern it.",
+             "Roles: dark, ptc (level), fixed_pattern (config), flat (level, exposure), "
+             "bracket (exposure, stack), scene; docs/session.md lists every check."),
+    StepInfo("dark", "Dark reference",
+             "The average of the lens-capped frames is subtracted from every image; pixels far "
+             "brighter (hot, noisy) or darker (dead, stuck) than the rest are flagged; the dark "
+             "level per exposure shows drift and dark current.",
+             "D̂_D(a, b) = mean of s dark frames (sec. V-A, eq. 43), variance σ²_N/s; hot/dead "
+             "by 6 robust σ and the χ² law of the temporal variance."),
+    StepInfo("ptc", "Photon transfer",
+             "Pairs of frames at several light levels give the camera's noise against its "
+             "signal; the straight line through them gives the gain (DN per electron) and the "
+             "read noise. The goodness of fit says whether the points agree with the line.",
+             "σ²_N = A·μ + σ²_C (eq. 41) from difference images (eqs. 37–40), weighted fit "
+             "eqs. 59–66, Q from χ² with P − 2 degrees of freedom (eq. 67)."),
+    StepInfo("pattern", "Fixed pattern and flat field",
+             "How much each pixel's sensitivity differs from its neighbours' (K̂), from frames "
+             "of a uniform card in several configurations; for colour cameras the flat-field "
+             "gain and offset maps. Frames the maps did not use show whether they help.",
+             "K̂ = mean of the kept slopes m_i (eqs. 45–50), n1 × n2 by sec. V-B; G, O and "
+             "SNUP = 100·σ/mean (de Lasarte et al. 2007)."),
+    StepInfo("response", "Response curve and HDR",
+             "From a bracket of a static scene: the curve that maps codes back to exposure, its "
+             "noise terms, and radiance with a per-pixel uncertainty.",
+             "g by the estimator of Tsin et al. sec. 3.2 (eqs. 8–17), HDR by eqs. 18–19."),
+    StepInfo("verify", "Verify",
+             "The correction applied to frames the calibration did not use: how uniform they "
+             "are before and after, against the floor the camera's own noise sets, and how "
+             "many pixels the correction changed by more than one code.",
+             "D_C = (D − D̂_D)/K̂ (eq. 51) or DL_c = O + G·DL; floor 100·σ_N(μ)/μ from eq. 41."),
+    StepInfo("export", "Export",
+             "Save the calibration product (maps and estimates, loadable by `ccdcore apply`) "
+             "and the report (one HTML file that opens offline).",
+             "calibration.json + maps/*.exr (docs/cli.md); the report: docs/report.md."),
+)
+
+
+@dataclass(frozen=True)
+class Gate:
+    """A step's verdict: ``status`` is ``"pass"``, ``"warn"``, ``"fail"`` or ``"skip"``;
+    ``summary`` one line; ``reasons`` why; ``next`` what to capture or change."""
+
+    status: str
+    summary: str
+    reasons: tuple[str, ...] = ()
+    next: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "summary": self.summary, "reasons": list(self.reasons),
+                "next": list(self.next)}
+
+
+#: the fix of each validation problem code (docs/session.md)
+FIXES: dict[str, str] = {
+    "schema": "write `schema = 1` at the top of session.toml",
+    "no-schema": "add `schema = 1` at the top of session.toml",
+    "no-camera": "add a [camera] table with bits, layout and black_level",
+    "unknown-key": "remove or rename the key (docs/session.md lists the keys)",
+    "bad-value": "correct the value's type or range as the message says",
+    "missing-role": "give the entry a role (dark, ptc, fixed_pattern, flat, bracket, scene, "
+                    "reference, target)",
+    "unknown-role": "use one of the roles dark, ptc, fixed_pattern, flat, bracket, scene, "
+                    "reference, target",
+    "missing-path": "give the entry a path",
+    "empty-glob": "correct the pattern, or capture the frames it should match",
+    "path-outside": "move the frame inside the session folder and give a relative path",
+    "file-not-found": "capture or copy the frame, or remove its entry",
+    "not-a-file": "point the entry at an image, not a folder",
+    "duplicate": "list each frame once",
+    "unreadable": "re-export or re-capture the file (it is truncated or corrupt)",
+    "missing-level": "give each ptc frame its light level (`level = 1, 2, …`)",
+    "missing-config": "give each fixed_pattern frame its configuration (`config = 1, 2, …`)",
+    "missing-exposure": "give each bracket frame its exposure time in seconds",
+    "roi-outside": "shrink the roi to fit inside the frame",
+    "mismatch": "capture every frame of a role with the same size, bit depth and sample type",
+    "bit-depth": "set [camera] bits to the depth the data use",
+    "ptc-single-frame": "capture a second frame at that light level (pairs are differenced)",
+    "no-frames": "list the frames in session.toml (the capture plan writes a template)",
+    "deprecated-note": "write the key the warning names instead of `note`",
+    "folder-inferred": "review session.toml.draft (`ccdcore session --draft`) and save it as "
+                       "session.toml",
+    "descriptor-line": "correct the descriptor line the message names",
+    "descriptor-size": "re-export the image at the size of the `n` line",
+}
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.3g} %"
+
+
+# ---------------------------------------------------------------------------------------------
+def session_gate(session: Any) -> Gate:
+    """Validation: every problem with its fix (:data:`FIXES`)."""
+    reasons = tuple(f"{p.severity}: {p} — fix: {FIXES.get(p.code, 'see docs/session.md')}"
+                    for p in session.problems)
+    roles = ", ".join(f"{n} {r}" for r, n in session.roles().items()) or "no frames"
+    if session.errors:
+        return Gate("fail", f"{len(session.errors)} error(s) in {session.label}: the estimates "
+                            "that use those frames cannot run", reasons,
+                    ("fix the errors listed, then reopen the session",))
+    if session.warnings:
+        return Gate("warn", f"{len(session.frames)} frames ({roles}), {len(session.warnings)} "
+                            "warning(s)", reasons)
+    return Gate("pass", f"{len(session.frames)} frames ({roles}), no problems")
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class DarkStep:
+    """The dark reference, the dark level per exposure and the gate.
+
+    ``levels``: per exposure ``{"exposure", "n", "mean", "sem"}`` (DN; sem = spatial mean's
+    standard error from the frames' scatter); ``drift``: the dark current, DN/s (least squares
+    of the level on the exposure), ``None`` with fewer than two exposures.
+    """
+
+    dark: Any
+    levels: tuple[dict[str, Any], ...]
+    drift: float | None
+    gate: Gate
+
+
+def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
+    """Dark reference (sec. V-A) of the session's dark frames, its level per exposure and the
+    gate (see the module docstring); ``dark`` may pass an already computed reference."""
+    from .darkframe import dark_reference
+
+    recs = session.dark_frames()
+    if not recs:
+        return DarkStep(None, (), None, Gate(
+            "skip", "no dark frames: the dark reference is skipped",
+            next=("capture 16 or more lens-capped frames at the exposure of the other "
+                  "frames (role = dark)",)))
+    if session.camera.layout != "mono":
+        return DarkStep(None, (), None, Gate(
+            "skip", f"{session.camera.layout} camera: D̂_D of sec. V-A is made for mono "
+                    "frames; the flat field's dark image DL_0 serves instead"))
+    groups: dict[Any, list[float]] = {}
+    zeros = total = 0
+    for rec, frame in session.iter_frames(recs):
+        groups.setdefault(rec.exposure, []).append(float(np.mean(frame, dtype=np.float64)))
+        zeros += int(np.count_nonzero(frame == 0))
+        total += frame.size
+    levels = []
+    for t, means in sorted(groups.items(), key=lambda kv: (kv[0] is None, kv[0] or 0.0)):
+        m = np.asarray(means)
+        sem = float(np.std(m, ddof=1) / math.sqrt(m.size)) if m.size > 1 else float("nan")
+        levels.append({"exposure": t, "n": int(m.size), "mean": float(m.mean()), "sem": sem})
+    known = [lv for lv in levels if lv["exposure"] is not None]
+    drift = None
+    if len(known) >= 2:
+        t = np.array([lv["exposure"] for lv in known])
+        y = np.array([lv["mean"] for lv in known])
+        drift = float(np.polyfit(t, y, 1)[0])
+    if dark is None:
+        use = None
+        if len(groups) > 1:   # the fixed-pattern exposure, else the one with most frames
+            fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
+            use = next(iter(fp_exposures)) if len(fp_exposures) == 1 else max(
+                (t for t in groups if t is not None), key=lambda t: (len(groups[t]), t))
+        dark = dark_reference(session, exposure=use)
+    n = dark.mean_map.size
+    hot, dead = int(dark.hot_mask.sum()), int(dark.dead_mask.sum())
+    zero = zeros / total
+    reasons = [f"D̂_D from {dark.s} frames: mean {dark.mean:.4g} DN, spatial σ "
+               f"{dark.spatial_std:.3g} DN; {hot} hot and {dead} dead pixels "
+               f"({_pct((hot + dead) / n)})"]
+    nxt: list[str] = []
+    status = "pass"
+    if (hot + dead) / n > HOT_DEAD_LIMIT:
+        status = "warn"
+        reasons.append(f"more than {_pct(HOT_DEAD_LIMIT)} of the pixels are flagged")
+        nxt.append("check for light leaks and the sensor temperature; flagged pixels are "
+                   "masked in every map")
+    if zero > ZERO_DARK_LIMIT:
+        status = "warn"
+        reasons.append(f"{_pct(zero)} of the dark frames' pixel values are exactly 0: the "
+                       "offset clips the dark signal, so D̂_D is biased upwards there")
+        nxt.append("raise the camera's offset (black level) so the dark frames sit above zero")
+    if drift is not None:
+        reasons.append(f"dark level over {len(known)} exposures: drift {drift:.4g} DN/s")
+    if dark.s < 16:
+        status = "warn" if status == "pass" else status
+        reasons.append(f"only {dark.s} dark frames: D̂_D's own noise σ_N/√s is large")
+        nxt.append("capture at least 16 dark frames (the capture plan says how many)")
+    summary = {"pass": "dark reference made, flags within limits",
+               "warn": "dark reference made, with warnings"}[status]
+    return DarkStep(dark, tuple(levels), drift, Gate(status, summary, tuple(reasons), tuple(nxt)))
+
+
+# ---------------------------------------------------------------------------------------------
+def ptc_gate(noise: Any) -> Gate:
+    """The photon-transfer gate from a :class:`~ccdcore.noise.PhotonTransfer` (Q of eq. 67)."""
+    used = int(np.sum([p.used for p in noise.points]))
+    q = float(noise.Q) if noise.dof > 0 else float("nan")
+    reasons = [f"A = {noise.A:.4g} ± {noise.A_err:.2g} DN/e⁻, σ²_C = {noise.sigma_c2:.4g} ± "
+               f"{noise.sigma_c2_err:.2g} DN² from {used} levels; χ² = {noise.chi2:.3g} "
+               f"with {noise.dof} degrees of freedom, Q = {q:.3g}"]
+    nxt: list[str] = []
+    if used < 3:
+        return Gate("fail", "fewer than 3 levels in the fit: Q cannot judge the line",
+                    tuple(reasons), ("capture pairs at more light levels (8 spread over the "
+                                     "range; the capture plan lists them)",))
+    worst = max((p for p in noise.points if p.used), key=lambda p: abs(_resid(noise, p)))
+    r = _resid(noise, worst)
+    if q >= 0.01:
+        status, summary = "pass", "the points agree with the line within their errors"
+    elif q >= 0.001:
+        status, summary = "warn", "the points scatter a little more than their errors allow"
+    else:
+        status, summary = "fail", "the points scatter far more than their errors allow"
+    if status != "pass":
+        reasons.append(f"Q = {q:.3g}: a line this far from its points happens by chance "
+                       f"{'in fewer than 1 in 1000 sessions' if q < 0.001 else 'rarely'}; the "
+                       f"worst level is {worst.level} ({r:+.1f} σ)")
+        nxt.append(f"exclude level {worst.level} or switch on robust mode (drops levels beyond "
+                   "3 σ one at a time); if levels near full scale misbehave, they are clipped")
+    if noise.A_err / noise.A > 0.05:
+        status = "warn" if status == "pass" else status
+        reasons.append(f"σ(A)/A = {_pct(noise.A_err / noise.A)} is above 5 %")
+        nxt.append("use a larger ROI or more levels")
+    return Gate(status, summary, tuple(reasons), tuple(nxt))
+
+
+def _resid(noise: Any, p: Any) -> float:
+    pred = noise.A * p.mu + noise.sigma_c2
+    return float((p.var - pred) / p.var_err) if p.var_err > 0 else 0.0
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class PatternStep:
+    """K̂ and its checks, the flat field and its held-out SNUP, and the gate.
+
+    ``snup_rows``: per held-out flat frame and channel ``{"frame", "channel", "before",
+    "after"}`` (SNUP, %).
+    """
+
+    fixed_pattern: Any
+    plan: Any
+    plan_warnings: tuple[str, ...]
+    correction_check: Any
+    flat: Any
+    snup_rows: tuple[dict[str, Any], ...]
+    gate: Gate
+
+
+def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: int = 9,
+                 p: float = 1.5, max_held_out: int = 4) -> PatternStep:
+    """K̂ (eqs. 45–50) against the plan of sec. V-B, and the flat field (de Lasarte et al.)
+    with SNUP before and after on up to ``max_held_out`` flat frames outside the base group."""
+    from .fixedpattern import correction_check, fixed_pattern_map
+    from .flatfield import flat_field_from_session
+    from .planning import check_session_plan, plan_acquisition
+    from .uniformity import snup
+
+    reasons: list[str] = []
+    nxt: list[str] = []
+    status = "skip"
+    fp = plan = check = flat = None
+    warnings: tuple[str, ...] = ()
+    rows: list[dict[str, Any]] = []
+    if session.fixed_pattern_configs() and dark is not None:
+        fp = fixed_pattern_map(session, dark, window=window, p=p)
+        status = "pass"
+        reasons.append(f"K̂ from {fp.n1} configurations: spatial σ_K = {fp.spatial_std:.3g}, "
+                       f"slope spread σ̂ = {fp.sigma_hat:.3g}")
+        if noise is not None and session.camera.bits:
+            plan = plan_acquisition(noise, bits=session.camera.bits, fixed_pattern=fp)
+            warnings = tuple(check_session_plan(session, plan))
+            if warnings:
+                status = "warn"
+                reasons += list(warnings)
+                nxt.append(f"capture n1 = {plan.n1_required} configurations × n2 = "
+                           f"{plan.n2_required} frames for K̂ to meet sec. V-B")
+        rec = session.max_intensity_frame()
+        if rec is not None:
+            check = correction_check(session.read(rec), dark, fp)
+            reasons.append(f"on the held-out maximum-intensity frame, eq. 51 changes "
+                           f"{_pct(check.frac_gt_1q)} of the pixels by more than 1 q (at most "
+                           f"{check.max_change_q:.3g} q)")
+    elif session.fixed_pattern_configs():
+        reasons.append("fixed-pattern frames but no dark reference: K̂ needs D̂_D (eq. 46)")
+        nxt.append("capture dark frames at the fixed-pattern exposure")
+    if session.flat_groups():
+        flat = flat_field_from_session(session, base="auto")
+        status = "pass" if status == "skip" else status
+        reasons.append(f"flat field from base group {flat.base_key} (level, exposure)")
+        full = 2.0 ** session.camera.bits - 1 if session.camera.bits else None
+        held = [(key, recs) for key, recs in session.flat_groups().items()
+                if key != flat.base_key]
+        picked = []
+        for key, recs in held:
+            frame = session.read(recs[0])
+            level = float(np.mean(frame))
+            if full is None or 0.1 * full < level < 0.9 * full:
+                picked.append((recs[0], frame))
+            if len(picked) >= max_held_out:
+                break
+        worse = 0
+        for rec, frame in picked:
+            before = snup(frame, layout=session.camera.layout)
+            after = snup(flat.correct(frame, where=rec.relpath), layout=session.camera.layout)
+            for c in before.channels:
+                rows.append({"frame": rec.relpath, "channel": c.name, "before": c.snup,
+                             "after": after[c.name].snup})
+                worse += after[c.name].snup > c.snup
+        if not picked:
+            reasons.append("no flat frame outside the base group lies within 10–90 % of full "
+                           "scale: the correction is not checked on held-out frames")
+            nxt.append("capture flats at two or more exposures inside the linear range")
+            status = "warn" if status == "pass" else status
+        elif worse:
+            status = "fail"
+            reasons.append(f"{worse} of {len(rows)} held-out channel(s) are less uniform after "
+                           "the correction")
+            nxt.append("choose another base exposure inside the linear range, or average more "
+                       "base frames")
+        else:
+            reasons.append(f"every held-out frame is more uniform after the correction "
+                           f"({len(picked)} frames)")
+    if status == "skip":
+        return PatternStep(None, None, (), None, None, (), Gate(
+            "skip", "no fixed-pattern or flat frames: K̂ and the flat field are skipped",
+            tuple(reasons) or ("the session has neither fixed_pattern nor flat frames",),
+            tuple(nxt) or ("capture n1 × n2 frames of a uniform card (role = fixed_pattern) "
+                           "or flats of a uniform source (role = flat); the capture plan "
+                           "sizes them",)))
+    summary = {"pass": "maps made and checked", "warn": "maps made, with warnings",
+               "fail": "the correction does not help on held-out frames"}[status]
+    return PatternStep(fp, plan, warnings, check, flat, tuple(rows),
+                       Gate(status, summary, tuple(reasons), tuple(nxt)))
+
+
+# ---------------------------------------------------------------------------------------------
+def response_gate(response: Any) -> Gate:
+    """The response step's gate from a :class:`~ccdcore.response.methods.ResponseResult`:
+    every channel converged, noise terms finite."""
+    reasons = []
+    bad = []
+    for name in response.channels:
+        c = response[name]
+        reasons.append(f"{name}: {c.iterations} iterations"
+                       f"{'' if c.converged else ', not converged'}; σ_s = {c.sigma_s:.3g}, "
+                       f"σ_c2 = {c.sigma_c2:.3g} DN")
+        if not c.converged:
+            bad.append(name)
+    if bad:
+        return Gate("warn", f"the fit did not converge in {', '.join(bad)}", tuple(reasons),
+                    ("capture a bracket with more exposures, a factor 1.4 apart, and a scene "
+                     "with a wide range of radiance",))
+    return Gate("pass", "the response curve converged in every channel", tuple(reasons))
+
+
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class VerifyRow:
+    """One held-out frame and channel.
+
+    ``before``/``after``: SNUP = 100·σ/mean over the frame (%); ``local_before``/``local_after``:
+    the pixel-scale nonuniformity 100·σ(D − D̄_w)/mean, D̄_w the mean over a w × w window
+    (what K̂ of eqs. 45–50 corrects; illumination shading, which K̂ leaves by design, is
+    removed); ``floor``: the temporal noise's part of it, 100·σ_N(μ)/μ·√(1 − 1/w²) (eq. 41;
+    ``None`` without a noise model); ``changed``: pixels changed by more than one code beyond
+    the offset every pixel shares.
+    """
+
+    frame: str
+    role: str
+    channel: str
+    before: float
+    after: float
+    local_before: float
+    local_after: float
+    floor: float | None
+    changed: int
+    n_pixels: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in (
+            "frame", "role", "channel", "before", "after", "local_before", "local_after",
+            "floor", "changed", "n_pixels")}
+
+
+@dataclass(frozen=True)
+class Verification:
+    """The rows of :func:`verify`, the frames left out (with why) and the gate."""
+
+    rows: tuple[VerifyRow, ...]
+    left_out: tuple[str, ...]
+    gate: Gate
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": [r.to_dict() for r in self.rows], "left_out": list(self.left_out),
+                "gate": self.gate.to_dict()}
+
+
+def held_out_frames(session: Any, product: Any) -> list[Any]:
+    """Frames of uniform light that the product's maps did not use: the maximum-intensity
+    scene frame, the first frame of each flat group outside the base group, and the first
+    frame of each photon-transfer level (pairs serve the noise model only, never a map)."""
+    out = []
+    rec = session.max_intensity_frame()
+    if rec is not None:
+        out.append(rec)
+    ff = getattr(product, "estimates", {}).get("flat_field")
+    base = tuple(ff["base"]) if ff and ff.get("base") is not None else None
+    for key, recs in session.flat_groups().items():
+        if base is None or tuple(key) != base:
+            out.append(recs[0])
+    for recs in session.ptc_levels().values():
+        out.append(recs[0])
+    return out
+
+
+def _local_nonuniformity(plane: np.ndarray, window: int) -> float:
+    from scipy.ndimage import uniform_filter
+
+    x = np.asarray(plane, dtype=np.float64)
+    local = uniform_filter(x, size=window, mode="reflect")
+    return float(100.0 * np.std(x - local) / np.mean(x))
+
+
+def verify(session: Any, product: Any, *, records: Sequence[Any] | None = None,
+           noise: Any = None, window: int = 9, limit: int = 6) -> Verification:
+    """Apply ``product`` (:meth:`~ccdcore.product.CalibrationProduct.correct`) to held-out
+    frames (:func:`held_out_frames` unless ``records``; at most ``limit``, spread over the
+    list) and compare their nonuniformity before and after (:class:`VerifyRow`).
+
+    Frames whose mean lies below 10 % or whose pixels reach full scale (more than 1 % at the
+    top code) are left out: outside the linear range the maps do not hold (de Lasarte et al.)
+    and clipping, not the correction, sets the uniformity. When the product corrects by
+    eq. 51 (D − D̂_D)/K̂, the raw frame is compared after removing the mean dark level (the
+    offset eq. 51 removes), so that both SNUPs divide by the signal.
+
+    The gate fails when the measure the correction is made to lower grows: SNUP for a flat
+    field, the pixel-scale nonuniformity for K̂ (which keeps illumination shading by design);
+    it warns when the pixel-scale nonuniformity stays above 1.5× its noise floor.
+    """
+    from .channels import split_channels
+
+    layout = session.camera.layout
+    bits = session.camera.bits
+    top = 2 ** bits - 1 if bits else None
+    recs = list(records) if records is not None else held_out_frames(session, product)
+    flat_product = "flat_G" in product.maps
+    offset = float(np.mean(product.maps["dark"])) if not flat_product and \
+        "dark" in product.maps else 0.0
+    b0 = getattr(noise, "black_level_dn", None) if noise is not None else None
+    b0 = float(b0) if b0 is not None and math.isfinite(b0) else 0.0
+    picked, left_out = [], []
+    for rec in recs:
+        raw = session.read(rec)
+        if top is not None and np.mean(raw >= top) > 0.01:
+            left_out.append(f"{rec.relpath}: more than 1 % of its pixels at full scale")
+        elif top is not None and np.mean(raw) < 0.1 * top:
+            left_out.append(f"{rec.relpath}: mean below 10 % of full scale")
+        else:
+            picked.append(rec)
+    if len(picked) > limit:
+        picked = _spread(picked, limit)
+    rows: list[VerifyRow] = []
+    for rec in picked:
+        raw = session.read(rec)
+        corr = product.correct(raw, name=rec.relpath).astype(np.float64)
+        before = split_channels(raw.astype(np.float64) - offset, layout)
+        after = split_channels(corr, layout)
+        delta = corr - raw
+        changed = int(np.count_nonzero(np.abs(delta - np.median(delta)) > 1.0))
+        for name, plane in before.items():
+            mean = float(np.mean(plane))
+            floor = None
+            if noise is not None and mean + offset - b0 > 0:
+                mu = mean + offset - b0
+                floor = 100.0 * math.sqrt(max(noise.A * mu + noise.sigma_c2, 0.0)) / mean \
+                    * math.sqrt(1.0 - 1.0 / window ** 2)
+            rows.append(VerifyRow(
+                rec.relpath, rec.role, name, float(100.0 * np.std(plane) / mean),
+                float(100.0 * np.std(after[name]) / np.mean(after[name])),
+                _local_nonuniformity(plane, window), _local_nonuniformity(after[name], window),
+                floor, changed, int(plane.size)))
+    if not rows:
+        return Verification((), tuple(left_out), Gate(
+            "skip", "no held-out frame to verify on", tuple(left_out),
+            ("capture a frame of a uniform card at about half of full scale that the "
+             "calibration does not use (role = scene, flags = [\"max-intensity\"])",)))
+    # the measure each correction is made to lower: SNUP for the flat field (de Lasarte et
+    # al. measure it over the frame), the pixel-scale part for K̂ (local means, eqs. 45-50)
+    worse = [r for r in rows if (r.after > r.before if flat_product else
+                                 r.local_after > r.local_before)]
+    above = [r for r in rows if r.floor is not None and r.local_after > FLOOR_FACTOR * r.floor]
+    reasons = [f"{r.frame} ({r.channel}): pixel-scale nonuniformity {r.local_before:.3g} % → "
+               f"{r.local_after:.3g} %"
+               + (f" (noise floor {r.floor:.3g} %)" if r.floor is not None else "")
+               + f", SNUP {r.before:.3g} % → {r.after:.3g} %; {r.changed:,} pixels changed by "
+               "more than 1 code" for r in rows]
+    reasons += [f"left out: {why}" for why in left_out]
+    if worse:
+        return Verification(tuple(rows), tuple(left_out), Gate(
+            "fail", f"{len(worse)} held-out frame(s) are less uniform after the correction",
+            tuple(reasons), ("recalibrate with frames taken under the same settings as these "
+                             "frames (gain, offset, temperature)",)))
+    if above:
+        return Verification(tuple(rows), tuple(left_out), Gate(
+            "warn", f"the correction helps, but {len(above)} frame(s) stay above "
+                    f"{FLOOR_FACTOR}× the noise floor", tuple(reasons),
+            ("more configurations or frames for the maps lower their own noise (sec. V-B)",)))
+    return Verification(tuple(rows), tuple(left_out), Gate(
+        "pass", "every held-out frame is more uniform after the correction"
+                + (", within 1.5× the noise floor" if any(r.floor for r in rows) else ""),
+        tuple(reasons)))
+
+
+def _spread(items: Sequence[Any], n: int) -> list[Any]:
+    """``n`` items spread evenly over ``items`` (first and last included)."""
+    idx = np.unique(np.linspace(0, len(items) - 1, n).round().astype(int))
+    return [items[i] for i in idx]
