@@ -48,7 +48,7 @@ predicted_gain_error(mu, A, sigma_c2, pixels)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np

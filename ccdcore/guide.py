@@ -34,7 +34,7 @@ response_gate(response), held_out_frames(session, product), verify(session, prod
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np

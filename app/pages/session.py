@@ -8,7 +8,9 @@ SessionPage
     tables; every validation problem as an alert; what was inferred for plain folders and a
     button writing the manifest draft; a zoomable preview of any frame with its histogram, per
     channel (R, G, B or the luminance of colour frames; the CFA planes R, G1, G2, B of raw Bayer
-    frames, by the camera's layout: :func:`ccdcore.channels.split_channels`).
+    frames, by the camera's layout: :func:`ccdcore.channels.split_channels`). Its *Calibration
+    product* tab opens a product and applies it to the session's frames
+    (:class:`app.product_panel.ProductPanel`).
 create_page(state)
     The registry entry point.
 groups_frame(session), frames_frame(session)
@@ -41,6 +43,7 @@ from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots
 from ..image_view import HistogramView, ImageView
+from ..product_panel import ProductPanel
 from ..state import AppState, assets_dir, demo_sessions
 from ..batch import batched
 from ._choices import set_choices
@@ -174,6 +177,8 @@ class SessionPage(pn.viewable.Viewer):
         self._build_open_widgets()
         self._build_session_widgets()
         self._build_preview_widgets()
+        #: the Calibration product tab: open a product, apply it to this session's frames
+        self.product_panel = ProductPanel(self.state)
         self.state.param.watch(self._on_session, "session")
         self.state.param.watch(self._on_state_message, ["error", "status", "busy", "progress"])
         if self.state.session is not None:
@@ -311,9 +316,12 @@ class SessionPage(pn.viewable.Viewer):
             pn.Card(self.root_select, self.browse_holder, self.open_selected_button,
                     title="Browse folders", collapsed=True, sizing_mode="stretch_width"),
             title="Open a session", sizing_mode="stretch_width", collapsible=False)
+        self.open_tabs = pn.Tabs(("Open a session", open_card),
+                                 ("Calibration product", self.product_panel.panel()),
+                                 sizing_mode="stretch_width", css_classes=["ccd-open-tabs"])
         return pn.Column(
             pn.pane.Markdown("## Session", css_classes=["ccd-page-title"]),
-            open_card, self.progress, self.status_pane, self.error_alert, self.notice_alert,
+            self.open_tabs, self.progress, self.status_pane, self.error_alert, self.notice_alert,
             pn.Row(
                 pn.Card(self.camera_pane, title="Camera and source", width=380,
                         collapsible=False),
@@ -572,6 +580,7 @@ class SessionPage(pn.viewable.Viewer):
         self.image_view.release()
         self._array = self._plane = self._shown = None
         self._planes = {}
+        self.product_panel.release()
 
     def _on_clim(self, event: Any) -> None:
         self.image_view.set_clim(event.new)
