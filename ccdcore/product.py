@@ -675,7 +675,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
-              progress: Progress | None = None) -> CalibrationProduct:
+              progress: Progress | None = None,
+              noise: PhotonTransfer | None = None) -> CalibrationProduct:
     """Run every estimate the session's frames allow.
 
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
@@ -688,6 +689,9 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     - ``flat`` frames and darks: flat-field G/O maps (de Lasarte et al. 2007);
     - a ``bracket``: the inverse response g per channel with its band and the noise terms
       (Tsin et al. 2001, sec. 3.2), for :func:`apply_product` (``linearise``) and the HDR merge.
+
+    ``noise`` passes a photon-transfer result already made (e.g. with levels left out or the
+    robust mode, as the app's Walkthrough chooses) instead of estimating it here.
 
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
@@ -702,7 +706,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     session = session_or_path if isinstance(session_or_path, Session) \
         else open_session(session_or_path)
     session.raise_if_invalid()
-    e = estimate_all(session, roi=roi, window=window, p=p, progress=progress)
+    e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise)
     if not e.made:
         failed = [s for s in e.skipped if s.code == "failed"]
         why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (
