@@ -1,0 +1,756 @@
+"""The Walkthrough page: a guided calibration in eight steps, each with its own URL.
+
+Each step says in plain words what it does (symbols and equation numbers in a card below), shows
+its plot, and ends in a gate (:mod:`ccdcore.guide`): what passed or failed, why, and what to
+capture or change next. A step whose frames are missing says so and is skipped; it never blocks
+the rest. Steps can be revisited and changed: a change (the photon-transfer levels left out, the
+robust mode, the plan's inputs, a new session) drops the results of the steps after it, which
+recompute when shown.
+
+The steps are :data:`ccdcore.guide.STEPS`: plan (:mod:`ccdcore.capture`), session, dark,
+photon transfer, fixed pattern and flat field, response, verify and export (the calibration
+product and the report). The chosen step is in the URL (``?page=walkthrough&step=ptc``), so a
+colleague can be sent to it.
+
+Public objects
+--------------
+WalkthroughPage
+    The page (a :class:`panel.viewable.Viewer`); its state is declared with ``param``: the step,
+    the plan's inputs, the photon-transfer options, the export folder, the gates.
+create_page(state)
+    The registry entry point.
+STATUS_ICONS
+    The mark of each gate status in the step list.
+"""
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+import panel as pn
+import param
+
+from ccdcore import guide
+from ccdcore.capture import CapturePlan, plan_captures
+from ccdcore.errors import CcdError
+from ccdcore.guide import STEPS, Gate
+from ccdcore.product import missing_frames, requirement
+from ccdcore.session import Session
+
+from ..batch import batched, in_document
+from ..image_view import ImageView, view_pane
+from ..ptc_plots import PtcFigures
+from ..state import AppState
+from ._messages import PageMessages
+from ._styles import MUTED, TABLE_CSS, heading
+
+__all__ = ["WalkthroughPage", "create_page", "STATUS_ICONS", "DOWNSTREAM"]
+
+SLUGS = [s.slug for s in STEPS]
+#: the mark of each gate status in the step list (and the alert type of its gate)
+STATUS_ICONS = {"pass": "\u2714", "warn": "\u26a0", "fail": "\u2716", "skip": "\u2013",
+                None: "\u25cb"}
+_ALERTS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "secondary",
+           None: "light"}
+_BUTTONS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "light",
+            None: "light"}
+#: the steps whose results a change in a step makes stale (they recompute when shown)
+DOWNSTREAM: dict[str, tuple[str, ...]] = {
+    "plan": (), "session": ("dark", "ptc", "pattern", "response", "verify", "export"),
+    "dark": ("pattern", "verify", "export"), "ptc": ("pattern", "verify", "export"),
+    "pattern": ("verify", "export"), "response": ("verify", "export"),
+    "verify": ("export",), "export": ()}
+IMAGE_WIDTH = 360
+
+
+def _table(css: str) -> pn.pane.DataFrame:
+    return pn.pane.DataFrame(pd.DataFrame(), index=False, sizing_mode="stretch_width",
+                             escape=True, css_classes=[css], stylesheets=[TABLE_CSS])
+
+
+def gate_markdown(gate: Gate | None) -> str:
+    """A gate as Markdown: its summary, why, and what to do next."""
+    if gate is None:
+        return "Not run yet."
+    label = {"pass": "Passed", "warn": "Passed with warnings", "fail": "Failed",
+             "skip": "Skipped"}[gate.status]
+    lines = [f"**{label}:** {gate.summary}"]
+    if gate.reasons:
+        lines += [""] + [f"- {r}" for r in gate.reasons]
+    if gate.next:
+        lines += ["", "**Next:**"] + [f"- {n}" for n in gate.next]
+    return "\n".join(lines)
+
+
+def _skip_missing(session: Session, estimate: str) -> Gate | None:
+    """A *skip* gate when the session lacks the frames of ``estimate`` (else ``None``)."""
+    lacking = missing_frames(session, [estimate])
+    if not lacking:
+        return None
+    req, roles = lacking[0]
+    return Gate("skip", f"no {', '.join(roles)} frames: {req.purpose} is skipped",
+                next=(f"capture {req.capture}",))
+
+
+# --------------------------------------------------------------------------- computing -------
+def compute_ptc(session: Session, exclude: list[int], robust: bool) -> Any:
+    from ccdcore.noise import photon_transfer
+
+    return photon_transfer(session, exclude_levels=exclude, robust=robust)
+
+
+def compute_pattern(session: Session, dark: Any, noise: Any) -> Any:
+    return guide.pattern_step(session, dark=dark, noise=noise)
+
+
+def compute_product(session: Session, noise: Any, progress: Callable | None = None) -> Any:
+    """The calibration product with the walkthrough's photon-transfer choices."""
+    from ccdcore.product import calibrate
+
+    return calibrate(session, noise=noise, progress=progress)
+
+
+def compute_verify(session: Session, noise: Any, progress: Callable | None = None) -> tuple:
+    product = compute_product(session, noise, progress)
+    return product, guide.verify(session, product, noise=noise)
+
+
+def compute_response(session: Session, progress: Callable | None = None) -> Any:
+    from ccdcore.response.methods import session_response
+
+    def sub(fraction: float, message: str) -> None:   # the estimator's (fraction, message)
+        if progress is not None:
+            progress(message, fraction)
+
+    return session_response(session, progress=sub)
+
+
+def save_export(session: Session, product: Any, folder: Path) -> tuple[Path, Path]:
+    """Save the product into ``folder`` and the report beside its maps (``report.html``)."""
+    from ccdcore.io import atomic_write_text
+
+    from ..report import build_report
+
+    out = product.save(folder)
+    html = build_report(session, product=product)
+    report = out / "report.html"
+    atomic_write_text(report, html)
+    return out, report
+
+
+# --------------------------------------------------------------------------- the page --------
+class WalkthroughPage(PageMessages, pn.viewable.Viewer):
+    """A guided calibration of the loaded session (see the module docstring)."""
+
+    state = param.ClassSelector(class_=AppState, doc="The app state shared by all pages.")
+    step = param.Selector(default="plan", objects=SLUGS, doc="The step shown (in the URL).")
+    # step 1: the plan's inputs
+    # (defaults: the camera of Healey & Kondepudy sec. VII-A, A = 0.003384 DN/e⁻, σ²_C = 1.12)
+    bits = param.Integer(default=8, bounds=(1, 32), doc="ADC bit depth b.")
+    gain = param.Number(default=0.0034, bounds=(1e-6, None), doc=(
+        "Rough gain A, DN per electron."))
+    read_noise_e = param.Number(default=300.0, bounds=(0.0, None), doc="Rough read noise, e⁻.")
+    exposure_half_ms = param.Number(default=10.0, bounds=(1e-3, None), doc=(
+        "Exposure (ms) that gives about half of full scale under the lamp."))
+    pixels = param.Integer(default=256 * 192, bounds=(2, None), doc=(
+        "Pixels in the photon-transfer region (for the predicted error of A)."))
+    # step 4: photon-transfer options
+    exclude = param.List(default=[], item_type=int, doc="Photon-transfer levels left out.")
+    robust = param.Boolean(default=False, doc="Robust mode: drop levels beyond 3σ one at a time.")
+    # step 8
+    export_folder = param.String(default="", doc="Folder for the calibration product.")
+    gates = param.Dict(default={}, doc="Step slug -> its Gate (absent: not run yet).")
+
+    def __init__(self, state: AppState | None = None, *, auto: bool = True, **params: Any):
+        super().__init__(state=state if state is not None else AppState(), **params)
+        self.auto = auto
+        self._doc = pn.state.curdoc
+        self._session: Session | None = None
+        self.results: dict[str, Any] = {}
+        self.plan: CapturePlan | None = None
+        self.error = ""
+        self._running: set[str] = set()
+        self._build()
+        self.state.param.watch(self._on_session, "session")
+        self._session_defaults()
+        self._plan()
+        if pn.state.curdoc is not None and pn.state.location is not None:
+            pn.state.location.sync(self, {"step": "step"})
+        self._show_step()
+
+    # ------------------------------------------------------------------ building ----------
+    def _build(self) -> None:
+        self._build_alerts("walkthrough")
+        self.content = pn.Column(sizing_mode="stretch_width", margin=0)
+        self.step_buttons: dict[str, pn.widgets.Button] = {}
+        for i, s in enumerate(STEPS, start=1):
+            b = pn.widgets.Button(label=f"{i}. {s.title}", color="light",
+                                  sizing_mode="stretch_width", margin=(2, 0),
+                                  css_classes=[f"ccd-wt-nav-{s.slug}"])
+            b.on_click(lambda event, slug=s.slug: setattr(self, "step", slug))
+            self.step_buttons[s.slug] = b
+        self.progress = pn.indicators.Progress(value=0, max=len(STEPS), height=14,
+                                               sizing_mode="stretch_width",
+                                               bar_color="success",
+                                               css_classes=["ccd-wt-progress"])
+        self.progress_text = pn.pane.Markdown("", styles={"color": MUTED},
+                                              css_classes=["ccd-wt-progress-text"])
+        self.panels: dict[str, pn.Column] = {}
+        self.gate_panes: dict[str, pn.pane.Alert] = {}
+        self.bodies: dict[str, pn.Column] = {}
+        for i, s in enumerate(STEPS, start=1):
+            gate = pn.pane.Alert(gate_markdown(None), alert_type="light",
+                                 sizing_mode="stretch_width", css_classes=[f"ccd-wt-gate-{s.slug}",
+                                                                           "ccd-wt-gate"])
+            body = pn.Column(sizing_mode="stretch_width", margin=0)
+            back = pn.widgets.Button(label="\u2190 Back", color="default", width=110,
+                                     disabled=i == 1, css_classes=["ccd-wt-back"])
+            nxt = pn.widgets.Button(label="Next \u2192", color="primary", width=110,
+                                    disabled=i == len(STEPS), css_classes=["ccd-wt-next"])
+            back.on_click(lambda e, k=i - 2: setattr(self, "step", SLUGS[max(k, 0)]))
+            nxt.on_click(lambda e, k=i: setattr(self, "step", SLUGS[min(k, len(SLUGS) - 1)]))
+            self.gate_panes[s.slug] = gate
+            self.bodies[s.slug] = body
+            self.panels[s.slug] = pn.Column(
+                pn.pane.Markdown(f"### Step {i} of {len(STEPS)}: {s.title}",
+                                 css_classes=["ccd-wt-title"]),
+                pn.pane.Markdown(s.plain, sizing_mode="stretch_width"),
+                pn.Card(pn.pane.Markdown(s.details, sizing_mode="stretch_width"),
+                        title="Symbols and equations", collapsed=True,
+                        sizing_mode="stretch_width"),
+                body, gate, pn.Row(back, nxt),
+                visible=False, sizing_mode="stretch_width", css_classes=[f"ccd-wt-{s.slug}"])
+        self._build_plan()
+        self._build_session()
+        self._build_dark()
+        self._build_ptc()
+        self._build_pattern()
+        self._build_response()
+        self._build_verify()
+        self._build_export()
+
+    def _build_plan(self) -> None:
+        w = pn.widgets
+        inputs = pn.FlexBox(
+            w.IntInput.from_param(self.param.bits, name="Bits", width=110),
+            w.FloatInput.from_param(self.param.gain, name="Gain A (DN/e⁻)", width=150),
+            w.FloatInput.from_param(self.param.read_noise_e, name="Read noise (e⁻)", width=140),
+            w.FloatInput.from_param(self.param.exposure_half_ms, name="Half-scale exposure (ms)",
+                                    width=190),
+            w.IntInput.from_param(self.param.pixels, name="PTC pixels", width=140),
+            sizing_mode="stretch_width")
+        self.use_session = w.Button(label="Use the session's noise model", color="default",
+                                    disabled=True, css_classes=["ccd-wt-use-session"])
+        self.use_session.on_click(self._use_session_noise)
+        self.plan_table = _table("ccd-wt-plan-table")
+        self.checklist = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                          css_classes=["ccd-wt-checklist"])
+        self.checklist_download = w.FileDownload(
+            callback=lambda: io.BytesIO(self.plan.checklist().encode()) if self.plan else None,
+            filename="capture-checklist.md", label="Download the checklist (Markdown)",
+            color="default", css_classes=["ccd-wt-checklist-download"])
+        self.toml_download = w.FileDownload(
+            callback=lambda: io.BytesIO(self.plan.to_toml().encode()) if self.plan else None,
+            filename="session.toml", label="Download session.toml (file names to capture)",
+            color="default", css_classes=["ccd-wt-toml-download"])
+        self.bodies["plan"].objects = [
+            inputs, self.use_session, self.plan_table,
+            pn.Row(self.checklist_download, self.toml_download),
+            pn.Card(self.checklist, title="Printable checklist", collapsed=True,
+                    sizing_mode="stretch_width")]
+
+    def _build_session(self) -> None:
+        self.problems_table = _table("ccd-wt-problems")
+        self.bodies["session"].objects = [self.problems_table]
+
+    def _build_dark(self) -> None:
+        self.dark_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
+                                   cmap="viridis", label="DN", symbol="D̂_D",
+                                   css_classes=["ccd-wt-dark-map"])
+        self.dark_pane = view_pane(self.dark_view)
+        self.dark_levels = _table("ccd-wt-dark-levels")
+        self.bodies["dark"].objects = [pn.Row(self.dark_pane, pn.Column(
+            pn.pane.Markdown("**Dark level per exposure** (red crosses on the map: hot and dead "
+                             "pixels)"), self.dark_levels, sizing_mode="stretch_width"),
+            sizing_mode="stretch_width")]
+
+    def _build_ptc(self) -> None:
+        self.ptc_figs = PtcFigures(height=320)
+        self.exclude_select = pn.widgets.MultiChoice(label="Leave out levels", options=[],
+                                                     width=300, css_classes=["ccd-wt-exclude"])
+        self.exclude_select.param.watch(self._on_exclude, "value")
+        self.robust_box = pn.widgets.Checkbox.from_param(
+            self.param.robust, name="Robust mode (drop levels beyond 3σ)")
+        self.bodies["ptc"].objects = [
+            pn.Row(self.exclude_select, self.robust_box),
+            pn.pane.Bokeh(self.ptc_figs.transfer, sizing_mode="stretch_width"),
+            pn.pane.Bokeh(self.ptc_figs.residual, sizing_mode="stretch_width")]
+
+    def _build_pattern(self) -> None:
+        self.k_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
+                                cmap="RdBu_r", label="K̂", symbol="K̂",
+                                css_classes=["ccd-wt-k-map"])
+        self.k_pane = view_pane(self.k_view)
+        self.snup_table = _table("ccd-wt-snup")
+        self.bodies["pattern"].objects = [pn.Row(self.k_pane, pn.Column(
+            pn.pane.Markdown("**SNUP on held-out flats** (%, before → after the flat-field "
+                             "correction)"), self.snup_table, sizing_mode="stretch_width"),
+            sizing_mode="stretch_width")]
+
+    def _build_response(self) -> None:
+        from ccdcore.response.methods import METHODS
+
+        from ..response_plots import ResponseFigure
+
+        self.response_fig = ResponseFigure(["tsin"], {"tsin": METHODS["tsin"].label},
+                                           height=340)
+        self.response_holder = pn.Column(pn.pane.Bokeh(self.response_fig.fig,
+                                                       sizing_mode="stretch_width"),
+                                         visible=False, sizing_mode="stretch_width")
+        self.bodies["response"].objects = [self.response_holder]
+
+    def _build_verify(self) -> None:
+        self.verify_table = _table("ccd-wt-verify")
+        self.bodies["verify"].objects = [self.verify_table]
+
+    def _build_export(self) -> None:
+        self.folder_input = pn.widgets.TextInput.from_param(
+            self.param.export_folder, name="Product folder", sizing_mode="stretch_width",
+            css_classes=["ccd-wt-folder"])
+        self.save_button = pn.widgets.Button(label="Save the product and the report",
+                                             color="primary",
+                                             css_classes=["ccd-wt-save"])
+        self.save_button.on_click(lambda e: pn.state.execute(self.save))
+        self.report_download = pn.widgets.FileDownload(
+            callback=self._report_bytes, filename="report.html",
+            label="Download the report (HTML)", color="default", disabled=True,
+            css_classes=["ccd-wt-report-download"])
+        self.export_note = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                            css_classes=["ccd-wt-export-note"])
+        self.bodies["export"].objects = [self.folder_input,
+                                         pn.Row(self.save_button, self.report_download),
+                                         self.export_note]
+
+    def __panel__(self) -> pn.viewable.Viewable:
+        intro = ("From the plan of the captures to a saved calibration product and its report. "
+                 "Each step checks its result and says what to capture or change; a step that "
+                 "lacks frames is skipped. The step is part of the address: copy it to send a "
+                 "colleague to this step.")
+        nav = pn.Column(self.progress, self.progress_text, *self.step_buttons.values(),
+                        width=250, sizing_mode="fixed", css_classes=["ccd-wt-steps"])
+        return pn.Column(*heading("Walkthrough", intro), self.info_alert, self.error_alert,
+                         pn.Row(nav, pn.Column(*self.panels.values(),
+                                               sizing_mode="stretch_width"),
+                                sizing_mode="stretch_width"),
+                         sizing_mode="stretch_width", name="Walkthrough")
+
+    # ------------------------------------------------------------------ state -------------
+    def _session_defaults(self) -> None:
+        session = self.state.session
+        if session is None:
+            return
+        if session.camera.bits:
+            self.bits = int(session.camera.bits)
+        self.export_folder = str(Path.home() / "ccdcore-products" /
+                                 f"{session.root.name}-calibration")
+
+    def _on_session(self, *events: Any) -> None:
+        self._invalidate("session", include=True)
+        self._session_defaults()
+        if self.auto:
+            pn.state.execute(self.run_step)
+
+    def _invalidate(self, slug: str, include: bool = False) -> None:
+        drop = DOWNSTREAM[slug] + ((slug,) if include else ())
+        for s in drop:
+            self.results.pop(s, None)
+        gates = {k: v for k, v in self.gates.items() if k not in drop}
+        if gates != self.gates:
+            self.gates = gates
+
+    @param.depends("gates", watch=True)
+    def _render_progress(self) -> None:
+        in_document(self._doc, self._draw_progress)
+
+    @batched
+    def _draw_progress(self) -> None:
+        done = sum(1 for s in SLUGS if s in self.gates)
+        self.progress.value = done
+        self.progress_text.object = f"{done} of {len(STEPS)} steps checked"
+        for i, s in enumerate(STEPS, start=1):
+            gate = self.gates.get(s.slug)
+            status = gate.status if gate else None
+            b = self.step_buttons[s.slug]
+            b.label = f"{STATUS_ICONS[status]}  {i}. {s.title}"
+            b.color = "primary" if s.slug == self.step else _BUTTONS[status]
+            pane = self.gate_panes[s.slug]
+            pane.object = gate_markdown(gate)
+            pane.alert_type = _ALERTS[status]
+
+    @param.depends("step", watch=True)
+    def _show_step(self) -> None:
+        for slug, panel in self.panels.items():
+            panel.visible = slug == self.step
+        self._draw_progress()
+        if self.auto:
+            pn.state.execute(self.run_step)
+
+    def on_show(self) -> None:
+        if self.auto and self.step not in self.gates:
+            pn.state.execute(self.run_step)
+
+    def _set_gate(self, slug: str, gate: Gate) -> None:
+        self.gates = {**self.gates, slug: gate}
+
+    # ------------------------------------------------------------------ steps -------------
+    async def run_step(self, slug: str | None = None) -> None:
+        """Compute the step ``slug`` (default: the one shown) if its result is missing, with
+        the steps it needs, then draw it."""
+        slug = slug or self.step
+        runner = getattr(self, f"_run_{slug}")
+        if slug in self._running:
+            return
+        self._running.add(slug)
+        try:
+            await runner()
+        finally:
+            self._running.discard(slug)
+
+    def _needs_session(self, slug: str) -> Session | None:
+        session = self.state.session
+        if session is None:
+            self._set_gate(slug, Gate("skip", "no session loaded",
+                                      next=("open a session on the Session page",)))
+        return session
+
+    async def _compute(self, slug: str, func: Callable, *args: Any, label: str,
+                       pass_progress: bool = False) -> Any:
+        """``func(*args)`` off the UI thread; a failure becomes the step's *fail* gate."""
+        session = self.state.session
+        result = await self.state.compute(func, *args, label=label,
+                                          pass_progress=pass_progress)
+        if self.state.session is not session:
+            return None
+        if result is None:
+            why = self.state.error or "the computation was cancelled"
+            self._set_gate(slug, Gate("fail", why, next=(
+                "correct the frames or the choices of this step, then revisit it",)))
+        return result
+
+    async def _run_plan(self) -> None:
+        self._plan()
+
+    def _plan(self) -> None:
+        session = self.state.session
+        try:
+            self.plan = plan_captures(
+                int(self.bits), float(self.gain), read_noise_e=float(self.read_noise_e),
+                pixels=int(self.pixels), exposure_half=float(self.exposure_half_ms) / 1e3,
+                layout=session.camera.layout if session is not None else "mono",
+                name=session.camera.name if session is not None else "")
+        except CcdError as err:
+            self.plan = None
+            self._set_gate("plan", Gate("fail", str(err), next=("correct the input named",)))
+            return
+        p = self.plan
+        rows = []
+        for g in p.groups:
+            exps = sorted({k["exposure"] for _, k in g.frames if "exposure" in k})
+            rows.append({"frames": g.title, "count": g.count, "folder": g.frames[0][0].split("/")[0],
+                         "exposures (ms)": ", ".join(f"{t * 1e3:.3g}" for t in exps[:8])
+                         + (" …" if len(exps) > 8 else ""), "rule": g.rule})
+        self._plan_rows = pd.DataFrame(rows)
+        in_document(self._doc, self._draw_plan)
+        self._set_gate("plan", Gate(
+            "pass", f"{p.n_frames} frames to capture; predicted σ(A)/A = {p.gain_rel_err:.2%}, "
+                    f"K̂ from n1 = {p.fixed_pattern.n1_required} × n2 = "
+                    f"{p.fixed_pattern.n2_required} frames", tuple(p.notes)))
+
+    @batched
+    def _draw_plan(self) -> None:
+        if self.plan is None:
+            return
+        self.plan_table.object = self._plan_rows
+        self.checklist.object = self.plan.checklist()
+        noise = self.results.get("ptc")
+        self.use_session.disabled = noise is None
+
+    @param.depends("bits", "gain", "read_noise_e", "exposure_half_ms", "pixels", watch=True)
+    def _on_plan_inputs(self) -> None:
+        self._plan()
+
+    def _use_session_noise(self, event: Any = None) -> None:
+        noise = self.results.get("ptc")
+        if noise is None:
+            return
+        rn = noise.read_noise_e if math.isfinite(noise.read_noise_e) else 0.0
+        self.param.update(gain=float(noise.A), read_noise_e=float(rn))
+
+    async def _run_session(self) -> None:
+        session = self._needs_session("session")
+        if session is None:
+            return
+        gate = guide.session_gate(session)
+        rows = [{"severity": p.severity, "where": p.where, "problem": p.message,
+                 "fix": guide.FIXES.get(p.code, "see docs/session.md")}
+                for p in session.problems]
+        self._problems = pd.DataFrame(rows or [{"severity": "", "where": "",
+                                                "problem": "no problems", "fix": ""}])
+        in_document(self._doc, self._draw_session)
+        self._set_gate("session", gate)
+
+    @batched
+    def _draw_session(self) -> None:
+        self.problems_table.object = self._problems
+
+    async def _ensure_dark(self) -> Any:
+        if "dark" not in self.results:
+            session = self.state.session
+            step = await self._compute("dark", guide.dark_step, session,
+                                       label="the dark reference")
+            if step is None:
+                return None
+            self.results["dark"] = step
+        return self.results["dark"]
+
+    async def _run_dark(self) -> None:
+        if self._needs_session("dark") is None:
+            return
+        step = await self._ensure_dark()
+        if step is None:
+            return
+        in_document(self._doc, self._draw_dark)
+        self._set_gate("dark", step.gate)
+
+    @batched
+    def _draw_dark(self) -> None:
+        step = self.results.get("dark")
+        if step is None:
+            return
+        if step.dark is not None:
+            m = step.dark.mean_map
+            lo, hi = np.percentile(m, [0.5, 99.5])
+            self.dark_view.show(m, clim=(float(lo), float(max(hi, lo + 1e-6))))
+            flagged = np.nonzero(step.dark.hot_mask | step.dark.dead_mask)
+            self.dark_view.set_points(flagged[0][:2000], flagged[1][:2000])
+            self.dark_pane.visible = True
+        self.dark_levels.object = pd.DataFrame([
+            {"exposure (s)": "–" if lv["exposure"] is None else f"{lv['exposure']:.4g}",
+             "frames": lv["n"], "mean (DN)": f"{lv['mean']:.4f}",
+             "± (DN)": "–" if not math.isfinite(lv["sem"]) else f"{lv['sem']:.2g}"}
+            for lv in step.levels]) if step.levels else pd.DataFrame()
+
+    async def _ensure_ptc(self) -> Any:
+        """The photon-transfer result (``None`` when skipped or failed; the gate says why)."""
+        if "ptc" in self.results:
+            return self.results["ptc"]
+        session = self.state.session
+        skip = _skip_missing(session, "noise")
+        if skip is not None:
+            self.results["ptc"] = None
+            self._set_gate("ptc", skip)
+            return None
+        noise = await self._compute("ptc", compute_ptc, session, list(self.exclude),
+                                    bool(self.robust), label="photon transfer")
+        if noise is None:
+            return None
+        self.results["ptc"] = noise
+        self._set_gate("ptc", guide.ptc_gate(noise))
+        return noise
+
+    async def _run_ptc(self) -> None:
+        if self._needs_session("ptc") is None:
+            return
+        noise = await self._ensure_ptc()
+        if noise is not None:
+            in_document(self._doc, self._draw_ptc)
+
+    @batched
+    def _draw_ptc(self) -> None:
+        noise = self.results.get("ptc")
+        if noise is None:
+            return
+        self.ptc_figs.update(noise.points, noise)
+        levels = [int(p.level) for p in noise.points]
+        self.exclude_select.options = levels
+        self.use_session.disabled = False
+
+    def _on_exclude(self, event: Any) -> None:
+        value = sorted(int(v) for v in event.new)
+        if value != sorted(self.exclude):
+            self.exclude = value
+
+    @param.depends("exclude", "robust", watch=True)
+    def _on_ptc_options(self) -> None:
+        self._invalidate("ptc", include=True)
+        if self.exclude_select.value != list(self.exclude):
+            self.exclude_select.value = list(self.exclude)
+        if self.auto and self.step == "ptc":
+            pn.state.execute(self.run_step)
+
+    async def _run_pattern(self) -> None:
+        session = self._needs_session("pattern")
+        if session is None:
+            return
+        if "pattern" not in self.results:
+            if not (session.fixed_pattern_configs() or session.flat_groups()):
+                step = guide.pattern_step(session)        # the skip gate, nothing to read
+            else:
+                dark = await self._ensure_dark()
+                noise = await self._ensure_ptc()
+                step = await self._compute(
+                    "pattern", compute_pattern, session, dark.dark if dark is not None else None,
+                    noise, label="the fixed pattern and flat field")
+                if step is None:
+                    return
+            self.results["pattern"] = step
+        step = self.results["pattern"]
+        in_document(self._doc, self._draw_pattern)
+        self._set_gate("pattern", step.gate)
+
+    @batched
+    def _draw_pattern(self) -> None:
+        step = self.results.get("pattern")
+        if step is None:
+            return
+        if step.fixed_pattern is not None:
+            K = step.fixed_pattern.K
+            half = float(max(np.percentile(np.abs(K - 1.0), 99.5), 1e-4))
+            self.k_view.show(K, clim=(1.0 - half, 1.0 + half))
+            self.k_pane.visible = True
+        self.snup_table.object = pd.DataFrame([
+            {"frame": r["frame"], "channel": r["channel"], "before (%)": f"{r['before']:.3g}",
+             "after (%)": f"{r['after']:.3g}"} for r in step.snup_rows]) \
+            if step.snup_rows else pd.DataFrame([{"": "no held-out flat frames"}])
+
+    async def _run_response(self) -> None:
+        session = self._needs_session("response")
+        if session is None:
+            return
+        if "response" not in self.results:
+            if not session.bracket_stacks("bracket"):
+                self.results["response"] = None
+                self._set_gate("response", Gate(
+                    "skip", "no exposure bracket: the response curve and HDR are skipped",
+                    next=(f"capture {requirement('response').capture}",)))
+                return
+            res = await self._compute("response", compute_response, session,
+                                      label="the response curve", pass_progress=True)
+            if res is None:
+                return
+            self.results["response"] = res
+        res = self.results["response"]
+        if res is None:
+            return
+        in_document(self._doc, self._draw_response)
+        self._set_gate("response", guide.response_gate(res))
+
+    @batched
+    def _draw_response(self) -> None:
+        res = self.results.get("response")
+        if res is None:
+            return
+        ch = res.channels[0]
+        self.response_fig.show({"tsin": (res[ch].g, res[ch].g_err)}, "tsin", False)
+        self.response_holder.visible = True
+
+    async def _ensure_verify(self) -> Any:
+        if "verify" in self.results:
+            return self.results["verify"]
+        session = self.state.session
+        noise = await self._ensure_ptc() if not _skip_missing(session, "noise") else None
+        found = await self._compute("verify", compute_verify, session, noise,
+                                    label="the calibration product", pass_progress=True)
+        if found is None:
+            return None
+        self.results["verify"] = found
+        return found
+
+    async def _run_verify(self) -> None:
+        if self._needs_session("verify") is None:
+            return
+        found = await self._ensure_verify()
+        if found is None:
+            return
+        in_document(self._doc, self._draw_verify)
+        self._set_gate("verify", found[1].gate)
+
+    @batched
+    def _draw_verify(self) -> None:
+        found = self.results.get("verify")
+        if found is None:
+            return
+        rows = found[1].rows
+        self.verify_table.object = pd.DataFrame([
+            {"frame": r.frame, "channel": r.channel, "SNUP before → after (%)":
+             f"{r.before:.3g} → {r.after:.3g}", "pixel scale before → after (%)":
+             f"{r.local_before:.3g} → {r.local_after:.3g}",
+             "noise floor (%)": "–" if r.floor is None else f"{r.floor:.3g}",
+             "pixels changed > 1 code": f"{r.changed:,} of {r.n_pixels:,}"} for r in rows]) \
+            if rows else pd.DataFrame([{"": "no held-out frames"}])
+
+    async def _run_export(self) -> None:
+        if self._needs_session("export") is None:
+            return
+        found = await self._ensure_verify()
+        if found is None:
+            return
+        self.report_download.disabled = False
+        if "export" not in self.results:
+            skipped = [f"{s.estimate}: {s.reason}" for s in found[0].skipped]
+            self._set_gate("export", Gate(
+                "warn" if not found[0].maps else "pass",
+                "the product is ready to save: choose a folder and save it",
+                tuple(f"skipped {s}" for s in skipped)))
+
+    async def save(self) -> None:
+        """Save the product and its report into :attr:`export_folder` (inside the allowed
+        folders); the gate says where, or why not."""
+        session = self.state.session
+        if session is None:
+            return
+        found = await self._ensure_verify()
+        if found is None:
+            return
+        try:
+            folder = self.state.check_allowed(self.export_folder)
+        except CcdError as err:
+            self._set_gate("export", Gate("fail", str(err), next=(
+                "choose a folder inside your home, the working folder or the session's",)))
+            return
+        saved = await self._compute("export", save_export, session, found[0], folder,
+                                    label="the product and the report")
+        if saved is None:
+            return
+        out, report = saved
+        self.results["export"] = saved
+        self._set_gate("export", Gate("pass", f"saved the product to {out} and the report to "
+                                              f"{report}", (
+            "apply it: ccdcore apply " + str(out) + " IMAGES -o OUT",)))
+        in_document(self._doc, lambda: setattr(self.export_note, "object",
+                                                f"Saved: `{out}` and `{report}`."))
+
+    def _report_bytes(self) -> io.BytesIO | None:
+        from ..report import build_report
+
+        found = self.results.get("verify")
+        if found is None or self.state.session is None:
+            return None
+        name = self.state.session.root.name
+        self.report_download.filename = f"{name}-report.html"
+        return io.BytesIO(build_report(self.state.session, product=found[0]).encode())
+
+    def release(self) -> None:
+        """The browser session ended: drop the results and the arrays the views hold."""
+        self.results.clear()
+        for view in (self.dark_view, self.k_view):
+            view.release()
+
+
+def create_page(state: AppState) -> WalkthroughPage:
+    """Registry entry point: the Walkthrough page bound to ``state``."""
+    return WalkthroughPage(state)
