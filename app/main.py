@@ -32,6 +32,7 @@ from panel.theme import Bootstrap
 from . import plots
 from .pages import PAGES, PageSpec, build_page, is_available
 from .batch import batched
+from .report_box import ReportBox
 from .state import AppState, default_roots
 
 __all__ = ["create_app", "serve", "AppShell", "TITLE"]
@@ -251,15 +252,20 @@ def create_app(session_path: str | Path | None = None, *,
         stylesheets=[_CSS], sizing_mode="stretch_width", margin=(12, 10)))
     template.sidebar.append(pn.pane.Markdown("#### Pages", margin=(0, 10)))
     template.sidebar.append(shell.nav)
-    template.sidebar.append(pn.pane.Markdown(
-        "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
-        stylesheets=[_CSS], margin=(12, 10), styles={"font-size": "0.85em", "color": "#6c757d"}))
+    report_box = ReportBox(state)
+    template.sidebar.append(report_box.panel())
+    if not all(is_available(spec) for spec in PAGES):
+        template.sidebar.append(pn.pane.Markdown(
+            "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
+            stylesheets=[_CSS], margin=(12, 10),
+            styles={"font-size": "0.85em", "color": "#6c757d"}))
     for holder in shell.holders.values():   # one Bokeh root per page
         template.main.append(holder)
     template.config.raw_css.append(_CSS)
     # handles for tests and for later pages
     template.app_state = state  # type: ignore[attr-defined]
     template.app_shell = shell  # type: ignore[attr-defined]
+    template.report_box = report_box  # type: ignore[attr-defined]
 
     doc = pn.state.curdoc
     if doc is not None and doc.session_context is not None:
@@ -267,6 +273,10 @@ def create_app(session_path: str | Path | None = None, *,
         # some seconds after its last connection closed)
         doc.on_session_destroyed(lambda context: shell.close())
     served = doc is not None and doc.session_context is not None
+    if served and pn.state.location is not None:
+        # the page shown is part of the address (``?page=walkthrough&step=ptc``): a colleague
+        # can be sent to it; the page's own state (a Walkthrough step) adds its keys
+        pn.state.location.sync(shell, {"page": "page"})
     if session_path is not None and not served:
         state.load(str(session_path))          # not served (a script or a test): open it now
     elif served:

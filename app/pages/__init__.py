@@ -85,9 +85,11 @@ PAGES: tuple[PageSpec, ...] = (
              "rate; change and shadow masks over the reference/target brackets (the "
              "`ccdcore change` verb)."),
     PageSpec("walkthrough", "Walkthrough", "\u2691",
-             "A guided tour of a bundled demo session: from the session check through photon "
-             "transfer, maps, flat field and response to a saved calibration product, comparing "
-             "every estimate with the simulator's truth."),
+             "A guided calibration in eight steps, each with its own address: plan the "
+             "captures (a checklist and a session.toml template), validate the session, dark "
+             "reference, photon transfer, fixed pattern and flat field, response, verify on "
+             "held-out frames, export the product and the report; each step ends in a gate "
+             "(ccdcore.guide) saying what passed, why, and what to capture next."),
 )
 
 
