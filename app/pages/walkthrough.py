@@ -190,6 +190,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         for i, s in enumerate(STEPS, start=1):
             b = pn.widgets.Button(label=f"{i}. {s.title}", color="light",
                                   sizing_mode="stretch_width", margin=(2, 0),
+                                  stylesheets=[".bk-btn { text-align: left; }"],
                                   css_classes=[f"ccd-wt-nav-{s.slug}"])
             b.on_click(lambda event, slug=s.slug: setattr(self, "step", slug))
             self.step_buttons[s.slug] = b
