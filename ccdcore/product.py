@@ -5,7 +5,8 @@ Public objects
 :class:`CalibrationProduct`
     Float32 maps (dark reference, its variance, K̂, n'_1, hot/dead flags ...) plus the JSON
     summaries of each estimate (noise model, dark reference, fixed pattern, acquisition plan, scene
-    variation) and the provenance (which step, which parameters, which session).
+    variation), the EMVA 1288 figures when the session has photon counts, and the provenance
+    (which step, which parameters, which session: its content hash, and when).
 :func:`calibrate`
     Runs every estimate the session's frames allow and returns the product.
 :func:`load_product`, :meth:`CalibrationProduct.save`
@@ -20,6 +21,7 @@ target (an existing product is replaced only once the new one is complete).
 from __future__ import annotations
 
 import contextlib
+import datetime
 import json
 import math
 import os
@@ -35,6 +37,7 @@ import numpy as np
 from . import __version__
 from .common import json_safe
 from .darkframe import DarkReference
+from .datasheet import EmvaFigures
 from .errors import CcdError
 from .fixedpattern import CorrectionCheck, FixedPattern
 from .flatfield import FlatField
@@ -74,9 +77,9 @@ def _no_progress(step: str, fraction: float) -> None:
 #: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
 #: (what its ``progress`` callback receives; :class:`ccdcore.progress.Tracker` takes them)
 ESTIMATE_STEPS: tuple[tuple[str, float], ...] = (
-    ("photon transfer", 0.0), ("dark reference", 0.15), ("fixed pattern", 0.3),
-    ("planning", 0.55), ("correction check", 0.6), ("scene variation", 0.65),
-    ("flat field", 0.8), ("response", 0.9), ("done", 1.0))
+    ("photon transfer", 0.0), ("EMVA 1288 figures", 0.08), ("dark reference", 0.15),
+    ("fixed pattern", 0.3), ("planning", 0.55), ("correction check", 0.6),
+    ("scene variation", 0.65), ("flat field", 0.8), ("response", 0.9), ("done", 1.0))
 
 
 @dataclass(frozen=True, eq=False)
@@ -96,7 +99,10 @@ class CalibrationProduct:
     camera
         The session's camera.
     provenance
-        ``ccdcore`` version, the session, and per step its parameters.
+        ``ccdcore`` version, the session (its label, ``source``, ``n_frames`` and
+        ``session_hash``, the SHA-256 of :meth:`~ccdcore.session.Session.content_hash`), the
+        ``date`` of the calibration (UTC, ISO 8601), and per step its parameters.  Products of
+        earlier releases have no ``session_hash`` nor ``date``.
     skipped
         Every estimate that was not made, with its reason.
     warnings
@@ -104,6 +110,10 @@ class CalibrationProduct:
     notes
         Remarks on the product as a whole; each estimate keeps its own notes (products of the
         first release kept their skip reasons and plan warnings here).
+    emva1288
+        The EMVA 1288 figures (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, the top-level key
+        ``"emva1288"`` of ``calibration.json``), or ``None`` when the session has no photon
+        counts (the key is then absent).
     """
 
     maps: dict[str, np.ndarray]
@@ -113,15 +123,20 @@ class CalibrationProduct:
     skipped: tuple[Skipped, ...] = ()
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
+    emva1288: JsonDict | None = None
 
     # -------------------------------------------------------------------------------------
     def to_dict(self) -> JsonDict:
-        """The content of ``calibration.json`` (maps by file name)."""
-        return {"schema": PRODUCT_SCHEMA, "camera": self.camera.to_dict(),
-                "maps": {name: f"maps/{name}.exr" for name in sorted(self.maps)},
-                "estimates": self.estimates, "skipped": [s.to_dict() for s in self.skipped],
-                "provenance": self.provenance, "warnings": list(self.warnings),
-                "notes": list(self.notes)}
+        """The content of ``calibration.json`` (maps by file name; ``emva1288`` when made)."""
+        out: JsonDict = {"schema": PRODUCT_SCHEMA, "camera": self.camera.to_dict(),
+                         "maps": {name: f"maps/{name}.exr" for name in sorted(self.maps)},
+                         "estimates": self.estimates}
+        if self.emva1288 is not None:
+            out["emva1288"] = self.emva1288
+        out.update({"skipped": [s.to_dict() for s in self.skipped],
+                    "provenance": self.provenance, "warnings": list(self.warnings),
+                    "notes": list(self.notes)})
+        return out
 
     def save(self, folder: str | os.PathLike) -> Path:
         """Write ``calibration.json`` and the maps into ``folder`` atomically; return the folder.
@@ -387,6 +402,9 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     estimates = doc.get("estimates", {})
     if not all(isinstance(v, dict) for v in estimates.values()):
         raise CcdError(manifest, "every entry of 'estimates' must be an object")
+    emva = doc.get("emva1288")
+    if emva is not None and not isinstance(emva, dict):
+        raise CcdError(manifest, "'emva1288' must be a JSON object")
     try:
         skipped = tuple(Skipped.from_dict(d) for d in doc.get("skipped", ()))
     except (KeyError, TypeError, AttributeError):
@@ -404,7 +422,7 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
                               camera=_camera_from(doc.get("camera", {}), manifest),
                               provenance=doc.get("provenance", {}), skipped=skipped,
                               warnings=tuple(str(n) for n in doc.get("warnings", ())),
-                              notes=tuple(str(n) for n in doc.get("notes", ())))
+                              notes=tuple(str(n) for n in doc.get("notes", ())), emva1288=emva)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -431,6 +449,13 @@ class Requirement:
 REQUIREMENTS: tuple[Requirement, ...] = (
     Requirement("noise", ("ptc",), "the noise model A, σ²_C (photon transfer, eqs. 37–42)",
                 "pairs of frames at several light levels (role = ptc, level = 1, 2, …)"),
+    Requirement("emva1288", ("ptc", "dark"),
+                "the EMVA 1288 figures (K, QE, σ_d, saturation, dynamic range, linearity, "
+                "DSNU, PRNU; release 3.1)",
+                "an EMVA1288 descriptor: pairs of bright frames with their photon counts from "
+                "dark to saturation, two dark frames at each exposure time, and L frames at "
+                "50 % of saturation with as many dark frames (role = ptc with photons, "
+                "role = dark)"),
     Requirement("dark", ("dark",), "the dark reference D̂_D with hot/dead flags (sec. V-A)",
                 "16 or more lens-capped frames at the exposure of the other frames "
                 "(role = dark)"),
@@ -526,12 +551,14 @@ class Estimates:
     flat: FlatField | None = None
     response: Any = None
     skipped: tuple[Skipped, ...] = ()
+    emva1288: EmvaFigures | None = None
 
     @property
     def made(self) -> tuple[str, ...]:
         """The names of the estimates that were made (:data:`REQUIREMENTS` names)."""
-        have = {"noise": self.noise, "dark": self.dark, "fixed_pattern": self.fixed_pattern,
-                "plan": self.plan, "correction_check": self.correction_check,
+        have = {"noise": self.noise, "emva1288": self.emva1288, "dark": self.dark,
+                "fixed_pattern": self.fixed_pattern, "plan": self.plan,
+                "correction_check": self.correction_check,
                 "scene": self.scene, "flat_field": self.flat, "response": self.response}
         return tuple(k for k, v in have.items() if v is not None)
 
@@ -575,7 +602,8 @@ def budget_inputs(dark: DarkReference, fp: FixedPattern, noise: PhotonTransfer,
 
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
-                 progress: Progress | None = None, response: bool = True) -> Estimates:
+                 progress: Progress | None = None, response: bool = True,
+                 emva1288: bool = True) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
     An estimate whose frames are missing, or whose frames the method refuses (a
@@ -583,9 +611,12 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     skipped and listed in :attr:`Estimates.skipped` with its reason; the others are still made.
     ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
     excluded in the app) instead of computing it here; ``response=False`` leaves the response
-    of a bracket out (its step is then empty).
+    of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty).
+    The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
+    as ``not-applicable``.
     """
     from .darkframe import dark_reference
+    from .datasheet import emva_figures
     from .fixedpattern import correction_check, fixed_pattern_map
     from .flatfield import flat_field_from_session
     from .noise import photon_transfer
@@ -639,6 +670,16 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         made["noise"] = noise
     else:
         attempt("noise", (), lambda: photon_transfer(session, roi=roi))
+    report("EMVA 1288 figures", start["EMVA 1288 figures"])
+    no_photons = all(r.photons is None for r in session.by_role("ptc"))
+    if emva1288 and "emva1288" not in lacking and no_photons:
+        skipped.append(Skipped("emva1288", "not-applicable", "the ptc frames have no photon "
+                               "counts: the EMVA 1288 figures need the photons per pixel of "
+                               "each bright frame (open an EMVA1288 descriptor, or give "
+                               "photons = N in the manifest)", ("ptc",)))
+    elif emva1288:
+        attempt("emva1288", (), lambda: emva_figures(session, noise=made.get("noise"),
+                                                     with_ptc=False))
     report("dark reference", start["dark reference"])
     roles = session.roles()
     if roles.get("dark") and session.camera.layout != "mono":
@@ -670,7 +711,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                      fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
                      scene=made.get("scene"), correction_check=made.get("correction_check"),
                      flat=made.get("flat_field"), response=made.get("response"),
-                     skipped=tuple(skipped))
+                     skipped=tuple(skipped), emva1288=made.get("emva1288"))
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -693,9 +734,12 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     ``noise`` passes a photon-transfer result already made (e.g. with levels left out or the
     robust mode, as the app's Walkthrough chooses) instead of estimating it here.
 
+    - ``ptc`` frames with photon counts (an EMVA1288 descriptor) and dark frames: the EMVA 1288
+      figures (:func:`ccdcore.datasheet.emva_figures`), in :attr:`CalibrationProduct.emva1288`.
+
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
-    refused).
+    refused).  The provenance records the session's content hash and the date (UTC).
 
     Raises
     ------
@@ -756,11 +800,25 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     if e.scene is not None:
         est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
         steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
+    emva = None
+    if e.emva1288 is not None:
+        from .datasheet import LINEARITY_RANGE, SENSITIVITY_FRACTION, SIGMA2_Y_DARK_FLOOR
+
+        emva = json_safe(e.emva1288.to_dict())
+        steps["emva1288"] = {"method": "EMVA 1288 release 3.1 as the emva1288 1.0.2 package "
+                                       "computes it (Results1288); errors and sigma_d_ptc by "
+                                       "ccdcore", "sensitivity_fraction": SENSITIVITY_FRACTION,
+                             "linearity_range": list(LINEARITY_RANGE),
+                             "sigma2_y_dark_floor": SIGMA2_Y_DARK_FLOOR}
     provenance = {"ccdcore": __version__, "session": session.label,
-                  "source": session.source, "n_frames": len(session.frames), "steps": steps}
+                  "source": session.source, "n_frames": len(session.frames),
+                  "session_hash": session.content_hash(),
+                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(
+                      timespec="seconds"),
+                  "steps": steps}
     return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
                               provenance=json_safe(provenance), skipped=e.skipped,
-                              warnings=e.plan_warnings)
+                              warnings=e.plan_warnings, emva1288=emva)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -603,7 +603,7 @@ class MapsPage(pn.viewable.Viewer):
             results = self.state.results
             est = await self.state.compute(
                 estimate_all, session, noise=results.ptc, steps=ESTIMATE_STEPS,
-                pass_progress=True,
+                pass_progress=True, emva1288=False,
                 label="dark reference, K̂, plan, scene variation and correction check")
             if est is not None and self.state.session is session:
                 results.param.update(estimates=est,

@@ -342,7 +342,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
                  "lacks frames is skipped. The step is part of the address: copy it to send a "
                  "colleague to this step.")
         nav = pn.Column(self.progress, self.progress_text, *self.step_buttons.values(),
-                        width=250, sizing_mode="fixed", css_classes=["ccd-wt-steps"])
+                        width=250, sizing_mode=None, css_classes=["ccd-wt-steps"])
         return pn.Column(*heading("Walkthrough", intro), self.info_alert, self.error_alert,
                          pn.Row(nav, pn.Column(*self.panels.values(),
                                                sizing_mode="stretch_width"),

@@ -3,7 +3,8 @@
 :class:`Camera`, :class:`FrameRecord` and :class:`Problem` are frozen records; :class:`Session`
 holds them with the cached file headers and answers every question an estimator asks of a
 session's frames: frames by role, photon-transfer levels, fixed-pattern configurations, flat and
-dark groups by offset setting and gain, exposure brackets, scene patches, the max-intensity frame.
+dark groups by offset setting and gain, exposure brackets, scene patches, the max-intensity frame;
+and the content hash of its files for a product's provenance (:meth:`Session.content_hash`).
 Estimators never group frames themselves (``docs/session.md`` gives the manifest keys).
 
 Validation problems carry a machine-readable ``code`` and the ``roles`` whose frames they touch,
@@ -13,9 +14,12 @@ so a verb refuses exactly the sessions whose errors concern the frames it uses
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
-from collections import Counter, deque
+import os
+import threading
+from collections import Counter, OrderedDict, deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,6 +163,24 @@ class Problem:
     def to_dict(self) -> dict[str, Any]:
         return {"where": self.where, "message": self.message, "severity": self.severity,
                 "code": self.code, "roles": list(self.roles)}
+
+
+#: bytes read at a time by :meth:`Session.content_hash`
+HASH_CHUNK = 1 << 20
+#: session content hashes already computed, keyed by the (path, size, mtime_ns) of the manifest
+#: and of every frame in order (a Session is frozen: the cache lives here, bounded)
+_HASH_CACHE: OrderedDict[tuple, str] = OrderedDict()
+_HASH_CACHE_SIZE = 64
+_HASH_LOCK = threading.Lock()
+
+
+def _stat_key(path: Path, where: str) -> tuple[str, int, int]:
+    """(path, size, mtime_ns) of a file, or a :class:`CcdError` naming ``where``."""
+    try:
+        st = os.stat(path)
+    except OSError as exc:
+        raise CcdError(where, f"cannot read the file to hash it: {exc.strerror}") from None
+    return str(path), int(st.st_size), int(st.st_mtime_ns)
 
 
 #: the metadata key whose value groups the frames of a role (flat: level, else exposure)
@@ -358,6 +380,64 @@ class Session:
                     ) -> dict[Any, tuple[FrameRecord, ...]]:
         """Dark frames of one setting (and gain) keyed by exposure (``None`` when unknown)."""
         return group_by(self.select("dark", setting=setting, gain=gain), lambda r: r.exposure)
+
+    # ---- content ----------------------------------------------------------------------------
+    def content_hash(self) -> str:
+        """The SHA-256 (hex) of what the session is made of, for a product's provenance.
+
+        Hashed in order: the manifest or descriptor bytes (nothing for a plain folder), then for
+        every frame in session order its path relative to the session root, its size in bytes
+        and its bytes, read in 1 MiB chunks (each field length-prefixed, so no two sessions
+        share a stream).  The same files give the same hash wherever the folder lies; one
+        changed byte, a renamed, added, removed or reordered frame changes it.
+
+        The hash is computed once per content: it is cached (for this and any other
+        :class:`Session` of the same files) under the path, size and modification time
+        (``st_mtime_ns``) of the manifest and of every frame, so a file rewritten in place with
+        the same size and modification time would keep its old hash.
+
+        Raises
+        ------
+        CcdError
+            A file cannot be read.
+        """
+        files = ([] if self.manifest_path is None
+                 else [(self.manifest_path, self.manifest_path.name, None)])
+        files += [(rec.path, rec.relpath, rec.relpath) for rec in self.frames]
+        key = tuple(_stat_key(path, where) for path, where, _ in files)
+        with _HASH_LOCK:
+            cached = _HASH_CACHE.get(key)
+            if cached is not None:
+                _HASH_CACHE.move_to_end(key)
+                return cached
+        digest = hashlib.sha256(b"ccdcore session content v1\0")
+
+        def field_(data: bytes) -> None:
+            digest.update(len(data).to_bytes(8, "little"))
+            digest.update(data)
+
+        for (path, where, relpath), (_, size, _) in zip(files, key):
+            field_(b"manifest" if relpath is None else b"frame")
+            if relpath is not None:
+                field_(relpath.encode("utf-8"))
+            digest.update(size.to_bytes(8, "little"))
+            try:
+                with open(path, "rb") as f:
+                    read = 0
+                    while chunk := f.read(HASH_CHUNK):
+                        digest.update(chunk)
+                        read += len(chunk)
+            except OSError as exc:
+                raise CcdError(where, f"cannot read the file to hash it: {exc.strerror}") from None
+            if read != size:
+                raise CcdError(where, f"changed while it was hashed ({size} bytes before, "
+                                      f"{read} read)")
+        out = digest.hexdigest()
+        with _HASH_LOCK:
+            _HASH_CACHE[key] = out
+            while len(_HASH_CACHE) > _HASH_CACHE_SIZE:
+                _HASH_CACHE.popitem(last=False)
+        return out
 
     # ---- pixels -----------------------------------------------------------------------------
     def header(self, rec: FrameRecord) -> ImageHeader:
