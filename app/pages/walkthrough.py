@@ -60,8 +60,8 @@ _BUTTONS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "lig
             None: "light"}
 #: the steps whose results a change in a step makes stale (they recompute when shown)
 DOWNSTREAM: dict[str, tuple[str, ...]] = {
-    "plan": (), "session": ("dark", "ptc", "pattern", "response", "verify", "export"),
-    "dark": ("pattern", "verify", "export"), "ptc": ("pattern", "verify", "export"),
+    "plan": (), "session": ("dark", "ptc", "emva", "pattern", "response", "verify", "export"),
+    "dark": ("pattern", "verify", "export"), "ptc": ("emva", "pattern", "verify", "export"),
     "pattern": ("verify", "export"), "response": ("verify", "export"),
     "verify": ("export",), "export": ()}
 IMAGE_WIDTH = 360
@@ -101,6 +101,35 @@ def compute_ptc(session: Session, exclude: list[int], robust: bool) -> Any:
     from ccdcore.noise import photon_transfer
 
     return photon_transfer(session, exclude_levels=exclude, robust=robust)
+
+
+def compute_emva(session: Session, noise: Any) -> dict[str, Any]:
+    """The EMVA 1288 figures (:func:`ccdcore.datasheet.emva_figures`) as their JSON dict."""
+    from ccdcore.datasheet import emva_figures
+
+    return emva_figures(session, noise=noise).to_dict()
+
+
+#: the EMVA 1288 figures the photon-transfer step lists: key, unit, what it is
+EMVA_ROWS = (("K", "DN/e⁻", "system gain"), ("QE", "%", "quantum efficiency η"),
+             ("sigma_d", "e⁻", "temporal dark noise, from the dark frames"),
+             ("sigma_d_ptc", "e⁻", "temporal dark noise, from the photon-transfer intercept"),
+             ("u_e_sat", "e⁻", "saturation capacity μ_e.sat"), ("SNR_max", "", "maximum SNR"),
+             ("DR_dB", "dB", "dynamic range"), ("LE_min", "%", "linearity error, min"),
+             ("LE_max", "%", "linearity error, max"), ("DSNU1288", "e⁻", "DSNU"),
+             ("PRNU1288", "%", "PRNU"))
+
+
+def emva_table(figures: dict[str, Any]) -> pd.DataFrame:
+    """The figures as rows (name, value ± error, unit, meaning); absent ones as '–'."""
+    from ccdcore.common import format_pm
+
+    rows = []
+    for key, unit, what in EMVA_ROWS:
+        v, e = figures.get(key), figures.get(f"{key}_err")
+        text = "–" if v is None else (format_pm(float(v), float(e)) if e else f"{v:.4g}")
+        rows.append({"figure": key, "value": text, "unit": unit, "meaning": what})
+    return pd.DataFrame(rows)
 
 
 def compute_pattern(session: Session, dark: Any, noise: Any) -> Any:
@@ -286,10 +315,17 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self.exclude_select.param.watch(self._on_exclude, "value")
         self.robust_box = pn.widgets.Checkbox.from_param(
             self.param.robust, name="Robust mode (drop levels beyond 3σ)")
+        self.emva_table = _table("ccd-wt-emva")
+        self.emva_holder = pn.Column(
+            pn.pane.Markdown("**EMVA 1288 figures** (the session carries photon counts; "
+                             "definitions of release 3.1, as the emva1288 package computes "
+                             "them: docs/emva.md)"),
+            self.emva_table, visible=False, sizing_mode="stretch_width")
         self.bodies["ptc"].objects = [
             pn.Row(self.exclude_select, self.robust_box),
             pn.pane.Bokeh(self.ptc_figs.transfer, sizing_mode="stretch_width"),
-            pn.pane.Bokeh(self.ptc_figs.residual, sizing_mode="stretch_width")]
+            pn.pane.Bokeh(self.ptc_figs.residual, sizing_mode="stretch_width"),
+            self.emva_holder]
 
     def _build_pattern(self) -> None:
         self.k_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
@@ -560,7 +596,18 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         if noise is None:
             return None
         self.results["ptc"] = noise
-        self._set_gate("ptc", guide.ptc_gate(noise))
+        gate = guide.ptc_gate(noise)
+        if any(r.photons for r in session.by_role("ptc")):
+            figures = await self.state.compute(compute_emva, session, noise,
+                                               label="the EMVA 1288 figures")
+            self.results["emva"] = figures
+            if figures is None:
+                gate = Gate(gate.status, gate.summary, gate.reasons + (
+                    f"the EMVA 1288 figures could not be made: {self.state.error}",), gate.next)
+            else:
+                gate = Gate(gate.status, gate.summary, gate.reasons + tuple(
+                    f"EMVA 1288: {n}" for n in figures.get("notes", ())), gate.next)
+        self._set_gate("ptc", gate)
         return noise
 
     async def _run_ptc(self) -> None:
@@ -576,6 +623,10 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         if noise is None:
             return
         self.ptc_figs.update(noise.points, noise)
+        figures = self.results.get("emva")
+        if figures:
+            self.emva_table.object = emva_table(figures)
+        self.emva_holder.visible = bool(figures)
         levels = [int(p.level) for p in noise.points]
         self.exclude_select.options = levels
         self.use_session.disabled = False
