@@ -229,11 +229,37 @@ def _print_product(product: Any, folder: Path) -> None:
     for name, sv in est.get("scene", {}).items():
         print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
               "(relative variance of the surface)")
+    if product.emva1288 is not None:
+        _print_emva(product.emva1288)
     print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
     for warning in product.warnings:
         _say("warning", warning)
     for note in product.notes:
         _say("note", note)
+
+
+def _print_emva(e: dict) -> None:
+    """The EMVA 1288 block of ``calibrate`` (the figures of ``CalibrationProduct.emva1288``)."""
+    def pm(key: str, unit: str = "") -> str:
+        return format_pm(_get(e, key), _get(e, f"{key}_err"), unit=unit)
+
+    print("  EMVA 1288      (release 3.1 definitions, as the emva1288 package computes them)")
+    rows = [("system gain", f"K = {pm('K', 'DN/e⁻')}"),
+            ("quantum eff.", f"η = {pm('QE', '%')}"),
+            ("dark noise", f"σ_y.dark = {pm('sigma_y_dark', 'DN')}; σ_d = {pm('sigma_d', 'e⁻')} "
+                           f"from darks, {pm('sigma_d_ptc', 'e⁻')} from photon transfer"),
+            ("saturation", f"μ_p.sat = {pm('u_p_sat', 'p')}, "
+                           f"μ_e.sat = {pm('u_e_sat', 'e⁻')}, SNR_max = {pm('SNR_max')}"),
+            ("sensitivity", f"μ_p.min = {pm('u_p_min', 'p')}"),
+            ("dynamic range", f"DR = {pm('DR')} = {pm('DR_dB', 'dB')}"),
+            ("linearity", f"LE_min = {pm('LE_min', '%')}, LE_max = {pm('LE_max', '%')}")]
+    if e.get("DSNU1288") is not None or e.get("PRNU1288") is not None:
+        rows.append(("nonuniformity", f"DSNU1288 = {pm('DSNU1288', 'e⁻')}, "
+                                      f"PRNU1288 = {pm('PRNU1288', '%')}"))
+    for name, text in rows:
+        print(f"    {name:<14}{text}")
+    for note in e.get("notes", ()):
+        _say("EMVA note", note, indent="    ")
 
 
 def _fmt(v: Any) -> str:
@@ -442,6 +468,21 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_report(args: argparse.Namespace) -> int:
+    from app.report import write_report  # here: Bokeh loads for this verb only (not Panel)
+
+    last = [""]
+
+    def progress(step: str, fraction: float) -> None:
+        if step != last[0]:
+            last[0] = step
+            print(f"report: {100 * fraction:3.0f} % {step}", file=sys.stderr, flush=True)
+
+    path = write_report(args.source, args.out, progress=progress)
+    print(f"report written to {path} ({path.stat().st_size / 1e6:.1f} MB, opens offline)")
+    return 0
+
+
 def _cmd_app(args: argparse.Namespace) -> int:
     from app.main import serve
 
@@ -588,6 +629,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
     json_flag(p)
+
+    p = verb("report", "one self-contained HTML calibration report: every estimate with its "
+                       "error, plots and maps, skipped estimates, provenance (opens offline)",
+             _cmd_report, needs="a session (it is calibrated first; with reference and target "
+                                "brackets, change detection runs too) or a calibration product "
+                                "folder (ccdcore calibrate)")
+    p.add_argument("source", type=Path,
+                   help=_SESSION_HELP + "; or a calibration product folder")
+    p.add_argument("-o", "--out", type=Path, required=True,
+                   help="the HTML file to write (replaced atomically; never an input)")
 
     p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)
     p.add_argument("session", nargs="?", default=None,

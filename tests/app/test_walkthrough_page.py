@@ -1,0 +1,137 @@
+"""The Walkthrough page without a browser: each step's gate is ccdcore.guide's verdict on the
+loaded session, steps lacking frames skip with a message, a change recomputes the later steps,
+and the export writes the product and the report."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from _coro import run as _run
+from app.pages.walkthrough import DOWNSTREAM, WalkthroughPage
+from app.state import AppState
+from ccdcore import guide
+from ccdcore.capture import plan_captures
+from ccdcore.noise import photon_transfer
+from ccdcore.product import load_product
+from ccdcore.session import open_session
+
+
+def _page(path: Path, roots=None) -> WalkthroughPage:
+    state = AppState(allowed_roots=[path.parent, *(roots or [])])
+    assert state.load(str(path))
+    return WalkthroughPage(state, auto=False)
+
+
+def _walk(page: WalkthroughPage) -> dict[str, str]:
+    for s in guide.STEPS:
+        _run(page.run_step(s.slug))
+    return {k: g.status for k, g in page.gates.items()}
+
+
+def test_healey94_steps_follow_the_guide(assets: Path) -> None:
+    page = _page(assets / "healey94")
+    status = _walk(page)
+    s = open_session(assets / "healey94")
+    noise = photon_transfer(s)
+    d = guide.dark_step(s)
+    assert status["session"] == guide.session_gate(s).status == "pass"
+    assert status["dark"] == d.gate.status
+    assert status["ptc"] == guide.ptc_gate(noise).status
+    assert page.results["ptc"].A == noise.A
+    assert status["pattern"] == guide.pattern_step(s, dark=d.dark, noise=noise).gate.status
+    assert status["response"] == "skip"
+    assert "bracket" in page.gates["response"].summary
+    product, verification = page.results["verify"]
+    assert status["verify"] == verification.gate.status == "pass"
+    assert set(product.maps) >= {"dark", "K"}
+    # the plan is made from the session's bit depth
+    assert page.bits == 8 and page.plan is not None
+    assert page.plan.n_frames == plan_captures(8, page.gain, read_noise_e=page.read_noise_e,
+                                               pixels=page.pixels,
+                                               exposure_half=page.exposure_half_ms / 1e3
+                                               ).n_frames
+    assert page.progress.value == len(guide.STEPS)
+
+
+def test_a_session_without_flats_or_brackets_skips_with_a_message(assets: Path) -> None:
+    page = _page(assets / "tsin01")
+    status = _walk(page)
+    assert status["dark"] == status["ptc"] == status["pattern"] == "skip"
+    assert status["response"] == "pass"
+    for slug in ("dark", "ptc", "pattern"):
+        assert page.gates[slug].next, slug          # each says what to capture
+    assert "ptc" in page.gates["ptc"].summary
+    dl = _walk(_page(assets / "delasarte07"))
+    assert dl["pattern"] == "pass" and dl["ptc"] == "skip" and dl["response"] == "skip"
+
+
+def test_leaving_out_a_level_recomputes_the_later_steps(assets: Path) -> None:
+    page = _page(assets / "healey94")
+    _walk(page)
+    before = page.results["ptc"]
+    page.exclude = [3]
+    assert not (set(DOWNSTREAM["ptc"]) | {"ptc"}) & set(page.gates)
+    assert "dark" in page.gates and "session" in page.gates      # earlier steps are kept
+    _walk(page)
+    after = page.results["ptc"]
+    assert after.A != before.A
+    assert not next(p for p in after.points if p.level == 3).used
+    ref = photon_transfer(open_session(assets / "healey94"), exclude_levels=[3])
+    assert after.A == ref.A
+    product = page.results["verify"][0]
+    assert product.estimates["noise"]["A"] == pytest.approx(ref.A, rel=1e-12)
+
+
+def test_plan_inputs_replan(assets: Path) -> None:
+    page = _page(assets / "healey94")
+    n = page.plan.n_frames
+    page.exposure_half_ms = 20.0
+    assert page.plan.group("Photon transfer pairs").frames[0][1]["exposure"] == pytest.approx(
+        2 * plan_captures(8, page.gain, read_noise_e=page.read_noise_e
+                          ).group("Photon transfer pairs").frames[0][1]["exposure"], rel=1e-3)
+    page.read_noise_e = 30.0
+    assert page.plan.n_frames != n
+    assert page.gates["plan"].status == "pass"
+
+
+def test_export_writes_the_product_and_the_report(assets: Path, tmp_path: Path) -> None:
+    page = _page(assets / "healey94", roots=[tmp_path])
+    _walk(page)
+    page.export_folder = str(tmp_path / "calib")
+    _run(page.save())
+    assert page.gates["export"].status == "pass", page.gates["export"]
+    product = load_product(tmp_path / "calib")
+    assert set(product.maps) >= {"dark", "K"}
+    html = (tmp_path / "calib" / "report.html").read_text()
+    assert "<html" in html.lower() and "photon transfer" in html.lower()
+    # a folder outside the allowed roots is refused, nothing written
+    page.export_folder = "/proc/not-allowed"
+    _run(page.save())
+    assert page.gates["export"].status == "fail"
+
+
+def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
+    import numpy as np
+
+    # emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (docs/notes.md)
+    np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E731
+    from emva1288.camera.dataset_generator import DatasetGenerator
+
+    from app.pages.walkthrough import emva_table
+    from ccdcore.datasheet import emva_figures
+
+    gen = DatasetGenerator(steps=20, L=4, image_format="tif", outdir=str(tmp_path / "d"),
+                           width=32, height=24, bit_depth=12, seed=5)
+    descriptor = Path(gen.descriptor_path)
+    page = _page(descriptor)
+    _run(page.run_step("ptc"))
+    figures = page.results["emva"]
+    s = open_session(descriptor)
+    want = emva_figures(s, noise=photon_transfer(s)).to_dict()
+    assert figures["K"] == want["K"] and figures["QE"] == want["QE"]
+    table = emva_table(figures)
+    assert list(table["figure"])[:2] == ["K", "QE"] and "±" in table["value"][0]
+    assert page.emva_holder.visible
+    page.exclude = [1]                       # a new photon transfer drops the figures too
+    assert "emva" not in page.results
