@@ -30,7 +30,7 @@ import logging
 import traceback
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -43,11 +43,13 @@ from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots
 from ..image_view import HistogramView, ImageView
-from ..product_panel import ProductPanel
 from ..state import AppState, assets_dir, demo_sessions
 from ..batch import batched
 from ._choices import set_choices
 from ._styles import KEY_VALUE_CSS
+
+if TYPE_CHECKING:
+    from ..product_panel import ProductPanel
 
 __all__ = ["SessionPage", "create_page", "groups_frame", "frames_frame", "inferred_summary",
            "MAX_ALERTS"]
@@ -177,8 +179,7 @@ class SessionPage(pn.viewable.Viewer):
         self._build_open_widgets()
         self._build_session_widgets()
         self._build_preview_widgets()
-        #: the Calibration product tab: open a product, apply it to this session's frames
-        self.product_panel = ProductPanel(self.state)
+        self._product_panel: ProductPanel | None = None   # built on the tab's first visit
         self.state.param.watch(self._on_session, "session")
         self.state.param.watch(self._on_state_message, ["error", "status", "busy", "progress"])
         if self.state.session is not None:
@@ -316,9 +317,18 @@ class SessionPage(pn.viewable.Viewer):
             pn.Card(self.root_select, self.browse_holder, self.open_selected_button,
                     title="Browse folders", collapsed=True, sizing_mode="stretch_width"),
             title="Open a session", sizing_mode="stretch_width", collapsible=False)
+        # the Calibration product tab gets its panel on its first visit (the first page draws
+        # nothing for it), then keeps it
+        product_holder = pn.Column(sizing_mode="stretch_width", margin=0)
         self.open_tabs = pn.Tabs(("Open a session", open_card),
-                                 ("Calibration product", self.product_panel.panel()),
+                                 ("Calibration product", product_holder),
                                  sizing_mode="stretch_width", css_classes=["ccd-open-tabs"])
+
+        def show_product(event: Any) -> None:
+            if event.new == 1 and not product_holder.objects:
+                product_holder.objects = [self.product_panel.panel()]
+
+        self.open_tabs.param.watch(show_product, "active")
         return pn.Column(
             pn.pane.Markdown("## Session", css_classes=["ccd-page-title"]),
             self.open_tabs, self.progress, self.status_pane, self.error_alert, self.notice_alert,
@@ -580,7 +590,8 @@ class SessionPage(pn.viewable.Viewer):
         self.image_view.release()
         self._array = self._plane = self._shown = None
         self._planes = {}
-        self.product_panel.release()
+        if self._product_panel is not None:
+            self._product_panel.release()
 
     def _on_clim(self, event: Any) -> None:
         self.image_view.set_clim(event.new)
@@ -597,6 +608,16 @@ class SessionPage(pn.viewable.Viewer):
         if wide != tuple(clim):
             self.clim_slider.value = wide
         self.clim_slider.value = tuple(clim)
+
+    @property
+    def product_panel(self) -> ProductPanel:
+        """The *Calibration product* tab: open a product, apply it to this session's frames
+        (:class:`app.product_panel.ProductPanel`, built on first use)."""
+        if self._product_panel is None:
+            from ..product_panel import ProductPanel
+
+            self._product_panel = ProductPanel(self.state)
+        return self._product_panel
 
     # ============================================================ helpers for tests ========
     @property
