@@ -408,10 +408,20 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
 
 
 # ---------------------------------------------------------------------------------------------
-def response_gate(response: Any) -> Gate:
+def response_gate(response: Any, hdr: Any = None) -> Gate:
     """The response step's gate from a :class:`~ccdcore.response.methods.ResponseResult`:
-    every channel converged, noise terms finite."""
+    every channel converged; with ``hdr`` (a :class:`~ccdcore.response.hdr.HdrResult` of the
+    bracket) the pixels merged and flagged and the median relative sigma σ_E/E (eq. 19)."""
     reasons = []
+    if hdr is not None:
+        from .response.hdr import FLAG_OK
+
+        ok = (hdr.flags == FLAG_OK) & np.isfinite(hdr.radiance) & (hdr.radiance > 0)
+        rel = hdr.sigma[ok] / hdr.radiance[ok]
+        reasons.append(f"HDR radiance: {int(ok.sum()):,} of {ok.size:,} values merged, "
+                       f"{int(ok.size - ok.sum()):,} flagged (saturated or dark in every image, "
+                       "or next to a saturated pixel); median σ_E/E = "
+                       f"{100 * float(np.median(rel)) if rel.size else float('nan'):.3g} %")
     bad = []
     for name in response.channels:
         c = response[name]

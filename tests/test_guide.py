@@ -137,3 +137,22 @@ def test_verify_skips_a_session_without_uniform_frames() -> None:
     s = open_session(ASSETS / "tsin01")
     empty = CalibrationProduct(maps={"dark": np.zeros((2, 2), np.float32)}, estimates={})
     assert guide.verify(s, empty).gate.status == "skip"
+
+
+def test_response_gate_reports_the_hdr_merge() -> None:
+    from ccdcore.response.brackets import bracket_records
+    from ccdcore.response.hdr import FLAG_OK, merge
+    from ccdcore.response.methods import session_response
+
+    s = open_session(ASSETS / "tsin01")
+    res = session_response(s)
+    hdr = merge([s.read(r) for r in bracket_records(s)], res.models(), layout=s.camera.layout,
+                bloom_radius=res.bloom_radius)
+    gate = guide.response_gate(res, hdr)
+    assert gate.status == "pass"
+    ok = (hdr.flags == FLAG_OK) & (hdr.radiance > 0)
+    med = 100 * float(np.median(hdr.sigma[ok] / hdr.radiance[ok]))
+    line = next(r for r in gate.reasons if r.startswith("HDR radiance"))
+    assert f"{int(ok.sum()):,} of {ok.size:,} values merged" in line
+    assert f"{med:.3g} %" in line
+    assert not any(r.startswith("HDR") for r in guide.response_gate(res).reasons)

@@ -148,14 +148,24 @@ def compute_verify(session: Session, noise: Any, progress: Callable | None = Non
     return product, guide.verify(session, product, noise=noise)
 
 
-def compute_response(session: Session, progress: Callable | None = None) -> Any:
+def compute_response(session: Session, progress: Callable | None = None) -> tuple[Any, Any]:
+    """The response of the session's first bracket (Tsin et al. sec. 3.2) and the bracket's HDR
+    radiance with its sigma (eqs. 9, 18, 19)."""
+    from ccdcore.response.brackets import bracket_records
+    from ccdcore.response.hdr import merge
     from ccdcore.response.methods import session_response
 
     def sub(fraction: float, message: str) -> None:   # the estimator's (fraction, message)
         if progress is not None:
-            progress(message, fraction)
+            progress(message, 0.9 * fraction)
 
-    return session_response(session, progress=sub)
+    res = session_response(session, progress=sub)
+    if progress is not None:
+        progress("HDR radiance", 0.9)
+    frames = [session.read(r) for r in bracket_records(session)]
+    hdr = merge(frames, res.models(), layout=session.camera.layout,
+                bloom_radius=res.bloom_radius)
+    return res, hdr
 
 
 def save_export(session: Session, product: Any, folder: Path) -> tuple[Path, Path]:
@@ -348,7 +358,19 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self.response_holder = pn.Column(pn.pane.Bokeh(self.response_fig.fig,
                                                        sizing_mode="stretch_width"),
                                          visible=False, sizing_mode="stretch_width")
-        self.bodies["response"].objects = [self.response_holder]
+        self.hdr_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
+                                  cmap="gray", label="display", symbol="display",
+                                  css_classes=["ccd-wt-hdr"])
+        self.hdr_sigma = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
+                                   cmap="viridis", label="σ_E / E (%)", symbol="σ_E/E %",
+                                   link=self.hdr_view, css_classes=["ccd-wt-hdr-sigma"])
+        self.hdr_pane, self.hdr_sigma_pane = view_pane(self.hdr_view), view_pane(self.hdr_sigma)
+        self.bodies["response"].objects = [
+            self.response_holder,
+            pn.pane.Markdown("**HDR radiance** (gamma 2.2 for display) **and its relative sigma** "
+                             "(eq. 19), zoom linked; the Response & HDR page has every control.",
+                             sizing_mode="stretch_width"),
+            pn.Row(self.hdr_pane, self.hdr_sigma_pane)]
 
     def _build_verify(self) -> None:
         self.verify_table = _table("ccd-wt-verify")
@@ -695,20 +717,35 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             if res is None:
                 return
             self.results["response"] = res
-        res = self.results["response"]
-        if res is None:
+        found = self.results["response"]
+        if found is None:
             return
         in_document(self._doc, self._draw_response)
-        self._set_gate("response", guide.response_gate(res))
+        self._set_gate("response", guide.response_gate(*found))
 
     @batched
     def _draw_response(self) -> None:
-        res = self.results.get("response")
-        if res is None:
+        found = self.results.get("response")
+        if found is None:
             return
+        from ccdcore.response.hdr import FLAG_OK
+
+        from ..response_plots import tone_map
+
+        res, hdr = found
         ch = res.channels[0]
         self.response_fig.show({"tsin": (res[ch].g, res[ch].g_err)}, "tsin", False)
         self.response_holder.visible = True
+        E = hdr.radiance if hdr.radiance.ndim == 2 else hdr.radiance[..., 0]
+        S = hdr.sigma if hdr.sigma.ndim == 2 else hdr.sigma[..., 0]
+        F = hdr.flags if hdr.flags.ndim == 2 else hdr.flags[..., 0]
+        self.hdr_view.show(tone_map(E), clim=(0.0, 1.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where((F == FLAG_OK) & (E > 0), 100.0 * S / E, np.nan)
+        finite = rel[np.isfinite(rel)]
+        top = float(np.percentile(finite, 99)) if finite.size else 1.0
+        self.hdr_sigma.show(rel, clim=(0.0, max(top, 1e-6)))
+        self.hdr_pane.visible = self.hdr_sigma_pane.visible = True
 
     async def _ensure_verify(self) -> Any:
         if "verify" in self.results:
@@ -799,7 +836,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     def release(self) -> None:
         """The browser session ended: drop the results and the arrays the views hold."""
         self.results.clear()
-        for view in (self.dark_view, self.k_view):
+        for view in (self.dark_view, self.k_view, self.hdr_view, self.hdr_sigma):
             view.release()
 
 

@@ -59,6 +59,10 @@ def test_a_session_without_flats_or_brackets_skips_with_a_message(assets: Path) 
     status = _walk(page)
     assert status["dark"] == status["ptc"] == status["pattern"] == "skip"
     assert status["response"] == "pass"
+    res, hdr = page.results["response"]
+    assert hdr.radiance.shape[:2] == open_session(assets / "tsin01").header(
+        open_session(assets / "tsin01").frames[0]).shape[:2]
+    assert any(r.startswith("HDR radiance") for r in page.gates["response"].reasons)
     for slug in ("dark", "ptc", "pattern"):
         assert page.gates[slug].next, slug          # each says what to capture
     assert "ptc" in page.gates["ptc"].summary
