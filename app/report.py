@@ -316,6 +316,23 @@ _MAP_MARGIN = 110
 _MAP_GAP = 24
 
 
+def _image_figure(title: str, w: int, h: int, side: int) -> Any:
+    """An empty figure for a w × h image with square pixels (row 0 at the top, the longer side
+    ``side`` screen pixels), its toolbar hidden until hovered."""
+    from bokeh.models import Range1d
+    from bokeh.plotting import figure
+
+    fw, fh = _frame_size(w, h, side)
+    fig = figure(title=title, frame_width=fw, frame_height=fh,
+                 x_range=Range1d(-0.5, w - 0.5), y_range=Range1d(h - 0.5, -0.5),
+                 tools="pan,wheel_zoom,box_zoom,reset", toolbar_location="above",
+                 x_axis_label="x (px)", y_axis_label="y (px)")
+    fig.toolbar.logo = None
+    fig.toolbar.autohide = True
+    fig.grid.visible = False
+    return fig
+
+
 def _frame_size(w: int, h: int, side: int) -> tuple[int, int]:
     """Frame width and height with square pixels, the longer side ``side`` pixels."""
     if w >= h:
@@ -327,9 +344,8 @@ def _map_figure(plane: NDArray, spec: _MapSpec, *, title: str, side: int = 420,
                 labels: Mapping[int, str] | None = None) -> tuple[Any, int]:
     """A map as a Bokeh image with a colour bar and a hover readout; returns the figure and
     the reduction factor used (1: every pixel)."""
-    from bokeh.models import (ColorBar, FixedTicker, HoverTool, LinearColorMapper, Range1d)
+    from bokeh.models import (ColorBar, FixedTicker, HoverTool, LinearColorMapper)
     from bokeh.palettes import RdBu11, interp_palette
-    from bokeh.plotting import figure
     import bokeh.palettes as palettes
 
     h, w = plane.shape
@@ -353,14 +369,7 @@ def _map_figure(plane: NDArray, spec: _MapSpec, *, title: str, side: int = 420,
     else:
         low, high = auto_clim(shown)
         palette = getattr(palettes, spec.palette)
-    fw, fh = _frame_size(w, h, side)
-    fig = figure(title=title, frame_width=fw, frame_height=fh,
-                 x_range=Range1d(-0.5, w - 0.5), y_range=Range1d(h - 0.5, -0.5),
-                 tools="pan,wheel_zoom,box_zoom,reset", toolbar_location="above",
-                 x_axis_label="x (px)", y_axis_label="y (px)")
-    fig.toolbar.logo = None
-    fig.toolbar.autohide = True
-    fig.grid.visible = False
+    fig = _image_figure(title, w, h, side)
     mapper = LinearColorMapper(palette=palette, low=low, high=high,
                                nan_color="rgba(0, 0, 0, 0)")
     image = fig.image(image=[shown], x=-0.5, y=-0.5, dw=w, dh=h, color_mapper=mapper)
@@ -947,9 +956,8 @@ def _matrix_text(M: Sequence[Sequence[float]], err: Sequence[Sequence[float]]) -
 
 
 def _change_section(doc: _Doc, change: Any, inputs: Mapping[str, Any] | None) -> None:
-    from bokeh.models import HoverTool, LinearColorMapper, LogColorMapper, ColorBar, Range1d
+    from bokeh.models import HoverTool, LinearColorMapper, LogColorMapper, ColorBar
     from bokeh.palettes import Viridis256
-    from bokeh.plotting import figure
 
     summary = change.to_dict()
     with doc.section("change", "Change detection"):
@@ -994,14 +1002,7 @@ def _change_section(doc: _Doc, change: Any, inputs: Mapping[str, Any] | None) ->
             palette[lab] = _label_colour(lab)
         factor = max(1, math.ceil(max(h, w) / MAX_MAP_SIDE))
         shown = _reduce(labels.astype(np.float32), factor, "max")
-        fw, fh = _frame_size(w, h, 380)
-        fig = figure(title="Labels", frame_width=fw, frame_height=fh,
-                     x_range=Range1d(-0.5, w - 0.5), y_range=Range1d(h - 0.5, -0.5),
-                     tools="pan,wheel_zoom,box_zoom,reset", toolbar_location="above",
-                     x_axis_label="x (px)", y_axis_label="y (px)")
-        fig.toolbar.logo = None
-        fig.toolbar.autohide = True
-        fig.grid.visible = False
+        fig = _image_figure("Labels", w, h, 380)
         mapper = LinearColorMapper(palette=palette, low=-0.5, high=255.5)
         img = fig.image(image=[shown], x=-0.5, y=-0.5, dw=w, dh=h, color_mapper=mapper)
         fig.add_tools(HoverTool(renderers=[img], tooltips=[("x, y", "$x{0}, $y{0}"),
@@ -1013,7 +1014,8 @@ def _change_section(doc: _Doc, change: Any, inputs: Mapping[str, Any] | None) ->
         caption = _Html('Labels of every pixel: <ul class="ccd-change-legend legend">' + legend
                         + "</ul>" + _esc(_resolution_text((h, w), factor, "maximum")))
         doc.add('<div class="ccd-map-row">')
-        doc.plot(fig, id_="change-labels", caption=caption, width=fw + _MAP_MARGIN)
+        doc.plot(fig, id_="change-labels", caption=caption,
+                 width=fig.frame_width + _MAP_MARGIN)
 
         d2 = np.asarray(change.d2_best, np.float64)
         shown = _reduce(d2, factor, "mean")
@@ -1022,13 +1024,7 @@ def _change_section(doc: _Doc, change: Any, inputs: Mapping[str, Any] | None) ->
             if pos.size else (1e-3, 1.0)
         if not high > low:
             high = low * 10
-        fig = figure(title="d\u00b2 under the best cluster", frame_width=fw, frame_height=fh,
-                     x_range=Range1d(-0.5, w - 0.5), y_range=Range1d(h - 0.5, -0.5),
-                     tools="pan,wheel_zoom,box_zoom,reset", toolbar_location="above",
-                     x_axis_label="x (px)", y_axis_label="y (px)")
-        fig.toolbar.logo = None
-        fig.toolbar.autohide = True
-        fig.grid.visible = False
+        fig = _image_figure("d\u00b2 under the best cluster", w, h, 380)
         mapper = LogColorMapper(palette=Viridis256, low=low, high=high,
                                 nan_color="rgba(0, 0, 0, 0)")
         img = fig.image(image=[shown], x=-0.5, y=-0.5, dw=w, dh=h, color_mapper=mapper)
@@ -1039,7 +1035,8 @@ def _change_section(doc: _Doc, change: Any, inputs: Mapping[str, Any] | None) ->
         doc.plot(fig, id_="change-d2",
                  caption="d\u00b2 of every pixel under the cluster that explains it best "
                          f"(logarithmic colour scale; threshold {_num(change.threshold, '.4g')}). "
-                         + _resolution_text((h, w), factor, "mean"), width=fw + _MAP_MARGIN)
+                         + _resolution_text((h, w), factor, "mean"),
+                 width=fig.frame_width + _MAP_MARGIN)
         doc.add("</div>")
 
 
