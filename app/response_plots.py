@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["ResponseFigure", "PoolHistogram", "tone_map", "histogram", "TONE_CURVES",
-           "METHOD_COLOURS"]
+           "METHOD_COLOURS", "hdr_views", "hdr_planes"]
 
 #: display curves of the HDR radiance (the data are never changed)
 TONE_CURVES = ("gamma 2.2", "log")
@@ -163,3 +163,35 @@ class PoolHistogram:
                 continue
             counts, edges = histogram(np.asarray(v) * 100, 60, span)
             src.data = {"left": edges[:-1], "right": edges[1:], "top": counts}
+
+
+def hdr_views(width: int, classes: tuple[str, str]) -> tuple[Any, Any]:
+    """The HDR radiance view (tone-mapped for display) and its relative-sigma view, zoom
+    linked (:class:`app.image_view.ImageView`), with CSS classes ``classes``."""
+    from .image_view import ImageView
+
+    rad = ImageView(frame_width=width, max_frame_height=width, cmap="gray", label="display",
+                    symbol="display", css_classes=[classes[0]])
+    sig = ImageView(frame_width=width, max_frame_height=width, cmap="viridis",
+                    label="\u03c3_E / E (%)", symbol="\u03c3_E/E %", link=rad,
+                    css_classes=[classes[1]])
+    return rad, sig
+
+
+def hdr_planes(hdr: Any, index: int, stops: float = 0.0, curve: str = "gamma 2.2"
+               ) -> dict[str, Any]:
+    """One channel of an :class:`~ccdcore.response.hdr.HdrResult` for display: ``E``, ``S``,
+    ``F`` (radiance, sigma, flags), ``display`` (:func:`tone_map`), ``rel`` (100·σ_E/E where
+    merged, NaN elsewhere) and ``top`` (its 99th percentile, the colour range)."""
+    from ccdcore.response.hdr import FLAG_OK
+
+    def plane(a: NDArray) -> NDArray:
+        return a if a.ndim == 2 else a[..., index]
+
+    E, S, F = plane(hdr.radiance), plane(hdr.sigma), plane(hdr.flags)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where((F == FLAG_OK) & (E > 0), 100.0 * S / E, np.nan)
+    finite = rel[np.isfinite(rel)]
+    top = float(np.percentile(finite, 99)) if finite.size else 1.0
+    return {"E": E, "S": S, "F": F, "display": tone_map(E, stops, curve), "rel": rel,
+            "top": max(top, 1e-6)}

@@ -44,8 +44,8 @@ from ccdcore.session import Session
 from ccdcore.simulate.truth import find_truth
 
 from ..batch import batched, in_document
-from ..image_view import ImageView, view_pane
-from ..response_plots import TONE_CURVES, PoolHistogram, ResponseFigure, tone_map
+from ..image_view import view_pane
+from ..response_plots import TONE_CURVES, PoolHistogram, ResponseFigure, hdr_planes, hdr_views
 from ..state import AppState
 from ._messages import PageMessages
 from ._styles import TABLE_CSS, heading
@@ -166,12 +166,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.pool_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         # HDR: radiance (tone-mapped) and relative sigma, zoom linked, value ± sigma read out
-        self.rad_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
-                                  cmap="gray", label="display", symbol="display",
-                                  css_classes=["ccd-hdr-radiance"])
-        self.sig_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
-                                  cmap="viridis", label="σ_E / E (%)", symbol="σ_E/E %",
-                                  link=self.rad_view, css_classes=["ccd-hdr-sigma"])
+        self.rad_view, self.sig_view = hdr_views(IMAGE_WIDTH,
+                                                 ("ccd-hdr-radiance", "ccd-hdr-sigma"))
         for view in (self.rad_view, self.sig_view):
             view.on_pointer = self._on_pointer
         self.tone_select = pn.widgets.RadioButtonGroup.from_param(self.param.tone,
@@ -368,17 +364,11 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         if hdr is None:
             return
         ch = self.channel if self.channel in hdr.channels else hdr.channels[0]
-        i = hdr.channels.index(ch)
-        E = hdr.radiance if hdr.radiance.ndim == 2 else hdr.radiance[..., i]
-        S = hdr.sigma if hdr.sigma.ndim == 2 else hdr.sigma[..., i]
-        F = hdr.flags if hdr.flags.ndim == 2 else hdr.flags[..., i]
-        self._E, self._S, self._F = E, S, F
-        self.rad_view.show(tone_map(E, self.stops, self.tone), clim=(0.0, 1.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where((F == FLAG_OK) & (E > 0), 100.0 * S / E, np.nan)
-        finite = rel[np.isfinite(rel)]
-        top = float(np.percentile(finite, 99)) if finite.size else 1.0
-        self.sig_view.show(rel, clim=(0.0, max(top, 1e-6)))
+        p = hdr_planes(hdr, hdr.channels.index(ch), self.stops, self.tone)
+        E, F = p["E"], p["F"]
+        self._E, self._S, self._F = E, p["S"], F
+        self.rad_view.show(p["display"], clim=(0.0, 1.0))
+        self.sig_view.show(p["rel"], clim=(0.0, p["top"]))
         self.rad_pane.visible = self.sig_pane.visible = True
         n_bad = int(np.count_nonzero(F != FLAG_OK))
         self.hdr_note.object = (

@@ -44,6 +44,7 @@ from ccdcore.session import Session
 from ..batch import batched, in_document
 from ..image_view import ImageView, view_pane
 from ..ptc_plots import PtcFigures
+from ..response_plots import hdr_views
 from ..state import AppState
 from ._messages import PageMessages
 from ._styles import MUTED, TABLE_CSS, heading
@@ -358,12 +359,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self.response_holder = pn.Column(pn.pane.Bokeh(self.response_fig.fig,
                                                        sizing_mode="stretch_width"),
                                          visible=False, sizing_mode="stretch_width")
-        self.hdr_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
-                                  cmap="gray", label="display", symbol="display",
-                                  css_classes=["ccd-wt-hdr"])
-        self.hdr_sigma = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
-                                   cmap="viridis", label="σ_E / E (%)", symbol="σ_E/E %",
-                                   link=self.hdr_view, css_classes=["ccd-wt-hdr-sigma"])
+        self.hdr_view, self.hdr_sigma = hdr_views(IMAGE_WIDTH,
+                                                  ("ccd-wt-hdr", "ccd-wt-hdr-sigma"))
         self.hdr_pane, self.hdr_sigma_pane = view_pane(self.hdr_view), view_pane(self.hdr_sigma)
         self.bodies["response"].objects = [
             self.response_holder,
@@ -728,23 +725,15 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         found = self.results.get("response")
         if found is None:
             return
-        from ccdcore.response.hdr import FLAG_OK
-
-        from ..response_plots import tone_map
+        from ..response_plots import hdr_planes
 
         res, hdr = found
         ch = res.channels[0]
         self.response_fig.show({"tsin": (res[ch].g, res[ch].g_err)}, "tsin", False)
         self.response_holder.visible = True
-        E = hdr.radiance if hdr.radiance.ndim == 2 else hdr.radiance[..., 0]
-        S = hdr.sigma if hdr.sigma.ndim == 2 else hdr.sigma[..., 0]
-        F = hdr.flags if hdr.flags.ndim == 2 else hdr.flags[..., 0]
-        self.hdr_view.show(tone_map(E), clim=(0.0, 1.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where((F == FLAG_OK) & (E > 0), 100.0 * S / E, np.nan)
-        finite = rel[np.isfinite(rel)]
-        top = float(np.percentile(finite, 99)) if finite.size else 1.0
-        self.hdr_sigma.show(rel, clim=(0.0, max(top, 1e-6)))
+        p = hdr_planes(hdr, 0)
+        self.hdr_view.show(p["display"], clim=(0.0, 1.0))
+        self.hdr_sigma.show(p["rel"], clim=(0.0, p["top"]))
         self.hdr_pane.visible = self.hdr_sigma_pane.visible = True
 
     async def _ensure_verify(self) -> Any:
