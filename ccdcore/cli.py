@@ -43,6 +43,16 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _positive(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"'{text}' must be at least 1")
+    return n
+
+
 def _roi(text: str) -> Roi:
     try:
         x, y, w, h = (int(v) for v in text.split(","))
@@ -160,8 +170,11 @@ def _cmd_session(args: argparse.Namespace) -> int:
 def _cmd_ptc(args: argparse.Namespace) -> int:
     from .noise import photon_transfer
 
-    res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
-                          exclude_levels=tuple(args.exclude or ()))
+    from .distributed import get_client
+
+    with get_client(args.scheduler, args.workers) as client:
+        res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
+                              exclude_levels=tuple(args.exclude or ()), client=client)
     if args.json:
         _print_json(res.to_dict())
         return 0
@@ -269,7 +282,10 @@ def _fmt(v: Any) -> str:
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .product import calibrate
 
-    product = calibrate(args.session, roi=args.roi)
+    from .distributed import get_client
+
+    with get_client(args.scheduler, args.workers) as client:
+        product = calibrate(args.session, roi=args.roi, client=client)
     folder = product.save(args.out)
     if args.json:
         out = product.to_dict()
@@ -516,6 +532,15 @@ def build_parser() -> argparse.ArgumentParser:
         p.set_defaults(func=func)
         return p
 
+    def cluster_args(p: argparse.ArgumentParser) -> None:
+        g = p.add_mutually_exclusive_group()
+        g.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="reduce the frames on this Dask scheduler (tcp://host:8786); "
+                            "default $CCDCORE_SCHEDULER, else streamed in this process")
+        g.add_argument("--workers", type=_positive, metavar="N", default=None,
+                       help="reduce the frames on a local Dask cluster of N worker processes "
+                            "(one thread each), started and stopped by this command")
+
     def json_flag(p: argparse.ArgumentParser) -> None:
         p.add_argument("--json", action="store_true",
                        help="print one JSON object on stdout instead of the summary")
@@ -547,6 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop levels whose residual is beyond 3 sigma, one at a time")
     p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
                    help="exclude a light level from the fit (repeatable)")
+    cluster_args(p)
     json_flag(p)
 
     p = verb("calibrate", "every estimate the session allows, saved as a calibration product",
@@ -557,6 +583,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
     p.add_argument("-o", "--out", type=Path, required=True,
                    help="product folder to write (new, empty, or an earlier product)")
+    cluster_args(p)
     json_flag(p)
 
     p = verb("apply", "correct images with a calibration product, float32 out", _cmd_apply,

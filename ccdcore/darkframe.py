@@ -37,7 +37,7 @@ from scipy import special
 
 from .errors import CcdError
 from .noise import READ_AHEAD
-from .stats import PixelMoments
+from .stats import MomentsResult, PixelMoments
 
 __all__ = ["DarkReference", "dark_reference", "as_dark_map"]
 
@@ -155,7 +155,8 @@ def _session_darks(session: Any, exposure: float | None) -> tuple[list, float | 
 
 
 def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
-                   noisy_factor: float = 1.0, exposure: float | None = None) -> DarkReference:
+                   noisy_factor: float = 1.0, exposure: float | None = None,
+                   client: Any = None) -> DarkReference:
     """Average dark frames into the dark reference image D̂_D(a, b) (sec. V-A, eq. 43).
 
     Parameters
@@ -170,6 +171,11 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         Multiplies the χ² threshold of the temporal-variance ("noisy"/RTS) rule; ``inf`` disables.
     exposure
         With a session whose darks have several exposures, the exposure to use (seconds).
+    client
+        A Dask :class:`distributed.Client`: the moments are reduced on the cluster in bands of
+        rows, each worker reading its band of every frame (:mod:`ccdcore.distributed`); the
+        maps are bit-identical to the streamed ones, and the hot/dead rules run here on them.
+        ``frames_or_session`` is then a session or a sequence of records or file paths.
 
     Returns
     -------
@@ -182,6 +188,9 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         with darks at several exposures and no ``exposure``.
     """
     notes: list[str] = []
+    if client is not None:
+        res, exp, notes = _cluster_moments(client, frames_or_session, exposure)
+        return _reference(res, exp, notes, hot_sigma, noisy_factor)
     acc = PixelMoments()
     if _is_session(frames_or_session):
         recs, exp, notes = _session_darks(frames_or_session, exposure)
@@ -199,7 +208,36 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         acc.add(arr, name=name)
     if acc.n == 0:
         raise CcdError("dark", "no dark frames given")
-    res = acc.result(in_place=True)
+    return _reference(acc.result(in_place=True), exp, notes, hot_sigma, noisy_factor)
+
+
+def _cluster_moments(client: Any, source: Any, exposure: float | None
+                     ) -> tuple[MomentsResult, float | None, list[str]]:
+    """The dark frames' moments on a Dask cluster, after the streamed path's checks of every
+    frame's shape and dtype from its header (same messages, same order)."""
+    from .distributed import band_moments, check_averageable, headers_of
+
+    session = None
+    if _is_session(source):
+        session = source
+        recs, exp, notes = _session_darks(source, exposure)
+    else:
+        if isinstance(source, np.ndarray):
+            raise CcdError("frames", "on a cluster, give the dark frames as session records or "
+                                     "file paths (the workers read them), not arrays")
+        recs, exp, notes = list(source), exposure, []
+    if not recs:
+        raise CcdError("dark", "no dark frames given")
+    first = None
+    for frame, hdr in headers_of(recs, session):
+        _check_mono(np.broadcast_to(np.zeros((), hdr.dtype), hdr.shape), frame.name)
+        first = check_averageable(frame, hdr, first)
+    return band_moments(client, recs, shape=first), exp, notes
+
+
+def _reference(res: MomentsResult, exp: float | None, notes: list[str], hot_sigma: float,
+               noisy_factor: float) -> DarkReference:
+    """D̂_D with its hot/dead flags from the dark frames' moments (rules: module docstring)."""
     s = res.n
     mean_map, var_map = res.mean, res.var
     if s < 2:

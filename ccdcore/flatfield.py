@@ -275,7 +275,8 @@ def _channel_k(k: Any, names: tuple[str, ...]) -> dict[str, float | None]:
 
 def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
                k: float | Sequence[float] | Mapping[str, float] | None = None,
-               noise_limit: float = NOISE_LIMIT, window: int = WINDOW) -> FlatField:
+               noise_limit: float = NOISE_LIMIT, window: int = WINDOW,
+               client: Any = None) -> FlatField:
     """Gain and offset maps G, O of the flat-field correction (eqs. 1–4, de Lasarte et al. 2007).
 
     Parameters
@@ -292,6 +293,12 @@ def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
         Reference level(s); default the paper's ⟨DL_B − DL_0⟩ per channel (over unflagged pixels).
     noise_limit, window
         c and the neighbourhood of the flag rule (module docstring).
+    client
+        A Dask :class:`distributed.Client`: DL_0 and DL_B (and the dark image's zero counts)
+        are reduced on the cluster in bands of rows (:mod:`ccdcore.distributed`), bit-identical
+        to the streamed averages; frames are then given as session records or file paths (a
+        :class:`~ccdcore.stats.MomentsResult` or :class:`~ccdcore.darkframe.DarkReference` is
+        taken as is).
 
     Returns
     -------
@@ -317,8 +324,48 @@ def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
     if window < 1:
         raise CcdError("window", f"must be >= 1, got {window}")
     zeros: dict[str, tuple[int, int]] = {}
-    dark, dname = _moments(dark_frames, "dark", zeros, layout)
-    base, bname = _moments(base_frames, "base", None)
+    if client is None:
+        dark, dname = _moments(dark_frames, "dark", zeros, layout)
+        base, bname = _moments(base_frames, "base", None)
+    else:
+        dark, dname = _cluster_moments(client, dark_frames, "dark", zeros, layout)
+        base, bname = _cluster_moments(client, base_frames, "base", None, layout)
+    return _gain_offset(dark, dname, base, bname, zeros, layout, k, noise_limit, window)
+
+
+def _cluster_moments(client: Any, src: Any, what: str, counts: dict | None,
+                     layout: str | None, session: Any = None) -> tuple[MomentsResult, str]:
+    """:func:`_moments` on a Dask cluster: the frames' headers are checked here first (the
+    streamed path's messages), then the moments (and the zero counts) are reduced in bands."""
+    from .distributed import band_moments, check_averageable, headers_of, zero_counts
+
+    if isinstance(src, (MomentsResult, DarkReference)) or src is None:
+        return _moments(src, what, counts, layout)
+    recs = list(src)
+    if not recs:
+        raise CcdError(what, f"no {what} frames")
+    first = None
+    lay = layout
+    frames = []
+    for frame, hdr in headers_of(recs, session):
+        frames.append(frame)
+        first = check_averageable(frame, hdr, first)
+        if counts is not None:
+            lay = check_layout(hdr.shape, lay, frame.name)
+    try:
+        even = check_layout(first, lay, frames[0].name).startswith("bayer")
+    except CcdError:  # reported by the streamed path's own check, after the averages
+        even = False
+    res = band_moments(client, recs, shape=first, even=even)
+    if counts is not None:
+        counts.update(zero_counts(client, recs, shape=first, layout=lay))
+    return res, frames[0].name
+
+
+def _gain_offset(dark: MomentsResult, dname: str, base: MomentsResult, bname: str,
+                 zeros: dict[str, tuple[int, int]], layout: str | None, k: Any,
+                 noise_limit: float, window: int) -> FlatField:
+    """G, O and the flags from DL_0 and DL_B (eqs. 1–4; flag rule of the module docstring)."""
     if base.mean.shape != dark.mean.shape:
         raise CcdError(bname, f"base frames have shape {base.mean.shape}, the dark frames "
                               f"{dark.mean.shape}")
@@ -399,7 +446,8 @@ def _pick_darks(session: Any, setting: str | None, gain: float | None,
 
 def flat_field_from_session(session: Any, *, setting: str | None = None,
                             base: tuple[Any, Any] | str = "auto", gain: float | None = None,
-                            dark_exposure: float | None = None, **options: Any) -> FlatField:
+                            dark_exposure: float | None = None, client: Any = None,
+                            **options: Any) -> FlatField:
     """:func:`flat_field` from a session's frames.
 
     Parameters
@@ -417,6 +465,9 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
     dark_exposure
         Exposure of the dark frames; default the base frames' exposure (a single dark exposure,
         or darks without exposure, are used as they are, noted).
+    client
+        A Dask :class:`distributed.Client`: DL_0 and DL_B are reduced on the cluster (see
+        :func:`flat_field`; bit-identical maps).
     **options
         ``k``, ``noise_limit``, ``window`` of :func:`flat_field`.
     """
@@ -438,8 +489,12 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
                                    f"{', '.join(map(str, groups))}")
     t = key[1] if dark_exposure is None else dark_exposure
     darks, t_used, more = _pick_darks(session, setting, gain, t)
-    ff = flat_field(session.iter_frames(darks), session.iter_frames(groups[key]),
-                    layout=session.camera.layout, **options)
+    if client is None:
+        ff = flat_field(session.iter_frames(darks), session.iter_frames(groups[key]),
+                        layout=session.camera.layout, **options)
+    else:
+        ff = flat_field(darks, groups[key], layout=session.camera.layout, client=client,
+                        **options)
     return replace(ff, base_key=key, setting=setting, dark_exposure=t_used,
                    notes=tuple(notes + more) + ff.notes)
 

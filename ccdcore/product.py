@@ -603,7 +603,7 @@ def budget_inputs(dark: DarkReference, fp: FixedPattern, noise: PhotonTransfer,
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, response: bool = True,
-                 emva1288: bool = True) -> Estimates:
+                 emva1288: bool = True, client: Any = None) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
     An estimate whose frames are missing, or whose frames the method refuses (a
@@ -614,6 +614,10 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty).
     The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
     as ``not-applicable``.
+
+    ``client`` (a Dask :class:`distributed.Client`) runs the reductions over frames of the
+    photon transfer, the dark reference, K̂ and the flat field on the cluster
+    (:mod:`ccdcore.distributed`; ``docs/distributed.md`` says what is not distributed yet).
     """
     from .darkframe import dark_reference
     from .datasheet import emva_figures
@@ -652,7 +656,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
         dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
         dark_exposures = {r.exposure for r in session.dark_frames()}
-        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None)
+        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None,
+                              client=client)
 
     def plan_run() -> AcquisitionPlan:
         if not session.camera.bits:
@@ -669,7 +674,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     if noise is not None:
         made["noise"] = noise
     else:
-        attempt("noise", (), lambda: photon_transfer(session, roi=roi))
+        attempt("noise", (), lambda: photon_transfer(session, roi=roi, client=client))
     report("EMVA 1288 figures", start["EMVA 1288 figures"])
     no_photons = all(r.photons is None for r in session.by_role("ptc"))
     if emva1288 and "emva1288" not in lacking and no_photons:
@@ -690,7 +695,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         attempt("dark", (), dark_run)
     report("fixed pattern", start["fixed pattern"])
     attempt("fixed_pattern", ("dark",),
-            lambda: fixed_pattern_map(session, made["dark"], window=window, p=p))
+            lambda: fixed_pattern_map(session, made["dark"], window=window, p=p,
+                                      client=client))
     report("planning", start["planning"])
     attempt("plan", ("noise", "fixed_pattern"), plan_run)
     report("correction check", start["correction check"])
@@ -700,7 +706,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
             lambda: scene_variations(session, made["dark"], made["fixed_pattern"], made["noise"],
                                      **scene_error_terms(made["dark"], made["fixed_pattern"])))
     report("flat field", start["flat field"])
-    attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto"))
+    attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto",
+                                                              client=client))
     report("response", start["response"])
     if response:
         attempt("response", (), lambda: session_response(session))
@@ -717,7 +724,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
 def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
               progress: Progress | None = None,
-              noise: PhotonTransfer | None = None) -> CalibrationProduct:
+              noise: PhotonTransfer | None = None, client: Any = None) -> CalibrationProduct:
     """Run every estimate the session's frames allow.
 
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
@@ -739,7 +746,10 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
 
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
-    refused).  The provenance records the session's content hash and the date (UTC).
+    refused).  The provenance records the session's content hash, the date (UTC) and the
+    ``scheduler`` the reductions ran on: ``"streamed (this process)"``, or with ``client`` (a
+    Dask :class:`distributed.Client`, see :func:`estimate_all`) the scheduler's address and its
+    number of workers.
 
     Raises
     ------
@@ -750,7 +760,8 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     session = session_or_path if isinstance(session_or_path, Session) \
         else open_session(session_or_path)
     session.raise_if_invalid()
-    e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise)
+    e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise,
+                     client=client)
     if not e.made:
         failed = [s for s in e.skipped if s.code == "failed"]
         why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (
@@ -815,10 +826,18 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
                   "session_hash": session.content_hash(),
                   "date": datetime.datetime.now(datetime.timezone.utc).isoformat(
                       timespec="seconds"),
-                  "steps": steps}
+                  "scheduler": _scheduler(client), "steps": steps}
     return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
                               provenance=json_safe(provenance), skipped=e.skipped,
                               warnings=e.plan_warnings, emva1288=emva)
+
+
+def _scheduler(client: Any) -> str:
+    """The provenance's ``scheduler``: "streamed (this process)" or the Dask address and
+    workers (:func:`ccdcore.distributed.describe`; dask is imported only with a client)."""
+    from .distributed import describe
+
+    return describe(client)
 
 
 # ---------------------------------------------------------------------------------------------

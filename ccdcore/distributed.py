@@ -1,0 +1,567 @@
+"""Reductions over frames on a Dask cluster, in horizontal bands of rows (issue #14).
+
+Every reduction over frames runs either streamed in this process (the default, ``client=None``)
+or on a Dask cluster (``client=`` a :class:`distributed.Client`).  On the cluster the frame is cut
+into horizontal **bands** of rows; one task per (band, group of frames) opens each frame's file
+itself by path, through the same reader as the streamed path (:func:`ccdcore.io.read_region`:
+strip TIFFs decode only the strips a band covers), and folds the band into the same accumulator
+in the same frame order:
+
+* per-pixel moments (:func:`band_moments`, :func:`group_moments`): a task runs
+  :class:`ccdcore.stats.PixelMoments` (the same numba kernel, the first frame as shift) over its
+  band of each frame in turn.  Every output pixel depends only on that pixel's values, in the
+  same order, so each band's mean and variance is **bit-identical** to the streamed result; the
+  client writes the bands into the full maps;
+* photon-transfer pairs (:func:`pair_sums`): a task gives, per pair of a level, the band's sums
+  of D₁ and D₂ (eq. 37), the count, sum and sum of squared deviations of D₁ − D₂ about the band's
+  own mean (eq. 38), and the clipped and non-finite counts; the client merges the bands with the
+  pairwise update of Chan, Golub & LeVeque (1979).  Sums of integer pixel values are exact in
+  float64, so μ̂ is identical; σ̂²_N agrees with the two-pass streamed value to a relative
+  :data:`PTC_RTOL` (1e-12);
+* dark sums for the black level (:func:`frame_sums`): per frame, the band's sum and count.
+
+Memory per task: the band's accumulators (three float64 band images for moments) plus one band
+of one frame; the band height is chosen so the accumulators take about :data:`BAND_BYTES`
+(32 MiB) unless ``band_rows`` is given, whatever the number of frames or the session size.
+
+Failures: tasks are submitted with ``retries=`` :data:`RETRIES`, so the tasks of a worker lost
+mid-reduction are run again elsewhere by Dask (a task is a pure function of its files).  A file
+that cannot be read gives the error the streamed path gives: a band that fails to decode is read
+again whole with :func:`ccdcore.io.read_image` (the streamed reader) on the worker, whose
+:class:`~ccdcore.errors.ImageReadError` names the file; when several frames fail, the first one
+in the streamed order is reported.  Shapes, dtypes and layouts are checked on the client from the
+session's cached headers before anything is submitted, with the streamed path's messages.
+
+Public objects
+--------------
+Frame
+    What a task needs to read one frame: its path and the name messages use.
+frames_of(records), headers_of(records, session)
+    :class:`Frame` per :class:`~ccdcore.session.FrameRecord` (or path); with its header.
+check_averageable(frame, header, first)
+    :class:`~ccdcore.stats.PixelMoments`' checks of a frame, from its header.
+get_client(scheduler=None, workers=None)
+    Context manager: a client on ``scheduler`` (or ``CCDCORE_SCHEDULER``), on a new local
+    cluster of ``workers`` processes, or ``None`` (streamed).
+describe(client)
+    What a product's provenance records: ``"streamed (this process)"`` or the address and
+    number of workers.
+bands(height, width, ...)
+    The bands ``(y0, rows)`` of a frame.
+band_moments(client, frames, ...), group_moments(client, groups, ...), iter_group_moments
+    Per-pixel mean and variance (:class:`~ccdcore.stats.MomentsResult`) on the cluster.
+zero_counts(client, frames, ...)
+    Per channel, the zero pixel values of frames (the flat field's zero-dark check).
+pair_sums(client, levels, ...), PairSums
+    Per-pair photon-transfer statistics (eqs. 37, 38) merged over bands.
+frame_sums(client, frames, ...)
+    Per-frame sum and pixel count (the dark mean of the black level).
+BAND_BYTES, RETRIES, PTC_RTOL, SCHEDULER_ENV, STREAMED
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
+
+import numpy as np
+
+from .errors import CcdError, ImageReadError
+from .io import read_image, read_region
+from .progress import Cancelled, checkpoint
+from .stats import MomentsResult, PixelMoments
+
+__all__ = ["Frame", "frames_of", "headers_of", "check_averageable", "get_client", "describe", "bands", "band_moments",
+           "group_moments", "iter_group_moments", "zero_counts", "pair_sums", "PairSums",
+           "frame_sums",
+           "BAND_BYTES", "RETRIES", "PTC_RTOL", "SCHEDULER_ENV", "STREAMED"]
+
+#: environment variable naming the default scheduler address of the CLI
+SCHEDULER_ENV = "CCDCORE_SCHEDULER"
+#: target size of one band's accumulators (bytes) when ``band_rows`` is not given
+BAND_BYTES = 32 * 2 ** 20
+#: how many times Dask reruns a task whose worker was lost
+RETRIES = 3
+#: relative tolerance of σ̂²_N (eq. 38) merged over bands against the streamed two-pass value
+PTC_RTOL = 1e-12
+#: provenance of a reduction run in this process
+STREAMED = "streamed (this process)"
+#: seconds to wait for a scheduler before giving up
+CONNECT_TIMEOUT = 5
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame as a task reads it: the file's ``path`` and the ``name`` messages use (the
+    record's ``relpath``, as in the streamed path)."""
+
+    path: str
+    name: str
+
+
+def frames_of(records: Iterable[Any]) -> tuple[Frame, ...]:
+    """:class:`Frame` per :class:`~ccdcore.session.FrameRecord` (``path``, ``relpath``) or path."""
+    out = []
+    for r in records:
+        if isinstance(r, Frame):
+            out.append(r)
+        elif hasattr(r, "path") and hasattr(r, "relpath"):
+            out.append(Frame(str(r.path), str(r.relpath)))
+        elif isinstance(r, (str, os.PathLike)):
+            out.append(Frame(str(r), str(r)))
+        else:
+            raise CcdError("frames", "on a cluster, frames are given as session records or file "
+                                     f"paths (the workers read them), not {type(r).__name__}")
+    return tuple(out)
+
+
+def headers_of(records: Sequence[Any], session: Any = None) -> list[tuple[Frame, Any]]:
+    """``(Frame, ImageHeader)`` per record or path, in order: from the session's header cache
+    for its records, else read here (:func:`ccdcore.io.read_header`: the streamed reader's
+    error for a file whose header does not read)."""
+    from .io import read_header
+
+    out = []
+    for rec, frame in zip(records, frames_of(records)):
+        if session is not None and hasattr(rec, "relpath"):
+            out.append((frame, session.header(rec)))
+        else:
+            out.append((frame, read_header(frame.path)))
+    return out
+
+
+def check_averageable(frame: Frame, header: Any, first: tuple[int, ...] | None
+                      ) -> tuple[int, ...]:
+    """The checks :meth:`ccdcore.stats.PixelMoments.add` makes of a frame, from its header and
+    with the same messages (shape of the first frame, a numeric dtype); returns the first
+    frame's shape (``header``'s when ``first`` is ``None``)."""
+    shape = tuple(header.shape)
+    if first is not None and shape != tuple(first):
+        raise CcdError(frame.name, f"frame shape {shape} differs from the first frame's "
+                                   f"{tuple(first)}")
+    if np.dtype(header.dtype).kind not in "uifb":
+        raise CcdError(frame.name, f"cannot average frames of dtype {header.dtype}")
+    return shape if first is None else tuple(first)
+
+
+# --------------------------------------------------------------------------------------------
+# the client
+# --------------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def get_client(scheduler: str | None = None, workers: int | None = None) -> Iterator[Any]:
+    """A Dask client for the reductions, closed (with any cluster it started) on exit.
+
+    Parameters
+    ----------
+    scheduler
+        Address of a running scheduler (``tcp://host:8786``); default the environment variable
+        ``CCDCORE_SCHEDULER``.
+    workers
+        Start a local cluster of this many worker processes (one thread each) instead.
+
+    Yields
+    ------
+    distributed.Client or None
+        ``None`` when neither is given: the reductions run streamed in this process.
+
+    Raises
+    ------
+    CcdError
+        Both given, ``workers`` < 1, or the scheduler cannot be reached (one line naming it).
+    """
+    if scheduler is None and workers is None:
+        scheduler = os.environ.get(SCHEDULER_ENV) or None
+    if scheduler is not None and workers is not None:
+        raise CcdError("--scheduler", "give a scheduler address or a number of local workers, "
+                                      "not both")
+    if scheduler is None and workers is None:
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    if workers is not None:
+        if int(workers) < 1:
+            raise CcdError("--workers", f"must be at least 1, got {workers}")
+        with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                          dashboard_address=":0") as cluster, Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise CcdError(scheduler, f"cannot reach the Dask scheduler ({type(exc).__name__}: "
+                                  f"{str(exc).splitlines()[0] if str(exc) else 'no answer'})"
+                       ) from None
+    with client:
+        yield client
+
+
+def describe(client: Any) -> str:
+    """``"streamed (this process)"``, or ``"dask <address> (<n> workers)"``."""
+    if client is None:
+        return STREAMED
+    n = len(client.scheduler_info().get("workers", {}))
+    return f"dask {client.scheduler.address} ({n} worker{'s' if n != 1 else ''})"
+
+
+# --------------------------------------------------------------------------------------------
+# bands
+# --------------------------------------------------------------------------------------------
+def bands(height: int, width: int, *, channels: int = 1, band_rows: int | None = None,
+          even: bool = False) -> list[tuple[int, int]]:
+    """The bands ``(y0, rows)`` covering ``height`` rows, top to bottom.
+
+    At most ``band_rows`` rows each (default: the rows whose three float64 accumulators take
+    about :data:`BAND_BYTES`), as many bands as that needs, of nearly equal heights (so no
+    short last band idles the cluster).  ``even`` (Bayer data) keeps the heights even, so every
+    band starts on the CFA's first row.
+    """
+    if band_rows is None:
+        band_rows = max(1, BAND_BYTES // (3 * 8 * max(1, width * channels)))
+    rows = int(band_rows)
+    if rows < 1:
+        raise CcdError("band_rows", f"must be at least 1, got {band_rows}")
+    if even:
+        rows = max(2, rows - rows % 2)
+    count = -(-height // rows)
+    rows = -(-height // count)
+    if even:
+        rows += rows % 2
+    return [(y, min(rows, height - y)) for y in range(0, height, rows)]
+
+
+def _read_band(frame: Frame, x: int, y: int, w: int, h: int) -> np.ndarray:
+    """Rows ``y:y+h``, columns ``x:x+w`` of a frame; a file that does not decode gives the
+    streamed reader's own error (it is read whole with :func:`read_image`)."""
+    try:
+        return read_region(frame.path, x, y, w, h)
+    except ImageReadError:
+        read_image(frame.path)
+        raise
+
+
+def _portable(err: CcdError) -> tuple[type, str | None, str]:
+    """A :class:`CcdError` as (class, where, problem): the error classes take two arguments,
+    which pickle does not pass back, so the error travels as its parts."""
+    return type(err), err.where, err.problem
+
+
+def _rebuilt(parts: tuple[type, str | None, str]) -> CcdError:
+    cls, where, problem = parts
+    return cls(where, problem)
+
+
+# --------------------------------------------------------------------------------------------
+# tasks (run on the workers; plain functions of their arguments, so Dask can rerun them)
+# --------------------------------------------------------------------------------------------
+def _moments_task(frames: tuple[Frame, ...], x: int, y: int, w: int, h: int) -> tuple:
+    """PixelMoments over one band of ``frames``, in order: ("ok", mean, var, n) or
+    ("error", position, CcdError)."""
+    acc = PixelMoments()
+    for k, f in enumerate(frames):
+        try:
+            acc.add(_read_band(f, x, y, w, h), name=f.name)
+        except CcdError as err:
+            return ("error", k, _portable(err))
+    res = acc.result(in_place=True)
+    return ("ok", res.mean, res.var, res.n)
+
+
+def _zeros_task(frames: tuple[Frame, ...], x: int, y: int, w: int, h: int,
+                layout: str) -> tuple:
+    """Per channel, the zero pixel values of one band of ``frames`` (the flat field's
+    zero-dark check): ("ok", {channel: zeros}) or ("error", position, CcdError)."""
+    from .channels import split_channels
+
+    zeros: dict[str, int] = {}
+    for k, f in enumerate(frames):
+        try:
+            band = _read_band(f, x, y, w, h)
+        except CcdError as err:
+            return ("error", k, _portable(err))
+        for c, v in split_channels(band, layout).items():
+            zeros[c] = zeros.get(c, 0) + int(np.count_nonzero(v == 0))
+    return ("ok", zeros)
+
+
+def _pairs_task(pairs: tuple[tuple[Frame, Frame], ...], x: int, y: int, w: int, h: int,
+                full: float | None) -> tuple:
+    """Per pair, the band's [Σa, Σb, n, Σd, Σ(d − d̄)², clipped, non-finite a, non-finite b]
+    (d = a − b, d̄ the band's mean of d): ("ok", array (n_pairs, 8)) or ("error", position of
+    the frame in the pairs' order, CcdError)."""
+    out = np.zeros((len(pairs), 8))
+    for i, (f1, f2) in enumerate(pairs):
+        arrays = []
+        for j, f in enumerate((f1, f2)):
+            try:
+                arrays.append(_read_band(f, x, y, w, h))
+            except CcdError as err:
+                return ("error", 2 * i + j, _portable(err))
+        p1, p2 = arrays
+        bad = [int(np.count_nonzero(~np.isfinite(p))) if p.dtype.kind == "f" else 0
+               for p in (p1, p2)]
+        a = np.asarray(p1, dtype=np.float64)
+        b = np.asarray(p2, dtype=np.float64)
+        n = a.size
+        d = a - b
+        sd = float(d.sum())
+        d -= sd / n
+        d *= d
+        clipped = 0
+        if full is not None:
+            clipped = int(np.count_nonzero(p1 <= 0) + np.count_nonzero(p1 >= full)
+                          + np.count_nonzero(p2 <= 0) + np.count_nonzero(p2 >= full))
+        out[i] = (a.sum(), b.sum(), n, sd, d.sum(), clipped, bad[0], bad[1])
+    return ("ok", out)
+
+
+def _sums_task(frames: tuple[Frame, ...], x: int, y: int, w: int, h: int) -> tuple:
+    """Per frame, the band's [sum, count, non-finite] (float64): ("ok", array (n, 3)) or
+    ("error", position, CcdError)."""
+    out = np.zeros((len(frames), 3))
+    for k, f in enumerate(frames):
+        try:
+            p = _read_band(f, x, y, w, h)
+        except CcdError as err:
+            return ("error", k, _portable(err))
+        bad = int(np.count_nonzero(~np.isfinite(p))) if p.dtype.kind == "f" else 0
+        out[k] = (p.sum(dtype=np.float64), p.size, bad)
+    return ("ok", out)
+
+
+# --------------------------------------------------------------------------------------------
+# submitting and gathering
+# --------------------------------------------------------------------------------------------
+def _submit(client: Any, func: Callable, args_list: Sequence[tuple]) -> list:
+    return [client.submit(func, *args, retries=RETRIES, pure=False) for args in args_list]
+
+
+def _gather_in_order(client: Any, groups: list[list], counter: list[int], total: int,
+                     place: Callable[[int, int, tuple], None] | None = None
+                     ) -> Iterator[list]:
+    """Yield each group's results (in band order) once its futures are done, group by group.
+
+    Each band is fetched as soon as it is done and its future released (the worker drops it);
+    with ``place(group, band, result)`` the result is handed over there and not kept (the
+    list then holds ``None``), so the client holds one copy of the maps.  Each finished band
+    counts as one step for :func:`ccdcore.progress.checkpoint`.  A group whose tasks report
+    read errors raises the error of the earliest frame (streamed order); on any exit the
+    remaining futures are cancelled.
+    """
+    from distributed import as_completed
+
+    try:
+        for g, futures in enumerate(groups):
+            index = {f.key: i for i, f in enumerate(futures)}
+            results: list = [None] * len(futures)
+            errors = []
+            for fut in as_completed(futures):
+                counter[0] += 1
+                checkpoint(counter[0], total)
+                r = fut.result()
+                fut.release()
+                if r[0] == "error":
+                    errors.append(r)
+                elif place is not None:
+                    place(g, index[fut.key], r)
+                else:
+                    results[index[fut.key]] = r
+            if errors:
+                raise _rebuilt(min(errors, key=lambda r: r[1])[2])
+            yield results
+    except (Exception, Cancelled, GeneratorExit):
+        # best effort: a generator dropped late may find its client already closed
+        with contextlib.suppress(Exception):
+            for futures in groups:
+                client.cancel(futures)
+        raise
+
+
+def _region(shape: tuple[int, ...], roi: Sequence[int] | None) -> tuple[int, int, int, int]:
+    if roi is None:
+        return 0, 0, shape[1], shape[0]
+    x, y, w, h = (int(v) for v in roi)
+    return x, y, w, h
+
+
+def iter_group_moments(client: Any, groups: Mapping[Any, Sequence[Any]], *,
+                       shape: tuple[int, ...], band_rows: int | None = None,
+                       even: bool = False) -> Iterator[tuple[Any, MomentsResult]]:
+    """``(key, MomentsResult)`` of each group of frames, in the groups' order.
+
+    Every group's bands are submitted at once; the client then holds one group's maps at a
+    time.  ``shape`` is the frames' shape (checked by the caller, from the headers).
+    """
+    h, w = shape[0], shape[1]
+    chans = shape[2] if len(shape) == 3 else 1
+    cut = bands(h, w, channels=chans, band_rows=band_rows, even=even)
+    keys = list(groups)
+    submitted = []
+    for key in keys:
+        frames = frames_of(groups[key])
+        if not frames:
+            raise CcdError(str(key), "no frames")
+        submitted.append(_submit(client, _moments_task,
+                                 [(frames, 0, y0, w, rows) for y0, rows in cut]))
+    total = sum(len(f) for f in submitted)
+    maps: dict[int, tuple[np.ndarray, np.ndarray, list[int]]] = {}
+
+    def place(g: int, i: int, result: tuple) -> None:
+        if g not in maps:
+            maps[g] = (np.empty(shape), np.empty(shape), [])
+        mean, var, counts = maps[g]
+        y0, rows = cut[i]
+        mean[y0:y0 + rows] = result[1]
+        var[y0:y0 + rows] = result[2]
+        counts.append(result[3])
+
+    with contextlib.closing(_gather_in_order(client, submitted, [0], total, place)) as done:
+        for g, _ in enumerate(done):
+            mean, var, counts = maps.pop(g)
+            yield keys[g], MomentsResult(mean=mean, var=var, n=int(counts[0]))
+
+
+def group_moments(client: Any, groups: Mapping[Any, Sequence[Any]], *,
+                  shape: tuple[int, ...], band_rows: int | None = None,
+                  even: bool = False) -> dict[Any, MomentsResult]:
+    """:func:`iter_group_moments` as a dict (every group's maps in memory at once)."""
+    return dict(iter_group_moments(client, groups, shape=shape, band_rows=band_rows, even=even))
+
+
+def band_moments(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...] | None = None,
+                 band_rows: int | None = None, even: bool = False) -> MomentsResult:
+    """Per-pixel mean and variance of ``frames`` (records or paths) on the cluster,
+    bit-identical to :func:`ccdcore.stats.pixel_moments` over the same frames in order.
+
+    ``shape`` defaults to the first frame's header (read here); every frame must have it.
+    """
+    fr = frames_of(frames)
+    if not fr:
+        raise CcdError(None, "no frames to average")
+    if shape is None:
+        from .io import read_header
+
+        shape = read_header(fr[0].path).shape
+    return next(iter_group_moments(client, {"frames": fr}, shape=shape, band_rows=band_rows,
+                                   even=even))[1]
+
+
+def zero_counts(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...], layout: str,
+                band_rows: int | None = None) -> dict[str, tuple[int, int]]:
+    """Per channel ``(zero pixel values, pixel values)`` over ``frames`` (the flat field's
+    zero-dark fraction), counted band by band on the cluster (exact)."""
+    fr = frames_of(frames)
+    h, w = shape[0], shape[1]
+    chans = shape[2] if len(shape) == 3 else 1
+    cut = bands(h, w, channels=chans, band_rows=band_rows, even=layout.startswith("bayer"))
+    futures = _submit(client, _zeros_task, [(fr, 0, y0, w, rows, layout) for y0, rows in cut])
+    with contextlib.closing(_gather_in_order(client, [futures], [0], len(futures))) as done:
+        results = next(done)
+    from .channels import split_channels
+
+    sizes = {c: v.size for c, v in split_channels(
+        np.broadcast_to(np.zeros((), np.uint8), shape), layout).items()}
+    out: dict[str, tuple[int, int]] = {}
+    for c, size in sizes.items():
+        out[c] = (sum(r[1].get(c, 0) for r in results), size * len(fr))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# photon transfer
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PairSums:
+    """One pair's statistics merged over the bands (eqs. 37, 38, 40): μ̂, σ̂²_N, M and the
+    clipped pixel values of both frames."""
+
+    mu: float
+    var: float
+    var_var: float
+    m: int
+    clipped: int
+
+
+def _merge_pair(rows: np.ndarray) -> PairSums:
+    """Bands' [Σa, Σb, n, Σd, M2, clipped, ...] of one pair -> :class:`PairSums`.
+
+    μ̂ = (Σa + Σb)/(2M) (eq. 37); the sum of squared deviations of d = a − b about its mean is
+    merged band by band, M2 = M2_A + M2_B + δ²·n_A·n_B/(n_A + n_B) with δ the difference of the
+    bands' means (Chan, Golub & LeVeque 1979), then σ̂²_N = M2/(2(M − 1)) (eq. 38) and
+    var[σ̂²_N] = 2(σ̂²_N)²/(M − 1) (eq. 40).
+    """
+    n_a, mean_a, m2 = 0.0, 0.0, 0.0
+    for _, _, n_b, s_b, m2_b, *_ in rows:
+        mean_b = s_b / n_b
+        n = n_a + n_b
+        delta = mean_b - mean_a
+        m2 += m2_b + delta * delta * n_a * n_b / n
+        mean_a += delta * n_b / n
+        n_a = n
+    m = int(n_a)
+    mu = (float(rows[:, 0].sum()) + float(rows[:, 1].sum())) / (2.0 * m)
+    var = float(m2 / (2.0 * (m - 1)))
+    return PairSums(mu=float(mu), var=var, var_var=2.0 * var * var / (m - 1), m=m,
+                    clipped=int(rows[:, 5].sum()))
+
+
+def pair_sums(client: Any, levels: Mapping[Any, Sequence[tuple[Any, Any]]], *,
+              shapes: Mapping[Any, tuple[int, ...]], roi: Sequence[int] | None,
+              full: float | None, band_rows: int | None = None,
+              nonfinite: Callable[[str, int], CcdError] | None = None
+              ) -> dict[Any, list[PairSums]]:
+    """Per level, the :class:`PairSums` of its pairs ``(record1, record2)``, on the cluster.
+
+    ``shapes`` gives each level's frame shape (the band grid covers ``roi`` of it, or all of
+    it).  Frames are taken in the streamed order (level by level, pair by pair); the first
+    frame that cannot be read, or that holds non-finite values (``nonfinite(name, count)``
+    makes that error), raises as in the streamed path.  σ̂²_N agrees with
+    :func:`ccdcore.noise.pair_statistics` to a relative :data:`PTC_RTOL`.
+    """
+    keys = list(levels)
+    submitted, pairs_of = [], []
+    for key in keys:
+        pairs = tuple((frames_of([a])[0], frames_of([b])[0]) for a, b in levels[key])
+        pairs_of.append(pairs)
+        x, y, w, h = _region(shapes[key], roi)
+        cut = [(y + y0, rows) for y0, rows in bands(h, w, band_rows=band_rows)]
+        submitted.append(_submit(client, _pairs_task,
+                                 [(pairs, x, y0, w, rows, full) for y0, rows in cut]))
+    total = sum(len(f) for f in submitted)
+    counter = [0]
+    out: dict[Any, list[PairSums]] = {}
+    with contextlib.closing(_gather_in_order(client, submitted, counter, total)) as gathered:
+        for key, pairs, results in zip(keys, pairs_of, gathered):
+            stack = np.stack([r[1] for r in results])          # (bands, pairs, 8)
+            if nonfinite is not None:
+                for i, (f1, f2) in enumerate(pairs):
+                    for j, f in enumerate((f1, f2)):
+                        bad = int(stack[:, i, 6 + j].sum())
+                        if bad:
+                            raise nonfinite(f.name, bad)
+            out[key] = [_merge_pair(stack[:, i]) for i in range(len(pairs))]
+    return out
+
+
+def frame_sums(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...],
+               roi: Sequence[int] | None, band_rows: int | None = None,
+               nonfinite: Callable[[str, int], CcdError] | None = None
+               ) -> list[tuple[float, int]]:
+    """Per frame ``(sum, pixel count)`` over ``roi`` (or the frame), on the cluster (exact for
+    integer data; sums over bands otherwise, to float64 rounding)."""
+    fr = frames_of(frames)
+    x, y, w, h = _region(shape, roi)
+    cut = [(y + y0, rows) for y0, rows in bands(h, w, band_rows=band_rows)]
+    futures = _submit(client, _sums_task, [(fr, x, y0, w, rows) for y0, rows in cut])
+    with contextlib.closing(_gather_in_order(client, [futures], [0], len(futures))) as done:
+        results = next(done)
+    stack = np.stack([r[1] for r in results])              # (bands, frames, 3)
+    out = []
+    for k, f in enumerate(fr):
+        bad = int(stack[:, k, 2].sum())
+        if bad and nonfinite is not None:
+            raise nonfinite(f.name, bad)
+        out.append((float(math.fsum(stack[:, k, 0])), int(stack[:, k, 1].sum())))
+    return out
