@@ -8,7 +8,9 @@ them as one message, and makes it safe to call from any callback of a served pag
 model changed outside Panel's document lock is refused).
 
 ImageView(frame_width=560, max_frame_height=560, cmap="gray", ...)
-    A zoomable view of one 2-D plane at screen resolution (:func:`app.plots.overview`), with
+    A zoomable view of one 2-D plane at screen resolution (:func:`app.plots.overview`; a
+    frame larger than memory as an :class:`app.tiles.TiledPlane`, drawn from the pyramid
+    level that fits the zoom, :func:`app.tiles.overview`), with
     square pixels, a colour bar, a hover readout, optional linked zoom with other views, a
     crosshair, a box and marked pixels; Python callbacks for the pointer, a tap and a drawn box.
 HistogramView(height=220, ...)
@@ -25,8 +27,9 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from . import plots
+from . import plots, tiles
 from .plots import frame_size
+from .tiles import TiledPlane
 from .batch import batched
 
 __all__ = ["ImageView", "HistogramView", "palette", "frame_size", "view_pane"]
@@ -52,7 +55,9 @@ class ImageView:
     or pan (Bokeh's ``RangesUpdate``, once a gesture ends) draws the visible part again through
     :func:`app.plots.overview`: when more pixels than screen pixels are visible, blocks of
     f × f pixels become one value (``how``: ``"mean"``, ``"extreme"`` -- the pixel farthest
-    from ``centre`` -- or ``"max"``), and the title says so.
+    from ``centre`` -- or ``"max"``), and the title says so. A :class:`app.tiles.TiledPlane`
+    is drawn from its pyramid (always block means): only the visible region of the level that
+    fits the zoom is read.
 
     Parameters
     ----------
@@ -83,6 +88,8 @@ class ImageView:
         self.plane: NDArray | None = None
         self.title = title
         self.how, self.centre, self.factor = "mean", 0.0, 1
+        #: the pyramid level drawn from (a TiledPlane shown; 0: the file itself)
+        self.level = 0
         self.symbol = symbol
         #: callbacks: ``on_pointer(x, y)``, ``on_tap(x, y)``, ``on_box((x0, y0, x1, y1))``
         self.on_pointer: Callable[[float, float], None] | None = None
@@ -143,7 +150,8 @@ class ImageView:
         if centre is not None:
             self.centre = float(centre)
         old = None if self.plane is None else self.plane.shape
-        self.plane = None if plane is None else np.asarray(plane)
+        self.plane = None if plane is None else \
+            plane if isinstance(plane, TiledPlane) else np.asarray(plane)
         if clim is not None:
             self.set_clim(clim)
         if self.plane is None:
@@ -213,9 +221,14 @@ class ImageView:
         if key == self._drawn_for:
             return
         self._drawn_for = key
-        data, (left, bottom, right, top), factor = plots.overview(
-            self.plane, x_range, y_range, self.figure.frame_width, self.figure.frame_height,
-            how=self.how, centre=self.centre)
+        if isinstance(self.plane, TiledPlane):    # only the visible region of one level read
+            data, (left, bottom, right, top), factor, self.level = tiles.overview(
+                self.plane, x_range, y_range, self.figure.frame_width,
+                self.figure.frame_height)
+        else:
+            data, (left, bottom, right, top), factor = plots.overview(
+                self.plane, x_range, y_range, self.figure.frame_width,
+                self.figure.frame_height, how=self.how, centre=self.centre)
         self.factor = factor
         image = np.asarray(data, dtype=np.float32)
         self.source.data = {"image": [image], "x": [left], "y": [bottom],

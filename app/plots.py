@@ -28,6 +28,10 @@ histogram_counts(values, bins=256)
 OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
     that reduction of the visible part of a map (one compiled pass, :func:`load_kernels`).
+visible_span(rng, n), block_factor(cols, rows, width, height), block_reduce(plane, f, how=...)
+    The pixels an axis range overlaps; the block size fitting pixels into screen pixels; the
+    reduction of f × f blocks (shared by :func:`overview` and the tiled previews of
+    :mod:`app.tiles`).
 load_kernels(dtypes=None)
     Compile or load the reduction's kernels ahead of the first zoom.
 frame_size(shape, frame_width, max_frame_height=560)
@@ -46,7 +50,7 @@ from ccdcore.errors import CcdError
 
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim", "histogram_edges", "histogram_counts", "OVERVIEWS", "overview",
-           "frame_size", "subsample"]
+           "visible_span", "block_factor", "block_reduce", "frame_size", "subsample"]
 
 #: the name of the luminance plane a colour frame also offers
 LUMINANCE = "L"
@@ -193,29 +197,42 @@ def overview(plane: NDArray, x_range: tuple[float, float] | None,
     if how not in OVERVIEWS:
         raise ValueError(f"how: expected one of {', '.join(OVERVIEWS)}, got {how!r}")
     h, w = plane.shape
-
-    def span(rng: tuple[float, float] | None, n: int) -> tuple[int, int]:
-        if rng is None or not all(np.isfinite(rng)):
-            return 0, n
-        lo, hi = sorted(float(v) for v in rng)
-        first = min(max(int(np.floor(lo - 0.5)) + 1, 0), n - 1)   # c + 1/2 > lo
-        last = min(max(int(np.ceil(hi + 0.5)), first + 1), n)      # c - 1/2 < hi
-        return first, last
-
-    c0, c1 = span(x_range, w)
-    r0, r1 = span(y_range, h)
+    c0, c1 = visible_span(x_range, w)
+    r0, r1 = visible_span(y_range, h)
     crop = plane[r0:r1, c0:c1]
-    f = max(1, int(np.ceil(max((c1 - c0) / max(width or (c1 - c0), 1),
-                               (r1 - r0) / max(height or (r1 - r0), 1)))))
+    f = block_factor(c1 - c0, r1 - r0, width, height)
     if f == 1:
         return crop, (c0 - 0.5, r0 - 0.5, c1 - 0.5, r1 - 0.5), 1
     nh, nw = -(-(r1 - r0) // f), -(-(c1 - c0) // f)
-    if crop.dtype == np.bool_:
-        crop = crop.view(np.uint8)
-    elif crop.dtype not in _KERNEL_DTYPES:      # one compiled kernel per dtype: the common ones
-        crop = crop.astype(np.float64)
-    out = _reduce_blocks(np.ascontiguousarray(crop), f, _MODES[how], float(centre))
+    out = block_reduce(crop, f, how=how, centre=centre)
     return out, (c0 - 0.5, r0 - 0.5, c0 - 0.5 + nw * f, r0 - 0.5 + nh * f), f
+
+
+def block_reduce(plane: NDArray, f: int, *, how: str = "mean", centre: float = 0.0) -> NDArray:
+    """Blocks of ``f`` × ``f`` pixels of ``plane`` (partial at the right and bottom edges) to
+    one float64 value each, non-finite pixels skipped, as :func:`overview` reduces them."""
+    if plane.dtype == np.bool_:
+        plane = plane.view(np.uint8)
+    elif plane.dtype not in _KERNEL_DTYPES:      # one compiled kernel per dtype: the common ones
+        plane = plane.astype(np.float64)
+    return _reduce_blocks(np.ascontiguousarray(plane), int(f), _MODES[how], float(centre))
+
+
+def visible_span(rng: tuple[float, float] | None, n: int) -> tuple[int, int]:
+    """The pixels ``first:last`` of ``n`` (centres at 0 .. n-1) that the axis range ``rng``
+    overlaps (at least one; ``None`` or a non-finite range: all)."""
+    if rng is None or not all(np.isfinite(rng)):
+        return 0, n
+    lo, hi = sorted(float(v) for v in rng)
+    first = min(max(int(np.floor(lo - 0.5)) + 1, 0), n - 1)   # c + 1/2 > lo
+    last = min(max(int(np.ceil(hi + 0.5)), first + 1), n)      # c - 1/2 < hi
+    return first, last
+
+
+def block_factor(cols: int, rows: int, width: int | None, height: int | None) -> int:
+    """The smallest block size ``f`` that fits ``cols`` × ``rows`` pixels in ``width`` ×
+    ``height`` screen pixels (``None``: no limit)."""
+    return max(1, int(np.ceil(max(cols / max(width or cols, 1), rows / max(height or rows, 1)))))
 
 
 #: the kernel's code for each reduction

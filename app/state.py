@@ -20,6 +20,10 @@ default_roots(extra=())
     The folders the user may open sessions from: the assets, the home and the working folder.
 is_allowed(path, roots)
     Whether ``path`` lies inside one of ``roots``.
+
+Finished results are kept on disk (:mod:`app.cache`) by :meth:`AppState.cached_compute`, keyed
+by the session's content hash: a session reopened (in this or another browser session, or after
+a restart) shows them without computing again.
 """
 from __future__ import annotations
 
@@ -42,6 +46,8 @@ from ccdcore.product import Estimates
 from ccdcore.progress import Cancelled, Tracker, tracking
 from ccdcore.scene import SceneVariation
 from ccdcore.session import MANIFEST_NAME, Session, open_session
+
+from .cache import ResultCache, code_version, default_cache
 
 __all__ = ["AppState", "Results", "FlatResults", "ASSETS_ENV", "assets_dir", "demo_sessions",
            "default_roots", "is_allowed"]
@@ -210,12 +216,19 @@ class AppState(param.Parameterized):
                              doc="Percent done of the current task; -1 when unknown.")
     allowed_roots = param.List(default=[], item_type=Path,
                                doc="Folders sessions may be opened from (resolved paths).")
+    cache = param.ClassSelector(class_=ResultCache, default=None, allow_None=True, doc=(
+        "The disk cache of finished results (app.cache.default_cache() unless given; None: "
+        "nothing cached)."))
 
     def __init__(self, **params: Any):
         params.setdefault("allowed_roots", default_roots())
         params.setdefault("results", Results())
+        if "cache" not in params:
+            params["cache"] = default_cache()
         super().__init__(**params)
         self._trackers: set[Tracker] = set()   # the running computations
+        #: the loaded session and the task hashing its content (app.cache.session_hash)
+        self._hashing: tuple[Session, asyncio.Future] | None = None
 
     # ---- opening sessions ---------------------------------------------------------------------
     def check_allowed(self, path: str | Path) -> Path:
@@ -258,6 +271,7 @@ class AppState(param.Parameterized):
                     f"Could not open the session; still showing {self.session_path}."
                 return False
             self.results.clear()
+            self._hashing = None
             self.session_path = str(path)
             self.session = session
             self.error = ""
@@ -296,6 +310,7 @@ class AppState(param.Parameterized):
         discard = param.parameterized.discard_events
         with discard(self), discard(self.results):
             self.results.clear()
+            self._hashing = None
             self.session = None
             self.session_path = ""
             self.status = "Session closed."
@@ -387,6 +402,93 @@ class AppState(param.Parameterized):
     def cancellable(self) -> bool:
         """True while a computation that :meth:`cancel` can stop is running."""
         return bool(self._trackers)
+
+    # ---- cached results ---------------------------------------------------------------------
+    def _hash_or_none(self, cache: ResultCache, session: Session) -> str | None:
+        """The session's content hash through the cache's stat index (in a worker thread);
+        None when a file cannot be read (the result is then computed, not cached)."""
+        try:
+            code_version()   # read ccdcore's sources once, here rather than on the event loop
+            return cache.session_hash(session)
+        except Exception as err:  # CcdError, OSError: no caching, the computation says more
+            log.warning("no cache for %s: %s: %s", session.label, type(err).__name__, err)
+            return None
+
+    async def session_hash(self) -> str | None:
+        """The loaded session's content hash (off the UI thread, once per session: concurrent
+        callers share one hashing), or None without a cache, a session or a readable file."""
+        session, cache = self.session, self.cache
+        if session is None or cache is None:
+            return None
+        loop = asyncio.get_running_loop()
+        if self._hashing is not None and self._hashing[0] is session:
+            task = self._hashing[1]
+            if task.done() and not task.cancelled():
+                return task.result()
+            if not task.done() and task.get_loop() is loop:
+                return await asyncio.shield(task)
+        task = asyncio.ensure_future(asyncio.to_thread(self._hash_or_none, cache, session))
+        self._hashing = (session, task)
+        return await asyncio.shield(task)
+
+    async def cache_key(self, name: str, params: dict[str, Any]) -> str | None:
+        """The cache key of computation ``name`` with ``params`` on the loaded session (None
+        when nothing can be cached)."""
+        cache = self.cache
+        content = await self.session_hash()
+        return None if cache is None or content is None else cache.key(content, name, params)
+
+    async def _known_hash(self, cache: ResultCache, session: Session) -> str | None:
+        """The content hash when already known: hashed for this session, or in the cache's
+        stat index (files stat'ed, none read); None otherwise."""
+        memo = self._hashing
+        if memo is not None and memo[0] is session and memo[1].done() \
+                and not memo[1].cancelled():
+            return memo[1].result()
+
+        def known() -> str | None:
+            code_version()   # read ccdcore's sources once, here rather than on the event loop
+            return cache.known_hash(session)
+        return await asyncio.to_thread(known)
+
+    async def cached_compute(self, name: str, params: dict[str, Any],
+                             func: Callable[..., Any], *args: Any, label: str = "results",
+                             **kwargs: Any) -> Any | None:
+        """:meth:`compute`, through the disk cache: the result of ``name`` with ``params``
+        (plain data naming everything the result depends on besides the session's content)
+        is read back when present, else computed and stored.
+
+        A session the cache's stat index knows is looked up at once (no frame read); a new
+        session, or one with a changed file, is computed at once while its content hash is
+        made in another worker thread (every byte read), and the result stored under it (a
+        cancelled or failed computation returns at once, the hashing goes on). A
+        result read back sets ``status`` to say it came from the cache; an unreadable entry is
+        computed again. ``args`` and ``kwargs`` go to :meth:`compute` as they are.
+        """
+        session, cache = self.session, self.cache
+        if session is None or cache is None:
+            return await self.compute(func, *args, label=label, **kwargs)
+        content = await self._known_hash(cache, session)
+        if self.session is not session:
+            return None
+        if content is None:     # hash while computing: the user does not wait for it
+            hashing = asyncio.ensure_future(self.session_hash())
+            result = await self.compute(func, *args, label=label, **kwargs)
+            if result is None:  # cancelled or failed: the hashing goes on in the background
+                return None
+            content = await hashing   # (one pass over the files, the computation's first)
+        else:
+            value = await asyncio.to_thread(cache.get, cache.key(content, name, params))
+            if self.session is not session:
+                return None
+            if value is not None:
+                self.param.update(error="", status=f"Loaded {label} from the cache (computed "
+                                                   "earlier on the same files).")
+                return value
+            result = await self.compute(func, *args, label=label, **kwargs)
+        if result is not None and content is not None and self.session is session:
+            await asyncio.to_thread(cache.put, cache.key(content, name, params), result)
+        return result
 
     def compute_now(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any | None:
         """:meth:`compute` in this thread (for scripts and tests)."""

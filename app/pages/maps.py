@@ -47,6 +47,7 @@ change: the page sets choices together with their options and data through
 """
 from __future__ import annotations
 
+import asyncio
 import html
 import io
 import logging
@@ -70,6 +71,7 @@ from ccdcore.scene import variance_budget
 from ccdcore.session import ROLES, Session
 
 from .. import map_plots, plots
+from ..cache import estimates_entry, photon_transfer_entry
 from ..batch import batched
 from ..image_view import HistogramView, ImageView
 from ..map_plots import MapLayer
@@ -601,15 +603,38 @@ class MapsPage(pn.viewable.Viewer):
         self.computing = True
         try:
             results = self.state.results
-            est = await self.state.compute(
-                estimate_all, session, noise=results.ptc, steps=ESTIMATE_STEPS,
-                pass_progress=True, emva1288=False,
-                label="dark reference, K̂, plan, scene variation and correction check")
+            noise, options = results.ptc, {"emva1288": False}
+            name, params = estimates_entry(noise, **options)
+            est = await self.state.cached_compute(
+                name, params, estimate_all, session, noise=noise, steps=ESTIMATE_STEPS,
+                pass_progress=True,
+                label="dark reference, K̂, plan, scene variation and correction check",
+                **options)
             if est is not None and self.state.session is session:
                 results.param.update(estimates=est,
                                      ptc=est.noise if est.noise is not None else results.ptc)
+                if noise is None and est.noise is not None:
+                    await self._link_cached(est, options)
         finally:
             self.computing = False
+
+    async def _link_cached(self, est: Any, options: dict[str, Any]) -> None:
+        """Estimates made with their own noise model are also those given that model (the
+        Photon transfer page's full-frame fit when it ran first) and hold photon_transfer's
+        full-frame result: the disk cache learns both (links, not copies)."""
+        state, cache = self.state, self.state.cache
+        key = await state.cache_key(*estimates_entry(None, **options))
+        if cache is None or key is None:
+            return
+        ptc_key = await state.cache_key(*photon_transfer_entry(None))
+        given_key = await state.cache_key(*estimates_entry(est.noise, **options))
+
+        def store() -> None:
+            if given_key is not None:
+                cache.link(given_key, key)
+            if ptc_key is not None and cache.get(ptc_key) is None:
+                cache.put(ptc_key, est.noise)
+        await asyncio.to_thread(store)
 
     @param.depends("computing", watch=True)
     def _on_computing(self) -> None:

@@ -23,7 +23,9 @@ Every number comes from :mod:`ccdcore.noise`: the page calls ``photon_transfer``
 pass over the frames, off the UI thread), then ``PhotonTransfer.refit`` (i.e. ``fit_points`` with
 the same black level, bit depth, ROI and notes) for every toggle; when too few levels are usable
 for a fit it still shows the levels measured by ``ptc_points``. The fit and the points are shared
-through ``state.results.ptc`` and ``state.results.ptc_points``. The plots come from
+through ``state.results.ptc`` and ``state.results.ptc_points``; the measured levels at an ROI
+are kept on disk (``AppState.cached_compute``, keyed by the session's content and the ROI), so a
+session opened again shows them without reading its frames. The plots come from
 :mod:`app.ptc_plots` and :mod:`app.plots`.
 """
 from __future__ import annotations
@@ -46,8 +48,10 @@ from ccdcore.noise import (ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint, ph
                            ptc_points)
 from ccdcore.session import FrameRecord, Session
 
-from .. import plots, ptc_plots
+from .. import plots, ptc_plots, tiles
+from ..cache import photon_transfer_entry
 from ..image_view import ImageView
+from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
@@ -371,8 +375,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             return False
         self.content.loading = True
         try:
-            base = await self.state.compute(photon_transfer, session, roi=roi,
-                                            label="photon transfer")
+            name, params = photon_transfer_entry(roi)
+            base = await self.state.cached_compute(name, params, photon_transfer, session,
+                                                   roi=roi, label="photon transfer")
             if self.state.session is not session:
                 return False
             if base is not None:
@@ -380,8 +385,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
                 self._adopt(base, base.points, base.roi)
                 return True
             error = self.state.error
-            points = await self.state.compute(ptc_points, session, roi=roi,
-                                              label="photon-transfer points")
+            points = await self.state.cached_compute("ptc_points", params, ptc_points,
+                                                     session, roi=roi,
+                                                     label="photon-transfer points")
             if self.state.session is not session:
                 return False
             self.state.error = error
@@ -550,9 +556,15 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self._reset_roi_inputs((left, top, right - left, bottom - top))
 
     @staticmethod
-    def _read(session: Session, rec: FrameRecord) -> tuple[np.ndarray | None, str]:
+    def _read(session: Session, rec: FrameRecord
+              ) -> tuple[np.ndarray | TiledPlane | None, str]:
+        """The frame's own pixel grid to preview (a raw mosaic as it is, the luminance of
+        colour): read whole, or for a large frame its pyramid (:mod:`app.tiles`: read by the
+        region)."""
         try:
-            return session.read(rec), ""
+            if tiles.needs_tiles(session.header_or_none(rec), None):
+                return FramePyramid.open(rec.path, None).plane(), ""
+            return plots.channel_data(session.read(rec)), ""
         except CcdError as err:
             return None, str(err)
         except Exception as err:  # unforeseen: still an alert, not a crash
@@ -580,13 +592,14 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             self.preview_alert.param.update(object=f"**Cannot preview the frame:** {error}",
                                             visible=True)
             return
-        self._show_preview(plots.channel_data(array), rec.relpath)
+        self._show_preview(array, rec.relpath)
 
     @batched
-    def _show_preview(self, plane: np.ndarray, title: str) -> None:
+    def _show_preview(self, plane: np.ndarray | TiledPlane, title: str) -> None:
         """The frame's own pixel grid (luminance of colour), the ROI outlined on it."""
         self.preview_alert.visible = False
-        self.preview_view.show(plane, clim=plots.auto_clim(plane), title=title, how="mean")
+        clim = plots.auto_clim(plane.coarse() if isinstance(plane, TiledPlane) else plane)
+        self.preview_view.show(plane, clim=clim, title=title, how="mean")
         self.preview_view.set_box(self._pending_roi())
         self.preview_pane.visible = True
 

@@ -20,7 +20,10 @@ inferred_summary(session)
     Which metadata keys were inferred, from what, for how many frames.
 
 Widgets call ccdcore (``open_session``, ``Session.read``, ``draft_manifest``); the plots come from
-:mod:`app.plots`. Long work (opening a session, reading a frame) runs in a worker thread from
+:mod:`app.plots`. A mono or colour frame larger than :func:`app.tiles.tile_threshold` pixels is
+not read whole: it is previewed from a pyramid of block means on disk (:mod:`app.tiles`, built
+once per file in bands of rows), each zoom reading only the visible region of the level that
+fits it, and its histogram and automatic colour range come from a level of about a megapixel. Long work (opening a session, reading a frame) runs in a worker thread from
 async callbacks, so the page stays responsive, with a progress bar or loading spinner meanwhile.
 """
 from __future__ import annotations
@@ -41,8 +44,9 @@ from ccdcore.common import format_size
 from ccdcore.errors import CcdError
 from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
-from .. import plots
+from .. import plots, tiles
 from ..image_view import HistogramView, ImageView
+from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState, assets_dir, demo_sessions
 from ..batch import batched
 from ._choices import set_choices
@@ -173,7 +177,8 @@ class SessionPage(pn.viewable.Viewer):
         self._array: np.ndarray | None = None     # the previewed frame, as stored
         self._shown: FrameRecord | None = None    # its record
         self._planes: dict[str, np.ndarray] = {}  # its channel choices (none when mono)
-        self._plane: np.ndarray | None = None     # its shown channel (2-D)
+        self._plane: np.ndarray | TiledPlane | None = None   # its shown channel (2-D)
+        self._tiled: FramePyramid | None = None   # the previewed frame, when large (app.tiles)
         self._frame_request = 0                   # newest preview request (older ones drop)
         self._layout: pn.Column | None = None
         self._build_open_widgets()
@@ -478,7 +483,7 @@ class SessionPage(pn.viewable.Viewer):
 
     # ============================================================ frame preview ============
     def _clear_preview(self, message: str = "") -> None:
-        self._array = self._plane = self._shown = None
+        self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
         self.image_view.show(None)
         self.hist_view.show(None)
@@ -487,9 +492,14 @@ class SessionPage(pn.viewable.Viewer):
         self.channel_select.visible = False
 
     @staticmethod
-    def _read(session: Session, rec: FrameRecord) -> tuple[np.ndarray | None, str]:
-        """Read a frame (worker thread); the error message instead of raising."""
+    def _read(session: Session, rec: FrameRecord
+              ) -> tuple[np.ndarray | FramePyramid | None, str]:
+        """Read a frame, or open the pyramid of a large one (worker thread); the error message
+        instead of raising."""
         try:
+            layout = session.camera.layout
+            if tiles.needs_tiles(session.header_or_none(rec), layout):
+                return FramePyramid.open(rec.path, layout), ""
             return session.read(rec), ""
         except CcdError as err:
             return None, str(err)
@@ -518,6 +528,9 @@ class SessionPage(pn.viewable.Viewer):
             self.preview_alert.visible = True
             return
         self.preview_alert.visible = False
+        if isinstance(array, FramePyramid):
+            self._show_pyramid(array, rec)
+            return
         try:
             planes = plots.channel_planes(array, session.camera.layout)
         except ValueError as err:
@@ -531,17 +544,30 @@ class SessionPage(pn.viewable.Viewer):
             # shown below
             set_choices(self, {"channel": (self.channel_select, _channel_choices(list(planes)),
                                            channel)}, trigger=False)
-        self._array, self._shown, self._planes = array, rec, planes
+        self._array, self._shown, self._planes, self._tiled = array, rec, planes, None
+        self.channel_select.visible = bool(planes)
+        self._show_plane(rec)
+
+    def _show_pyramid(self, pyramid: FramePyramid, rec: FrameRecord) -> None:
+        planes = {c: pyramid.plane(c) for c in pyramid.channels if c is not None}
+        if planes:
+            channel = self.channel if self.channel in planes else plots.LUMINANCE
+            set_choices(self, {"channel": (self.channel_select, _channel_choices(list(planes)),
+                                           channel)}, trigger=False)
+        self._array, self._shown, self._planes, self._tiled = None, rec, planes, pyramid
         self.channel_select.visible = bool(planes)
         self._show_plane(rec)
 
     def _on_channel(self, event: Any = None) -> None:
-        if self._array is not None and self._shown is not None:
+        if (self._array is not None or self._tiled is not None) and self._shown is not None:
             self._show_plane(self._shown)
 
     @batched
     def _show_plane(self, rec: FrameRecord) -> None:
         """Show the current channel of the current frame: image, histogram, range, info."""
+        if self._tiled is not None:
+            self._show_tiled(rec, self._tiled)
+            return
         array = self._array
         plane = self._planes.get(self.channel, array) if self._planes else \
             plots.channel_data(array)
@@ -564,7 +590,41 @@ class SessionPage(pn.viewable.Viewer):
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
         clim = self.clim_slider.value
         self.image_view.show(plane, clim=clim, title=Path(rec.relpath).name, how="mean")
-        self.hist_view.show(plane, clim)
+        self.hist_view.show(plane, clim, title="Histogram")
+        self.image_pane.visible = self.hist_pane.visible = True
+        self.readout.object = "Move the cursor over the image to read pixel values."
+
+    def _show_tiled(self, rec: FrameRecord, pyramid: FramePyramid) -> None:
+        """:meth:`_show_plane` for a large frame: the view reads its pyramid by the region; the
+        range and the mean are exact (gathered while building), the histogram and the
+        automatic colour range come from a coarse level (block means)."""
+        plane = self._planes.get(self.channel) if self._planes else pyramid.plane()
+        self._plane = plane
+        lo, hi, mean = plane.stats
+        if not (np.isfinite(lo) and np.isfinite(hi)):
+            lo, hi, mean = 0.0, 1.0, 0.0
+        if not hi > lo:
+            hi = lo + 1.0
+        level = plane.coarse_level()
+        coarse = np.asarray(plane.level(level))
+        clim = plots.auto_clim(coarse)
+        integer = plane.dtype.kind in "iu"
+        self.clim_slider.param.update(start=lo, end=hi, step=1 if integer else (hi - lo) / 1000)
+        self._set_clim((max(lo, clim[0]), min(hi, clim[1])))
+        channel = f", channel {self.channel}" if self._planes else ""
+        f = plane.factors[level]
+        shape = (*pyramid.shape, 3) if self._planes else pyramid.shape
+        self.frame_info.object = (
+            f"{_code(rec.relpath)} — {rec.role}"
+            + ("" if rec.exposure is None else f", exposure {rec.exposure:g} s")
+            + f", {_size(shape)} px {pyramid.dtype}{channel}; "
+            f"min {lo:g}, max {hi:g}, mean {mean:g} DN. Large frame: previewed from a pyramid "
+            f"of block means (2×2 to {plane.factors[-1]}×{plane.factors[-1]} px), "
+            f"each zoom reading only what it shows; histogram and automatic range of the "
+            f"{f}×{f} px block means.")
+        clim = self.clim_slider.value
+        self.image_view.show(plane, clim=clim, title=Path(rec.relpath).name, how="mean")
+        self.hist_view.show(coarse, clim, title=f"Histogram of {f}×{f} px block means")
         self.image_pane.visible = self.hist_pane.visible = True
         self.readout.object = "Move the cursor over the image to read pixel values."
 
@@ -574,21 +634,22 @@ class SessionPage(pn.viewable.Viewer):
             return
         col, row = int(round(x)), int(round(y))
         if 0 <= row < plane.shape[0] and 0 <= col < plane.shape[1]:
-            value = plane[row, col]
+            value = plane.value(row, col) if isinstance(plane, TiledPlane) else plane[row, col]
             text = f"{value:g}" if plane.dtype.kind == "f" else str(value)
             self.readout.object = f"x = {col}, y = {row}: **{text} DN**"
 
     def _on_auto(self, event: Any = None) -> None:
         if self._plane is None:
             return
-        lo, hi = plots.auto_clim(self._plane)
+        plane = self._plane
+        lo, hi = plots.auto_clim(plane.coarse() if isinstance(plane, TiledPlane) else plane)
         start, end = self.clim_slider.start, self.clim_slider.end
         self._set_clim((max(start, lo), min(end, hi)))
 
     def release(self) -> None:
         """The browser session ended: drop the frame shown (no redraw)."""
         self.image_view.release()
-        self._array = self._plane = self._shown = None
+        self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
         if self._product_panel is not None:
             self._product_panel.release()

@@ -30,6 +30,13 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-component-update", "--disable-sync"]
 
 
+@pytest.fixture(autouse=True)
+def _no_result_cache(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No test reads or fills the user's result cache (app/cache.py), and no test sees another
+    test's results; a test of the cache points CCDCORE_CACHE at its own folder."""
+    monkeypatch.setenv("CCDCORE_CACHE", "off")
+
+
 # ------------------------------------------------------------------------------ sessions -------
 @pytest.fixture(scope="session")
 def assets() -> Path:

@@ -1,0 +1,439 @@
+"""Finished results kept on disk, keyed by the session's content, so that reopening is instant.
+
+A result (a frozen ccdcore dataclass holding numpy arrays) is pickled into a cache folder under a
+key made of the session's content hash (:meth:`ccdcore.session.Session.content_hash`), the
+ccdcore version (with a digest of its source, :func:`code_version`), the computation's name and
+its parameters. The content hash reads every byte of
+every frame; a small persistent index maps the files' stats (path, size and modification time of
+the manifest and of every frame) to it, so that a session whose files did not change is
+recognised without reading them. A changed stat hashes again.
+
+Public objects
+--------------
+ResultCache
+    The cache folder: :meth:`~ResultCache.get`, :meth:`~ResultCache.put` (atomic),
+    :meth:`~ResultCache.key`, :meth:`~ResultCache.session_hash` (through the stat index),
+    :meth:`~ResultCache.known_hash` (the index alone), least-recently-used eviction beyond
+    ``max_bytes``, :meth:`~ResultCache.clear`.
+cache_folder()
+    The folder named by ``CCDCORE_CACHE`` (default ``~/.cache/ccdcore``), or None when disabled.
+default_cache(), max_bytes()
+    A :class:`ResultCache` on :func:`cache_folder` with the size bound of
+    ``CCDCORE_CACHE_MAX_BYTES`` (default 2 GiB), or None when disabled; that bound (the tiled
+    previews of :mod:`app.tiles` keep their own pyramids within it too).
+code_version()
+    The ccdcore version and a digest of its source files, part of every key.
+fingerprint(result)
+    A short digest of a result's ``to_dict()``, for a result passed as a parameter (the noise
+    model handed to ``estimate_all``).
+photon_transfer_entry(roi), estimates_entry(noise, **options)
+    The name and parameters the pages cache ``photon_transfer`` and ``estimate_all`` under.
+
+Notes
+-----
+Entries are pickles, read back only from the user's own cache folder. A corrupt, truncated or
+incompatible entry (another format, a class that changed or vanished) is a miss: it is deleted
+and the result computed again; no error reaches the user. The bound is kept after every write by
+deleting the least recently used entries (a hit touches its entry's modification time).
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import logging
+import os
+import pickle
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+import ccdcore
+from ccdcore.session import Session
+
+__all__ = ["ResultCache", "cache_folder", "code_version", "default_cache", "max_bytes",
+           "fingerprint",
+           "photon_transfer_entry", "estimates_entry", "CACHE_ENV",
+           "CACHE_SIZE_ENV", "DEFAULT_MAX_BYTES"]
+
+log = logging.getLogger(__name__)
+
+#: environment variable naming the cache folder ("off" disables the cache)
+CACHE_ENV = "CCDCORE_CACHE"
+#: environment variable bounding the cache's size in bytes (suffixes K, M, G allowed)
+CACHE_SIZE_ENV = "CCDCORE_CACHE_MAX_BYTES"
+#: the default bound of the results' total size
+DEFAULT_MAX_BYTES = 2 * 1024 ** 3
+#: the version of the entries' layout (a change makes every older entry a miss)
+FORMAT = 1
+#: how many sessions the stat -> content hash index remembers
+INDEX_SIZE = 512
+
+_OFF = {"off", "0", "none", "false", "no"}
+_SUFFIXES = {"k": 1024, "m": 1024 ** 2, "g": 1024 ** 3, "t": 1024 ** 4}
+
+
+def cache_folder() -> Path | None:
+    """The cache folder: ``$CCDCORE_CACHE``, else ``$XDG_CACHE_HOME/ccdcore`` or
+    ``~/.cache/ccdcore``; None when ``CCDCORE_CACHE`` is ``off`` (or empty).
+
+    (The app's tests set ``CCDCORE_CACHE=off`` for every test, in ``tests/app/conftest.py``: a
+    test run neither reads nor fills the user's cache; a test that wants one names its folder.)
+    """
+    value = os.environ.get(CACHE_ENV)
+    if value is not None:
+        if value.strip().lower() in _OFF or not value.strip():
+            return None
+        return Path(value).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base).expanduser() / "ccdcore"
+
+
+def max_bytes() -> int:
+    """The bound of the cache's size: ``CCDCORE_CACHE_MAX_BYTES`` (a number of bytes, with an
+    optional K, M, G or T suffix), else :data:`DEFAULT_MAX_BYTES`."""
+    text = os.environ.get(CACHE_SIZE_ENV, "").strip().lower()
+    if not text:
+        return DEFAULT_MAX_BYTES
+    text = text.removesuffix("ib").removesuffix("b")
+    scale = _SUFFIXES.get(text[-1:], 1)
+    digits = text[:-1] if text[-1:] in _SUFFIXES else text
+    try:
+        return max(int(float(digits) * scale), 0)
+    except ValueError:
+        log.warning("%s=%r is not a size; using %d bytes", CACHE_SIZE_ENV, text,
+                    DEFAULT_MAX_BYTES)
+        return DEFAULT_MAX_BYTES
+
+
+def default_cache() -> ResultCache | None:
+    """The cache the app uses (:func:`cache_folder`, ``CCDCORE_CACHE_MAX_BYTES``), or None."""
+    folder = cache_folder()
+    return None if folder is None else ResultCache(folder, max_bytes=max_bytes())
+
+
+@functools.lru_cache(maxsize=None)
+def _source_digest(package: str) -> str:
+    digest = hashlib.sha256()
+    for path in sorted(Path(package).rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode("utf-8") + b"\0")
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def code_version() -> str:
+    """``ccdcore.__version__`` and a digest of ccdcore's source files (read once): results
+    computed by other estimator code, even under the same version number, are misses."""
+    return f"{ccdcore.__version__}+{_source_digest(str(Path(ccdcore.__file__).parent))}"
+
+
+def _canonical(value: Any) -> Any:
+    """``value`` as plain JSON types (tuples -> lists, numpy scalars -> numbers, paths -> str)."""
+    if isinstance(value, dict):
+        return {str(k): _canonical(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_canonical(v) for v in value]
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if hasattr(value, "item") and callable(value.item):   # numpy scalar
+        return _canonical(value.item())
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"a cache key parameter must be plain data, not {type(value).__name__}")
+
+
+def _digest(value: Any) -> str:
+    text = json.dumps(_canonical(value), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def fingerprint(result: Any) -> str | None:
+    """A digest of ``result.to_dict()`` (None for None): equal results give equal digests."""
+    if result is None:
+        return None
+    text = json.dumps(result.to_dict(), sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _is_key(text: Any) -> bool:
+    return isinstance(text, str) and len(text) == 64 and all(c in "0123456789abcdef"
+                                                             for c in text)
+
+
+def photon_transfer_entry(roi: Iterable[int] | None) -> tuple[str, dict[str, Any]]:
+    """The entry of :func:`ccdcore.noise.photon_transfer` over ``roi`` (the levels excluded and
+    the robust mode only refit its points: ``PhotonTransfer.refit``, not cached)."""
+    return "photon_transfer", {"roi": None if roi is None else [int(v) for v in roi]}
+
+
+def estimates_entry(noise: Any, **options: Any) -> tuple[str, dict[str, Any]]:
+    """The entry of :func:`ccdcore.product.estimate_all` given the noise model ``noise`` (None:
+    estimated inside) and its other keyword ``options``."""
+    return "estimate_all", {**options, "noise": fingerprint(noise)}
+
+
+def _stat(path: Path) -> list[Any]:
+    st = os.stat(path)
+    return [str(path), int(st.st_size), int(st.st_mtime_ns)]
+
+
+class ResultCache:
+    """Results on disk under ``folder``, at most ``max_bytes`` in total (least recently used
+    entries deleted first).
+
+    Parameters
+    ----------
+    folder
+        The cache folder (created when first written). Results go to ``results/``, the stat ->
+        content hash index to ``hashes.json``.
+    max_bytes
+        The bound of the results' total size.
+
+    Examples
+    --------
+    >>> cache = ResultCache(folder)                                          # doctest: +SKIP
+    >>> key = cache.key(cache.session_hash(session),                         # doctest: +SKIP
+    ...                 *photon_transfer_entry(None))
+    >>> result = cache.get(key)                                              # doctest: +SKIP
+    >>> if result is None:                                                   # doctest: +SKIP
+    ...     cache.put(key, photon_transfer(session))
+    """
+
+    def __init__(self, folder: str | os.PathLike, max_bytes: int = DEFAULT_MAX_BYTES):
+        self.folder = Path(folder)
+        self.max_bytes = int(max_bytes)
+        self._lock = threading.Lock()
+
+    @property
+    def results_dir(self) -> Path:
+        return self.folder / "results"
+
+    @property
+    def index_path(self) -> Path:
+        return self.folder / "hashes.json"
+
+    # ---- keys ---------------------------------------------------------------------------------
+    @staticmethod
+    def key(content_hash: str, name: str, params: dict[str, Any] | None = None) -> str:
+        """The entry key (hex) of computation ``name`` with ``params`` (plain data: numbers,
+        strings, None, lists, tuples, dicts) on the session of ``content_hash``, for this
+        ccdcore (:func:`code_version`) and entry format."""
+        return _digest({"format": FORMAT, "ccdcore": code_version(),
+                        "session": content_hash, "name": name, "params": params or {}})
+
+    def _path(self, key: str) -> Path:
+        return self.results_dir / f"{key}.pkl"
+
+    # ---- results ------------------------------------------------------------------------------
+    def get(self, key: str) -> Any | None:
+        """The value stored under ``key`` (or under the key it links to, see :meth:`link`), or
+        None (absent, unreadable, corrupt or incompatible: such an entry is deleted)."""
+        entry = self._load(key)
+        if entry is not None and entry["value"] is None:   # a link: followed once
+            target = self._load(entry["target"])
+            return None if target is None else target["value"]
+        return None if entry is None else entry["value"]
+
+    def _load(self, key: str) -> dict[str, Any] | None:
+        """The entry of ``key`` (its last use touched), or None."""
+        if not _is_key(key):
+            return None
+        path = self._path(key)
+        try:
+            with open(path, "rb") as f:
+                entry = pickle.load(f)
+        except FileNotFoundError:
+            return None
+        except Exception as err:  # truncated, corrupt, a class that changed: recompute
+            log.warning("ignoring the cache entry %s: %s: %s", path.name, type(err).__name__, err)
+            self._remove(path)
+            return None
+        if not isinstance(entry, dict) or entry.get("format") != FORMAT \
+                or entry.get("key") != key or "value" not in entry \
+                or (entry["value"] is None and not _is_key(entry.get("target"))):
+            log.warning("ignoring the incompatible cache entry %s", path.name)
+            self._remove(path)
+            return None
+        try:
+            os.utime(path)   # the last use, for the least-recently-used eviction
+        except OSError:
+            pass
+        return entry
+
+    def put(self, key: str, value: Any) -> bool:
+        """Store ``value`` under ``key`` (temporary file, then an atomic rename) and keep the
+        bound; False (logged) when it cannot be written. None is never stored."""
+        if value is None:
+            return False
+        return self._write(key, {"format": FORMAT, "key": key, "value": value})
+
+    def link(self, key: str, target: str) -> bool:
+        """Make ``key`` give what ``target`` holds (a small entry, not a second copy): for a
+        computation whose result another key's computation also gives."""
+        if key == target:
+            return False
+        return self._write(key, {"format": FORMAT, "key": key, "value": None, "target": target})
+
+    def _write(self, key: str, entry: dict[str, Any]) -> bool:
+        if not _is_key(key):
+            raise ValueError(f"key: not a cache key: {key!r}")
+        tmp = None
+        try:
+            data = pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)
+            self.results_dir.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=self.results_dir, prefix=f".{key[:16]}-",
+                                       suffix=".tmp")
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.replace(tmp, self._path(key))
+            tmp = None
+        except Exception as err:  # an unpicklable result, a full disk: the app goes on
+            log.warning("could not cache %s: %s: %s", key[:16], type(err).__name__, err)
+            return False
+        finally:
+            if tmp is not None:
+                self._remove(Path(tmp))
+        self.evict(keep=key)
+        return True
+
+    def entries(self) -> list[Path]:
+        """The entries' files, least recently used first."""
+        found = []
+        try:
+            with os.scandir(self.results_dir) as it:
+                for e in it:
+                    if e.name.endswith(".pkl"):
+                        try:
+                            st = e.stat()
+                        except OSError:
+                            continue
+                        found.append((st.st_mtime_ns, e.name, st.st_size))
+        except FileNotFoundError:
+            return []
+        return [self.results_dir / name for _, name, _ in sorted(found)]
+
+    def size(self) -> int:
+        """The entries' total size in bytes."""
+        return sum(self._size(p) for p in self.entries())
+
+    @staticmethod
+    def _size(path: Path) -> int:
+        try:
+            return path.stat().st_size
+        except OSError:
+            return 0
+
+    def evict(self, keep: str | None = None) -> list[Path]:
+        """Delete the least recently used entries until the total is within ``max_bytes``
+        (the entry of ``keep``, just written, last), and temporary files older than an hour
+        (left by a killed writer); the deleted entries."""
+        entries = self.entries()
+        if keep is not None and self._path(keep) in entries:
+            entries.remove(self._path(keep))
+            entries.append(self._path(keep))
+        sizes = [self._size(p) for p in entries]
+        total = sum(sizes)
+        removed = []
+        for path, size in zip(entries, sizes):
+            if total <= self.max_bytes:
+                break
+            self._remove(path)
+            removed.append(path)
+            total -= size
+        cutoff = time.time() - 3600
+        for tmp in self.results_dir.glob(".*.tmp") if self.results_dir.is_dir() else ():
+            try:
+                if tmp.stat().st_mtime < cutoff:
+                    self._remove(tmp)
+            except OSError:
+                pass
+        return removed
+
+    def clear(self) -> None:
+        """Delete every entry and the stat index."""
+        for path in self.entries():
+            self._remove(path)
+        self._remove(self.index_path)
+
+    @staticmethod
+    def _remove(path: Path) -> None:
+        try:
+            path.unlink()
+        except OSError:
+            pass
+
+    # ---- the session's content hash -------------------------------------------------------
+    @staticmethod
+    def stat_key(session: Session) -> str:
+        """A digest of the manifest's and every frame's path, size and ``st_mtime_ns`` (in
+        session order): what the index maps to the content hash. Raises OSError."""
+        files: Iterable[Path] = [rec.path for rec in session.frames]
+        manifest = None if session.manifest_path is None else _stat(session.manifest_path)
+        return _digest({"manifest": manifest, "frames": [_stat(p) for p in files]})
+
+    def _read_index(self) -> dict[str, Any]:
+        try:
+            data = json.loads(self.index_path.read_text())
+            if isinstance(data, dict) and data.get("format") == FORMAT \
+                    and isinstance(data.get("sessions"), dict):
+                return data["sessions"]
+        except (OSError, ValueError):
+            pass
+        return {}
+
+    def _write_index(self, sessions: dict[str, Any]) -> None:
+        if len(sessions) > INDEX_SIZE:
+            keep = sorted(sessions, key=lambda k: sessions[k].get("used", 0))[-INDEX_SIZE:]
+            sessions = {k: sessions[k] for k in keep}
+        tmp = None
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".hashes-", suffix=".tmp")
+            with os.fdopen(fd, "w") as f:
+                json.dump({"format": FORMAT, "sessions": sessions}, f)
+            os.replace(tmp, self.index_path)
+            tmp = None
+        except OSError as err:
+            log.warning("could not write the cache index: %s", err)
+        finally:
+            if tmp is not None:
+                self._remove(Path(tmp))
+
+    def _indexed(self, stat: str) -> str | None:
+        with self._lock:
+            entry = self._read_index().get(stat)
+        if isinstance(entry, dict) and isinstance(entry.get("hash"), str):
+            return entry["hash"]
+        return None
+
+    def known_hash(self, session: Session) -> str | None:
+        """The session's content hash when the index knows its files' stats (no file is
+        read), else None (a new session, a changed or unreadable file)."""
+        try:
+            return self._indexed(self.stat_key(session))
+        except OSError:
+            return None
+
+    def session_hash(self, session: Session) -> str:
+        """The session's content hash: from the index when no file's stat changed, else
+        :meth:`Session.content_hash` (every byte read; slow for a large session), then
+        remembered.
+
+        Raises
+        ------
+        CcdError, OSError
+            A file cannot be read.
+        """
+        stat = self.stat_key(session)
+        known = self._indexed(stat)
+        if known is not None:
+            return known
+        content = session.content_hash()
+        with self._lock:
+            sessions = self._read_index()
+            sessions[stat] = {"hash": content, "used": time.time(),
+                              "root": str(session.root)}
+            self._write_index(sessions)
+        return content

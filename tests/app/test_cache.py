@@ -1,0 +1,342 @@
+"""The disk cache of finished results (app.cache, AppState.cached_compute) and its use by the
+Photon transfer and Maps pages: round trips, reopening without computing, what makes a miss
+(a changed frame, another ROI, a corrupt entry) and the size bound."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import pickle
+import shutil
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import app.main  # noqa: F401  (loads the Panel extensions, as serving does)
+import app.pages.maps
+import app.pages.photon_transfer
+from app import cache as cache_mod
+from app.cache import (ResultCache, cache_folder, default_cache, estimates_entry, fingerprint,
+                       photon_transfer_entry)
+from app.pages.maps import MapsPage
+from app.pages.photon_transfer import PhotonTransferPage
+from app.state import AppState
+from ccdcore.io import read_header, read_image, write_image
+from ccdcore.noise import PhotonTransfer, photon_transfer
+from ccdcore.product import Estimates, estimate_all
+from ccdcore.session import Session, open_session
+from _coro import run
+
+
+# ------------------------------------------------------------------------------ helpers ------
+def assert_same(a: Any, b: Any, where: str = "result") -> None:
+    """``a`` and ``b`` hold the same values: dataclass fields, dict items, sequence items and
+    arrays compared one by one (NaN equal to NaN)."""
+    assert type(a) is type(b), f"{where}: {type(a).__name__} != {type(b).__name__}"
+    if dataclasses.is_dataclass(a):
+        for f in dataclasses.fields(a):
+            assert_same(getattr(a, f.name), getattr(b, f.name), f"{where}.{f.name}")
+    elif isinstance(a, dict):
+        assert list(a) == list(b), where
+        for k in a:
+            assert_same(a[k], b[k], f"{where}[{k!r}]")
+    elif isinstance(a, (list, tuple)):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape, where
+        np.testing.assert_array_equal(a, b, err_msg=where)
+    elif isinstance(a, float) and math.isnan(a):
+        assert math.isnan(b), where
+    else:
+        assert a == b, where
+
+
+class Failing:
+    """Wraps an estimator: counts its calls and fails from call ``fail_from`` on."""
+
+    def __init__(self, func: Any, fail_from: int = 1):
+        self.func, self.calls, self.fail_from = func, 0, fail_from
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        self.calls += 1
+        if self.calls > self.fail_from:
+            raise AssertionError(f"{self.func.__name__} computed again")
+        return self.func(*args, **kwargs)
+
+
+@pytest.fixture
+def cache_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """An empty cache folder named by CCDCORE_CACHE (the app's default cache)."""
+    folder = tmp_path / "cache"
+    monkeypatch.setenv(cache_mod.CACHE_ENV, str(folder))
+    monkeypatch.delenv(cache_mod.CACHE_SIZE_ENV, raising=False)
+    return folder
+
+
+@pytest.fixture
+def demo(tmp_path: Path, assets: Path) -> Path:
+    """A copy of the healey94 demo (its files may be rewritten)."""
+    return Path(shutil.copytree(assets / "healey94", tmp_path / "healey94"))
+
+
+@pytest.fixture(scope="module")
+def demo_results(assets: Path) -> tuple[PhotonTransfer, Estimates]:
+    session = open_session(assets / "healey94")
+    return photon_transfer(session), estimate_all(session, emva1288=False)
+
+
+def _state(path: Path) -> AppState:
+    state = AppState(allowed_roots=[path.parent.resolve()])
+    assert state.load(path), state.error
+    return state
+
+
+def _touch_frame(session_root: Path, relpath: str) -> None:
+    """Rewrite a frame with one pixel changed and a later modification time."""
+    path = session_root / relpath
+    pixels, header = read_image(path), read_header(path)
+    pixels.flat[0] = pixels.flat[0] + 1
+    stat = path.stat()
+    write_image(path, pixels, exposure=header.exposure, bits=header.bits)
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10_000_000_000))
+
+
+# ------------------------------------------------------------------------------ the folder ---
+def test_folder_from_the_environment(tmp_path, monkeypatch):
+    monkeypatch.setenv("CCDCORE_CACHE", str(tmp_path / "c"))
+    monkeypatch.setenv("CCDCORE_CACHE_MAX_BYTES", "3M")
+    cache = default_cache()
+    assert cache is not None and cache.folder == tmp_path / "c"
+    assert cache.max_bytes == 3 * 1024 ** 2
+    monkeypatch.setenv("CCDCORE_CACHE_MAX_BYTES", "1.5GiB")
+    assert default_cache().max_bytes == int(1.5 * 1024 ** 3)
+    monkeypatch.setenv("CCDCORE_CACHE_MAX_BYTES", "lots")
+    assert default_cache().max_bytes == cache_mod.DEFAULT_MAX_BYTES
+    monkeypatch.setenv("CCDCORE_CACHE", "off")
+    assert cache_folder() is None and default_cache() is None
+    assert AppState().cache is None
+    # without CCDCORE_CACHE: XDG_CACHE_HOME/ccdcore, else ~/.cache/ccdcore
+    monkeypatch.delenv("CCDCORE_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_folder() == tmp_path / "xdg" / "ccdcore"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    assert cache_folder() == Path.home() / ".cache" / "ccdcore"
+
+
+# ------------------------------------------------------------------------------ round trip ---
+def test_round_trip_of_a_photon_transfer_and_estimates(cache_dir, demo_results):
+    pt, est = demo_results
+    cache = ResultCache(cache_dir)
+    k_pt = cache.key("0" * 64, *photon_transfer_entry(None))
+    k_est = cache.key("0" * 64, *estimates_entry(None, emva1288=False))
+    assert k_pt != k_est
+    assert cache.get(k_pt) is None
+    assert cache.put(k_pt, pt) and cache.put(k_est, est)
+    back_pt, back_est = cache.get(k_pt), cache.get(k_est)
+    assert back_pt is not pt and back_est is not est
+    assert_same(back_pt, pt)
+    assert_same(back_est, est)
+    assert est.fixed_pattern is not None and est.dark is not None   # arrays were compared
+    assert fingerprint(back_pt) == fingerprint(pt) == fingerprint(est.noise)
+
+
+def test_key_holds_the_version_the_name_and_the_parameters(monkeypatch):
+    key = ResultCache.key("a" * 64, "photon_transfer", {"roi": [1, 2, 3, 4]})
+    assert key == ResultCache.key("a" * 64, "photon_transfer", {"roi": (1, 2, 3, 4)})
+    assert key != ResultCache.key("b" * 64, "photon_transfer", {"roi": [1, 2, 3, 4]})
+    assert key != ResultCache.key("a" * 64, "ptc_points", {"roi": [1, 2, 3, 4]})
+    assert key != ResultCache.key("a" * 64, "photon_transfer", {"roi": [1, 2, 3, 5]})
+    monkeypatch.setattr(cache_mod.ccdcore, "__version__", "999")
+    assert key != ResultCache.key("a" * 64, "photon_transfer", {"roi": [1, 2, 3, 4]})
+    with pytest.raises(TypeError):
+        ResultCache.key("a" * 64, "x", {"f": object()})
+
+
+# ------------------------------------------------------------------------------ reopening ----
+def test_another_state_shows_both_pages_without_computing(cache_dir, demo, monkeypatch):
+    first = _state(demo)
+    maps = MapsPage(first, auto_compute=False)
+    run(maps.compute())
+    est = first.results.estimates
+    assert est is not None and first.status.startswith("Computed")
+
+    for module, name in ((app.pages.maps, "estimate_all"),
+                         (app.pages.photon_transfer, "photon_transfer"),
+                         (app.pages.photon_transfer, "ptc_points")):
+        monkeypatch.setattr(module, name, Failing(getattr(module, name), fail_from=0))
+    # the stat index gives the content hash: no frame is read to recognise the session
+    monkeypatch.setattr(Session, "content_hash", Failing(Session.content_hash, fail_from=0))
+
+    second = _state(demo)          # another browser session (or the server restarted)
+    ptc = PhotonTransferPage(second, auto=False)
+    run(ptc.refresh())             # photon_transfer's full frame, learnt from estimate_all
+    assert "from the cache" in second.status, second.status
+    assert second.error == "" and ptc.result is not None
+    assert_same(ptc.result, est.noise)
+    maps2 = MapsPage(second, auto_compute=False)
+    run(maps2.compute())           # given the Photon transfer page's fit: the same estimates
+    assert "from the cache" in second.status, second.status
+    assert_same(second.results.estimates, est)
+
+    third = _state(demo)           # the Maps page first, with no noise model yet
+    run(MapsPage(third, auto_compute=False).compute())
+    assert "from the cache" in third.status and third.error == ""
+    assert_same(third.results.estimates, est)
+
+
+def test_a_changed_frame_misses(cache_dir, demo, monkeypatch):
+    counted = Failing(photon_transfer, fail_from=2)
+    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    run(PhotonTransferPage(_state(demo), auto=False).refresh())
+    run(PhotonTransferPage(_state(demo), auto=False).refresh())
+    assert counted.calls == 1
+    session = open_session(demo)
+    _touch_frame(demo, session.by_role("ptc")[0].relpath)
+    state = _state(demo)
+    page = PhotonTransferPage(state, auto=False)
+    run(page.refresh())
+    assert counted.calls == 2 and state.status == "Computed photon transfer."
+    assert page.result is not None
+    index = ResultCache(cache_dir)._read_index()
+    assert len(index) == 2 and len(set(e["hash"] for e in index.values())) == 2
+
+
+def test_another_roi_misses_and_its_own_result_is_kept(cache_dir, demo, monkeypatch):
+    counted = Failing(photon_transfer, fail_from=3)
+    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    state = _state(demo)
+    page = PhotonTransferPage(state, auto=False)
+    run(page.refresh())
+    page.x_input.value, page.y_input.value, page.w_input.value, page.h_input.value = 4, 4, 20, 20
+    assert run(page.apply_roi())
+    assert counted.calls == 2 and page.result.roi == (4, 4, 20, 20)
+    fit = page.result
+    page2 = PhotonTransferPage(_state(demo), auto=False)
+    run(page2.refresh())
+    page2.x_input.value, page2.y_input.value, page2.w_input.value, page2.h_input.value = \
+        4, 4, 20, 20
+    assert run(page2.apply_roi())
+    assert counted.calls == 2
+    assert_same(page2.result, fit)
+
+
+def test_a_corrupt_entry_is_computed_again(cache_dir, demo, monkeypatch):
+    counted = Failing(photon_transfer, fail_from=2)
+    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    run(PhotonTransferPage(_state(demo), auto=False).refresh())
+    (entry,) = ResultCache(cache_dir).entries()
+    data = entry.read_bytes()
+    entry.write_bytes(data[: len(data) // 2])           # a partial write
+    state = _state(demo)
+    page = PhotonTransferPage(state, auto=False)
+    run(page.refresh())
+    assert counted.calls == 2 and state.error == "" and page.result is not None
+    assert pickle.loads(entry.read_bytes())["value"] is not None   # written again
+    other = entry.with_name("f" * 64 + ".pkl")     # a whole entry under another key's name
+    other.write_bytes(entry.read_bytes())
+    assert ResultCache(cache_dir).get(other.stem) is None and not other.exists()
+    for bad in (b"not a pickle", pickle.dumps({"format": -1}), pickle.dumps([1, 2])):
+        entry.write_bytes(bad)
+        assert ResultCache(cache_dir).get(entry.stem) is None
+        assert not entry.exists()
+
+
+def test_a_link_gives_its_target_and_dies_with_it(cache_dir):
+    cache = ResultCache(cache_dir)
+    target, link = "1" * 64, "2" * 64
+    assert cache.link(link, target) and cache.get(link) is None
+    cache.put(target, np.arange(3))
+    np.testing.assert_array_equal(cache.get(link), np.arange(3))
+    (cache_dir / "results" / f"{target}.pkl").unlink()
+    assert cache.get(link) is None
+
+
+def test_eviction_keeps_the_bound_and_the_recently_used(cache_dir):
+    rng = np.random.default_rng(5)
+    arrays = [rng.normal(size=1000) for _ in range(4)]      # 8 kB each
+    cache = ResultCache(cache_dir, max_bytes=20_000)        # room for two
+    keys = [f"{i:064x}" for i in range(4)]
+    cache.put(keys[0], arrays[0])
+    cache.put(keys[1], arrays[1])
+    past = 1_600_000_000_000_000_000
+    for i, key in enumerate(keys[:2]):
+        os.utime(cache_dir / "results" / f"{key}.pkl", ns=(past + i, past + i))
+    np.testing.assert_array_equal(cache.get(keys[0]), arrays[0])   # keys[0] used last
+    cache.put(keys[2], arrays[2])
+    assert cache.get(keys[1]) is None
+    np.testing.assert_array_equal(cache.get(keys[0]), arrays[0])
+    np.testing.assert_array_equal(cache.get(keys[2]), arrays[2])
+    assert cache.size() <= cache.max_bytes
+    small = ResultCache(cache_dir / "small", max_bytes=100)      # an entry above the bound
+    assert small.put(keys[3], arrays[3]) and small.entries() == [] and small.size() == 0
+    cache.clear()
+    assert cache.entries() == [] and not cache.index_path.exists()
+
+
+def test_an_unpicklable_result_is_not_cached_and_no_error_shows(cache_dir, demo):
+    state = _state(demo)
+    value = run(state.cached_compute("lambda", {}, lambda: (lambda: 1), label="a function"))
+    assert callable(value) and state.error == ""
+    assert ResultCache(cache_dir).entries() == []
+    assert not list((cache_dir / "results").glob("*.tmp"))
+
+
+def test_an_unreadable_frame_computes_without_the_cache(cache_dir, demo):
+    state = _state(demo)
+    session = state.session
+    (demo / session.frames[0].relpath).unlink()
+    value = run(state.cached_compute("count", {}, lambda: 7, label="seven"))
+    assert value == 7 and state.status == "Computed seven."
+    assert ResultCache(cache_dir).entries() == []
+
+
+def test_a_new_session_is_computed_while_it_is_hashed(cache_dir, demo, monkeypatch):
+    """The content hash (every byte read) does not hold the computation back: the estimator
+    runs while the hash is made; the result is stored under the hash afterwards."""
+    started = threading.Event()
+    seen: list[bool] = []
+    real_hash = Session.content_hash
+
+    def slow_hash(self: Session) -> str:
+        seen.append(started.wait(timeout=20))   # the estimator starts meanwhile
+        return real_hash(self)
+
+    def estimator() -> int:
+        started.set()
+        return 42
+
+    monkeypatch.setattr(Session, "content_hash", slow_hash)
+    state = _state(demo)
+    assert run(state.cached_compute("answer", {}, estimator, label="the answer")) == 42
+    assert seen == [True] and state.status == "Computed the answer."
+    second = _state(demo)
+    assert run(second.cached_compute("answer", {}, lambda: pytest.fail("computed again"),
+                                      label="the answer")) == 42
+    assert "from the cache" in second.status and seen == [True]
+
+
+def test_cancelled_and_failed_computations_are_not_cached(cache_dir, demo):
+    from ccdcore.errors import CcdError
+    from ccdcore.progress import Cancelled
+
+    def cancelled() -> int:
+        raise Cancelled()
+
+    def failing() -> int:
+        raise CcdError("frames", "too few")
+
+    for known in (False, True):   # a new session, then one the stat index knows
+        state = _state(demo)
+        if known:   # (the hashing a cancelled computation leaves running may not be done)
+            ResultCache(cache_dir).session_hash(state.session)
+        assert (ResultCache(cache_dir).known_hash(state.session) is not None) == known
+        assert run(state.cached_compute("x", {}, cancelled, label="x")) is None
+        assert state.status == "Cancelled x." and state.error == ""
+        assert run(state.cached_compute("x", {}, failing, label="x")) is None
+        assert "too few" in state.error
+        assert ResultCache(cache_dir).entries() == []
