@@ -51,7 +51,7 @@ detect(E_ref, sigma_ref, E_tgt, sigma_tgt, options)
     Sec. 5 on two radiance maps with their sigmas.
 prediction_d2(E_ref, sigma_ref, E_tgt, sigma_tgt, M, M_cov)
     d² of every pixel under one transform.
-session_change(session, options, calib=None)
+session_change(session, options, calib=None, client=None)
     Both brackets of a session turned into radiance (the response estimated from the reference
     bracket or taken from a calibration product) and :func:`detect`.
 """
@@ -726,36 +726,53 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
 
 def session_change(session: Any, options: ChangeOptions | None = None, *,
                    calib: str | Path | None = None, bloom_radius: int | None = None,
-                   progress: Progress | None = None) -> tuple[ChangeResult, dict[str, Any]]:
+                   progress: Progress | None = None, client: Any = None,
+                   band_rows: int | None = None) -> tuple[ChangeResult, dict[str, Any]]:
     """Sec. 5 on a session's ``reference`` and ``target`` brackets.
 
     The response (g and the noise terms) comes from ``calib`` (a calibration product) or is
     estimated from the reference bracket (sec. 3.2); both brackets are merged with it at their
     nominal times (eqs. 9, 18, 19). Returns the result and the inputs: ``E_ref``, ``sigma_ref``,
     ``E_tgt``, ``sigma_tgt``, ``channels``, ``files`` (both brackets'), ``source``.
+
+    With a Dask ``client`` both merges run on the cluster, band by band, the workers reading
+    the frames (:func:`ccdcore.response.hdr.merge_bracket`; ``band_rows`` sets the band height):
+    the radiance and sigma maps are bit-identical to the streamed ones, hence so is everything
+    after.  The shapes and sample types are then checked first, from the headers.  What stays
+    on the client: the response estimated from the reference bracket without ``calib`` (it
+    reads the reference frames here, as the streamed path does: the pixel traces of every
+    pixel), and the fit of M and d² (:func:`detect`), which need the whole radiance maps --
+    the streamed path holds them too.
     """
     from .response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
-    from .response.hdr import ResponseModel, merge
+    from .response.hdr import ResponseModel, merge_bracket
     from .response.methods import response_of
 
     radius = DEFAULT_BLOOM_RADIUS if bloom_radius is None else int(bloom_radius)
     recs = {role: bracket_records(session, None, role=role) for role in ("reference", "target")}
-    frames = {role: [session.read(r) for r in recs[role]] for role in recs}
     first = {role: recs[role][0].relpath for role in recs}
-    ref0, tgt0 = frames["reference"][0], frames["target"][0]
-    if ref0.shape != tgt0.shape:
-        raise CcdError(first["target"], f"shape {tgt0.shape} differs from the reference "
-                                        f"bracket's {ref0.shape} ({first['reference']}): the "
+    if client is None:
+        frames: dict[str, Any] = {role: [session.read(r) for r in recs[role]] for role in recs}
+        described = {role: [(f.shape, f.dtype) for f in frames[role]] for role in recs}
+    else:
+        frames = {role: None for role in recs}
+        described = {role: [(tuple(h.shape), np.dtype(h.dtype)) for h in
+                            (session.header(r) for r in recs[role])] for role in recs}
+    (ref_shape, ref_dtype), (tgt_shape, tgt_dtype) = (described["reference"][0],
+                                                      described["target"][0])
+    if ref_shape != tgt_shape:
+        raise CcdError(first["target"], f"shape {tgt_shape} differs from the reference "
+                                        f"bracket's {ref_shape} ({first['reference']}): the "
                                         "same camera and framing are needed")
-    if ref0.dtype != tgt0.dtype:
-        raise CcdError(first["target"], f"sample type {tgt0.dtype} differs from the reference "
-                                        f"bracket's {ref0.dtype}: another camera or bit depth?")
+    if ref_dtype != tgt_dtype:
+        raise CcdError(first["target"], f"sample type {tgt_dtype} differs from the reference "
+                                        f"bracket's {ref_dtype}: another camera or bit depth?")
     for role in recs:
-        for r, f in zip(recs[role], frames[role]):
-            if f.shape != frames[role][0].shape or f.dtype != frames[role][0].dtype:
-                raise CcdError(r.relpath, f"shape {f.shape} {f.dtype} differs from its "
-                                          f"bracket's first frame {frames[role][0].shape} "
-                                          f"{frames[role][0].dtype}")
+        shape0, dtype0 = described[role][0]
+        for r, (shape, dtype) in zip(recs[role], described[role]):
+            if shape != shape0 or dtype != dtype0:
+                raise CcdError(r.relpath, f"shape {shape} {dtype} differs from its "
+                                          f"bracket's first frame {shape0} {dtype0}")
     layout = session.camera.layout
 
     def part(lo: float, hi: float) -> Progress | None:
@@ -769,8 +786,12 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
         models = load_product(calib).response_models(calib)
         source = f"response of {calib}"
     else:
+        ref_frames = frames["reference"]
+        if ref_frames is None:
+            ref_frames = [session.read(r) for r in recs["reference"]]
         brackets = load_bracket(session, None, role="reference", bloom_radius=radius,
-                                frames=frames["reference"])
+                                frames=ref_frames)
+        del ref_frames
         res = response_of(brackets, "tsin", bloom_radius=radius, progress=part(0.0, 0.5))
         models = res.models()
         source = "response estimated from the reference bracket (sec. 3.2)"
@@ -785,7 +806,10 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
         ms = {ch: ResponseModel(np.asarray(m.g, np.float64), t, np.zeros(t.size),
                                 float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
               for ch, m in models.items()}
-        out[role] = merge(frames[role], ms, layout=layout, bloom_radius=radius)
+        out[role] = merge_bracket(recs[role], ms, layout=layout, bloom_radius=radius,
+                                  frames=frames[role], client=client, session=session,
+                                  band_rows=band_rows)
+        frames[role] = None
     inputs = {"E_ref": out["reference"].radiance, "sigma_ref": out["reference"].sigma,
               "E_tgt": out["target"].radiance, "sigma_tgt": out["target"].sigma,
               "channels": out["reference"].channels, "source": source,

@@ -403,9 +403,13 @@ def _cmd_change(args: argparse.Namespace) -> int:
     opts.check()
     names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
-    folder = _out_folder(args.out_dir, names, records)
-    res, inputs = session_change(session, opts, calib=args.calib,
-                                 bloom_radius=args.bloom_radius)
+    from .distributed import STREAMED, describe, get_client
+
+    with get_client(args.scheduler, args.workers) as client:
+        folder = _out_folder(args.out_dir, names, records)
+        res, inputs = session_change(session, opts, calib=args.calib,
+                                     bloom_radius=args.bloom_radius, client=client)
+        scheduler = describe(client)
     change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
     d2 = np.where(res.valid, res.d2_best, np.nan).astype(np.float32)
     paths = [write_image(folder / names[0], change),
@@ -415,9 +419,11 @@ def _cmd_change(args: argparse.Namespace) -> int:
     summary = res.to_dict()
     if args.json:
         _print_json({"source": inputs["source"], "channels": list(inputs["channels"]),
-                     **summary, "files": [str(p) for p in paths]})
+                     **summary, "files": [str(p) for p in paths], "scheduler": scheduler})
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
+    if scheduler != STREAMED:
+        print(f"  brackets merged on {scheduler}")
     print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "
           f"(χ²_{res.dof}: {summary['threshold_chi2']:.3g}; observed on the background "
           f"{summary['pfa_observed']:.3g}, {summary['pfa_observed_at_chi2_threshold']:.3g} at "
@@ -438,35 +444,53 @@ def _cmd_change(args: argparse.Namespace) -> int:
 
 
 def _cmd_hdr(args: argparse.Namespace) -> int:
+    from .distributed import STREAMED, describe, get_client
     from .io import write_image, write_map
     from .product import load_product
-    from .response.brackets import bracket_records, load_bracket
-    from .response.hdr import merge
+    from .response.brackets import _check_times, bracket_records, load_bracket
+    from .response.hdr import merge_bracket
     from .response.methods import response_of
     from .session import open_session
 
     session = open_session(args.session)
     session.raise_if_invalid()
     records = bracket_records(session, args.stack)
-    frames = [session.read(r) for r in records]          # read once: traces and merge
-    brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius, frames=frames)
-    if args.calib is not None:
-        models = load_product(args.calib).response_models(args.calib)
-        first = next(iter(brackets.values()))
-        for ch, m in models.items():
-            if m.levels != first.levels:
-                raise CcdError(args.calib, f"its response has {m.levels} codes, the bracket's "
-                                           f"camera {first.levels}: another camera?")
-            # the product's a, b were its own bracket's nominal times: take this one's
-            models[ch] = type(m)(m.g, first.t.copy(), np.zeros(first.n_images), m.sigma_s,
-                                 m.sigma_c1, m.sigma_c2)
-        source = f"response of {args.calib}"
-    else:
-        res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius,
-                          white_balance=args.white_balance)
-        models = res.models()
-        source = "response estimated from this bracket (sec. 3.2)"
-    out = merge(frames, models, layout=session.camera.layout, bloom_radius=args.bloom_radius)
+    with get_client(args.scheduler, args.workers) as client:
+        frames = None
+        if args.calib is not None and client is not None:
+            # the workers read the frames: only what the calibration's models need here
+            files = [r.relpath for r in records]
+            if session.camera.bits is None:
+                raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] "
+                                         "bits in the manifest (the response has 2**bits "
+                                         "values)")
+            levels = 2 ** int(session.camera.bits)
+            times = np.sort(_check_times([r.exposure for r in records], files), kind="stable")
+        else:
+            frames = [session.read(r) for r in records]      # read once: traces and merge
+            brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,
+                                    frames=frames)
+            first = next(iter(brackets.values()))
+            levels, times = first.levels, first.t
+        if args.calib is not None:
+            models = load_product(args.calib).response_models(args.calib)
+            for ch, m in models.items():
+                if m.levels != levels:
+                    raise CcdError(args.calib, f"its response has {m.levels} codes, the "
+                                               f"bracket's camera {levels}: another camera?")
+                # the product's a, b were its own bracket's nominal times: take this one's
+                models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s,
+                                     m.sigma_c1, m.sigma_c2)
+            source = f"response of {args.calib}"
+        else:
+            res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius,
+                              white_balance=args.white_balance)
+            models = res.models()
+            source = "response estimated from this bracket (sec. 3.2)"
+        out = merge_bracket(records, models, layout=session.camera.layout,
+                            bloom_radius=args.bloom_radius, frames=frames, client=client,
+                            session=session)
+        scheduler = describe(client)
     folder = _out_folder(args.out_dir, ("radiance.exr", "sigma.exr", "flags.png"), records)
     paths = [write_map(folder / "radiance.exr", out.radiance),
              write_map(folder / "sigma.exr", out.sigma),
@@ -475,10 +499,13 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
         _print_json({"source": source, "channels": list(out.channels),
                      "files": [str(p) for p in paths],
                      "flags": {"ok": int(np.sum(out.flag_image() == 0)),
-                               "flagged": int(np.sum(out.flag_image() != 0))}})
+                               "flagged": int(np.sum(out.flag_image() != 0))},
+                     "scheduler": scheduler})
     else:
-        print(f"HDR radiance of {len(frames)} exposures ({source}), channels "
+        print(f"HDR radiance of {len(records)} exposures ({source}), channels "
               f"{', '.join(out.channels)}")
+        if scheduler != STREAMED:
+            print(f"  merged on {scheduler}")
         for p in paths:
             print(f"  {p}")
     return 0
@@ -640,6 +667,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="without --calib: estimate the gains and offsets too (see response)")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for radiance.exr, sigma.exr and flags.png")
+    cluster_args(p)
     json_flag(p)
 
     p = verb("change", "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
@@ -655,6 +683,7 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {DEFAULT_BLOOM_RADIUS}; 0 keeps them)")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
+    cluster_args(p)
     json_flag(p)
 
     p = verb("report", "one self-contained HTML calibration report: every estimate with its "

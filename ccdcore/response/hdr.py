@@ -35,6 +35,9 @@ HdrResult
     Radiance, σ_E and flags per pixel (and channel), the number of images merged per pixel.
 merge(frames, models, ...)
     Eqs. 9, 18, 19 over a bracket's frames (one model per channel).
+merge_bracket(records, models, ..., client=None)
+    The same over a bracket's files: read here (streamed), or band by band by the workers of a
+    Dask client (:func:`ccdcore.distributed.band_merge`, bit-identical).
 noise_sigma(model, z, k)
     σ(a_k, z) of eq. 7 for codes z of image k.
 FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED
@@ -51,7 +54,7 @@ from .. import channels as chan
 from ..errors import CcdError
 from .brackets import DEFAULT_BLOOM_RADIUS, bloom_mask
 
-__all__ = ["ResponseModel", "HdrResult", "merge", "noise_sigma", "FLAG_OK", "FLAG_DARK",
+__all__ = ["ResponseModel", "HdrResult", "merge", "merge_bracket", "noise_sigma", "FLAG_OK", "FLAG_DARK",
            "FLAG_SATURATED", "FLAG_BLOOMED"]
 
 FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED = 0, 1, 2, 3
@@ -200,3 +203,30 @@ def merge(frames: Sequence[ArrayLike], models: Mapping[str, Any] | Any, *,
     else:
         r, s, f, n = (np.stack([o[i] for o in out], axis=-1) for i in range(4))
     return HdrResult(r, s, f, n, names, lay)
+
+
+def merge_bracket(records: Sequence[Any], models: Mapping[str, Any] | Any, *,
+                  layout: str | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
+                  frames: Sequence[ArrayLike] | None = None, client: Any = None,
+                  session: Any = None, band_rows: int | None = None) -> HdrResult:
+    """:func:`merge` of a bracket given as its frame records (or paths), in the models' order.
+
+    Streamed (``client=None``): the frames (``frames`` when already read, else each file read
+    here with :func:`ccdcore.io.read_image`) are merged whole.  With a Dask ``client`` the
+    frames are read by the workers, band by band with a halo covering the blooming disk
+    (:func:`ccdcore.distributed.band_merge`); the result is bit-identical.  The frames' shapes,
+    integer codes and layout are then checked first on the client, from the headers
+    (``session``'s cache when given), with :func:`merge`'s messages; ``band_rows`` sets the band
+    height (frame rows).
+    """
+    if client is None:
+        if frames is None:
+            from ..io import read_image
+
+            frames = [read_image(getattr(r, "path", r)) for r in records]
+        return merge(frames, models, layout=layout, bloom_radius=bloom_radius)
+    from ..distributed import band_merge, check_bracket
+
+    shape, lay = check_bracket(records, session, layout)
+    return band_merge(client, records, models, layout=lay, bloom_radius=bloom_radius,
+                      shape=shape, band_rows=band_rows)
