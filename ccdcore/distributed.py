@@ -60,6 +60,9 @@ check_bracket(records, session=None, layout=None), band_merge(client, frames, mo
     The HDR merge of a bracket (:func:`ccdcore.response.hdr.merge`) band by band, each band
     read with a halo of rows covering the blooming disk: bit-identical to the whole-frame merge.
 BAND_BYTES, RETRIES, PTC_RTOL, SCHEDULER_ENV, STREAMED
+fixed_pattern_bands(client, configs, dark, ...)
+    K̂ (eqs. 45–50) band by band on the workers, the streamed :class:`~ccdcore.fixedpattern.FixedPattern`
+    to the bit, no process holding the n1 full-frame averages.
 """
 from __future__ import annotations
 
@@ -690,3 +693,220 @@ def band_merge(client: Any, paths_or_records: Sequence[Any], models: Any, *, lay
         next(done)
     radiance, sigma, flags, used = maps
     return HdrResult(radiance, sigma, flags, used, names[0], lay)
+
+
+# --- fixed pattern per band ---
+# K̂ (eqs. 45–50, :func:`ccdcore.fixedpattern.fixed_pattern_map`) band by band of rows, so that
+# no process holds the n1 full-frame configuration averages.
+__all__ += ["fixed_pattern_bands"]
+
+
+def _kmap_pick(result: dict, *keys: str) -> tuple:
+    """("ok", the ``keys`` of a task's result): the small part the client or the next task
+    needs, fetched without the band maps."""
+    return ("ok",) + tuple(result[k] for k in keys)
+
+
+def _kmap_average_task(configs: tuple[tuple[Frame, ...], ...], dark: np.ndarray, y0: int,
+                       rows: int, top: int, bottom: int, width: int, height: int) -> dict:
+    """Pass 1 of :func:`fixed_pattern_bands` for rows ``y0 - top .. y0 + rows + bottom``: per
+    configuration, :class:`~ccdcore.stats.PixelMoments` of its frames in order (eq. 45) minus
+    the dark band, e_i (eq. 46), kept here as ``"e"`` (n1, rows + top + bottom, width); per
+    configuration ``(n2, pieces of Σ e_i, pieces of Σ var)`` over the band's own rows
+    (:func:`ccdcore.fixedpattern._pw_pieces`, numpy's pairwise sum of the whole frame cut at
+    the band); a read error stops the task: ``"error"`` = (configuration, position, error)."""
+    from .fixedpattern import _pw_pieces
+
+    y, hh = y0 - top, top + rows + bottom
+    e = np.empty((len(configs), hh, width))
+    parts: list = []
+    lo, n = y0 * width, height * width
+    inner = slice(top, top + rows)
+    for i, frames in enumerate(configs):
+        acc = PixelMoments()
+        for k, f in enumerate(frames):
+            try:
+                acc.add(_read_band(f, 0, y, width, hh), name=f.name)
+            except CcdError as err:
+                return {"e": None, "parts": parts, "error": (i, k, _portable(err))}
+        res = acc.result(in_place=True)
+        np.subtract(res.mean, dark, out=e[i])                  # eq. 46
+        parts.append((res.n, _pw_pieces(e[i, inner].ravel(), lo, n),
+                      _pw_pieces(np.ascontiguousarray(res.var[inner]).ravel(), lo, n)))
+    return {"e": e, "parts": parts, "error": None}
+
+
+def _kmap_slopes_task(p1: dict, tmp: tuple | None, y0: int, rows: int, top: int,
+                      height: int, window: int, single: bool) -> dict:
+    """The slopes of one band (eqs. 47, 48), after the band above (``tmp``: the column running
+    sums of ē_i after row ``y0 − 1``, per configuration): ē_i by the whole frame's running sums
+    (:func:`ccdcore.fixedpattern._box_mean_band`, or ``_local_mean`` for a single band),
+    m_i = e_i/ē_i (float32), m̄ and the per-pixel sample std; keeps the slopes and m̄, gives
+    ``"tmp"`` for the band below and ``"summary"`` = (pieces of Σ sd with NaN as 0, the
+    non-NaN count, any finite sd) for σ̂.  After a failed band: empty."""
+    from .fixedpattern import (_box_mean_band, _local_mean, _pw_pieces, _slope_moments,
+                               _slopes_into)
+
+    e = p1["e"]
+    tmp = None if tmp is None else tmp[1]          # ("ok", sums) from the band above
+    if e is None or (y0 > 0 and not single and tmp is None):
+        return {"slopes": None, "m_bar": None, "tmp": None, "summary": None}
+    n1, _, width = e.shape
+    tmp = np.zeros((n1, width)) if tmp is None else tmp.copy()
+    slopes = np.empty((n1, rows, width), dtype=np.float32)
+    e_bar = np.empty((rows, width))
+    for i in range(n1):
+        if single:
+            _local_mean(e[i], window, e_bar)
+        else:
+            _box_mean_band(e[i], window, height, y0 - top, y0, tmp[i], e_bar)
+        _slopes_into(e[i, top:top + rows].copy(), e_bar, slopes[i])       # eq. 47
+    m_bar = np.empty((rows, width))
+    sd = np.empty((rows, width))
+    _slope_moments(slopes.reshape(n1, -1), m_bar.reshape(-1), sd.reshape(-1))   # eq. 48
+    nan = np.isnan(sd)
+    summary = (_pw_pieces(np.where(nan, 0.0, sd).ravel(), y0 * width, height * width),
+               int(np.count_nonzero(~nan)), bool(np.isfinite(sd).any()))
+    return {"slopes": slopes, "m_bar": m_bar, "tmp": tmp, "summary": summary}
+
+
+def _kmap_reject_task(s: dict, half: float, center: str) -> tuple:
+    """Pass 2 of :func:`fixed_pattern_bands`: eq. 49 over one band's slopes
+    (:func:`ccdcore.fixedpattern._eq49`): ("ok", K̂, n'_1, rejected, K_var, m̄, pixels that kept
+    no slope)."""
+    from .fixedpattern import _eq49
+
+    K, rejected, used, K_var, none = _eq49(s["slopes"], s["m_bar"], half, center)
+    return ("ok", K, used, rejected, K_var, s["m_bar"], none)
+
+
+def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9,
+                        p: float = 1.5, center: str = "median", band_rows: int | None = None,
+                        notes: list[str] | None = None, where: str = "fixed_pattern") -> Any:
+    """The fixed-pattern map K̂ (eqs. 45–50) on the cluster, band by band of rows.
+
+    ``configs``: ``[(config id, records or paths)]`` or a mapping (checked by the caller, see
+    :func:`ccdcore.fixedpattern.fixed_pattern_map`, which calls this with a client); ``dark``
+    the dark map D̂_D; ``window``, ``p``, ``center`` as there; ``notes`` the caller's notes so
+    far; ``band_rows`` the band height (default: the n1 band averages and slopes take about
+    :data:`BAND_BYTES`).
+
+    1. One task per band reads its rows of every frame plus a halo (m//2 + 1 rows above, m//2
+       below, none beyond the frame's own edges) and keeps e_i = average − D̂_D (eqs. 45, 46)
+       of every configuration on its worker; the client gets per configuration the band's
+       share of numpy's pairwise sums of e_i and of the variance map, and combines them into
+       the streamed ``e_i.mean()`` and ``mean(var)`` (the same blocks and additions: the same
+       bits); then, in configuration order, the streamed read error or unlit-card error.
+    2. ē_i: scipy's column pass is a running sum down each column, whose rounding at a row
+       depends on every row above; so the bands' slope tasks run in a chain, each handing the
+       column sums after its last row to the next (a row of floats per configuration) while
+       the reading of the other bands proceeds.  Each computes m_i (eq. 47), m̄ and the
+       per-pixel std (eq. 48) and keeps its slopes; σ̂ is the nanmean of the std over the whole
+       frame, again from the bands' pairwise-sum pieces (the same bits).
+    3. One task per band rejects and re-averages (eq. 49); the client assembles K̂, n'_1, the
+       rejections, K_var and m̄ and the summary statistics (eq. 50) as the streamed code does.
+
+    The result equals the streamed :class:`~ccdcore.fixedpattern.FixedPattern` exactly (every
+    map ``np.array_equal``, every summary value ``==``).  Memory: a task holds one band's n1
+    float64 averages (band and halo) or its n1 float32 slopes and rejections; the averages wait
+    on their worker until the band's slope task (released then), the slopes until σ̂, which
+    needs every band, is known, so a worker holds its share of the n1 slope maps in between.
+    """
+    from .darkframe import as_dark_map
+    from .fixedpattern import _NO_SIGMA, _NOT_LIT, _finish, _pw_total
+
+    configs = list(configs.items()) if isinstance(configs, Mapping) else list(configs)
+    notes = [] if notes is None else notes
+    dmap = np.asarray(as_dark_map(dark), dtype=np.float64)
+    h, w = dmap.shape
+    n, n1, s1 = h * w, len(configs), int(window) // 2
+    groups = tuple(frames_of(recs) for _, recs in configs)
+    if h < window or w < window:      # the mirrored border folds more than once: scipy, whole
+        cut = [(0, h)]
+    else:
+        cut = bands(h, w, channels=n1 // 2 + 1, band_rows=band_rows)
+    single = len(cut) == 1
+    halos = [(0, 0) if single else (min(s1 + 1, y0), min(s1, h - y0 - rows))
+             for y0, rows in cut]
+    total, counter = 3 * len(cut), [0]
+    p1: list = []
+    chain: list = []
+    links: list = []
+    try:
+        p1 = _submit(client, _kmap_average_task,
+                     [(groups, dmap[y0 - top:y0 + rows + bottom], y0, rows, top, bottom, w, h)
+                      for (y0, rows), (top, bottom) in zip(cut, halos)])
+        tmp = None
+        for fut, (y0, rows), (top, _) in zip(p1, cut, halos):
+            chain.append(client.submit(_kmap_slopes_task, fut, tmp, y0, rows, top, h,
+                                       int(window), single, retries=RETRIES, pure=False))
+            tmp = client.submit(_kmap_pick, chain[-1], "tmp", retries=RETRIES, pure=False)
+            links.append(tmp)
+        picks = [client.submit(_kmap_pick, f, "parts", "error", retries=RETRIES, pure=False)
+                 for f in p1]
+        with contextlib.closing(_gather_in_order(client, [picks], counter, total)) as done:
+            firsts = next(done)
+        ids, levels, noises, n2s = [], [], [], []
+        for i, (cid, _) in enumerate(configs):
+            errors = [r[2] for r in firsts if r[2] is not None and r[2][0] == i]
+            if errors:
+                raise _rebuilt(min(errors, key=lambda r: r[1])[2])
+            n2 = int(firsts[0][1][i][0])
+            level = _pw_total(n, (r[1][i][1] for r in firsts)) / n
+            if level <= 0:
+                raise CcdError(groups[i][0].name, _NOT_LIT.format(cid=cid, level=level))
+            var_mean = _pw_total(n, (r[1][i][2] for r in firsts)) / n
+            ids.append(cid)
+            levels.append(level)
+            noises.append(var_mean / n2 if n2 > 1 else float("nan"))
+            n2s.append(n2)
+        del firsts
+
+        def release(futures: list, i: int) -> None:
+            with contextlib.suppress(Exception):
+                futures[i].release()
+
+        summaries: list = [None] * len(cut)
+
+        def keep(g: int, i: int, r: tuple) -> None:
+            release(p1, i)                  # band i's averages are no longer needed
+            summaries[i] = r[1]
+
+        picks = [client.submit(_kmap_pick, f, "summary", retries=RETRIES, pure=False)
+                 for f in chain]
+        with contextlib.closing(_gather_in_order(client, [picks], counter, total,
+                                                 keep)) as done:
+            next(done)
+        if any(s[2] for s in summaries):
+            tot = _pw_total(n, (s[0] for s in summaries))
+            sigma_hat = float(tot / sum(s[1] for s in summaries))
+        else:
+            sigma_hat = float("nan")
+        if not math.isfinite(sigma_hat):
+            raise CcdError(where, _NO_SIGMA)
+
+        half = p * sigma_hat
+        K, K_var, m_bar = np.empty((h, w)), np.empty((h, w)), np.empty((h, w))
+        used = np.empty((h, w), np.int16)
+        rejected = np.empty((n1, h, w), dtype=bool)
+        none = [0]
+
+        def place(g: int, i: int, r: tuple) -> None:
+            y0, rows = cut[i]
+            release(chain, i)
+            K[y0:y0 + rows], used[y0:y0 + rows] = r[1], r[2]
+            rejected[:, y0:y0 + rows], K_var[y0:y0 + rows] = r[3], r[4]
+            m_bar[y0:y0 + rows] = r[5]
+            none[0] += r[6]
+
+        finals = _submit(client, _kmap_reject_task, [(c, half, center) for c in chain])
+        with contextlib.closing(_gather_in_order(client, [finals], counter, total,
+                                                 place)) as done:
+            next(done)
+    except BaseException:
+        with contextlib.suppress(Exception):
+            client.cancel([f for f in p1 + chain + links if f.status != "released"])
+        raise
+    return _finish(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p, window=window,
+                   center=center, none=none[0], ids=ids, levels=levels, noises=noises,
+                   n2s=n2s, notes=notes)

@@ -39,6 +39,13 @@ temporaries; they sum in the same order as the array formulas they replace, so t
 the same to the bit.  The frames of the next configuration are decoded ahead in worker threads
 (``Session.iter_frames(read_ahead=...)``).
 
+On a Dask cluster (``client=``), eqs. 45–50 run band by band of rows on the workers
+(:func:`ccdcore.distributed.fixed_pattern_bands`): each band's averages e_i are read with a halo
+of m//2 + 1 rows above and m//2 below; ē_i's column running sums are handed from band to band
+(:func:`_box_mean_band`), and the whole-frame means (the levels, the noise, σ̂) are rebuilt from
+the bands' shares of numpy's pairwise sums (:func:`_pw_pieces`, :func:`_pw_total`), so the result
+is the streamed one to the bit, with no process holding the n1 full-frame averages.
+
 Public objects
 --------------
 FixedPattern
@@ -55,7 +62,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Iterator, Mapping
+from typing import Any, Iterable, Mapping
 
 import numba
 import numpy as np
@@ -213,11 +220,11 @@ def _config_records(source: Any) -> tuple[list[tuple[Any, tuple]], Any]:
                               "or file paths (the workers read the frames), not arrays")
 
 
-def _cluster_averages(client: Any, configs: list[tuple[Any, tuple]], session: Any,
-                      ref_shape: tuple) -> Iterator[tuple[np.ndarray, float, int, str]]:
-    """:func:`_average_config` of every configuration on a Dask cluster, in order, after the
-    streamed path's checks of each frame's header (same messages)."""
-    from .distributed import check_averageable, frames_of, headers_of, iter_group_moments
+def _check_cluster_configs(configs: list[tuple[Any, tuple]], session: Any,
+                           ref_shape: tuple) -> None:
+    """The streamed path's checks of every configuration's frames, from their headers (same
+    messages), before anything is submitted to a cluster."""
+    from .distributed import check_averageable, headers_of
 
     for cid, recs in configs:
         if not recs:
@@ -232,14 +239,6 @@ def _cluster_averages(client: Any, configs: list[tuple[Any, tuple]], session: An
                 raise CcdError(frame.name, f"frame shape {hdr.shape} differs from the dark "
                                            f"reference's {ref_shape}")
             first = check_averageable(frame, hdr, first)
-    moments = iter_group_moments(client, {i: recs for i, (_, recs) in enumerate(configs)},
-                                 shape=ref_shape)
-    try:
-        for (cid, recs), (_, res) in zip(configs, moments):
-            noise = float(np.mean(res.var)) / res.n if res.n > 1 else float("nan")
-            yield res.mean, noise, res.n, frames_of(recs[:1])[0].name
-    finally:   # a configuration refused by the caller: the others' tasks are cancelled
-        moments.close()
 
 
 def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray | None = None,
@@ -264,11 +263,12 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
         Centre of the rejection interval: ``"median"`` (default) of the n1 slopes, or ``"mean"``,
         the paper's m̄ of eq. 48 (see the module docstring for why the median is the default).
     client
-        A Dask :class:`distributed.Client`: the configuration averages e_i (eq. 45) are reduced
-        on the cluster in bands of rows (:func:`ccdcore.distributed.iter_group_moments`, every
-        configuration submitted at once, bit-identical to the streamed averages); eqs. 46–50 run
-        here as before.  ``session_or_configs`` is then a session or a mapping ``config id ->
-        records or file paths``; a dark reference computed here uses the cluster too.
+        A Dask :class:`distributed.Client`: eqs. 45–50 run on the cluster band by band of rows
+        (:func:`ccdcore.distributed.fixed_pattern_bands`), so that no process holds the n1
+        full-frame averages; the result equals the streamed one (every map ``np.array_equal``,
+        the summary statistics ``==``).  ``session_or_configs`` is then a session or a mapping
+        ``config id -> records or file paths``; a dark reference computed here uses the cluster
+        too.
 
     Returns
     -------
@@ -318,31 +318,30 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
         raise CcdError("dark", f"the dark reference must be a 2-D map, got shape {dmap.shape}")
 
     shape = dmap.shape
+    if client is not None:
+        from .distributed import fixed_pattern_bands
+
+        _check_cluster_configs(configs, session, shape)
+        return fixed_pattern_bands(client, configs, dmap, window=window, p=p, center=center,
+                                   notes=notes, where=where)
     slopes = np.empty((n1,) + shape, dtype=np.float32)   # the n1 slope maps m_i (eq. 47)
     e_bar = np.empty(shape)                               # ē_i, reused for every configuration
     ids, levels, noises, n2s = [], [], [], []
-    averages = (_cluster_averages(client, configs, session, shape) if client is not None else
-                (_average_config(cid, frames, shape, "the dark reference")
-                 for cid, frames in configs))
+    averages = (_average_config(cid, frames, shape, "the dark reference")
+                for cid, frames in configs)
     for i, ((cid, _), (e, noise, n2, name)) in enumerate(zip(configs, averages)):
         np.subtract(e, dmap, out=e)                             # eq. 46, e_i = average − D̂_D
         _local_mean(e, window, e_bar)                           # ē_i, the m×m local mean
         level = float(e.mean())
         if level <= 0:
-            raise CcdError(name, f"configuration {cid} is not above the dark level (mean e_i = "
-                                 f"{level:.3g} DN): is it a lit card?")
-        with np.errstate(divide="ignore", invalid="ignore"):
-            np.divide(e, e_bar, out=e)                          # eq. 47, m_i = e_i/ē_i
-        e[~(e_bar > 0)] = np.nan                                # no slope where ē_i ≤ 0
-        slopes[i] = e
+            raise CcdError(name, _NOT_LIT.format(cid=cid, level=level))
+        _slopes_into(e, e_bar, slopes[i])                       # eq. 47
         ids.append(cid)
         levels.append(level)
         noises.append(noise)
         n2s.append(n2)
         del e
     del e_bar
-    if len(set(n2s)) > 1:
-        notes.append(f"configurations have different frame counts ({min(n2s)}..{max(n2s)})")
 
     # eq. 48: m̄, and the per-pixel sample std of the slopes (one compiled pass over the n1 maps)
     m_bar = np.empty(shape)
@@ -351,12 +350,38 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
     sigma_hat = float(np.nanmean(sd)) if np.isfinite(sd).any() else float("nan")
     del sd
     if not math.isfinite(sigma_hat):
-        raise CcdError(where, "no pixel has two usable slopes (ē_i > 0): cannot estimate σ̂")
+        raise CcdError(where, _NO_SIGMA)
+    K, rejected, used, K_var, none = _eq49(slopes, m_bar, p * sigma_hat, center)
+    del slopes
+    return _finish(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p, window=window,
+                   center=center, none=none, ids=ids, levels=levels, noises=noises, n2s=n2s,
+                   notes=notes)
 
-    # eq. 49: reject slopes outside centre ± p·σ̂ (centre m̄, or the per-pixel median of the
-    # slopes) and re-average; where nothing is kept, the median slope; and K̂'s error variance
-    # (see FixedPattern.K_var).  One compiled pass over the n1 maps, pixel by pixel.
-    half = p * sigma_hat
+
+_NOT_LIT = ("configuration {cid} is not above the dark level (mean e_i = {level:.3g} DN): is it "
+            "a lit card?")
+_NO_SIGMA = "no pixel has two usable slopes (ē_i > 0): cannot estimate σ̂"
+
+
+def _slopes_into(e: np.ndarray, e_bar: np.ndarray, out: np.ndarray) -> None:
+    """Eq. 47: m_i = e_i/ē_i into ``out`` (float32), NaN where ē_i ≤ 0; ``e`` is overwritten."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.divide(e, e_bar, out=e)
+    e[~(e_bar > 0)] = np.nan                                    # no slope where ē_i ≤ 0
+    out[...] = e
+
+
+def _eq49(slopes: np.ndarray, m_bar: np.ndarray, half: float, center: str
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Eq. 49 over the (n1, ...) slopes: K̂, the rejections, n'_1, K̂'s variance and the number
+    of pixels that kept no slope (K̂ there is the median slope).
+
+    Reject slopes outside centre ± half (centre m̄, or the per-pixel median of the slopes) and
+    re-average; where nothing is kept, the median slope; and K̂'s error variance (see
+    FixedPattern.K_var).  One compiled pass over the n1 maps, pixel by pixel, so a band of rows
+    gives the rows of the whole frame's result.
+    """
+    n1, shape = slopes.shape[0], slopes.shape[1:]
     K = np.empty(shape)
     if center == "median":     # the centres go into K̂'s buffer, which eq. 49 then overwrites
         _median_slopes(slopes.reshape(n1, -1), K.reshape(-1))
@@ -367,17 +392,30 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
                         half, half ** 2, rejected.reshape(n1, -1), K.reshape(-1),
                         used.reshape(-1), K_var.reshape(-1))
     none = used == 0
-    if none.any():
+    count = int(none.sum())
+    if count:
         K[none] = _median_map(slopes[:, none])
-        notes.append(f"{int(none.sum())} pixel(s) kept no slope inside the centre ± p·σ̂ "
+    return K, rejected, used, K_var, count
+
+
+def _finish(K: np.ndarray, used: np.ndarray, rejected: np.ndarray, m_bar: np.ndarray,
+            K_var: np.ndarray, *, sigma_hat: float, p: float, window: int, center: str,
+            none: int, ids: list, levels: list, noises: list, n2s: list,
+            notes: list[str]) -> FixedPattern:
+    """The :class:`FixedPattern` of the maps of eqs. 48–49: notes, n̂_1 and the bound of eq. 50,
+    and the summary statistics over the whole maps."""
+    if len(set(n2s)) > 1:
+        notes.append(f"configurations have different frame counts ({min(n2s)}..{max(n2s)})")
+    if none:
+        notes.append(f"{none} pixel(s) kept no slope inside the centre ± p·σ̂ "
                      f"(centre = {center}); K̂ there is the median slope and n'_1 = 0")
-    del slopes
+    half = p * sigma_hat
     n1_hat = int(used.min())
     var_bound = half ** 2 / n1_hat if n1_hat > 0 else float("inf")   # eq. 50
     n2_min = min(n2s)
     noise_e = float(np.nanmean(noises)) if n2_min > 1 else float("nan")
     return FixedPattern(K=K, n1_used=used, rejected=rejected, m_bar=m_bar,
-                        sigma_hat=sigma_hat, p=float(p), window=window, n1=n1, n2=n2_min,
+                        sigma_hat=sigma_hat, p=float(p), window=window, n1=len(ids), n2=n2_min,
                         var_bound=var_bound, mean=float(np.nanmean(K)),
                         spatial_std=float(np.nanstd(K)), config_ids=tuple(ids),
                         config_levels=tuple(levels), noise_var_e=noise_e, notes=tuple(notes),
@@ -442,6 +480,169 @@ def _box_mean(e, size, out):  # pragma: no cover - compiled
             c_out = -c_out - 1 if c_out < 0 else c_out
             t += line[c_in] - line[c_out]
             out[y, x] = t / size
+
+
+@numba.njit(cache=True, nogil=True)
+def _box_mean_band(e, size, h, ys, y0, tmp, out):  # pragma: no cover - compiled
+    """Rows ``y0 .. y0 + len(out)`` of :func:`_box_mean` of an ``h``-row frame, from the rows
+    ``ys ..`` of it held in ``e`` (the band and its halo) and the column running sums ``tmp``
+    after row ``y0 − 1`` (ignored when ``y0 = 0``; left after the band's last row).
+
+    The same operations in the same order as :func:`_box_mean`: scipy's column pass is a running
+    sum down each column, so row y's ē depends on the rounding of every row above; carrying
+    ``tmp`` from band to band keeps it.  Needs rows ``y0 − 1 − m//2 .. y0 + rows − 1 + m//2`` of
+    the frame (fewer at its top and bottom, mirrored as on the whole frame), ``h ≥ size``.
+    """
+    w = e.shape[1]
+    rows = out.shape[0]
+    s1 = size // 2
+    for y in range(y0, y0 + rows):
+        if y == 0:
+            for x in range(w):
+                tmp[x] = 0.0
+            for k in range(size):
+                r = k - s1
+                r = -r - 1 if r < 0 else r
+                for x in range(w):
+                    tmp[x] += e[r - ys, x]
+            for x in range(w):
+                out[0, x] = tmp[x] / size
+        else:
+            r_in = y - 1 + size - s1
+            r_in = 2 * h - r_in - 1 if r_in >= h else r_in
+            r_out = y - 1 - s1
+            r_out = -r_out - 1 if r_out < 0 else r_out
+            for x in range(w):
+                tmp[x] += e[r_in - ys, x] - e[r_out - ys, x]
+                out[y - y0, x] = tmp[x] / size
+    line = np.empty(w)
+    for y in range(rows):
+        line[:] = out[y]
+        t = 0.0
+        for k in range(size):
+            c = k - s1
+            c = -c - 1 if c < 0 else c
+            t += line[c]
+        out[y, 0] = t / size
+        for x in range(1, w):
+            c_in = x - 1 + size - s1
+            c_in = 2 * w - c_in - 1 if c_in >= w else c_in
+            c_out = x - 1 - s1
+            c_out = -c_out - 1 if c_out < 0 else c_out
+            t += line[c_in] - line[c_out]
+            out[y, x] = t / size
+
+
+#: numpy's pairwise summation: blocks of at most this many values are summed 8-way unrolled
+PW_BLOCK = 128
+
+
+def _pw_leaves(n: int, lo: int = 0, hi: int | None = None) -> list[tuple[int, int]]:
+    """The blocks ``(start, length)`` of numpy's pairwise sum of ``n`` contiguous values (its
+    recursion: halve, rounding the first half down to a multiple of 8, down to ≤ 128 values),
+    in order, those that meet ``lo .. hi`` only."""
+    hi = n if hi is None else hi
+    out: list[tuple[int, int]] = []
+    stack = [(0, n)]
+    while stack:
+        s, m = stack.pop()
+        if s >= hi or s + m <= lo or m == 0:
+            continue
+        if m <= PW_BLOCK:
+            out.append((s, m))
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        stack.append((s + n2, m - n2))
+        stack.append((s, n2))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _pw_block(a):  # pragma: no cover - compiled
+    """numpy's pairwise-sum block (≤ 128 values of a 1-D float64 array): a plain loop below 8
+    values, else 8 running sums combined as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)),
+    then the rest."""
+    n = a.shape[0]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    r = a[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+def _pw_pieces(values: np.ndarray, lo: int, n: int) -> tuple:
+    """One band's share of numpy's pairwise sum of ``n`` values: ``values`` (flat float64) are
+    the values ``lo .. lo + len(values)``; returns ``(first, sums, last)``: the sums of the
+    blocks inside, and the band's part ``(start, length, values)`` of a block that begins before
+    it (``first``) or ends after it (``last``), else ``None``."""
+    hi = lo + values.size
+    first = last = None
+    inside = []
+    for s, m in _pw_leaves(n, lo, hi):
+        if s >= lo and s + m <= hi:
+            inside.append((s - lo, m))
+        else:
+            part = (s, m, values[max(s, lo) - lo:min(s + m, hi) - lo].copy())
+            if s < lo:
+                first = part
+            else:
+                last = part
+    blocks = np.array(inside, dtype=np.int64).reshape(-1, 2)
+    sums = np.empty(len(blocks))
+    _pw_blocks(values, blocks, sums)
+    return first, sums, last
+
+
+@numba.njit(cache=True, nogil=True)
+def _pw_blocks(values, blocks, out):  # pragma: no cover - compiled
+    """:func:`_pw_block` of ``values[start:start + length]`` per row of ``blocks``."""
+    for k in range(blocks.shape[0]):
+        out[k] = _pw_block(values[blocks[k, 0]:blocks[k, 0] + blocks[k, 1]])
+
+
+@numba.njit(cache=True, nogil=True)
+def _pw_tree(m, sums, pos):  # pragma: no cover - compiled
+    """numpy's pairwise recursion over ``m`` values whose blocks' sums are ``sums[pos:]``:
+    (the sum, the next block's position)."""
+    if m <= PW_BLOCK:
+        return sums[pos], pos + 1
+    n2 = m // 2
+    n2 -= n2 % 8
+    left, pos = _pw_tree(n2, sums, pos)
+    right, pos = _pw_tree(m - n2, sums, pos)
+    return left + right, pos
+
+
+def _pw_total(n: int, pieces: Iterable[tuple]) -> float:
+    """``numpy.sum`` of the ``n`` values whose bands gave ``pieces`` (:func:`_pw_pieces`, in
+    order): the same blocks and the same additions, so the same bits."""
+    sums: list[float] = []
+    pending: list = []
+
+    def feed(part: tuple | None) -> None:
+        if part is not None:
+            pending.append(part[2])
+            if sum(v.size for v in pending) == part[1]:   # the block is complete
+                sums.append(_pw_block(np.concatenate(pending)))
+                pending.clear()
+
+    for first, block_sums, last in pieces:
+        feed(first)
+        sums.extend(block_sums.tolist())
+        feed(last)
+    return float(_pw_tree(n, np.array(sums, dtype=np.float64), 0)[0])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
