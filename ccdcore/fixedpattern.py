@@ -464,8 +464,16 @@ def _box_mean(e, size, out):  # pragma: no cover - compiled
         for x in range(w):
             tmp[x] += e[r_in, x] - e[r_out, x]
             out[y, x] = tmp[x] / size
-    line = tmp
-    for y in range(h):
+    _row_means(out, tmp, size)
+
+
+@numba.njit(cache=True, nogil=True)
+def _row_means(out, line, size):  # pragma: no cover - compiled
+    """The row pass of the box mean (scipy's running sum along each row, the mirror rule at the
+    ends), in place on every row of ``out``; ``line`` is a scratch row."""
+    w = out.shape[1]
+    s1 = size // 2
+    for y in range(out.shape[0]):
         line[:] = out[y]
         t = 0.0
         for k in range(size):
@@ -515,22 +523,7 @@ def _box_mean_band(e, size, h, ys, y0, tmp, out):  # pragma: no cover - compiled
             for x in range(w):
                 tmp[x] += e[r_in - ys, x] - e[r_out - ys, x]
                 out[y - y0, x] = tmp[x] / size
-    line = np.empty(w)
-    for y in range(rows):
-        line[:] = out[y]
-        t = 0.0
-        for k in range(size):
-            c = k - s1
-            c = -c - 1 if c < 0 else c
-            t += line[c]
-        out[y, 0] = t / size
-        for x in range(1, w):
-            c_in = x - 1 + size - s1
-            c_in = 2 * w - c_in - 1 if c_in >= w else c_in
-            c_out = x - 1 - s1
-            c_out = -c_out - 1 if c_out < 0 else c_out
-            t += line[c_in] - line[c_out]
-            out[y, x] = t / size
+    _row_means(out, np.empty(w), size)
 
 
 #: numpy's pairwise summation: blocks of at most this many values are summed 8-way unrolled

@@ -44,14 +44,6 @@ RTOL = ccd_dist.PTC_RTOL
 
 
 @pytest.fixture(scope="module")
-def client():
-    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  dashboard_address=":0") as cluster, \
-            distributed.Client(cluster) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def healey():
     return open_session(HEALEY)
 

@@ -39,14 +39,6 @@ G = (np.arange(256) / 255.0) ** 1.2
 NOISE = (0.015, 0.01, 1.0)
 
 
-@pytest.fixture(scope="module")
-def client():
-    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  dashboard_address=":0") as cluster, \
-            distributed.Client(cluster) as c:
-        yield c
-
-
 def _same(out, ref):
     assert out.channels == ref.channels and out.layout == ref.layout
     for key in ("radiance", "sigma", "flags", "used"):

@@ -28,14 +28,6 @@ MAPS = ("K", "K_var", "n1_used", "rejected", "m_bar")
 
 
 @pytest.fixture(scope="module")
-def client():
-    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  dashboard_address=":0") as cluster, \
-            distributed.Client(cluster) as c:
-        yield c
-
-
-@pytest.fixture(scope="module")
 def healey():
     return open_session(HEALEY)
 
