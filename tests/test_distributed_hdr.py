@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-distributed = pytest.importorskip("distributed")
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.change import ChangeOptions, session_change  # noqa: E402

@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-distributed = pytest.importorskip("distributed")
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.darkframe import dark_reference  # noqa: E402
