@@ -61,10 +61,12 @@ _BUTTONS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "lig
             None: "light"}
 #: the steps whose results a change in a step makes stale (they recompute when shown)
 DOWNSTREAM: dict[str, tuple[str, ...]] = {
-    "plan": (), "session": ("dark", "ptc", "emva", "pattern", "response", "verify", "export"),
-    "dark": ("pattern", "verify", "export"), "ptc": ("emva", "pattern", "verify", "export"),
-    "pattern": ("verify", "export"), "response": ("verify", "export"),
-    "verify": ("export",), "export": ()}
+    "plan": (),
+    "session": ("dark", "ptc", "emva", "pattern", "response", "verify", "report", "export"),
+    "dark": ("pattern", "verify", "report", "export"),
+    "ptc": ("emva", "pattern", "verify", "report", "export"),
+    "pattern": ("verify", "report", "export"), "response": ("verify", "report", "export"),
+    "verify": ("report", "export"), "export": ()}
 IMAGE_WIDTH = 360
 
 
@@ -169,14 +171,19 @@ def compute_response(session: Session, progress: Callable | None = None) -> tupl
     return res, hdr
 
 
-def save_export(session: Session, product: Any, folder: Path) -> tuple[Path, Path]:
-    """Save the product into ``folder`` and the report beside its maps (``report.html``)."""
-    from ccdcore.io import atomic_write_text
-
+def compute_report(session: Session, product: Any) -> str:
+    """The report of the walkthrough's product (:func:`app.report.build_report`; nothing is
+    estimated again)."""
     from ..report import build_report
 
+    return build_report(session, product=product)
+
+
+def save_export(product: Any, html: str, folder: Path) -> tuple[Path, Path]:
+    """Save the product into ``folder`` and its report beside its maps (``report.html``)."""
+    from ccdcore.io import atomic_write_text
+
     out = product.save(folder)
-    html = build_report(session, product=product)
     report = out / "report.html"
     atomic_write_text(report, html)
     return out, report
@@ -771,28 +778,46 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
              "pixels changed > 1 code": f"{r.changed:,} of {r.n_pixels:,}"} for r in rows]) \
             if rows else pd.DataFrame([{"": "no held-out frames"}])
 
+    async def _ensure_report(self) -> tuple[Any, str] | None:
+        """The product (step 7's) and its report, built once off the UI thread; the download
+        and the save both use it."""
+        found = await self._ensure_verify()
+        if found is None:
+            return None
+        if "report" not in self.results:
+            html = await self._compute("export", compute_report, self.state.session, found[0],
+                                       label="the report")
+            if html is None:
+                return None
+            self.results["report"] = html
+        return found[0], self.results["report"]
+
     async def _run_export(self) -> None:
         if self._needs_session("export") is None:
             return
-        found = await self._ensure_verify()
-        if found is None:
+        ready = await self._ensure_report()
+        if ready is None:
             return
-        self.report_download.disabled = False
+        product = ready[0]
+        name = self.state.session.root.name
+
+        def enable() -> None:
+            self.report_download.param.update(disabled=False, filename=f"{name}-report.html")
+
+        in_document(self._doc, enable)
         if "export" not in self.results:
-            skipped = [f"{s.estimate}: {s.reason}" for s in found[0].skipped]
             self._set_gate("export", Gate(
-                "warn" if not found[0].maps else "pass",
+                "warn" if not product.maps else "pass",
                 "the product is ready to save: choose a folder and save it",
-                tuple(f"skipped {s}" for s in skipped)))
+                tuple(f"skipped {s.estimate}: {s.reason}" for s in product.skipped)))
 
     async def save(self) -> None:
         """Save the product and its report into :attr:`export_folder` (inside the allowed
         folders); the gate says where, or why not."""
-        session = self.state.session
-        if session is None:
+        if self.state.session is None:
             return
-        found = await self._ensure_verify()
-        if found is None:
+        ready = await self._ensure_report()
+        if ready is None:
             return
         try:
             folder = self.state.check_allowed(self.export_folder)
@@ -800,7 +825,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             self._set_gate("export", Gate("fail", str(err), next=(
                 "choose a folder inside your home, the working folder or the session's",)))
             return
-        saved = await self._compute("export", save_export, session, found[0], folder,
+        saved = await self._compute("export", save_export, *ready, folder,
                                     label="the product and the report")
         if saved is None:
             return
@@ -813,14 +838,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
                                                 f"Saved: `{out}` and `{report}`."))
 
     def _report_bytes(self) -> io.BytesIO | None:
-        from ..report import build_report
-
-        found = self.results.get("verify")
-        if found is None or self.state.session is None:
-            return None
-        name = self.state.session.root.name
-        self.report_download.filename = f"{name}-report.html"
-        return io.BytesIO(build_report(self.state.session, product=found[0]).encode())
+        html = self.results.get("report")
+        return io.BytesIO(html.encode()) if html else None
 
     def release(self) -> None:
         """The browser session ended: drop the results and the arrays the views hold."""
