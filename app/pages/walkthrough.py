@@ -431,6 +431,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         drop = DOWNSTREAM[slug] + ((slug,) if include else ())
         for s in drop:
             self.results.pop(s, None)
+        if "report" in drop:         # its report is gone: nothing to download until rebuilt
+            in_document(self._doc, lambda: setattr(self.report_download, "disabled", True))
         gates = {k: v for k, v in self.gates.items() if k not in drop}
         if gates != self.gates:
             self.gates = gates

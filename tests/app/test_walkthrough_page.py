@@ -76,6 +76,7 @@ def test_leaving_out_a_level_recomputes_the_later_steps(assets: Path) -> None:
     before = page.results["ptc"]
     page.exclude = [3]
     assert not (set(DOWNSTREAM["ptc"]) | {"ptc"}) & set(page.gates)
+    assert "report" not in page.results and page.report_download.disabled
     assert "dark" in page.gates and "session" in page.gates      # earlier steps are kept
     _walk(page)
     after = page.results["ptc"]
@@ -102,12 +103,15 @@ def test_plan_inputs_replan(assets: Path) -> None:
 def test_export_writes_the_product_and_the_report(assets: Path, tmp_path: Path) -> None:
     page = _page(assets / "healey94", roots=[tmp_path])
     _walk(page)
+    assert not page.report_download.disabled
+    assert page._report_bytes().getvalue().decode() == page.results["report"]
     page.export_folder = str(tmp_path / "calib")
     _run(page.save())
     assert page.gates["export"].status == "pass", page.gates["export"]
     product = load_product(tmp_path / "calib")
     assert set(product.maps) >= {"dark", "K"}
     html = (tmp_path / "calib" / "report.html").read_text()
+    assert html == page.results["report"]                # built once, saved as built
     assert "<html" in html.lower() and "photon transfer" in html.lower()
     # a folder outside the allowed roots is refused, nothing written
     page.export_folder = "/proc/not-allowed"
