@@ -26,6 +26,7 @@ DEMOS: dict[str, dict] = {
     "healey94": {"size": (256, 192)},
     "delasarte07": {},
     "tsin01": {},
+    "tsin01-camera": {"size": (192, 128)},        # RGB, 10 exposures one stop apart, ~1 MB
     "change": {},
 }
 

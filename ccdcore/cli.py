@@ -362,6 +362,18 @@ def _print_response(res: Any) -> None:
             print(f"  {ch}: gains a_k / t_k (gauge: zero mean and trend of the logs): {gains}")
         for note in r.notes:
             _say("note", note, indent="    ")
+    ag = res.agreement
+    if ag is not None:
+        print(f"  agreement (sec. 4.2): {ag.summary()}")
+        for c in ag.channels:
+            worst = c.worst_pair()
+            tail = (f"; worst pair {res.t[worst.j]:.4g} s -> {res.t[worst.k]:.4g} s: "
+                    f"{worst.rms:.2f} DN ({worst.rms_fitted:.2f} fitted, ratio "
+                    f"{worst.ratio_fitted / worst.ratio:.3f} x nominal)") if worst else ""
+            print(f"    {c.channel}: {c.rms:.2f} DN, {c.rms_fitted:.2f} DN fitted, "
+                  f"{c.rms_blend:.2f} DN from the blend{tail}")
+    for w in res.warnings():
+        _say("warning", w)
 
 
 def _cmd_response(args: argparse.Namespace) -> int:

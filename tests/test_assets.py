@@ -179,6 +179,32 @@ def test_demo_is_valid_and_regenerates(preset, tmp_path):
                              + "\n  ".join(differences[:20]))
 
 
+def test_camera_demo_is_a_small_rgb_bracket_one_stop_apart():
+    """assets/tsin01-camera: the ``camera="real"`` bracket (sRGB-like tone with toe and knee,
+    structured scene, vignetting, exposure errors, Bayer, sharpening, JPEG quality 90).
+
+    Its frames are JPEG-compressed yet compared byte for byte like the others: the JPEG is
+    :func:`ccdcore.simulate.camera.jpeg_roundtrip`, plain IEEE arithmetic in a fixed order
+    (no libjpeg, whose SIMD paths and versions round differently), so the bytes are the same on
+    every CPU and no tolerance is needed.
+    """
+    import tomllib
+
+    root = ASSETS / "tsin01-camera"
+    assert sum(p.stat().st_size for p in root.rglob("*") if p.is_file()) < 1.5e6
+    manifest = tomllib.loads((root / "session.toml").read_text())
+    truth = load_truth(root).values
+    assert manifest["camera"]["layout"] == "rgb" and manifest["camera"]["bits"] == 8
+    exposures = np.array([f["exposure"] for f in manifest["frames"]])
+    assert exposures.size == 10 and np.all(exposures[1:] / exposures[:-1] == 2.0)
+    assert truth["size"] == [192, 128] and truth["camera_model"]["bundle"] == "real"
+    assert truth["tone"]["name"] == "srgb-knee" and truth["jpeg"]["quality"] == 90
+    assert len(truth["g"]) == 256 and truth["g"][0] == 0.0 and truth["g"][255] == 1.0
+    assert np.array(truth["a"]).shape == (1, 10, 3)
+    z = read_image(root / manifest["frames"][-1]["path"])
+    assert z.shape == (128, 192, 3) and z.dtype == np.uint8
+
+
 # ---- the comparison itself ------------------------------------------------------------------
 def _copy(src: Path, dst: Path) -> Path:
     import shutil

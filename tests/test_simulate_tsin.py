@@ -310,3 +310,313 @@ def test_bad_options_raise(tmp_path, options):
 def test_bayer_needs_even_size(tmp_path):
     with pytest.raises(CcdError):
         simulate_preset("tsin01", tmp_path, seed=0, size=(17, 16), bayer="rggb")
+
+
+# ---------------------------------------------------------------------------------------------
+# the camera model (ccdcore.simulate.camera): what makes a bracket behave like a real camera's
+
+from ccdcore.simulate import camera  # noqa: E402
+from ccdcore.simulate._common import round_sig  # noqa: E402
+
+CODES = np.arange(256)
+
+
+def test_srgb_knee_tone_is_monotone_with_toe_and_knee():
+    tone = camera.SrgbKneeTone()                   # gamma 2.4, toe 0.01, knee 0.8, headroom 2
+    g = np.array(tone.table())
+    assert g[0] == 0.0 and g[255] == 1.0
+    assert np.all(np.diff(g) > 0)
+    # toe: g is linear in z up to the toe code (17): the slope of f is finite at black
+    z_toe = int(tone.params()["toe_code"])
+    assert z_toe == 17
+    np.testing.assert_allclose(g[:z_toe + 1],
+                               CODES[:z_toe + 1] / (255 * tone.slope * tone.headroom), rtol=1e-12)
+    # above the toe the log-log slope d ln g / d ln z rises from 1 towards gamma = 2.4 (sRGB's
+    # offset power law); over the mid-tones (51..204) g is roughly a gamma 2 curve
+    slope = np.diff(np.log(g[18:205])) / np.diff(np.log(CODES[18:205]))
+    assert np.all(np.diff(slope) > 0) and 1.0 < slope[0] < 1.1 and slope[-1] < 2.4
+    assert 1.8 < math.log(g[204] / g[51]) / math.log(4) < 2.2
+    # knee: above code 204 the codes cover far more exposure than the power law would give --
+    # the shoulder folds `headroom` = 2 times the exposure into codes 204..255
+    power = ((CODES / 255 + tone.alpha) / (1 + tone.alpha)) ** tone.gamma / tone.headroom
+    np.testing.assert_allclose(g[18:205], power[18:205], rtol=1e-12)
+    assert np.all(g[205:] > power[205:])
+    assert power[255] == pytest.approx(0.5) and g[255] == 1.0
+    dg = np.diff(g)
+    assert dg[250] > 8 * dg[203]                    # highlights compressed: g steep at the top
+    # sRGB's own constants come out of the construction (0.0030399 is where sRGB's 0.055 power
+    # law and its 12.92 line meet with equal slopes; the standard rounds the break to 0.0031308)
+    srgb = camera.SrgbKneeTone(2.4, 0.0030399, 0.8, 2.0)
+    assert srgb.alpha == pytest.approx(0.055, abs=1e-5)
+    assert srgb.slope == pytest.approx(12.92, abs=0.01)
+
+
+@pytest.mark.parametrize("tone", [camera.SrgbKneeTone(), camera.SrgbKneeTone(2.2, 0.02, 0.85, 1.5),
+                                  camera.GammaTone(1.2), camera.GammaTone(2.2)],
+                         ids=["srgb-knee", "srgb-knee-2", "gamma-1.2", "gamma-2.2"])
+def test_tone_inverts_exactly_on_the_codes(tone):
+    g = np.array(tone.table())
+    fz = tone.f(g)
+    assert np.abs(fz - CODES).max() < 1e-9
+    assert np.array_equal(np.rint(fz), CODES)
+    half = CODES[:-1] + 0.5                          # and between the codes
+    assert np.abs(tone.f(tone.g(half)) - half).max() < 1e-9
+    # the noise-free pipeline reads every code back
+    E = np.tile(g, (4, 1))
+    shot = tsin.expose(E, 1.0, 0.0, np.random.default_rng(0), sigma_s=0.0, sigma_c1=0.0,
+                       sigma_c2=0.0, tone=tone)
+    assert np.array_equal(shot.z, np.tile(CODES, (4, 1)).astype(np.uint8))
+
+
+def test_tone_f_is_the_formula_and_gamma_tone_is_the_protocol():
+    v = np.linspace(0.0, 1.0, 10001)
+    tone = camera.SrgbKneeTone()
+    u = tone.headroom * v
+    x = np.where(u < tone.toe, tone.slope * u,
+                 (1 + tone.alpha) * np.power(u, 1 / tone.gamma) - tone.alpha)
+    w = x - tone.knee
+    ref = 255 * np.where(x <= tone.knee, x, tone.knee + w / (1 + w / tone.L))
+    np.testing.assert_allclose(tone.f(v), ref, rtol=1e-13, atol=1e-12)
+    assert tone.f(1.0) == pytest.approx(255.0, abs=1e-9) and tone.f(0.0) == 0.0
+    gamma = camera.GammaTone(1.2)
+    assert np.array_equal(gamma.f(v), tsin.response(v, 1.2))          # the same bits
+    assert gamma.table() == tsin.response_table(1.2)
+
+
+def _noise_free(**kw):
+    return dict(sigma_s=0.0, sigma_c1=0.0, sigma_c2=0.0, **kw)
+
+
+def test_exposure_errors_are_in_truth_and_in_the_frames(tmp_path):
+    sigma = 0.05
+    truth = simulate_preset("tsin01", tmp_path, seed=21, size=(16, 16), n_exposures=10, ratio=2.0,
+                            t_max=1.0, n_stacks=5, exposure_error=sigma, **_noise_free())
+    t = np.array(truth["t"])
+    eps = np.array(truth["exposure_factor"])
+    a = np.array(truth["a"])
+    assert eps.shape == (5, 10) and a.shape == (5, 10)
+    np.testing.assert_array_equal(a, [[round_sig(x) for x in row] for row in t * eps])
+    assert [f["exposure_factor"] for f in truth["frames"]] == eps.ravel().tolist()
+    assert truth["exposure_error"] == sigma
+    # log factors ~ Normal(0, sigma): 50 draws, sample sd and mean within 99.9 % bounds
+    ln = np.log(eps).ravel()
+    lo, hi = (math.sqrt(stats.chi2.ppf(p, ln.size - 1) / (ln.size - 1)) for p in (0.0005, 0.9995))
+    assert lo * sigma < ln.std(ddof=1) < hi * sigma
+    assert abs(ln.mean()) < 3.3 * sigma / math.sqrt(ln.size)
+    # the frames are imaged with the actual a_k, not the nominal t_k
+    E = load_truth(tmp_path).map("E").astype(float)
+    moved = 0
+    for entry in truth["frames"]:
+        z = read_image(tmp_path / entry["path"])
+        actual = tsin.response(np.minimum(entry["a"] * E, 1.0))
+        assert np.array_equal(z, np.rint(actual).astype(np.uint8))
+        moved += int(np.count_nonzero(z != np.rint(tsin.response(np.minimum(entry["exposure"] * E,
+                                                                               1.0)))))
+    assert moved > 1000
+
+
+def test_exposure_error_is_common_to_the_channels(tmp_path):
+    truth = simulate_preset("tsin01", tmp_path, seed=8, size=(8, 8), layout="rgb",
+                            white_balance=True, wb_sigma=0.03, offset_sigma=0.0,
+                            exposure_error=0.03, black_level=0.002)
+    t, eps = np.array(truth["t"]), np.array(truth["exposure_factor"][0])
+    a, b = np.array(truth["a"][0]), np.array(truth["b"][0])
+    w = a / (t * eps)[:, None]                      # the white-balance gains, per frame and channel
+    assert a.shape == (8, 3) and 0.01 < w.std(ddof=1) < 0.06 and abs(w.mean() - 1) < 0.03
+    np.testing.assert_array_equal(b, 0.002)         # the pedestal, in b_k
+
+
+@pytest.mark.parametrize("options", [
+    {"bayer": "rggb", "jpeg_quality": 90},
+    {"jpeg_quality": 90},
+    {"bayer": "rggb"},
+], ids=["bayer+jpeg", "jpeg", "bayer"])
+def test_camera_noise_is_spatially_correlated(tmp_path, options):
+    """Residuals against the truth on a flat field: the protocol's are white, a demosaiced and/or
+    JPEG-compressed camera's are correlated between neighbours (as in real brackets)."""
+    E = np.full((64, 96, 3), 0.3, dtype=np.float32)
+
+    def neighbour_correlation(root, truth):
+        corr = []
+        for entry in truth["frames"][2:7]:
+            z = read_image(root / entry["path"]).astype(float)
+            r = z - tsin.response(np.minimum(np.array(entry["a"]) * 0.3, 1.0))
+            for c in range(3):
+                x = r[1:-1, 1:-1, c]
+                corr.append(np.corrcoef(x[:, :-1].ravel(), x[:, 1:].ravel())[0, 1])
+                corr.append(np.corrcoef(x[:-1].ravel(), x[1:].ravel())[0, 1])
+        return np.array(corr)
+
+    plain = simulate_preset("tsin01", tmp_path / "plain", seed=5, size=(96, 64), layout="rgb",
+                            radiance=E)
+    cam = simulate_preset("tsin01", tmp_path / "cam", seed=5, size=(96, 64), layout="rgb",
+                          radiance=E, **options)
+    rho_plain = neighbour_correlation(tmp_path / "plain", plain)
+    rho_cam = neighbour_correlation(tmp_path / "cam", cam)
+    n = 62 * 93
+    assert np.all(np.abs(rho_plain) < 4.5 / math.sqrt(n))        # white: |rho| < 0.06
+    assert rho_cam.min() > 0.25 and rho_cam.mean() > 0.3
+
+
+def test_real_camera_residuals_are_correlated_in_flat_regions(tmp_path):
+    truth = simulate_preset("tsin01", tmp_path, seed=2, size=(128, 96), camera="real")
+    Ee = load_truth(tmp_path).map(truth["radiance_map"]).astype(float)
+    tone = camera.make_tone("srgb-knee")
+    # inside the patches (vignetting varies the irradiance by < 5 % over 5 x 5 pixels)
+    hi, lo = ndimage.maximum_filter(Ee, (5, 5, 1)), ndimage.minimum_filter(Ee, (5, 5, 1))
+    flat = np.all(hi < 1.05 * lo, axis=2)
+    rho, n = [], 0
+    for entry in truth["frames"][5:]:
+        z = read_image(tmp_path / entry["path"]).astype(float)
+        mu = tone.f(np.array(entry["a"]) * Ee + np.array(entry["b"]))
+        r = (z - mu)[..., 1]
+        ok = flat & (mu[..., 1] > 20) & (mu[..., 1] < 230)
+        pairs = ok[:, :-1] & ok[:, 1:]
+        if pairs.sum() >= 300:
+            rho.append(np.corrcoef(r[:, :-1][pairs], r[:, 1:][pairs])[0, 1])
+            n += int(pairs.sum())
+    assert len(rho) >= 4 and n > 3000
+    assert min(rho) > 0.2 and np.mean(rho) > 0.3
+
+
+def test_structured_scene_has_regions_edges_and_a_wide_dynamic_range():
+    for seed in (0, 1, 2):
+        E, desc = camera.structured_scene(np.random.default_rng([seed, 1]), (128, 192, 3))
+        assert E.shape == (128, 192, 3) and np.all(E > 0)
+        g = E[..., 1]
+        p1, p50, p99 = np.percentile(g, [1, 50, 99])
+        assert E.max() / p1 > 1e5                 # more than five decades
+        assert p99 / p1 > 30                      # without the lights: more than 1.5 decades
+        assert E.max() >= 1000                    # saturates a frame with a = 1/512 .. 1
+        assert 0.01 < p50 < 0.2                   # most pixels dark: median a_max E < 0.2
+        flat = np.mean(g[:, 1:] == g[:, :-1])     # piecewise-constant patches
+        edges = np.mean(np.abs(np.log(g[:, 1:] / g[:, :-1])) > 1.0)
+        assert flat > 0.15 and edges > 0.005
+        assert len(desc["patches"]) >= 4 and len(desc["lights"]) >= 3
+        assert desc["lights"][0]["radiance"] >= 1000
+    E_mono, _ = camera.structured_scene(np.random.default_rng([0, 1]), (40, 48))
+    assert E_mono.shape == (40, 48)
+
+
+def test_vignetting_is_a_cos4_falloff_of_E(tmp_path):
+    V = camera.vignetting_map((64, 96), 0.35)
+    assert V.max() == pytest.approx(1.0, abs=1e-3) and V[0, 0] == pytest.approx(1 / 1.35 ** 2)
+    assert V[0, 0] == V[-1, -1] == V[0, -1] == V[-1, 0]
+    kw = dict(seed=4, size=(96, 64), layout="rgb", scene="structured")
+    simulate_preset("tsin01", tmp_path / "off", **kw)
+    t_on = simulate_preset("tsin01", tmp_path / "on", vignetting=0.35, **kw)
+    E_off = load_truth(tmp_path / "off").map("E").astype(float)
+    E_on = load_truth(tmp_path / "on").map("E").astype(float)
+    Vmap = load_truth(tmp_path / "on").map("vignetting").astype(float)
+    np.testing.assert_allclose(Vmap, V, rtol=1e-7)
+    np.testing.assert_allclose(E_on, E_off * V[..., None], rtol=2e-7)
+    assert t_on["vignetting"]["strength"] == 0.35
+    assert t_on["vignetting"]["map"] == "truth/vignetting.exr"
+
+
+def test_jpeg_model():
+    C = camera.dct_matrix()
+    np.testing.assert_allclose(C @ C.T, np.eye(8), atol=1e-15)
+    assert camera._cos16() == pytest.approx([math.cos(k * math.pi / 16) for k in range(9)],
+                                            abs=2e-16)
+    from scipy import fft
+    X = np.random.default_rng(0).standard_normal((8, 8))
+    np.testing.assert_allclose(C @ X @ C.T, fft.dctn(X, norm="ortho"), atol=1e-14)
+    assert np.array_equal(camera.quant_table(50), camera._LUMA_Q)
+    assert np.all(camera.quant_table(100) == 1) and camera.quant_table(10).max() == 255
+    flat = np.full((24, 40, 3), 77, np.uint8)
+    assert np.array_equal(camera.jpeg_roundtrip(flat, 75), flat)
+    rng = np.random.default_rng(1)
+    smooth = ndimage.gaussian_filter(rng.random((37, 53, 3)) * 255, (4, 4, 0))
+    noisy = np.clip(np.rint(smooth + rng.normal(0, 3, smooth.shape)), 0, 255).astype(np.uint8)
+    err = {q: np.abs(camera.jpeg_roundtrip(noisy, q).astype(int) - noisy).mean()
+           for q in (50, 90, 100)}
+    assert err[100] < err[90] < err[50] < 6                  # lossy, more so at lower quality
+    mono = noisy[..., 0]                                     # luminance only: no 4:2:0 loss
+    err_mono = {q: np.abs(camera.jpeg_roundtrip(mono, q).astype(int) - mono).mean()
+                for q in (90, 100)}
+    assert err_mono[100] < 0.5 < err_mono[90] < 3
+    assert camera.jpeg_roundtrip(mono, 90).shape == (37, 53)
+
+
+def test_jpeg_model_is_close_to_libjpeg(tmp_path):
+    """The model against a real JPEG (libjpeg through OpenImageIO, quality 90, 4:2:0): the
+    differences are a fraction of the compression error itself."""
+    from ccdcore.io import write_image
+
+    rng = np.random.default_rng(3)
+    smooth = ndimage.gaussian_filter(rng.random((64, 96, 3)) * 255, (3, 3, 0))
+    z = np.clip(np.rint(smooth + rng.normal(0, 3, smooth.shape)), 0, 255).astype(np.uint8)
+    try:
+        write_image(tmp_path / "x.jpg", z, attributes={"Compression": "jpeg:90"})
+    except Exception as exc:                                   # no JPEG writer in this build
+        pytest.skip(f"cannot write JPEG: {exc}")
+    real = read_image(tmp_path / "x.jpg").astype(int)
+    ours = camera.jpeg_roundtrip(z, 90).astype(int)
+    compression = np.abs(real - z).mean()
+    assert compression > 1.5
+    assert np.abs(ours - real).mean() < 0.4 * compression and np.abs(ours - real).max() <= 8
+
+
+def test_real_camera_bundle_preset_and_determinism(tmp_path):
+    size = (48, 32)
+    t1 = simulate_preset("tsin01-camera", tmp_path / "a", seed=3, size=size)
+    simulate_preset("tsin01", tmp_path / "b", seed=3, size=size, camera="real")
+    simulate_preset("tsin01-camera", tmp_path / "c", seed=3, size=size)
+    simulate_preset("tsin01-camera", tmp_path / "d", seed=4, size=size)
+    a, b, c, d = (_all_bytes(tmp_path / x) for x in "abcd")
+    assert a == b == c
+    assert a.keys() == d.keys() and a["bracket/s0_k05.tif"] != d["bracket/s0_k05.tif"]
+    assert len(a) == 2 + 3 + 10             # manifest, truth; E, E_effective, vignetting; frames
+    manifest, on_disk = read_session(tmp_path / "a")
+    assert on_disk == t1
+    assert manifest["camera"]["layout"] == "rgb"
+    exposures = np.array([f["exposure"] for f in manifest["frames"]])
+    assert exposures.size == 10 and np.all(exposures[1:] / exposures[:-1] == 2.0)
+    assert exposures[-1] == 1.0
+    model = t1["camera_model"]
+    assert model["bundle"] == "real"
+    opts = model["options"]
+    for key, value in camera.CAMERAS["real"].items():
+        assert opts[key] == value, key
+    assert t1["tone"]["name"] == "srgb-knee" and t1["gamma"] is None
+    np.testing.assert_allclose(t1["g"], camera.SrgbKneeTone().table(), rtol=1e-15)
+    assert t1["scene"]["kind"] == "structured" and t1["jpeg"]["quality"] == 90
+    assert t1["sharpen"] == {"amount": 0.5, "sigma": camera.SHARPEN_SIGMA}
+    assert np.array(t1["a"]).shape == (1, 10, 3) and t1["bayer"] == "rggb"
+    # an explicit option beats the bundle's
+    t2 = simulate_preset("tsin01", tmp_path / "e", seed=3, size=size, camera="real",
+                         jpeg_quality=None)
+    assert t2["jpeg"] is None and t2["camera_model"]["options"]["jpeg_quality"] is None
+
+
+def test_real_camera_default_size_and_saturating_lights(tmp_path):
+    truth = simulate_preset("tsin01", tmp_path, seed=1, camera="real")
+    assert truth["size"] == list(camera.DEFAULT_SIZE)
+    first = read_image(tmp_path / truth["frames"][0]["path"])
+    last = read_image(tmp_path / truth["frames"][-1]["path"])
+    assert np.any(first == 255)                    # the brightest light, even at 1/512
+    assert np.median(first) < 10                   # a night scene: the short frames are dark
+    assert 40 < np.median(last) < 200
+
+
+def test_protocol_options_leave_the_protocol_unchanged(tmp_path):
+    kw = dict(seed=12, size=(16, 12), bayer="grbg", white_balance=True)
+    simulate_preset("tsin01", tmp_path / "a", **kw)
+    t = simulate_preset("tsin01", tmp_path / "b", tone="gamma", scene="uniform", vignetting=0,
+                        exposure_error=0.0, black_level=0.0, sharpen=0, jpeg_quality=None,
+                        camera=None, **kw)
+    assert _all_bytes(tmp_path / "a") == _all_bytes(tmp_path / "b")
+    assert not {"camera_model", "tone", "scene", "exposure_factor", "jpeg"} & set(t)
+
+
+@pytest.mark.parametrize("options", [
+    {"tone": "film"}, {"scene": "city"}, {"jpeg_quality": 0}, {"jpeg_quality": 101},
+    {"jpeg_quality": 90.5}, {"vignetting": -0.1}, {"exposure_error": -0.01},
+    {"camera": "phone"}, {"tone": "srgb-knee", "knee": 0.05},
+    {"tone": "srgb-knee", "headroom": 1.0},
+    {"sharpen": -1.0}, {"black_level": -0.001},
+])
+def test_bad_camera_options_raise(tmp_path, options):
+    with pytest.raises(CcdError):
+        simulate_preset("tsin01", tmp_path, seed=0, size=(16, 16), **options)

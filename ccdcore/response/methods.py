@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import CcdError
+from .agreement import Agreement, agreement, code_range
 from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
 from .classic import debevec, mitsunaga_nayar, robertson
 from .scale import reference_codes
@@ -141,6 +142,33 @@ class ResponseResult:
     t: NDArray[np.float64]
     bloom_radius: int = DEFAULT_BLOOM_RADIUS
     notes: tuple[str, ...] = field(default_factory=tuple)
+    #: how well the curves predict the bracket's own images (sec. 4.2; ``None``: not computed)
+    agreement: Agreement | None = None
+
+    def warnings(self) -> tuple[str, ...]:
+        """Why the curves should not be trusted, in plain words (empty when nothing is wrong):
+        a channel's fit that did not converge, a curve flat over a tenth of the readable codes
+        (collapsed), and images that disagree with the exposures the result used."""
+        out = []
+        lo, hi = code_range(self.levels)
+        for ch, r in zip(self.channels, self.responses):
+            if not r.converged:
+                out.append(f"channel {ch}: the fit stopped after {r.iterations} iterations "
+                           "without converging; the curve may be wrong")
+            g = np.asarray(r.g[lo:hi + 1])
+            flat = np.diff(g) <= 1e-9 * max(float(g[-1] - g[0]), 1e-300)
+            run = _longest_run(flat)
+            if run >= 0.1 * (hi - lo):
+                out.append(f"channel {ch}: g is flat over {run} codes of {lo}..{hi} (a "
+                           "collapsed curve): it cannot tell those codes apart")
+        ag = self.agreement
+        if ag is not None and np.isfinite(ag.rms) and ag.rms > 1.5 * ag.rms_fitted + 1.0:
+            out.append(f"the images disagree with the exposures used ({ag.rms:.1f} DN RMS with "
+                       f"them, {ag.rms_fitted:.1f} DN with each pair's ratio fitted): the "
+                       "exposure times are off"
+                       + ("" if any(r.white_balance for r in self.responses) else
+                          "; estimate the gains (--white-balance)"))
+        return tuple(out)
 
     def __getitem__(self, channel: str) -> ChannelResponse:
         return self.responses[self.channels.index(channel)]
@@ -187,7 +215,18 @@ class ResponseResult:
             "bloom_radius": int(self.bloom_radius),
             "white_balance": [bool(c.white_balance) for c in r],
             "notes": {ch: list(c.notes) for ch, c in zip(self.channels, r)},
+            "agreement": None if self.agreement is None else self.agreement.to_dict(),
+            "warnings": list(self.warnings()),
         }
+
+
+def _longest_run(mask: NDArray[np.bool_]) -> int:
+    """The longest run of True in a 1-D mask."""
+    best = cur = 0
+    for v in np.asarray(mask, bool).tolist():
+        cur = cur + 1 if v else 0
+        best = max(best, cur)
+    return best
 
 
 def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
@@ -214,8 +253,11 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
         else:
             out.append(METHODS[method].run(brackets[name], sub))
     first = brackets[names[0]]
+    if progress is not None:
+        progress(0.99, "agreement: each image predicted from its neighbours (sec. 4.2)")
+    agree = agreement(brackets, dict(zip(names, out)))
     return ResponseResult(method, names, tuple(out), tuple(first.files), int(first.levels),
-                          np.asarray(first.t, np.float64), int(bloom_radius))
+                          np.asarray(first.t, np.float64), int(bloom_radius), agreement=agree)
 
 
 def session_response(session: Any, method: str = "tsin", *, stack: Any = None,

@@ -103,6 +103,9 @@ TRIM = 0.66
 #: estimated on an even sample of their pixels (a 640×480 × 16 bracket keeps 70,000 pixels, some
 #: 270 per code; the error of g is then set by the bias, not the sample)
 MAX_ENTRIES = 2 ** 24
+#: most pixels a pool keeps (evenly spread over the frame): beyond a few hundred pixels the
+#: error of a pool's trimmed mean is far below the bias of g, and the pass costs in proportion
+POOL_CAP = 256
 #: relative efficiency of the MAD for Gaussian data (weights of the eq. 17 fit)
 _MAD_EFFICIENCY = 0.37
 
@@ -128,8 +131,14 @@ class TsinOptions:
     max_iter
         Most iterations.
     min_pool
-        Fewest pixels a pool's prediction of one image needs to count (sec. 4.1: 100); small
-        brackets lower it to what their size allows (at least 10).
+        Fewest pixels a pool's prediction of one image needs to count (sec. 4.1 used 100 on
+        its simulation; the default 10 lets the sparse codes of a real scene -- the
+        highlights of a night street -- tie the curve together: with 100 they had no pool and
+        g there was the smoothness term's extrapolation).
+    edge
+        Codes within ``edge`` (in 8-bit code steps) of 0 and of the top code count as clipped:
+        a real camera's processing clips and compresses its toe and knee (black level, JPEG,
+        the shoulder of its tone curve), where a code says little about the signal.
     clip_fraction
         An image joins a pool's trace when at most this fraction of the pool's pixels is
         clipped (0 or the top code) in it.
@@ -149,7 +158,8 @@ class TsinOptions:
     eta: float = 1.0
     tol: float = 1e-5
     max_iter: int = 30
-    min_pool: int = 100
+    min_pool: int = 10
+    edge: float = 0.0
     clip_fraction: float = 0.02
     mad_factor: float | None = None
     groups: int = 64
@@ -166,6 +176,8 @@ class TsinOptions:
             raise CcdError(where, f"gain_prior must be >= 0, got {self.gain_prior}")
         if not self.smoothness >= 0:
             raise CcdError(where, f"smoothness must be >= 0, got {self.smoothness}")
+        if not 0 <= self.edge < 64:
+            raise CcdError(where, f"edge must be in [0, 64), got {self.edge}")
         if not 0 <= self.clip_fraction < 0.5:
             raise CcdError(where, f"clip_fraction must be in [0, 0.5), got {self.clip_fraction}")
         if self.max_iter < 1 or self.min_pool < 2 or self.groups < 4:
@@ -248,21 +260,31 @@ def _pool_counts(pb, obs, clip, K):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _pool_members(pb, obs, clip, K):  # pragma: no cover - compiled
-    """The pixels of every pool (j, m), pool by pool (CSR: ``start`` indexed j * K + m)."""
+def _pool_members(pb, obs, clip, K, cap):  # pragma: no cover - compiled
+    """The pixels of every pool (j, m), pool by pool (CSR: ``start`` indexed j * K + m); a
+    pool larger than ``cap`` keeps ``cap`` of its pixels, evenly spread over the frame."""
     N, P = pb.shape
-    counts = np.zeros(N * K + 1, np.int64)
+    full = np.zeros(N * K, np.int64)
     for p in range(P):
         for j in range(N):
             if obs[j, p] and not clip[j, p]:
-                counts[j * K + pb[j, p] + 1] += 1
+                full[j * K + pb[j, p]] += 1
+    counts = np.zeros(N * K + 1, np.int64)
+    for q in range(N * K):
+        counts[q + 1] = min(full[q], cap)
     start = np.cumsum(counts)
     members = np.empty(start[-1], np.int64)
     cur = start[:-1].copy()
+    seen = np.zeros(N * K, np.int64)
     for p in range(P):
         for j in range(N):
             if obs[j, p] and not clip[j, p]:
                 q = j * K + pb[j, p]
+                i = seen[q]
+                seen[q] += 1
+                n = full[q]
+                if n > cap and (i * cap) // n == ((i + 1) * cap) // n:
+                    continue
                 members[cur[q]] = p
                 cur[q] += 1
     return start, members
@@ -318,7 +340,7 @@ def _knot(code, step, identity, K):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, step,
+def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wimg, wcode, K, step,
           identity, want_noise, with_a):  # pragma: no cover - compiled
     """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
     linearisations (eq. 13) and, when asked, the rows' eq. 17 regressors.
@@ -341,6 +363,7 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
     gv = np.empty(N)
     jv = np.empty(N, np.int64)
     fv = np.empty(N)
+    wv = np.empty(N)
     # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a², then
     # (with_a) Σ w (g_i - b_i)/a_i² per image and Σ Ê, for the derivatives in a
     nu = K + 3 + N + 1 + N
@@ -372,7 +395,14 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                 ns = _trace(q, j, m, mflag, inc, paper, idx)
                 if ns < 2:
                     continue
-                w = 1.0 / ns
+                # eq. 9's weights: w_i ∝ wimg_i wcode(z_i) (eq. 18: a_i / σ(z_i); or constant)
+                sw = 0.0
+                for ii in range(ns):
+                    i = idx[ii]
+                    wv[i] = wimg[i] * wcode[mz[q, i]]
+                    sw += wv[i]
+                for ii in range(ns):
+                    wv[idx[ii]] /= sw
                 nmiss = 0
                 for k in range(N):
                     miss[k] = (not paper) and rowid[j, m, k] >= 0
@@ -388,10 +418,10 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                     jv[i] = jq
                     fv[i] = f
                     gv[i] = gk[jq] if f == 0.0 else (1.0 - f) * gk[jq] + f * gk[jq + 1]
-                    E += w * (gv[i] - b[i]) / a[i]
+                    E += wv[i] * (gv[i] - b[i]) / a[i]
                 for ii in range(ns):
                     i = idx[ii]
-                    c = w / a[i]
+                    c = wv[i] / a[i]
                     f = fv[i]
                     ux[0] = c * (1.0 - f)
                     cols[0] = jv[i]
@@ -447,13 +477,13 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, K, 
                         H[k, jv[k]] += 1.0 - f
                         H[k, jv[k] + 1] += f
                     if with_a:
-                        Hs[k, 3] += w * (gv[k] - b[k]) / a[k]
+                        Hs[k, 3] += wv[k] * (gv[k] - b[k]) / a[k]
                         Hs[k, 4] += 1.0
                     if want_noise:
                         gpk = gpc[mz[q, k]]
-                        Hs[k, 0] += 1.0 - 2.0 * w
-                        Hs[k, 1] += (1.0 - 2.0 * w) * max(gv[k] - b[k], 0.0)
-                        Hs[k, 2] += (1.0 - 2.0 * w) * gpk * gpk
+                        Hs[k, 0] += 1.0 - 2.0 * wv[k]
+                        Hs[k, 1] += (1.0 - 2.0 * wv[k]) * max(gv[k] - b[k], 0.0)
+                        Hs[k, 2] += (1.0 - 2.0 * wv[k]) * gpk * gpk
             for k in range(N):
                 r = rowid[j, m, k]
                 if r < 0 or (paper and k != j):
@@ -560,6 +590,9 @@ class _Setup:
     row_of: NDArray[np.float64] | None = None
 
 
+#: the shortest step of g (as a fraction of eq. 16's step) tried before the fit is taken as
+#: converged: no step along the update lowers its objective
+MIN_ETA = 1.0 / 64
 #: the largest relative change of a gain a_k in one step of the white-balance fit
 MAX_GAIN_STEP = 0.05
 #: the white-balance fit stops when three steps in a row lower its objective by less than
@@ -655,7 +688,8 @@ def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
     j0, fr = knots.locate(z)
     pb = np.ascontiguousarray(np.asarray(j0) + (np.asarray(fr) > 0.5), np.int64)
     obs = np.ascontiguousarray(data.observed, np.bool_)
-    clip = (z <= 0) | (z >= L - 1)
+    e = int(round(opts.edge * (L - 1) / 255.0))
+    clip = (z <= e) | (z >= L - 1 - e)
     G = int(opts.groups)
     if data.pixels.size == P and data.shape[0] * data.shape[1] > 0:
         grp = data.pixels.astype(np.int64) * G // (data.shape[0] * data.shape[1])
@@ -667,7 +701,7 @@ def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
     inc = (seen > 0) & (nclip <= opts.clip_fraction * seen)
     for j in range(N):
         inc[j, :, j] = False
-    start, members = _pool_members(pb, obs, clip, K)
+    start, members = _pool_members(pb, obs, clip, K, int(POOL_CAP))
     mz = np.ascontiguousarray(z.T.astype(np.uint16)[members])
     mflag = np.ascontiguousarray((obs.astype(np.uint8) | (clip.astype(np.uint8) << 1)).T[members])
     mgrp = grp[members]
@@ -697,16 +731,55 @@ def _slopes(knots: Knots, gk: NDArray, levels: int) -> NDArray[np.float64]:
     return np.interp(np.arange(levels, dtype=np.float64), codes, d)
 
 
-def _pass(s: _Setup, a, b, gk, want_noise=False, with_a=False):
-    """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``."""
+def _pass(s: _Setup, a, b, gk, want_noise=False, with_a=False, wcode=None):
+    """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``.
+    ``wcode``: 1/σ per code for eq. 18's weights (``None``: constant weights)."""
     L = int(s.data.levels)
     gpc = _slopes(s.knots, gk, L) if want_noise else np.zeros(L)
+    if wcode is None:
+        wimg, wcode = np.ones(len(a)), np.ones(L)
+    else:
+        wimg = np.asarray(a, np.float64)
     J, X, resid, egrp = _rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
                               s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
-                              np.asarray(gk, np.float64), gpc, s.knots.n,
+                              np.asarray(gk, np.float64), gpc, wimg, np.asarray(wcode, np.float64),
+                              s.knots.n,
                               float(s.knots.step), bool(s.knots.identity), want_noise,
                               with_a)
     return J, X, resid, egrp
+
+
+def _eq18_codes(s: _Setup, gk: NDArray) -> NDArray[np.float64]:
+    """1/σ(z) per code for eq. 18's weights in eq. 9, with σ taken as g'(z): the output noise,
+    the same in codes for every image (the noise terms are not known before the fit; on a
+    bracket of a real camera the full eq. 7 with the last pass's terms gave the same curve).
+    Floored at 1 % of the curve's mean slope."""
+    L = int(s.data.levels)
+    gp = _slopes(s.knots, gk, L)
+    floor = 0.01 * max(float(gk[-1] - gk[0]), 1e-12) / (L - 1)
+    return 1.0 / np.maximum(gp, floor)
+
+
+def _anchors(s: _Setup) -> tuple[int, int]:
+    """The fit's two fixed points (knots): the 25th and 75th percentiles of the pools' codes,
+    weighted by their pixels, at least a tenth of the code range apart.
+
+    The paper fixes g at chosen codes; a fixed point where the bracket has few pools (the
+    highlights of a night scene) leaves the rest of the curve loosely tied to it, and the
+    smoothness term -- smaller for a smaller g -- then shrinks the loosely tied part towards
+    zero (measured on a real bracket: g = 0.000 from code 20 to 140). Fixed where the pools
+    are, the curve is held by its data; it is reported on the usual scale afterwards."""
+    K = s.knots.n
+    w = np.bincount(s.rows[:, 1], weights=np.diff(s.offsets).astype(np.float64), minlength=K)
+    c = np.cumsum(w) / max(float(w.sum()), 1e-300)
+    lo = int(np.searchsorted(c, 0.25))
+    hi = int(np.searchsorted(c, 0.75))
+    gap = max(1, int(round(0.1 * (K - 1))))
+    lo = int(np.clip(lo, 1, K - 2 - gap))
+    hi = int(np.clip(max(hi, lo + gap), lo + gap, K - 2))
+    return lo, hi
+
+
 
 
 def _sorted_rows(s: _Setup, resid: NDArray) -> NDArray[np.float64]:
@@ -766,7 +839,8 @@ def _sqrt_err(v: float, e: float) -> tuple[float, float]:
 
 # ------------------------------------------------------------------------------ estimate ------
 def estimate(data: BracketData, options: TsinOptions | None = None, *,
-             progress: Callable[[float, str], None] | None = None) -> ChannelResponse:
+             progress: Callable[[float, str], None] | None = None,
+             g0: ArrayLike | None = None) -> ChannelResponse:
     """The iterative calibration of sec. 3.2 on one channel of a bracket.
 
     Returns the response and noise on the reported scale, with the 1-sigma band of g (a
@@ -787,9 +861,13 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     a = t.copy()                                  # step 2: the nominal exposures, b = 0
     b = np.zeros(N)
     z_lo, z_hi = reference_codes(L)
-    k_hi = int(round(z_hi / s.knots.step))
-    k_lo = int(round(z_lo / s.knots.step))
+    k_rep = int(round(z_hi / s.knots.step))          # the reported scale's code
+    # the fixed points of the fit, where the pools are (a departure: see _anchors)
+    k_lo, k_hi = _anchors(s)
     gk = s.knots.codes / (L - 1.0)          # step 2: the straight line through the fixed points
+    if g0 is not None:
+        gk = np.interp(s.knots.codes, np.arange(L, dtype=np.float64), np.asarray(g0, float))
+        gk = gk * s.knots.codes[k_hi] / gk[k_hi] / (L - 1.0)
     P_s = _second_differences(K)
     P_s = P_s.T @ P_s
     bw = opts.smoothness * (K - 1) / 255.0
@@ -810,12 +888,25 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     kept: tuple | None = None                    # the last accepted state of phase 2
     radius = 1.0                                 # of the trust region, in MAX_GAIN_STEP
     flat = 0                                     # accepted steps in a row that gained < FLAT
+    last: tuple | None = None                    # phase 1: (objective, g, Δg) last accepted
+    eta = float(opts.eta)                        # phase 1: the step, halved on a worse fit
+    restore = False
     it = 0
+
+    def advance(g_from: NDArray, delta: NDArray, eta: float) -> NDArray:
+        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed points
+        g_new = _pav(g_from + eta * delta, dg + lam)
+        if free[k_lo]:
+            return g_new * g_from[k_hi] / g_new[k_hi]
+        span = (g_from[k_hi] - g_from[k_lo]) / (g_new[k_hi] - g_new[k_lo])
+        return g_from[k_lo] + (g_new - g_new[k_lo]) * span
+
     for it in range(1, opts.max_iter + 1):
         # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
         # the pass also collects eq. 17's regressors: the last pass serves the noise fit and
         # the band (it lies within one step below the tolerance of the result)
-        J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a)
+        wcode = _eq18_codes(s, gk)
+        J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a, wcode=wcode)
         tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
                                                 mad_c)
         if it == 1:
@@ -830,6 +921,34 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
         Hs = H + lam * P_s
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
+        if restore:
+            break                                 # the pass at the last accepted curve
+        if phase == 1:
+            # a guarded step (a departure, for real cameras: far from the solution the
+            # linearised step of eq. 15 can overshoot into a curve that fits worse): the step
+            # is accepted when the objective (the pools' χ² and the smoothness term) falls,
+            # else the last accepted curve is taken again with half the step
+            obj = float(np.sum(W * tm ** 2)) + lam * float(gk @ P_s @ gk)
+            if last is not None and obj > last[0]:
+                history.append({"iteration": it, "phase": phase, "step": step,
+                                "a_step": a_step, "chi2": chi2, "pools": int(tm.size),
+                                "rejected": True})
+                eta *= 0.5
+                if eta < MIN_ETA:
+                    # no step along Δg improves the fit: it is at a minimum of the objective
+                    if fit_a:
+                        gk, phase, free[k_lo] = last[1], 2, False
+                        continue
+                    gk, restore, converged = last[1], True, True
+                    continue
+                gk_new = advance(last[1], last[2], eta)
+                step = float(np.mean(np.abs(gk_new - last[1])))
+                gk = gk_new
+                continue
+            flat = flat + 1 if last is not None and last[0] - obj < FLAT * last[0] else 0
+            if flat >= 3 and not fit_a:
+                converged = True                 # the fit no longer improves: flat
+                break
         if phase == 2:
             # the objective of the gains' step: the pools' χ² and the a-priori bound
             cost = float(np.sum(W * tm ** 2))
@@ -891,13 +1010,12 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             a_new = _in_gauge(a_new, t)              # exactly, whatever the step's length
             a_step = float(np.max(np.abs(a_new / a - 1.0)))
             a, b = a_new, b + opts.eta * d[K + N:]
-        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed points
-        gk_new = _pav(gk + opts.eta * delta, dg + lam)
-        if free[k_lo]:
-            gk_new = gk_new * (z_hi / (L - 1.0)) / gk_new[k_hi]
-        else:                                     # PAV may have moved a fixed point
-            span = (gk[k_hi] - gk[k_lo]) / (gk_new[k_hi] - gk_new[k_lo])
-            gk_new = gk[k_lo] + (gk_new - gk_new[k_lo]) * span
+        if phase == 1:
+            last = (obj, gk, delta)
+            gk_new = advance(gk, delta, eta)
+            eta = min(float(opts.eta), 2.0 * eta)
+        else:
+            gk_new = advance(gk, delta, opts.eta)
         step = float(np.mean(np.abs(gk_new - gk)))
         gk = gk_new
         history.append({"iteration": it, "phase": phase, "step": step,
@@ -935,6 +1053,9 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         cov[np.ix_(free, free)] = Hi @ meat[np.ix_(free, free)] @ Hi
     except np.linalg.LinAlgError:
         cov[np.ix_(free, free)] = np.nan
+    # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
+    S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
+    cov = S @ cov @ S.T
     err = np.sqrt(np.maximum(np.diag(cov), 0.0))
     a_err = np.zeros(N)
     b_err = np.zeros(N)
@@ -951,7 +1072,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             cov_f = Tf @ Ai @ ((Psi_f @ Psi_f.T) * (G / (G - 1.0))) @ Ai @ Tf.T
         except np.linalg.LinAlgError:
             cov_f = np.full((K + 2 * N, K + 2 * N), np.nan)
-        gk, b, D = _least_offsets(gk, a, b, k_hi)
+        gk, b, D = _least_offsets(gk, a, b, k_rep)
         cov_f = D @ cov_f @ D.T
         a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:K + N], 0.0))
         b_err = np.sqrt(np.maximum(np.diag(cov_f)[K + N:], 0.0))
@@ -993,8 +1114,8 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                       n.astype(np.int64), tm * sc, sig * sc, se * sc)
     return ChannelResponse(
         channel=data.channel, method="tsin", g=g_rep,
-        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc, a_err=a_err * sc,
-        b=b * sc + c0, b_err=b_err * sc, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
+        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc if fit_a else a,
+        a_err=a_err * sc, b=b * sc + c0 if fit_a else b, b_err=b_err * sc, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
         sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
         white_balance=fit_a, pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],

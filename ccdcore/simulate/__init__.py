@@ -11,7 +11,11 @@ Presets (each a module with ``simulate(out_dir, *, seed, size, **options) -> dic
     fields at several radiance levels and exposure times.
 ``tsin01``
     Tsin, Ramesh & Kanade (2001) imaging pipeline, eq. 3: response f, white balance a_k, b_k,
-    three noise terms, sec. 4.1 bracket protocol.
+    three noise terms, sec. 4.1 bracket protocol; options for a real camera's processing (tone
+    curve with toe and knee, structured scene, vignetting, exposure errors, JPEG), see
+    :mod:`ccdcore.simulate.camera`.
+``tsin01-camera``
+    ``tsin01`` with the option bundle ``camera="real"``: an 8-bit JPEG camera's bracket.
 ``change``
     Tsin et al. (2001) sec. 5 change scene: planar textured background, 3x3 colour transforms for
     the illumination change and shadows, inserted objects, truth masks.
@@ -43,6 +47,7 @@ PRESETS: dict[str, str] = {
     "healey94": "healey",
     "delasarte07": "delasarte",
     "tsin01": "tsin",
+    "tsin01-camera": "camera",
     "change": "change",
 }
 

@@ -60,11 +60,40 @@ certain radius ... usually 3 pixels").  Per image a label mask is written
 (``truth/bloom_s<j>_k<kk>.png``: 0 clean, 1 contaminated = within ``r`` of a saturated site,
 2 saturated).  For Bayer output the contamination is widened by the 3x3 interpolation support.
 
+Camera model (beyond sec. 4.1).  Real brackets -- 8-bit JPEGs of a demosaicing, tone-mapping,
+sharpening, compressing camera -- differ from the protocol where it matters for response
+estimation; these options (:mod:`ccdcore.simulate.camera`, ``docs/camera_simulation.md``) model
+it.  At their defaults the session is the protocol's, byte for byte, and ``truth.json`` has none
+of the keys below.
+
+* ``tone``: ``"gamma"`` (``g = (z/255)^gamma``) or ``"srgb-knee"``, an sRGB-like curve with a
+  linear toe and a highlight shoulder (``tone_gamma`` 2.4, ``toe`` 0.01, ``knee`` 0.8,
+  ``headroom`` 2), analytic both ways: ``truth.json``'s ``g`` is its exact inverse on the codes,
+  ``tone`` its parameters.
+* ``scene``: ``"uniform"`` (iid, sec. 4.1) or ``"structured"`` (smooth log-normal field,
+  piecewise-constant patches with hard edges, a few very bright lights with a glow; drawn from its
+  own random stream; described in ``truth.json``'s ``scene``); ``vignetting`` ``s``: ``E`` times
+  ``1 / (1 + s rho^2)^2`` (``truth/vignetting.exr``; ``truth/E.exr`` is the vignetted irradiance).
+* ``exposure_error``: the actual exposure is ``t_k exp(sigma N(0, 1))`` (own stream), recorded in
+  ``a`` (``a_k = t_k x factor_k x w_kc``) and in ``exposure_factor``.
+* ``black_level``: a pedestal added to ``v`` in every frame (recorded in ``b``).
+* ``sharpen``: unsharp mask ``y + s (y - G_1px * y)`` of ``f(v)`` (DN) before ``N_c2``.
+* ``jpeg_quality``: a deterministic baseline-JPEG round trip of the 8-bit frame (YCbCr 4:2:0, 8x8
+  DCT, IJG tables).
+* ``camera``: an option bundle, ``"real"`` (:data:`camera.CAMERAS`: 10 frames one stop apart,
+  Bayer RGGB, all of the above, per-frame white balance); explicit options override it.  The
+  preset ``tsin01-camera`` is ``camera="real"``.
+
+With any of them set, ``truth.json`` also holds ``camera_model`` (the bundle, every option's value,
+the pipeline), ``tone``, ``scene``, ``vignetting``, ``exposure_error``, ``exposure_factor``,
+``black_level``, ``sharpen`` and ``jpeg``, and each frame its ``exposure_factor``.
+
 Reproducibility.  The same seed gives the same bytes whatever the CPU's vector features: ``f`` uses
 the CPU-independent ``pow`` of :mod:`ccdcore.simulate._det` (NumPy's vector ``power`` differs in the
 last bit between AVX2 and AVX-512, which could flip a rounded digital number), blooming sums shifted
 arrays, and the bilinear interpolation's weights (1/4, 1/2, 1) are powers of two, so its products
-are exact.  The ``g`` of ``truth.json`` is computed with the C library's scalar ``pow``
+are exact; the camera model uses the same means (its JPEG is plain IEEE arithmetic, not
+libjpeg).  The ``g`` of ``truth.json`` is computed with the C library's scalar ``pow``
 (:func:`response_table`) and written with all its digits; the other floats of ``truth.json`` carry
 12 significant digits.
 
@@ -72,6 +101,8 @@ Public objects
 --------------
 DEFAULTS
     Default options of :func:`simulate`.
+CAMERA_OPTIONS
+    The options of the camera model (off at their defaults).
 Exposure
     One simulated frame: ``z`` (uint8), the signal ``v`` entering ``f``, blooming labels.
 inverse_response(z, gamma), response(v, gamma)
@@ -87,7 +118,7 @@ uniform_radiance(rng, shape)
 effective_radiance(E, bayer)
     ``demosaic(mosaic(E))`` for a Bayer camera, ``E`` otherwise.
 expose(E, a, b, rng, ...)
-    Image one exposure through the pipeline of eq. 3.
+    Image one exposure through the pipeline of eq. 3 (and the camera's tone, sharpening, JPEG).
 bloom_kernel(radius)
     Disk footprint of the blooming neighbourhood.
 SHOT_NOISE_NOTE, QUANTISATION_NOTE
@@ -110,10 +141,11 @@ from .. import channels
 from ..errors import CcdError
 from ..io import write_image
 from . import _det
+from . import camera as _cam
 from ._common import TRUTH_DIGITS, SessionWriter, round_sig
 
-__all__ = ["DEFAULTS", "Exposure", "inverse_response", "response", "response_table",
-           "exposure_times",
+__all__ = ["DEFAULTS", "CAMERA_OPTIONS", "Exposure", "inverse_response", "response",
+           "response_table", "exposure_times",
            "white_balance", "uniform_radiance", "effective_radiance", "expose", "bloom_kernel",
            "simulate", "SHOT_NOISE_NOTE", "QUANTISATION_NOTE"]
 
@@ -136,13 +168,37 @@ DEFAULTS: dict[str, Any] = {
     "bloom_strength": 1.0,
     "n_stacks": 1,
     "radiance": None,
+    # camera-model options (camera.py); at these values the sec. 4.1 protocol is unchanged
+    "camera": None,
+    "tone": "gamma",
+    "tone_gamma": 2.4,
+    "toe": 0.01,
+    "knee": 0.8,
+    "headroom": 2.0,
+    "scene": "uniform",
+    "vignetting": 0.0,
+    "exposure_error": 0.0,
+    "black_level": 0.0,
+    "sharpen": 0.0,
+    "jpeg_quality": None,
 }
+
+#: the options of the camera model: when all are at their defaults the session is the sec. 4.1
+#: protocol, byte for byte, and truth.json has none of the camera-model keys
+CAMERA_OPTIONS = ("camera", "tone", "tone_gamma", "toe", "knee", "headroom", "scene", "vignetting",
+                  "exposure_error", "black_level", "sharpen", "jpeg_quality")
 
 SHOT_NOISE_NOTE = ("N_s ~ Normal(0, sigma_s^2 * a_k * E): shot-noise variance proportional to the "
                    "signal (Poisson), so eq. 7 reads sigma^2 = sigma_s^2 a E + sigma_c1^2 + "
                    "g'(z)^2 sigma_c2^2 (the extracted a^2 E^2 is read as sigma_s^2 a E).")
 QUANTISATION_NOTE = ("z = clip(round(f(v) + N_c2), 0, 255) as uint8; sites with v >= 1 (full well) "
                      "read 255; rounding adds 1/12 DN^2 to sigma_c2^2.")
+
+CAMERA_PIPELINE_NOTE = ("v = a_k E + N_s + N_c1 + b_k per sensor site (E: scene x vignetting; "
+                        "b_k includes black_level) -> full well -> Bayer bilinear demosaicing -> "
+                        "tone f(v) in DN -> unsharp mask -> + N_c2 -> round, clip to 8 bits "
+                        "(255 at full well) -> JPEG round trip; a_k = t_k x exposure_factor_k "
+                        "(x white balance w_kc)")
 
 LABEL_CLEAN, LABEL_CONTAMINATED, LABEL_SATURATED = 0, 1, 2
 
@@ -283,7 +339,8 @@ def _per_site(value: ArrayLike, E: NDArray, bayer: str | None) -> NDArray[np.flo
 def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *,
            sigma_s: float = 0.015, sigma_c1: float = 0.01, sigma_c2: float = 1.0,
            gamma: float = 1.2, bayer: str | None = None, blooming: bool = False,
-           bloom_radius: int = 3, bloom_strength: float = 1.0) -> Exposure:
+           bloom_radius: int = 3, bloom_strength: float = 1.0, tone: Any = None,
+           sharpen: float = 0.0, jpeg_quality: int | None = None) -> Exposure:
     """Image one exposure: ``z = f(aE + N_s + N_c1 + b) + N_c2`` (eq. 3), quantised to 8 bits.
 
     Parameters
@@ -308,6 +365,14 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
     blooming, bloom_radius, bloom_strength
         Spill ``bloom_strength`` times the charge above full well (``v > 1``) evenly onto the other
         sites of the disk of radius ``bloom_radius``.
+    tone
+        ``None`` (``f`` of ``gamma``) or a tone curve of :mod:`ccdcore.simulate.camera`
+        (``GammaTone``, ``SrgbKneeTone``) whose ``f`` replaces it.
+    sharpen
+        Unsharp-mask amount applied to ``f(v)`` (in DN, before ``N_c2``); 0 = off.
+    jpeg_quality
+        ``None``, or the quality of the JPEG round trip applied to the 8-bit image
+        (:func:`ccdcore.simulate.camera.jpeg_roundtrip`).
 
     Returns
     -------
@@ -359,9 +424,14 @@ def expose(E: ArrayLike, a: ArrayLike, b: ArrayLike, rng: np.random.Generator, *
         v = np.minimum(v, 1.0)
     if bayer is not None:
         v = channels.demosaic_bilinear(v, bayer)
-    zf = np.rint(response(v, gamma) + sigma_c2 * n_c2)
+    y = response(v, gamma) if tone is None else tone.f(v)
+    if sharpen:
+        y = _cam.sharpen(y, float(sharpen))
+    zf = np.rint(y + sigma_c2 * n_c2)
     zf[v >= 1.0] = 255.0                                       # white clip at full well
     z = np.clip(zf, 0.0, 255.0).astype(np.uint8)
+    if jpeg_quality is not None:
+        z = _cam.jpeg_roundtrip(z, int(jpeg_quality))
     return Exposure(z=z, v=v, bloom=labels)
 
 
@@ -380,14 +450,35 @@ def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
                                      f"{size[0]}x{size[1]}")
     if int(opts["n_stacks"]) < 1:
         raise CcdError("n_stacks", f"need at least one stack, got {opts['n_stacks']}")
-    for key in ("sigma_s", "sigma_c1", "sigma_c2", "wb_sigma", "offset_sigma", "bloom_strength"):
+    for key in ("sigma_s", "sigma_c1", "sigma_c2", "wb_sigma", "offset_sigma", "bloom_strength",
+                "vignetting", "exposure_error", "black_level", "sharpen"):
         if not float(opts[key]) >= 0.0:
             raise CcdError(key, f"must be >= 0, got {opts[key]}")
     if not float(opts["gamma"]) > 0.0:
         raise CcdError("gamma", f"must be > 0, got {opts['gamma']}")
+    if opts["tone"] not in ("gamma", "srgb-knee"):
+        raise CcdError("tone", f"tone must be 'gamma' or 'srgb-knee', got {opts['tone']!r}")
+    if opts["scene"] not in ("uniform", "structured"):
+        raise CcdError("scene", f"scene must be 'uniform' or 'structured', got {opts['scene']!r}")
+    q = opts["jpeg_quality"]
+    if q is not None and (isinstance(q, bool) or not isinstance(q, (int, np.integer))
+                          or not 1 <= int(q) <= 100):
+        raise CcdError("jpeg_quality", f"must be None or an integer in 1..100, got {q!r}")
 
 
-def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128, 128),
+def _options(options: dict[str, Any]) -> dict[str, Any]:
+    """:data:`DEFAULTS`, then the bundle ``camera`` names (:data:`camera.CAMERAS`), then
+    ``options``."""
+    bundle = options.get("camera")
+    if bundle is None:
+        return {**DEFAULTS, **options}
+    if bundle not in _cam.CAMERAS:
+        raise CcdError("camera", f"unknown camera bundle {bundle!r}; choose one of "
+                                 f"{', '.join(_cam.CAMERAS)}")
+    return {**DEFAULTS, **_cam.CAMERAS[bundle], **options}
+
+
+def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None = None,
              **options: Any) -> dict[str, Any]:
     """Write the ``tsin01`` session (sec. 4.1 of Tsin et al. 2001) and return its truth.
 
@@ -398,58 +489,100 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     seed
         Seed of the random generator; the same seed and options give the same bytes.
     size
-        ``(width, height)``.
+        ``(width, height)``; ``None``: 128 x 128, or ``camera.DEFAULT_SIZE`` (256 x 192) with a
+        ``camera`` bundle.
     **options
         See :data:`DEFAULTS`: ``n_exposures``, ``ratio``, ``t_max`` (bracket), ``gamma``,
         ``sigma_s``, ``sigma_c1``, ``sigma_c2`` (noise), ``white_balance``, ``wb_sigma``,
         ``offset_sigma``, ``layout`` (``"mono"``/``"rgb"``), ``bayer`` (pattern or ``None``),
         ``blooming``, ``bloom_radius``, ``bloom_strength``, ``n_stacks`` (sequences of the same
-        scene, new noise and white balance each) and ``radiance`` (an explicit ``E`` array).
+        scene, new noise and white balance each) and ``radiance`` (an explicit ``E`` array);
+        the camera model (module notes): ``camera`` (a bundle of :data:`camera.CAMERAS`,
+        ``"real"``), ``tone`` (``"gamma"``/``"srgb-knee"``) with ``tone_gamma``, ``toe``,
+        ``knee``, ``headroom``, ``scene`` (``"uniform"``/``"structured"``), ``vignetting``,
+        ``exposure_error``, ``black_level``, ``sharpen`` and ``jpeg_quality``.
 
     Returns
     -------
     dict
         The content of ``truth.json``.
     """
-    opts = {**DEFAULTS, **options}
+    opts = _options(options)
+    if size is None:
+        size = _cam.DEFAULT_SIZE if opts["camera"] is not None else (128, 128)
     width, height = int(size[0]), int(size[1])
     _check_options(opts, (width, height))
+    camera_model = any(_differs(opts[k], DEFAULTS[k]) for k in CAMERA_OPTIONS)
     rng = np.random.default_rng(int(seed))
     channels = 3 if opts["layout"] == "rgb" else 1
     shape = (height, width) if channels == 1 else (height, width, 3)
-    if opts["radiance"] is None:
-        E = uniform_radiance(rng, shape)
-    else:
+    scene: dict[str, Any] = {"kind": "uniform"}
+    if opts["radiance"] is not None:
         E = np.asarray(opts["radiance"], dtype=np.float32)
         if E.shape != shape:
             raise CcdError("radiance", f"expected shape {shape}, got {E.shape}")
+        scene = {"kind": "given"}
+    elif opts["scene"] == "uniform":
+        E = uniform_radiance(rng, shape)
+    else:
+        # its own stream: the main generator's draws (white balance, noise) stay where they are
+        E, scene = _cam.structured_scene(np.random.default_rng([int(seed), 1]), shape)
+    vignetting = float(opts["vignetting"])
+    V = None
+    if vignetting > 0.0:
+        V = _cam.vignetting_map(shape, vignetting)
+        E = np.asarray(E, dtype=np.float64) * (V if channels == 1 else V[..., None])
+    E = np.asarray(E, dtype=np.float32)        # what is simulated is what truth/E.exr holds
     bayer = opts["bayer"]
     t = exposure_times(opts["n_exposures"], opts["ratio"], opts["t_max"])
     gamma = float(opts["gamma"])
+    tone = _cam.make_tone(opts["tone"], gamma=gamma, tone_gamma=float(opts["tone_gamma"]),
+                          toe=float(opts["toe"]), knee=float(opts["knee"]),
+                          headroom=float(opts["headroom"]))
     noise = {k: float(opts[k]) for k in ("sigma_s", "sigma_c1", "sigma_c2")}
+    jpeg = None if opts["jpeg_quality"] is None else int(opts["jpeg_quality"])
+    engine = {"tone": None if opts["tone"] == "gamma" else tone,
+              "sharpen": float(opts["sharpen"]), "jpeg_quality": jpeg}
 
-    camera = {"name": "tsin01 simulated camera" + (f" (Bayer {bayer}, bilinear)" if bayer else ""),
-              "bits": 8, "layout": opts["layout"]}
+    name = "tsin01 simulated camera" + (f" (Bayer {bayer}, bilinear)" if bayer else "")
+    if camera_model:
+        name += "; " + ", ".join([f"{opts['tone']} tone", f"{opts['scene']} scene"]
+                                 + ([f"JPEG q{jpeg}"] if jpeg is not None else []))
+    camera = {"name": name, "bits": 8, "layout": opts["layout"]}
     writer = SessionWriter(out_dir, camera)
     writer.add_map("truth/E.exr", E)
     if bayer:
         writer.add_map("truth/E_effective.exr", effective_radiance(E, bayer))
-    a_all, b_all, frames, bloom_paths = [], [], [], []
+    if V is not None:
+        writer.add_map("truth/vignetting.exr", V)
+    rnd = np.vectorize(round_sig, otypes=[np.float64])
+    eps_rng = np.random.default_rng([int(seed), 2])
+    a_all, b_all, eps_all, frames, bloom_paths = [], [], [], [], []
     for j in range(int(opts["n_stacks"])):
         a, b = white_balance(t, rng, enabled=bool(opts["white_balance"]), channels=channels,
                              wb_sigma=float(opts["wb_sigma"]),
                              offset_sigma=float(opts["offset_sigma"]))
+        eps = np.ones(t.size)
+        if float(opts["exposure_error"]) > 0.0:
+            eps = _cam.exposure_factors(eps_rng, t.size, float(opts["exposure_error"]))
+            a = rnd(a * (eps if channels == 1 else eps[:, None]))
+        if float(opts["black_level"]) > 0.0:
+            b = rnd(b + float(opts["black_level"]))
         a_all.append(a)
         b_all.append(b)
+        eps_all.append(eps)
         stack_blooms = []
         for k in range(t.size):
             shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
                           blooming=bool(opts["blooming"]), bloom_radius=int(opts["bloom_radius"]),
-                          bloom_strength=float(opts["bloom_strength"]), **noise)
+                          bloom_strength=float(opts["bloom_strength"]), **noise, **engine)
             rel = f"bracket/s{j}_k{k:02d}.tif"
             writer.add_frame(rel, shot.z, role="bracket", exposure=float(t[k]), stack=j)
-            frames.append({"path": rel, "stack": j, "index": k, "exposure": float(t[k]),
-                           "a": a[k], "b": b[k]})
+            entry = {"path": rel, "stack": j, "index": k, "exposure": float(t[k]),
+                     "a": a[k], "b": b[k]}
+            if camera_model:
+                entry["exposure_factor"] = float(eps[k])
+            frames.append(entry)
             if shot.bloom is not None:
                 mask_rel = f"truth/bloom_s{j}_k{k:02d}.png"
                 write_image(Path(out_dir) / mask_rel, shot.bloom)
@@ -463,9 +596,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         "size": [width, height],
         "layout": opts["layout"],
         "bayer": bayer,
-        "g": response_table(gamma),
-        "gamma": gamma,
-        "f": f"f(v) = 255 * clip(v, 0, 1) ** (1 / {gamma:g}); g(z) = (z / 255) ** {gamma:g}",
+        "g": tone.table(),
+        "gamma": gamma if opts["tone"] == "gamma" else None,
+        "f": tone.describe(),
         "t": t,
         "ratio": float(opts["ratio"]),
         "a": a_all,
@@ -485,6 +618,36 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
                              "strength": float(opts["bloom_strength"]),
                              "labels": {"0": "clean", "1": "contaminated", "2": "saturated"},
                              "masks": bloom_paths}
+    if camera_model:
+        truth["camera_model"] = {
+            "bundle": opts["camera"],
+            "options": {k: opts[k] for k in DEFAULTS if k != "radiance"},
+            "pipeline": CAMERA_PIPELINE_NOTE,
+        }
+        truth["tone"] = tone.params()
+        truth["scene"] = scene
+        truth["vignetting"] = {"strength": vignetting,
+                               "law": "E = E_scene / (1 + s rho^2)^2, rho = 1 at the corners",
+                               "map": "truth/vignetting.exr" if V is not None else None}
+        truth["exposure_error"] = float(opts["exposure_error"])
+        truth["exposure_factor"] = eps_all
+        truth["black_level"] = float(opts["black_level"])
+        truth["sharpen"] = {"amount": float(opts["sharpen"]), "sigma": _cam.SHARPEN_SIGMA}
+        truth["jpeg"] = None if jpeg is None else {"quality": jpeg, "model": _cam.JPEG_NOTE}
     note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
             "Truth in truth.json.")
+    if camera_model:
+        note = (f"tsin01 simulation with a camera model"
+                + (f" (camera={opts['camera']!r})" if opts["camera"] else "")
+                + f", seed {int(seed)}.\nTruth in truth.json (camera_model, tone, scene ...).")
     return writer.finish(truth, note=note, exact=("g",))
+
+
+def _differs(value: Any, default: Any) -> bool:
+    """Whether an option's value is not its default (numbers compared as numbers: 0 == 0.0)."""
+    def number(x: Any) -> bool:
+        return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
+
+    if number(value) and number(default):
+        return float(value) != float(default)
+    return type(value) is not type(default) or value != default

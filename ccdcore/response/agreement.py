@@ -1,0 +1,272 @@
+"""How well a response explains its own bracket: the prediction agreement of Tsin, Ramesh &
+Kanade (2001), sec. 4.2.
+
+The paper judges response curves on real data by predicting each image of the bracket from the
+others: an image ``j`` gives every pixel's radiance through the curve and the exposure,
+``E = (g(z_j) - b_j) / a_j`` (eq. 8), and image ``k`` is then expected to read
+``ẑ_k = f(a_k E + b_k)`` with ``f = g^-1`` (eq. 5). The agreement is the RMS of ``ẑ_k - z_k`` in
+digital numbers over the pixels whose codes both images can read. A curve of the wrong shape
+mispredicts at once, whatever its scale; a curve that collapses (flat over a range of codes)
+mispredicts grossly, since f then maps a range of signals onto one code.
+
+Three figures per channel, in DN:
+
+``rms`` (the result's own exposures)
+    Each image predicted from its neighbours (``k = j ± 1``, both directions) with the ratio
+    the result itself uses: ``a_k / a_j`` with ``a`` the nominal times for methods that take
+    them as exact, or the gains and offsets a result estimated (white balance).
+``rms_fitted``
+    The same with the ratio of each pair fitted to the pair (one ratio per pair, both
+    directions, least squares in DN). The difference from ``rms`` is what exposure errors cost;
+    what remains is the curve's shape.
+``rms_blend``
+    Each image predicted from the blend of all the others (eq. 9's radiance with constant
+    weights, then eq. 10's prediction), with the result's exposures.
+
+Every pair's figures are kept (``PairAgreement``), so one bad frame (a moved camera, a wrong
+exposure in the manifest) shows as the pairs it takes part in.
+
+Public objects
+--------------
+CODE_RANGE
+    The codes counted by default: 10 .. 245 of 8 bits (scaled for other depths), away from the
+    toe and the knee where cameras clip and compress.
+PairAgreement, ChannelAgreement, Agreement
+    The figures per pair of neighbours, per channel and pooled over the channels.
+channel_agreement(data, g, a, b)
+    One channel of a bracket against one curve.
+agreement(brackets, responses)
+    Every channel; ``responses`` maps a channel to anything with ``g``, ``a`` and ``b``.
+inverse(g)
+    ``f = g^-1`` as a function of continuous signals (the codes as real numbers).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import minimize_scalar
+
+from .brackets import BracketData
+
+__all__ = ["CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement", "agreement",
+           "channel_agreement", "code_range", "inverse", "MAX_PIXELS"]
+
+#: codes counted by default, for 8 bits (scaled to other bit depths by :func:`code_range`)
+CODE_RANGE = (10, 245)
+#: most pixels per channel the figures are computed from (an even sample beyond)
+MAX_PIXELS = 400_000
+#: a fitted ratio is searched within this factor of the result's own ratio
+RATIO_SPAN = 4.0
+#: most predictions of a pair its ratio is fitted on (then scored on all of them)
+FIT_PIXELS = 20_000
+
+
+def code_range(levels: int) -> tuple[int, int]:
+    """The readable codes of a ``levels``-code camera: 10 .. 245 scaled from 8 bits."""
+    top = int(levels) - 1
+    return int(round(CODE_RANGE[0] * top / 255.0)), int(round(CODE_RANGE[1] * top / 255.0))
+
+
+def inverse(g: ArrayLike) -> "callable":
+    """``f = g^-1`` on continuous signals: the code (a real number) whose g is the signal.
+
+    g is non-decreasing; flat runs are collapsed to their middle code, so that a flat curve
+    maps its value to the middle of the run (a collapsed curve then mispredicts visibly).
+    Signals beyond g's range map to the end codes."""
+    g = np.asarray(g, np.float64)
+    codes = np.arange(g.size, dtype=np.float64)
+    # unique values of g, each at the mean code of its run
+    vals, inv = np.unique(g, return_inverse=True)
+    mean_code = np.bincount(inv, weights=codes) / np.bincount(inv)
+
+    def f(signal: ArrayLike) -> NDArray[np.float64]:
+        return np.interp(signal, vals, mean_code)
+    return f
+
+
+@dataclass(frozen=True)
+class PairAgreement:
+    """Neighbouring images ``j`` and ``k = j + 1`` (increasing exposure) predicted from each
+    other: RMS in DN with the result's ratio and with the pair's fitted ratio."""
+
+    j: int
+    k: int
+    n: int                  # predictions counted (both directions)
+    rms: float
+    rms_fitted: float
+    ratio: float            # the result's a_k / a_j
+    ratio_fitted: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"j": self.j, "k": self.k, "n": self.n, "rms": _num(self.rms),
+                "rms_fitted": _num(self.rms_fitted), "ratio": _num(self.ratio),
+                "ratio_fitted": _num(self.ratio_fitted)}
+
+
+@dataclass(frozen=True)
+class ChannelAgreement:
+    """One channel: the pairs, and the figures pooled over them (RMS over every prediction)."""
+
+    channel: str
+    pairs: tuple[PairAgreement, ...]
+    rms: float
+    rms_fitted: float
+    rms_blend: float
+    n: int
+    n_blend: int
+    sse: float = 0.0         # the pooled sums behind the RMS, for pooling over channels
+    sse_fitted: float = 0.0
+    sse_blend: float = 0.0
+
+    def worst_pair(self) -> PairAgreement | None:
+        live = [p for p in self.pairs if p.n > 0 and math.isfinite(p.rms)]
+        return max(live, key=lambda p: p.rms) if live else None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"channel": self.channel, "rms": _num(self.rms),
+                "rms_fitted": _num(self.rms_fitted), "rms_blend": _num(self.rms_blend),
+                "n": self.n, "n_blend": self.n_blend,
+                "pairs": [p.to_dict() for p in self.pairs]}
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Every channel's agreement and the figures pooled over the channels (DN)."""
+
+    channels: tuple[ChannelAgreement, ...]
+    code_range: tuple[int, int]
+    rms: float
+    rms_fitted: float
+    rms_blend: float
+
+    def __getitem__(self, channel: str) -> ChannelAgreement:
+        for c in self.channels:
+            if c.channel == channel:
+                return c
+        raise KeyError(channel)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"code_range": list(self.code_range), "rms": _num(self.rms),
+                "rms_fitted": _num(self.rms_fitted), "rms_blend": _num(self.rms_blend),
+                "channels": [c.to_dict() for c in self.channels]}
+
+    def summary(self) -> str:
+        """One line: the pooled figures."""
+        return (f"predicts its images within {self.rms:.2f} DN RMS from a neighbour "
+                f"({self.rms_fitted:.2f} DN with each pair's ratio fitted, "
+                f"{self.rms_blend:.2f} DN from the blend of the others; codes "
+                f"{self.code_range[0]}..{self.code_range[1]})")
+
+
+def _num(v: float) -> float | None:
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _sample_columns(P: int, max_pixels: int) -> NDArray[np.int64] | slice:
+    if P <= max_pixels:
+        return slice(None)
+    return np.unique(np.linspace(0, P - 1, max_pixels).astype(np.int64))
+
+
+def _rms(sse: float, n: int) -> float:
+    return math.sqrt(sse / n) if n > 0 else float("nan")
+
+
+def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,
+                      b: ArrayLike | None = None, *, codes: tuple[int, int] | None = None,
+                      max_pixels: int = MAX_PIXELS, channel: str | None = None
+                      ) -> ChannelAgreement:
+    """The agreement of one channel of a bracket with the curve ``g`` (every code) and the
+    exposures ``a``, offsets ``b`` (nominal times and 0 when not given)."""
+    g = np.asarray(g, np.float64)
+    N = data.n_images
+    a = np.asarray(data.t if a is None else a, np.float64)
+    b = np.zeros(N) if b is None else np.asarray(b, np.float64)
+    lo, hi = code_range(data.levels) if codes is None else codes
+    cols = _sample_columns(data.n_pixels, max_pixels)
+    z = np.asarray(data.z)[:, cols]
+    ok = (z >= lo) & (z <= hi)
+    f = inverse(g)
+    gz = g[np.clip(z, 0, g.size - 1)]
+    pairs = []
+    sse = sse_f = 0.0
+    n_all = 0
+    for j in range(N - 1):
+        k = j + 1
+        m = ok[j] & ok[k]
+        n = int(np.count_nonzero(m))
+        r0 = float(a[k] / a[j])
+        if n == 0:
+            pairs.append(PairAgreement(j, k, 0, float("nan"), float("nan"), r0, float("nan")))
+            continue
+        sj, sk = gz[j, m] - b[j], gz[k, m] - b[k]
+        zj, zk = z[j, m].astype(np.float64), z[k, m].astype(np.float64)
+
+        def cost(lr: float, sub: slice | NDArray = slice(None)) -> float:
+            r = math.exp(lr)
+            ek = f(r * sj[sub] + b[k]) - zk[sub]
+            ej = f(sk[sub] / r + b[j]) - zj[sub]
+            return float(ek @ ek + ej @ ej)
+
+        c0 = cost(math.log(r0))
+        # the ratio is fitted on an even sample of the pair (a 1-D search), then scored on all
+        sub = _sample_columns(n, FIT_PIXELS)
+        span = math.log(RATIO_SPAN)
+        opt = minimize_scalar(lambda lr: cost(lr, sub),
+                              bounds=(math.log(r0) - span, math.log(r0) + span),
+                              method="bounded", options={"xatol": 1e-5})
+        c1 = cost(float(opt.x))
+        lr = float(opt.x)
+        if not c1 < c0:
+            c1, lr = c0, math.log(r0)
+        pairs.append(PairAgreement(j, k, 2 * n, _rms(c0, 2 * n), _rms(c1, 2 * n), r0,
+                                   math.exp(lr)))
+        sse += c0
+        sse_f += c1
+        n_all += 2 * n
+    # each image from the blend of the others: eq. 9 with the weights of eq. 18,
+    # w_i ∝ a_i / σ(a_i, z_i), σ taken as g'(z_i) (the output noise, the same for every image),
+    # over the others' readable codes
+    slope = np.maximum(np.gradient(g), 1e-12 * max(float(g[-1] - g[0]), 1e-300))
+    w = np.where(ok, a[:, None] / slope[np.clip(z, 0, g.size - 1)], 0.0)
+    lin = w * (gz - b[:, None]) / a[:, None]
+    tot, wsum = lin.sum(axis=0), w.sum(axis=0)
+    sse_b = 0.0
+    n_b = 0
+    for k in range(N):
+        others = wsum - w[k]
+        m = ok[k] & (others > 0)
+        if not m.any():
+            continue
+        E = (tot[m] - lin[k, m]) / others[m]
+        e = f(a[k] * E + b[k]) - z[k, m]
+        sse_b += float(e @ e)
+        n_b += int(m.sum())
+    return ChannelAgreement(channel or data.channel, tuple(pairs), _rms(sse, n_all), _rms(sse_f, n_all),
+                            _rms(sse_b, n_b), n_all, n_b, sse, sse_f, sse_b)
+
+
+def agreement(brackets: Mapping[str, BracketData], responses: Mapping[str, Any], *,
+              codes: tuple[int, int] | None = None, max_pixels: int = MAX_PIXELS
+              ) -> Agreement:
+    """The agreement of every channel of ``brackets`` with ``responses[channel]`` (anything
+    with ``g``, ``a``, ``b``: a :class:`ccdcore.response.tsin.ChannelResponse`, or a mapping
+    with those keys), pooled over the channels."""
+    out = []
+    for name, data in brackets.items():
+        r = responses[name]
+        get = (lambda key: r[key]) if isinstance(r, Mapping) else (lambda key: getattr(r, key))
+        out.append(channel_agreement(data, get("g"), get("a"), get("b"), codes=codes,
+                                     max_pixels=max_pixels, channel=name))
+    first = next(iter(brackets.values()))
+    rng = code_range(first.levels) if codes is None else tuple(codes)
+    n = sum(c.n for c in out)
+    nb = sum(c.n_blend for c in out)
+    return Agreement(tuple(out), (int(rng[0]), int(rng[1])), _rms(sum(c.sse for c in out), n),
+                     _rms(sum(c.sse_fitted for c in out), n),
+                     _rms(sum(c.sse_blend for c in out), nb))
