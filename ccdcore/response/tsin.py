@@ -16,7 +16,9 @@ iterative algorithm of sec. 3.2:
    readable (at most ``clip_fraction`` of its pixels clipped there);
 2. g initialised as the straight line through the fixed points, a_k at the nominal exposure
    times, b_k = 0;
-3. every pixel's radiance from its trace, eq. 9, with constant weights;
+3. every pixel's radiance from its trace, eq. 9, with eq. 18's weights a_i / σ(z_i), σ taken
+   as g'(z) (constant weights, as printed for this step, let the shortest exposures' noise rule
+   a bracket spanning a factor 512);
 4. the prediction errors, eq. 10;
 5. per pool, their 66 % trimmed mean (eq. 11) and MAD sigma (eq. 12, c = 1.483 times the Bayer
    factor 1.265 green / 1.333 red and blue for interpolated colour);
@@ -49,9 +51,13 @@ Departures from the paper, each for a measured reason (docs/response.md):
   printed term on Δg only damps the steps and leaves the fixed point unregularised: codes seen by
   a few pools then wander. ``smoothness`` is the bandwidth in 8-bit code steps (λ = bandwidth^4
   times the median data weight of a knot).
-* **One fixed point.** With a_k the nominal times and b_k = 0 only the scale of g is free: the
-  fixed point z_hi of :func:`ccdcore.response.scale.reference_codes` (a second one would
-  contradict b = 0).
+* **One fixed point, where the pools are.** With a_k the nominal times and b_k = 0 only the
+  scale of g is free: one fixed point (a second would contradict b = 0), at the 75th percentile
+  of the pools' codes (:func:`_anchors`; the white-balance fit also holds the 25th); g is then
+  reported with g(z_hi) fixed (:mod:`ccdcore.response.scale`).
+* **A guarded step** (sec. 3.2 without white balance, and its first phase): a step that raises
+  the objective is taken back and halved; at 1/64 of a step the fit has converged.
+* **Pools** count from ``min_pool`` = 10 pixels and keep at most :data:`POOL_CAP` pixels.
 * **Shot noise** is linear in the signal, σ² = σ_s² a E + σ_c1² + g'(z)² σ_c2² (eq. 7 reads
   a²E² as extracted; sec. 2 says the shot variance is proportional to E t). Eq. 17 carries the
   factor (a_k / a_i)² that eq. 13 implies (image i enters the error of image k scaled by
