@@ -41,6 +41,7 @@ import tempfile
 import threading
 import warnings
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -165,6 +166,50 @@ def _float32_value(value: Any) -> float | None:
     with np.errstate(over="ignore"):
         v32 = np.float32(v)
     return float(np.format_float_positional(v32, unique=True)) if np.isfinite(v32) else None
+
+
+#: largest denominator of the shutter speeds a float32 exposure time is recognised as (1/3 s,
+#: 1/60 s, 10/13 s, 1/750 s ...; 1/8000 s and the like are short decimals anyway)
+_SHUTTER_DENOMINATOR = 1000
+
+
+def _shutter_speed(value: Any) -> float | None:
+    """A float32 EXIF exposure time as the rational the camera wrote, else its shortest decimal.
+
+    EXIF stores ExposureTime as a RATIONAL (1/60) and OpenImageIO hands it on as a float32
+    (0.016666668).  When the shortest decimal of that float32 is not a short number someone
+    would write (more than 6 significant digits) and a fraction with a denominator up to
+    :data:`_SHUTTER_DENOMINATOR` rounds to the same float32, that fraction is the value
+    (``1/60`` -> 0.016666666666666666), so exposure ratios come out exact.
+    """
+    v = _float32_value(value)
+    if v is None or v <= 0 or len(f"{v:e}".split("e")[0].replace(".", "").rstrip("0")) <= 6:
+        return v
+    frac = Fraction(v).limit_denominator(_SHUTTER_DENOMINATOR)
+    return float(frac) if frac and np.float32(float(frac)) == np.float32(v) else v
+
+
+def _exposure_seconds(value: Any) -> float | None:
+    """An exposure time as a header gives it, in seconds, or None when it is not one.
+
+    Accepts a number (EXIF RATIONALs come back from OpenImageIO as float32: given back as the
+    camera's fraction or their shortest decimal, see :func:`_shutter_speed`), a rational
+    ``(numerator, denominator)`` pair and text such as ``"1/250"``, ``"0.004"`` or
+    ``"1/250 s"``.  Negative, zero-denominator and non-finite values give None.
+    """
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, (tuple, list)) and len(value) == 2:
+        num, den = (_float_or_none(v) for v in value)
+        v = None if num is None or not den else num / den
+    elif isinstance(value, str):
+        text = value.strip().lower().removesuffix("s").strip().removesuffix("sec").strip()
+        num_text, slash, den_text = text.partition("/")
+        num, den = _float_or_none(num_text), _float_or_none(den_text) if slash else 1.0
+        v = None if num is None or not den else num / den
+    else:
+        v = _shutter_speed(value)
+    return v if v is not None and np.isfinite(v) and v >= 0 else None
 
 
 def _int_or(value: Any, default: int) -> int:
@@ -361,7 +406,8 @@ def _header_from_spec(path: Path, spec, format_name: str) -> ImageHeader:
     bits = spec.get_int_attribute("oiio:BitsPerSample", 0) or dtype.itemsize * 8
     attrs = {a.name: a.value for a in spec.extra_attribs
              if isinstance(a.value, (str, int, float))}
-    exposure = _float32_value(attrs.get("ExposureTime"))
+    # EXIF stores ExposureTime as a RATIONAL; a plugin may hand it on as (num, den) or "1/250"
+    exposure = _exposure_seconds(spec.getattribute("ExposureTime"))
     gain = _float_or_none(attrs.get("Exif:Gain", attrs.get("Gain")))
     return ImageHeader(path=path, width=spec.width, height=spec.height,
                        channels=spec.nchannels, dtype=dtype, bits=int(bits),
@@ -573,11 +619,16 @@ def _raw_header(path: Path) -> ImageHeader:
         white = int(getattr(raw, "white_level", 0) or 0)
         bits = max(int(white).bit_length(), 8) if white else 16
         layout = _raw_pattern(raw)
-    exposure = None
+    exposure, attrs = None, {}
     with contextlib.suppress(Exception):  # EXIF of TIFF-based raws (DNG, NEF, CR2) via OIIO
-        exposure = _oiio_header(path).exposure
+        exif = _oiio_header(path)
+        exposure = exif.exposure
+        # the capture metadata (camera, ISO, aperture ...), not the container's (oiio:, tiff:)
+        attrs = {k: v for k, v in exif.attributes.items()
+                 if not k.startswith(("oiio:", "tiff:"))}
     return ImageHeader(path=path, width=w, height=h, channels=1, dtype=np.dtype("uint16"),
-                       bits=bits, layout=layout, exposure=exposure, format="raw")
+                       bits=bits, layout=layout, exposure=exposure, format="raw",
+                       attributes=attrs)
 
 
 def _read_raw(path: Path) -> np.ndarray:

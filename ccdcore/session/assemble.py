@@ -11,7 +11,7 @@ import posixpath
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath, PureWindowsPath
-from typing import Any
+from typing import Any, Callable
 
 from ..common import format_size, group_by
 from ..errors import ImageReadError
@@ -56,8 +56,15 @@ def path_problem(root: Path, relpath: str) -> str | None:
 
 
 def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera,
-             candidates: list[Candidate], problems: list[Problem]) -> Session:
-    """Check paths, read headers, infer header metadata and validate a list of candidates."""
+             candidates: list[Candidate], problems: list[Problem], *,
+             read: Callable[[Path], ImageHeader] | None = None) -> Session:
+    """Check paths, read headers, infer header metadata and validate a list of candidates.
+
+    ``read`` reads a header (default :func:`~ccdcore.io.read_header`): a source that looked at
+    the headers already (a plain folder, to find brackets) passes its cache so no file is read
+    twice.
+    """
+    read = read or read_header
     headers: dict[Path, ImageHeader] = {}
     records: list[FrameRecord] = []
     seen: dict[Path, str] = {}
@@ -99,7 +106,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
 
         meta, inferred = dict(cand.meta), list(cand.inferred)
         try:
-            hdr = headers[path] = read_header(path)
+            hdr = headers[path] = read(path)
         except ImageReadError as exc:
             problems.append(Problem(cand.relpath, exc.problem + origin, code="unreadable",
                                     roles=roles))
@@ -111,9 +118,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                     meta[key] = value
                     inferred.append(key)
         if cand.role in EXPOSURE_ROLES and meta.get("exposure") is None and hdr is not None:
-            problems.append(Problem(cand.relpath, f"missing exposure: a {cand.role} frame needs "
-                                    "one, and neither the manifest nor the file header "
-                                    "(EXIF ExposureTime, FITS EXPTIME) gives it",
+            problems.append(Problem(cand.relpath, _missing_exposure(cand, source),
                                     code="missing-exposure", roles=roles))
         roi = meta.get("roi")
         if roi is not None and hdr is not None:
@@ -129,6 +134,19 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
     problems.extend(_cross_frame_problems(records, headers, camera))
     return Session(root=root, manifest_path=manifest_path, source=source, camera=camera,
                    frames=tuple(records), problems=tuple(problems), headers=headers)
+
+
+def _missing_exposure(cand: Candidate, source: str) -> str:
+    """The message of a bracket/reference/target frame without an exposure time."""
+    if source != "folder":
+        return (f"missing exposure: a {cand.role} frame needs one, and neither the manifest nor "
+                "the file header (EXIF ExposureTime, FITS EXPTIME) gives it")
+    png = PurePosixPath(cand.relpath).suffix.lower() == ".png"
+    return (f"missing exposure: a {cand.role} frame needs one, and the file header gives none "
+            "(no EXIF ExposureTime / FITS EXPTIME); fill in its 'exposure' (seconds) in the "
+            "manifest draft (ccdcore session FOLDER --draft) and save it as session.toml"
+            + ("; PNG files seldom carry EXIF, so a folder of PNG frames needs that manifest"
+               if png else ""))
 
 
 def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageHeader],

@@ -23,7 +23,7 @@ def state(tmp_path, assets):
 
 
 def test_demo_sessions_are_found(assets):
-    assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "change"}
+    assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "tsin01-camera", "change"}
 
 
 def test_load_demo_fills_state(state, healey94):
