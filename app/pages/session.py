@@ -70,7 +70,8 @@ MAX_DRAFT_LINES = 400
 _SOURCES = {"manifest": "manifest", "folder": "plain folder (no manifest)",
             "emva1288": "EMVA1288 descriptor"}
 _FROM = {"role": "folder names", "level": "sub-folder names", "config": "sub-folder names",
-         "exposure": "file headers", "gain": "file headers", "temperature": "file headers"}
+         "exposure": "file headers", "gain": "file headers", "temperature": "file headers",
+         "stack": "the bracket's folder (one stack per folder or repeated exposure sequence)"}
 # frames-table columns always shown; the other metadata columns only when some frame sets them
 _ALWAYS = ("relpath", "role", "exposure", "size (W×H)", "dtype", "bits")
 
@@ -140,9 +141,16 @@ def frames_frame(session: Session) -> pd.DataFrame:
 
 
 def inferred_summary(session: Session) -> list[tuple[str, int, str]]:
-    """``(key, number of frames, where it came from)`` for every inferred metadata key."""
+    """``(key, number of frames, where it came from)`` for every inferred metadata key.
+
+    A plain folder's exposure brackets (frames with an inferred ``stack``) are found from their
+    folder and the exposure times in their headers, which the ``role`` and ``stack`` lines say.
+    """
     counts = Counter(k for rec in session.frames for k in rec.inferred)
-    return [(k, n, _FROM.get(k, "file headers")) for k, n in counts.items()]
+    brackets = any("stack" in rec.inferred for rec in session.frames)
+    origins = dict(_FROM, role="folder names and, for exposure brackets, the exposure times "
+                               "in the file headers") if brackets else _FROM
+    return [(k, n, origins.get(k, "file headers")) for k, n in counts.items()]
 
 
 def _problem_alert(problem: Any) -> pn.pane.Alert:

@@ -140,6 +140,30 @@ def test_plain_folder_warnings_are_yellow_and_inference_is_listed(state, plain_f
         [(r.relpath, r.role, r.exposure) for r in state.session.frames]
 
 
+def test_camera_folder_of_bracketed_jpegs_shows_the_inferred_bracket(state, tmp_path):
+    """A plain folder of JPEGs with EXIF exposure times opens as one bracket stack."""
+    root = tmp_path / "DCIM"
+    y, x = np.mgrid[0:12, 0:16]
+    for i, seconds in enumerate((0.002, 0.008, 0.032)):
+        rgb = np.clip((x + y + 1)[..., None] * np.array([8.0, 6.0, 4.0]) * seconds * 40, 0, 255)
+        write_image(root / f"IMG_{i}.jpg", rgb.astype(np.uint8), exposure=seconds,
+                    attributes={"Make": "Canon", "Model": "Canon EOS 80D"})
+    page = SessionPage(state)
+    assert state.load(root)
+    groups = page.groups_table.value
+    assert list(groups["role"]) == ["bracket"] and list(groups["key"]) == ["1"]
+    assert groups["exposure (s)"].iloc[0] == "0.002, 0.008, 0.032"
+    assert "| Camera | Canon EOS 80D |" in page.camera_pane.object
+    assert "| Layout | rgb |" in page.camera_pane.object
+    text = page.inferred_pane.object
+    assert "**role** for 3 of 3 frames, from folder names and, for exposure brackets, the " \
+           "exposure times in the file headers" in text
+    assert "**stack** for 3 of 3 frames, from the bracket's folder" in text
+    assert any("stack 1 = 3 frames in the top-level folder" in a.object
+               for a in page.problem_alerts)
+    assert 'role = "bracket"' in page.draft_pane.object and "stack = 1" in page.draft_pane.object
+
+
 def test_bad_inputs_are_alerts_and_the_page_keeps_its_session(state, healey94, broken_manifest,
                                                               tmp_path):
     page = SessionPage(state)
