@@ -28,6 +28,10 @@ fingerprint(result)
     model handed to ``estimate_all``).
 photon_transfer_entry(roi), estimates_entry(noise, **options)
     The name and parameters the pages cache ``photon_transfer`` and ``estimate_all`` under.
+SharedResults, shared_results()
+    Results in this process's memory, shared by every browser session of the server: a
+    computation running for one session is waited for by the others (never started twice);
+    the process-wide store (:meth:`app.state.AppState.shared_compute` uses it).
 
 Notes
 -----
@@ -38,6 +42,7 @@ deleting the least recently used entries (a hit touches its entry's modification
 """
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import hashlib
 import json
@@ -47,6 +52,9 @@ import pickle
 import tempfile
 import threading
 import time
+import weakref
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -55,7 +63,8 @@ from ccdcore.session import Session
 
 __all__ = ["ResultCache", "cache_folder", "code_version", "default_cache", "max_bytes",
            "fingerprint",
-           "photon_transfer_entry", "estimates_entry", "CACHE_ENV",
+           "photon_transfer_entry", "estimates_entry", "SharedResults", "Shared",
+           "shared_results", "CACHE_ENV",
            "CACHE_SIZE_ENV", "DEFAULT_MAX_BYTES"]
 
 log = logging.getLogger(__name__)
@@ -437,3 +446,124 @@ class ResultCache:
                               "root": str(session.root)}
             self._write_index(sessions)
         return content
+
+
+# ---------------------------------------------------------------------------------------------
+# results shared in memory by the browser sessions of one server
+# ---------------------------------------------------------------------------------------------
+@dataclass(eq=False)
+class Shared:
+    """One computation of a :class:`SharedResults` store, running or finished.
+
+    ``future`` (a :class:`concurrent.futures.Future`, safe to wait on from any thread or event
+    loop) ends with ``(value, error)``: the value and ``""``; ``None`` and the user-facing
+    error message (the same input fails the same way for everyone); or ``None, None`` when it
+    was not computed (cancelled by its owner, its browser session gone): a waiter then claims
+    the key and computes it itself. ``tracker`` is the owner's
+    :class:`ccdcore.progress.Tracker`, for the waiters' progress bars (``None`` until it
+    starts)."""
+
+    key: str
+    future: concurrent.futures.Future = field(default_factory=concurrent.futures.Future)
+    tracker: Any = None
+
+
+class SharedResults:
+    """Finished and running computations in this process's memory, keyed by
+    :meth:`ResultCache.key` (the session's content hash, the computation's name and its
+    parameters): every browser session of the server gets one computation's result.
+
+    :meth:`claim` gives the value when it is known, else the running :class:`Shared` entry and
+    whether the caller owns it (it then computes and calls :meth:`finish`; the others wait on
+    ``entry.future``). Thread-safe: one lock guards the tables, held for no computation.
+
+    Parameters
+    ----------
+    max_entries
+        The finished values held for certain (least recently used dropped first). A value
+        stored with ``hold=False`` (large results, e.g. HDR radiance maps) and every dropped
+        value stay findable as long as anyone else holds them (a weak reference), so a value
+        one browser session shows is shared without the store keeping it alive.
+    """
+
+    def __init__(self, max_entries: int = 16):
+        self.max_entries = int(max_entries)
+        self._lock = threading.Lock()
+        self._held: OrderedDict[str, Any] = OrderedDict()
+        self._weak: weakref.WeakValueDictionary[str, Any] = weakref.WeakValueDictionary()
+        self._running: dict[str, Shared] = {}
+
+    def get(self, key: str) -> Any | None:
+        """The finished value of ``key`` (its use recorded), or None."""
+        with self._lock:
+            return self._value(key)
+
+    def _value(self, key: str) -> Any | None:
+        if key in self._held:
+            self._held.move_to_end(key)
+            return self._held[key]
+        return self._weak.get(key)
+
+    def claim(self, key: str) -> tuple[Any | None, Shared | None, bool]:
+        """``(value, None, False)`` when ``key`` is finished; else ``(None, entry, owner)``:
+        the running computation, started by the caller (``owner``: it must compute and call
+        :meth:`finish`, even on failure) or by someone else (wait on ``entry.future``)."""
+        with self._lock:
+            value = self._value(key)
+            if value is not None:
+                return value, None, False
+            entry = self._running.get(key)
+            if entry is not None:
+                return None, entry, False
+            entry = self._running[key] = Shared(key)
+            return None, entry, True
+
+    def finish(self, entry: Shared, value: Any | None, error: str | None = "", *,
+               hold: bool = True) -> bool:
+        """End ``entry`` with ``value`` (kept, see the class; ``hold=False``: weakly only) or,
+        when None, with ``error`` (``None``: not computed, the key may be claimed again). Only
+        the first call counts (False afterwards)."""
+        with self._lock:
+            if entry.future.done():
+                return False
+            if self._running.get(entry.key) is entry:
+                del self._running[entry.key]
+            if value is not None:
+                try:
+                    self._weak[entry.key] = value
+                except TypeError:          # not weakly referable: held
+                    hold = True
+                if hold:
+                    self._held[entry.key] = value
+                    self._held.move_to_end(entry.key)
+                    while len(self._held) > self.max_entries:
+                        self._held.popitem(last=False)
+            entry.future.set_result((value, "" if value is not None else (error or None)))
+        return True
+
+    def running(self, key: str) -> Shared | None:
+        """The running computation of ``key``, or None."""
+        with self._lock:
+            return self._running.get(key)
+
+    def __contains__(self, key: str) -> bool:
+        return self.get(key) is not None
+
+    def clear(self) -> None:
+        """Forget every finished value (running computations finish as they would)."""
+        with self._lock:
+            self._held.clear()
+            self._weak.clear()
+
+
+_SHARED: SharedResults | None = None
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_results() -> SharedResults:
+    """The process-wide :class:`SharedResults` (made on first use)."""
+    global _SHARED
+    with _SHARED_LOCK:
+        if _SHARED is None:
+            _SHARED = SharedResults()
+        return _SHARED

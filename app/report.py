@@ -903,6 +903,7 @@ def _response_section(doc: _Doc, r: Mapping[str, Any]) -> None:
                     for z in codes]
             doc.add(_table(rows, ["code z"] + [f"g, {ch}" for ch in channels],
                            cls="ccd-report-response-g", numeric=tuple(range(len(channels) + 1))))
+        _agreement_tables(doc, r)
         notes = r.get("notes") or {}
         if isinstance(notes, dict):
             doc.add(_list(f"{ch}: {n}" for ch, ns in notes.items() for n in ns))
@@ -942,6 +943,36 @@ def _response_section(doc: _Doc, r: Mapping[str, Any]) -> None:
         doc.plot(column(fig, err_fig, sizing_mode="stretch_width"), id_="response-curves",
                  caption="g(z) of every channel with its \u00b12\u03c3 band; below, the 1\u03c3 "
                          "error itself (0 at the fixed code, which sets the scale).")
+
+
+def _agreement_tables(doc: _Doc, r: Mapping[str, Any]) -> None:
+    """The response's prediction agreement (Tsin et al. sec. 4.2, ``r["agreement"]``): the
+    pooled figures and each channel's, then each pair of neighbouring images per channel."""
+    from .response_plots import AGREEMENT_COLUMNS, channel_agreement_rows, pair_rows
+
+    a = r.get("agreement")
+    if not isinstance(a, dict):
+        return
+    rng = a.get("code_range") or ("?", "?")
+    doc.add(_para(f"How well the curves predict the bracket's own images (sec. 4.2), in DN "
+                  f"over the codes {rng[0]}..{rng[-1]} both images read: each image from a "
+                  "neighbour with the result's exposure ratio, with each pair's ratio fitted "
+                  "(the difference is what exposure errors cost), and from the blend of all "
+                  "the other images."))
+    rows = channel_agreement_rows(a)
+    header = ["channel", *AGREEMENT_COLUMNS.values(), "predictions"]
+    doc.add(_table([[row[h] for h in header] for row in rows], header,
+                   cls="ccd-report-response-agreement", numeric=(1, 2, 3, 4)))
+    pairs = pair_rows(a, _floats(r.get("exposure_times")))
+    if pairs:
+        header = list(pairs[0])
+        doc.add(_table([[row.get(h, "n/a") for h in header] for row in pairs], header,
+                       cls="ccd-report-response-pairs", numeric=tuple(range(2, len(header)))))
+        doc.add(_para("Per pair of neighbouring images (numbered from 1, shortest exposure "
+                      "first): the RMS with the result's ratio, with the pair's fitted ratio, "
+                      "and the fitted ratio over the nominal t_k / t_j. A frame with a wrong "
+                      "exposure time, or one that moved, shows in the pairs it takes part in.",
+                      "note"))
 
 
 # ---------------------------------------------------------------------------------------------

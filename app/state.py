@@ -23,7 +23,9 @@ is_allowed(path, roots)
 
 Finished results are kept on disk (:mod:`app.cache`) by :meth:`AppState.cached_compute`, keyed
 by the session's content hash: a session reopened (in this or another browser session, or after
-a restart) shows them without computing again.
+a restart) shows them without computing again. :meth:`AppState.shared_compute` also shares them
+in memory between the browser sessions of one server (:class:`app.cache.SharedResults`): a
+computation one session started is waited for by the others, never started twice.
 """
 from __future__ import annotations
 
@@ -47,7 +49,7 @@ from ccdcore.progress import Cancelled, Tracker, tracking
 from ccdcore.scene import SceneVariation
 from ccdcore.session import MANIFEST_NAME, Session, open_session
 
-from .cache import ResultCache, code_version, default_cache
+from .cache import ResultCache, SharedResults, code_version, default_cache, shared_results
 
 __all__ = ["AppState", "Results", "FlatResults", "ASSETS_ENV", "assets_dir", "demo_sessions",
            "default_roots", "is_allowed"]
@@ -344,7 +346,7 @@ class AppState(param.Parameterized):
 
     async def compute(self, func: Callable[..., Any], *args: Any, label: str = "results",
                       steps: Sequence[tuple[str, float]] = (), pass_progress: bool = False,
-                      **kwargs: Any) -> Any | None:
+                      tracker: Tracker | None = None, **kwargs: Any) -> Any | None:
         """Run ``func(*args, **kwargs)`` off the UI thread and return its result.
 
         While it runs ``busy`` is set, and four times a second ``progress`` (percent) and
@@ -355,9 +357,11 @@ class AppState(param.Parameterized):
         returned and ``status`` says it was cancelled. A :class:`CcdError` (bad input: too few
         levels, missing frames ...) becomes ``error`` and ``None`` is returned, as it is when
         another session was opened meanwhile. The caller stores the result in :attr:`results`.
+        ``tracker``: the :class:`~ccdcore.progress.Tracker` to report to (made from ``steps``
+        when not given), for a caller that shows it elsewhere too (:meth:`shared_compute`).
         """
         session = self.session
-        tracker = Tracker(steps)
+        tracker = Tracker(steps) if tracker is None else tracker
         if pass_progress:
             kwargs["progress"] = tracker
         self._trackers.add(tracker)
@@ -404,21 +408,23 @@ class AppState(param.Parameterized):
         return bool(self._trackers)
 
     # ---- cached results ---------------------------------------------------------------------
-    def _hash_or_none(self, cache: ResultCache, session: Session) -> str | None:
-        """The session's content hash through the cache's stat index (in a worker thread);
-        None when a file cannot be read (the result is then computed, not cached)."""
+    def _hash_or_none(self, cache: ResultCache | None, session: Session) -> str | None:
+        """The session's content hash through the cache's stat index (in a worker thread;
+        without a disk cache, :meth:`Session.content_hash`, remembered in this process); None
+        when a file cannot be read (the result is then computed, not cached)."""
         try:
             code_version()   # read ccdcore's sources once, here rather than on the event loop
-            return cache.session_hash(session)
+            return session.content_hash() if cache is None else cache.session_hash(session)
         except Exception as err:  # CcdError, OSError: no caching, the computation says more
             log.warning("no cache for %s: %s: %s", session.label, type(err).__name__, err)
             return None
 
     async def session_hash(self) -> str | None:
         """The loaded session's content hash (off the UI thread, once per session: concurrent
-        callers share one hashing), or None without a cache, a session or a readable file."""
+        callers share one hashing; through the disk cache's stat index when there is a cache),
+        or None without a session or a readable file."""
         session, cache = self.session, self.cache
-        if session is None or cache is None:
+        if session is None:
             return None
         loop = asyncio.get_running_loop()
         if self._hashing is not None and self._hashing[0] is session:
@@ -435,8 +441,10 @@ class AppState(param.Parameterized):
         """The cache key of computation ``name`` with ``params`` on the loaded session (None
         when nothing can be cached)."""
         cache = self.cache
+        if cache is None:
+            return None
         content = await self.session_hash()
-        return None if cache is None or content is None else cache.key(content, name, params)
+        return None if content is None else cache.key(content, name, params)
 
     async def _known_hash(self, cache: ResultCache, session: Session) -> str | None:
         """The content hash when already known: hashed for this session, or in the cache's
@@ -490,6 +498,95 @@ class AppState(param.Parameterized):
             await asyncio.to_thread(cache.put, cache.key(content, name, params), result)
         return result
 
+    async def shared_compute(self, name: str, params: dict[str, Any],
+                             func: Callable[..., Any], *args: Any, label: str = "results",
+                             disk: bool = True, hold: bool = True,
+                             store: SharedResults | None = None, **kwargs: Any) -> Any | None:
+        """:meth:`cached_compute` (``disk=False``: :meth:`compute`), shared by every browser
+        session of this server: the result of ``name`` with ``params`` on the session's
+        content is computed once per process (:class:`app.cache.SharedResults`, by default
+        :func:`app.cache.shared_results`; ``hold=False`` keeps a large result only while some
+        session holds it).
+
+        The first caller computes (off the UI thread, with progress and cancel); a caller
+        arriving meanwhile, from this or another browser session, waits for that computation
+        without blocking the event loop, its progress bar following the first one's, and gets
+        its result or its error. Its Cancel stops its own wait only. A computation that ends
+        without a result (cancelled by its user, its session closed) is taken over by a
+        waiter. The result reaches the store even when the session that started it was
+        closed or changed meanwhile. ``None`` is returned as :meth:`compute` returns it.
+        """
+        store = shared_results() if store is None else store
+        session = self.session
+        content = await self.session_hash() if session is not None else None
+        if self.session is not session:
+            return None
+        if content is None:         # no session or an unreadable file: nothing to share by
+            return await (self.cached_compute(name, params, func, *args, label=label, **kwargs)
+                          if disk else self.compute(func, *args, label=label, **kwargs))
+        key = ResultCache.key(content, name, params)
+        while True:
+            value, entry, owner = store.claim(key)
+            if value is not None:
+                self.param.update(error="", status=f"Computed {label} (shared).")
+                return value
+            if owner:
+                break
+            outcome = await self._wait_shared(entry, label)
+            if outcome is None or self.session is not session:
+                return None             # this session stopped waiting, or moved on
+            value, error = outcome
+            if value is not None:
+                self.param.update(error="", status=f"Computed {label} (shared).")
+                return value
+            if error:
+                self.param.update(error=error, status=f"Could not compute {label}.")
+                return None
+            # the computation ended without a result: claim it again (this caller computes)
+        entry.tracker = tracker = Tracker(kwargs.pop("steps", ()))
+        publish = _Publisher(store, entry, func, hold)
+        result = None
+        try:
+            if disk:
+                result = await self.cached_compute(name, params, publish, *args, label=label,
+                                                   tracker=tracker, **kwargs)
+            else:
+                result = await self.compute(publish, *args, label=label, tracker=tracker,
+                                            **kwargs)
+        finally:
+            if not publish.ran:     # read back from the disk cache, or never started
+                store.finish(entry, result, None, hold=hold)
+        return result
+
+    async def _wait_shared(self, entry: Any, label: str) -> tuple[Any, str | None] | None:
+        """Wait for another caller's computation ``entry`` (:meth:`shared_compute`) showing
+        its progress; its outcome, or None when :meth:`cancel` stopped this wait."""
+        mine = Tracker()            # cancel() stops this wait, not the other computation
+        self._trackers.add(mine)
+        with param.parameterized.batch_call_watchers(self):
+            self.error = ""
+            self.busy = True
+            self.progress = -1
+            self.status = f"Computing {label} (started in another browser tab) ..."
+        waiting = asyncio.wrap_future(entry.future)
+        try:
+            while not waiting.done() and not mine.cancelled:
+                await asyncio.wait({waiting}, timeout=0.25)
+                other = entry.tracker
+                if not waiting.done() and other is not None and not mine.cancelled:
+                    self.param.update(progress=min(int(100 * other.fraction), 99),
+                                      status=f"Computing {label} (started in another browser "
+                                             f"tab): {other.describe()} ...")
+        finally:
+            self._trackers.discard(mine)
+            with param.parameterized.batch_call_watchers(self):
+                self.busy = bool(self._trackers)
+                self.progress = -1
+        if not waiting.done():
+            self.status = f"Stopped waiting for {label}."
+            return None
+        return waiting.result()
+
     def compute_now(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any | None:
         """:meth:`compute` in this thread (for scripts and tests)."""
         kwargs.pop("label", None)
@@ -507,3 +604,30 @@ class AppState(param.Parameterized):
         checks = "valid" if not session.problems else \
             f"{n_err} error(s), {n_warn} warning(s)"
         return f"Loaded {session.root.name}: {len(session.frames)} frames ({roles}); {checks}."
+
+
+class _Publisher:
+    """``func`` run for :meth:`AppState.shared_compute`: its result or error goes to the store
+    from the worker thread, as soon as it is known, whatever happens to the caller."""
+
+    def __init__(self, store: SharedResults, entry: Any, func: Callable[..., Any], hold: bool):
+        self.store, self.entry, self.func, self.hold = store, entry, func, hold
+        self.ran = False
+        self.__name__ = getattr(func, "__name__", "shared")
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        self.ran = True
+        try:
+            value = self.func(*args, **kwargs)
+        except CcdError as err:
+            self.store.finish(self.entry, None, str(err))
+            raise
+        except Cancelled:
+            self.store.finish(self.entry, None, None)
+            raise
+        except Exception as err:
+            self.store.finish(self.entry, None,
+                              f"unexpected error: {type(err).__name__}: {err}")
+            raise
+        self.store.finish(self.entry, value, hold=self.hold)
+        return value

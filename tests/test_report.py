@@ -225,6 +225,113 @@ def test_tsin01_has_the_response_section(tmp_path):
     z = round(0.5 * (r["levels"] - 1))
     assert format_pm(r["g"][0][z], r["g_err"][0][z]) in resp
     assert re.search(r'<figure class="ccd-report-plot[^"]*" id="response-curves"', text)
+    # the prediction agreement (sec. 4.2) of the product's response, pooled and per pair
+    a = r["agreement"]
+    table = _table_html(resp, "ccd-report-response-agreement")
+    assert _row(table, "all")[1:4] == [f"{a[k]:.2f}" for k in ("rms", "rms_fitted",
+                                                                "rms_blend")]
+    pairs = _table_html(resp, "ccd-report-response-pairs")
+    assert len(re.findall(r"<tr><td>", pairs)) == len(r["exposure_times"]) - 1
+
+
+def _table_html(text: str, cls: str) -> str:
+    start = text.index(f'<table class="{cls}">')
+    return text[start:text.index("</table>", start)]
+
+
+def _row(table: str, first: str) -> list[str]:
+    """The cells (text, unescaped) of the table row whose first cell is ``first``."""
+    for row in re.findall(r"<tr>(.*?)</tr>", table):
+        cells = [html.unescape(c) for c in re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", row)]
+        if cells and cells[0] == first:
+            return cells
+    raise AssertionError(f"no row {first!r}")
+
+
+@pytest.fixture(scope="module")
+def rgb_response(tmp_path_factory) -> dict:
+    """A colour bracket's response (Debevec & Malik, fast) as a product holds it."""
+    from ccdcore.response.brackets import load_bracket
+    from ccdcore.response.methods import response_of
+    from ccdcore.simulate import simulate
+
+    root = tmp_path_factory.mktemp("rgb") / "bracket"
+    simulate("tsin01", root, seed=5, size=(64, 48), layout="rgb")
+    result = response_of(load_bracket(open_session(root)), "debevec")
+    return {k: v for k, v in result.to_dict().items() if k != "files"}
+
+
+def _with_response(r: dict) -> CalibrationProduct:
+    return CalibrationProduct(maps={}, estimates={"response": r},
+                              camera=Camera(name="rgb", bits=8, layout="rgb"))
+
+
+def test_response_agreement_pooled_per_channel_and_per_pair(rgb_response):
+    r = rgb_response
+    a = r["agreement"]
+    resp = section(build_report(_with_response(r)), "response")
+    table = _table_html(resp, "ccd-report-response-agreement")
+    for row in [a, *a["channels"]]:
+        name = row.get("channel", "all")
+        assert _row(table, name)[1:4] == [f"{row[k]:.2f}" for k in ("rms", "rms_fitted",
+                                                                     "rms_blend")], name
+    assert _row(table, "all")[4] == str(sum(c["n"] for c in a["channels"]))
+    pairs = _table_html(resp, "ccd-report-response-pairs")
+    header = re.findall(r"<th>(.*?)</th>", pairs)
+    t = r["exposure_times"]
+    for c in a["channels"]:
+        ch = c["channel"]
+        col = header.index(f"{ch}: RMS")
+        assert header[col + 1] == f"{ch}: fitted"
+        assert header[col + 2] == f"{ch}: ratio fit/nominal"
+        for p in c["pairs"]:
+            cells = _row(pairs, f"{p['j'] + 1}\u2192{p['k'] + 1}")
+            assert cells[1] == f"{t[p['j']]:.4g} \u2192 {t[p['k']]:.4g}"
+            assert cells[col:col + 3] == [
+                f"{p['rms']:.2f}", f"{p['rms_fitted']:.2f}",
+                f"{p['ratio_fitted'] / (t[p['k']] / t[p['j']]):.3f}"], (ch, p)
+
+
+def test_response_agreement_a_bad_frame_shows_in_its_pairs(tmp_path):
+    """Image 5's exposure time written 30 % too long: the report's pairs 4\u21925 and 5\u21926
+    predict worst in every channel, and their fitted ratios say which way (about 1/1.3 and
+    1.3 of the nominal ones); the other pairs stay near 1."""
+    from ccdcore.response.brackets import load_bracket
+    from ccdcore.response.methods import response_of
+    from ccdcore.simulate import simulate
+
+    root = tmp_path / "bad"
+    simulate("tsin01", root, seed=5, size=(64, 48), layout="rgb")
+    manifest = root / "session.toml"
+    text = manifest.read_text()
+    m = re.search(r'(s0_k04\.tif", role = "bracket", exposure = )([0-9.]+)', text)
+    manifest.write_text(text.replace(m.group(0), m.group(1) + repr(float(m.group(2)) * 1.3)))
+    result = response_of(load_bracket(open_session(root)), "debevec")
+    r = {k: v for k, v in result.to_dict().items() if k != "files"}
+    pairs = _table_html(section(build_report(_with_response(r)), "response"),
+                        "ccd-report-response-pairs")
+    header = re.findall(r"<th>(.*?)</th>", pairs)
+    names = [f"{j}\u2192{j + 1}" for j in range(1, len(r["exposure_times"]))]
+    for ch in ("R", "G", "B"):
+        rms = {n: float(_row(pairs, n)[header.index(f"{ch}: RMS")]) for n in names}
+        ratio = {n: float(_row(pairs, n)[header.index(f"{ch}: ratio fit/nominal")])
+                 for n in names}
+        assert sorted(rms, key=rms.get)[-2:] in (["4\u21925", "5\u21926"],
+                                                 ["5\u21926", "4\u21925"]), (ch, rms)
+        assert ratio["4\u21925"] < 0.85 and ratio["5\u21926"] > 1.15, (ch, ratio)
+        assert all(abs(v - 1) < 0.1 for n, v in ratio.items()
+                   if n not in ("4\u21925", "5\u21926")), (ch, ratio)
+
+
+def test_response_agreement_text_is_escaped_and_absent_agreement_is_no_table(rgb_response):
+    r = dict(rgb_response)
+    a = dict(r["agreement"])
+    a["channels"] = [{**c, "channel": "<i>R</i>"} if c["channel"] == "R" else c
+                     for c in a["channels"]]
+    resp = section(build_report(_with_response({**r, "agreement": a})), "response")
+    assert "<i>R</i>" not in resp and "&lt;i&gt;R&lt;/i&gt;: RMS" in resp
+    resp = section(build_report(_with_response({**r, "agreement": None})), "response")
+    assert "ccd-report-response-agreement" not in resp and "ccd-report-response-g" in resp
 
 
 def load_product_of(tmp: Path, demo: str) -> CalibrationProduct:

@@ -4,9 +4,11 @@ Tsin, Ramesh & Kanade 2001 (sec. 3): the inverse response g per channel by the i
 estimator of sec. 3.2 (:mod:`ccdcore.response.tsin`) and the classic methods beside it
 (:mod:`ccdcore.response.classic`; one registry, :data:`ccdcore.response.methods.METHODS`), with
 their bands; the noise terms σ_s, σ_c1, σ_c2 of eq. 17; the prediction errors of one pool before
-and after calibration (Fig. 3c-d); the HDR radiance of the bracket (eqs. 9, 18) with its
-per-pixel sigma (eq. 19), tone-mapped for display only, with linked zoom and the value ± sigma
-under the cursor.
+and after calibration (Fig. 3c-d); how well each method's curves predict the bracket's own images
+(sec. 4.2, :mod:`ccdcore.response.agreement`: pooled per method, per pair of neighbouring
+images for the chosen one), with a warning when the chosen result is not to be trusted; the HDR
+radiance of the bracket (eqs. 9, 18) with its per-pixel sigma (eq. 19), tone-mapped for display
+only, with linked zoom and the value ± sigma under the cursor.
 
 Public objects
 --------------
@@ -19,16 +21,23 @@ compute_responses(session, bloom_radius, progress)
     Every method on the session's first bracket (a dict method -> ResponseResult).
 compute_hdr(session, result, bloom_radius)
     The HDR merge of the bracket with one method's calibration.
+untrusted_reason(result, others)
+    Why a method's result is not to be trusted (not converged, or predicting its bracket much
+    worse than the best method), or None.
 NO_BRACKET_MESSAGE
     What the page says when the session has no bracket.
 
-Computing runs off the UI thread (:meth:`app.state.AppState.compute`); results are cached in
-``state.results.response`` by blooming radius. Widget changes feed the figures' sources in
-place (:mod:`app.response_plots`, :class:`app.image_view.ImageView`).
+Computing runs off the UI thread, once per server: :meth:`app.state.AppState.shared_compute`
+keys the responses (and each method's HDR) by the session's content hash and the options, so a
+second browser tab on the same session waits for the first one's computation instead of
+starting its own; the responses are also kept in the disk cache. Each browser session keeps
+what it shows in ``state.results.response`` by blooming radius and white balance. Widget
+changes feed the figures' sources in place (:mod:`app.response_plots`,
+:class:`app.image_view.ImageView`).
 """
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any, Callable, Iterable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -45,13 +54,16 @@ from ccdcore.simulate.truth import find_truth
 
 from ..batch import batched, in_document
 from ..image_view import view_pane
-from ..response_plots import TONE_CURVES, PoolHistogram, ResponseFigure, hdr_planes, hdr_views
+from ..response_plots import (TONE_CURVES, PoolHistogram, ResponseFigure, agreement_rows, dn,
+                              hdr_planes, hdr_views, pair_rows)
 from ..state import AppState
+from ._choices import set_choices
 from ._messages import PageMessages
 from ._styles import TABLE_CSS, heading
 
 __all__ = ["ResponsePage", "create_page", "compute_responses", "compute_hdr",
-           "NO_BRACKET_MESSAGE"]
+           "untrusted_reason", "NO_BRACKET_MESSAGE", "TRUST_FACTOR", "RESPONSES_ENTRY",
+           "HDR_ENTRY"]
 
 NO_BRACKET_MESSAGE = (
     "**No exposure bracket in this session.** Photograph a static scene at several exposure "
@@ -64,6 +76,47 @@ NO_BRACKET_MESSAGE = (
 _MUTED = {"font-size": "0.88em", "color": "#6c757d"}
 IMAGE_WIDTH = 330
 LABELS = {name: m.label for name, m in METHODS.items()}
+#: a result whose agreement RMS exceeds the best method's by this factor is not trusted
+TRUST_FACTOR = 1.5
+#: the names the responses and the HDR are shared (and cached) under, with the options
+RESPONSES_ENTRY = "response_curves"
+HDR_ENTRY = "response_hdr"
+
+
+def untrusted_reason(result: ResponseResult,
+                     others: Iterable[ResponseResult] | Mapping[str, ResponseResult]
+                     ) -> str | None:
+    """Why ``result`` is not to be trusted, as one sentence, or None.
+
+    For now: a channel whose estimate did not converge, or a prediction agreement
+    (``result.agreement.rms``, sec. 4.2) more than :data:`TRUST_FACTOR` times the best of
+    ``others`` (the other methods' results on the same bracket; ``result`` may be among them).
+    """
+    if isinstance(others, Mapping):
+        others = others.values()
+    reasons = []
+    stuck = [c.channel for c in result.responses if not c.converged]
+    if stuck:
+        reasons.append(f"it did not converge (channel{'s' if len(stuck) > 1 else ''} "
+                       f"{', '.join(stuck)})")
+
+    def rms(r: ResponseResult) -> float | None:
+        a = r.agreement
+        return float(a.rms) if a is not None and np.isfinite(a.rms) else None
+
+    own = rms(result)
+    scored = [(v, r) for r in (*others, result) if (v := rms(r)) is not None]
+    if own is not None and scored:
+        best, best_result = min(scored, key=lambda vr: vr[0])
+        if own > TRUST_FACTOR * best:
+            times = f"{own / best:.1f}\u00d7" if best > 0 else "more than"
+            reasons.append(f"it predicts the bracket's images within {own:.2f} DN RMS, {times} "
+                           f"the best method's {best:.2f} DN "
+                           f"({LABELS.get(best_result.method, best_result.method)})")
+    if not reasons:
+        return None
+    return (f"{LABELS.get(result.method, result.method)}'s curves may not be trustworthy: "
+            + "; ".join(reasons) + ".")
 
 
 # ----------------------------------------------------------------------------- computing ------
@@ -148,6 +201,9 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
     # ------------------------------------------------------------------------ building ----
     def _build(self) -> None:
         self._build_alerts("response")
+        self.warning_alert = pn.pane.Alert("", alert_type="warning", visible=False,
+                                           sizing_mode="stretch_width",
+                                           css_classes=["ccd-response-warning"])
         self.method_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.method, color="default", css_classes=["ccd-response-method"])
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
@@ -165,6 +221,9 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.ab_table = _table("ccd-response-ab")
         self.pool_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
+        self.agreement_table = _table("ccd-response-agreement")
+        self.pairs_note = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.pairs_table = _table("ccd-response-pairs")
         # HDR: radiance (tone-mapped) and relative sigma, zoom linked, value ± sigma read out
         self.rad_view, self.sig_view = hdr_views(IMAGE_WIDTH,
                                                  ("ccd-hdr-radiance", "ccd-hdr-sigma"))
@@ -187,6 +246,15 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.content = pn.Column(
             pn.Card(controls, pn.pane.Bokeh(self.curves.fig, sizing_mode="stretch_width"),
                     self.curve_note, title="Inverse response g(z) with its 2σ band",
+                    sizing_mode="stretch_width", collapsible=False),
+            pn.Card(pn.pane.Markdown(
+                        "Each image predicted from a neighbour through the curve and the "
+                        "exposure ratio, in DN over the codes both read (Tsin et al. sec. 4.2): "
+                        "with the result's own ratios, with each pair's ratio fitted (the "
+                        "difference is what exposure errors cost), and from the blend of all "
+                        "the other images.", sizing_mode="stretch_width", styles=_MUTED),
+                    self.agreement_table, self.pairs_note, self.pairs_table,
+                    title="How well each method predicts the bracket (sec. 4.2)",
                     sizing_mode="stretch_width", collapsible=False),
             pn.Card(pn.Row(pn.Column(pn.pane.Markdown("**Noise terms (eq. 7, fitted by eq. 17)**"),
                                      self.noise_table, sizing_mode="stretch_width"),
@@ -218,7 +286,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                  "says how far to trust each pixel.")
         return pn.Column(
             *heading("Response & HDR", intro),
-            self.info_alert, self.error_alert, self.content,
+            self.info_alert, self.error_alert, self.warning_alert, self.content,
             sizing_mode="stretch_width", name="Response & HDR")
 
     # ------------------------------------------------------------------------ events ------
@@ -226,12 +294,14 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self._session = None
         self.responses = None
         self.hdr = None
+        self._warn(None)
         if self.auto:
             pn.state.execute(self.refresh)
 
     @param.depends("method", watch=True)
     def _on_method(self) -> None:
         self._render_response()
+        self._render_agreement()
         if self.auto:
             pn.state.execute(self.show_hdr)
 
@@ -265,42 +335,64 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             return
         self._info("")
         self.content.visible = True
-        key = (int(self.bloom_radius), bool(self.white_balance))
+        key = self._key()
         entry = self._cache.get(key)
         if entry is None:
             self.content.loading = True
             try:
-                found = await self.state.compute(compute_responses, session, key[0],
-                                                 white_balance=key[1],
-                                                 label="response curves", pass_progress=True)
+                found = await self.state.shared_compute(
+                    RESPONSES_ENTRY, self._options(), compute_responses, session, key[0],
+                    white_balance=key[1], label="response curves", pass_progress=True)
             finally:
                 self.content.loading = False
-            if found is None or self.state.session is not session:
+            if self.state.session is not session:
+                return
+            if found is None:
                 self._set_error(self.state.error or "the response was not computed")
                 return
-            entry = {"responses": found, "hdr": {}}
-            self._cache[key] = entry
+            # (another page on this state may have stored the same shared result meanwhile)
+            entry = self._cache.setdefault(key, {"responses": found, "hdr": {}})
+        if self._session is not session or key != self._key():
+            return                  # superseded while computing: the newer refresh shows
         self.responses = entry["responses"]
         self._truth = _true_g(session)
         names = list(next(iter(self.responses.values())).channels)
-        self.param.channel.objects = names
-        if self.channel not in names:
-            self.param.update(channel=names[0])
-        self.channel_select.visible = len(names) > 1
-        in_document(self._doc, self._render_response)
+        in_document(self._doc, lambda: self._show_responses(names))
         await self.show_hdr()
+
+    def _key(self) -> tuple[int, bool]:
+        return int(self.bloom_radius), bool(self.white_balance)
+
+    def _options(self, **more: Any) -> dict[str, Any]:
+        """What the shared results depend on besides the session's content."""
+        return {"bloom_radius": int(self.bloom_radius),
+                "white_balance": bool(self.white_balance), **more}
+
+    @batched
+    def _show_responses(self, names: list[str]) -> None:
+        """The session's channels as the channel choice (its options and value in one
+        update: a served radio group given options without the old value would clear it),
+        then the curves and tables."""
+        value = self.channel if self.channel in names else names[0]
+        set_choices(self, {"channel": (self.channel_select, list(names), value)},
+                    trigger=False)
+        self.channel_select.visible = len(names) > 1
+        self._render_response()
+        self._render_agreement()
 
     async def show_hdr(self) -> None:
         """The HDR merge with the chosen method's calibration (cached per method)."""
         session = self._session
         if session is None or self.responses is None:
             return
-        entry = self._cache.get((int(self.bloom_radius), bool(self.white_balance)))
+        entry = self._cache.get(self._key())
         method = self.method
         hdr = entry["hdr"].get(method) if entry else None
         if hdr is None:
-            hdr = await self.state.compute(compute_hdr, session, self.responses[method],
-                                           int(self.bloom_radius), label="HDR radiance")
+            hdr = await self.state.shared_compute(
+                HDR_ENTRY, self._options(method=method), compute_hdr, session,
+                self.responses[method], int(self.bloom_radius), label="HDR radiance",
+                disk=False, hold=False)
             if hdr is None or self.state.session is not session:
                 if self.state.error:
                     self._set_error(self.state.error)
@@ -357,6 +449,37 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         notes = [f"- {LABELS[m]} ({ch}): {n}" for m, r in self.responses.items()
                  for n in r[ch].notes]
         self.notes_pane.object = "\n".join(notes) or "No remarks."
+
+    @batched
+    def _render_agreement(self) -> None:
+        """The agreement of every method (pooled), the chosen one's pairs, the warning."""
+        if not self.responses:
+            return
+        res = self.responses[self.method]
+        self.agreement_table.object = pd.DataFrame(agreement_rows(
+            [(LABELS[m], None if r.agreement is None else r.agreement.to_dict())
+             for m, r in self.responses.items()]))
+        a = res.agreement
+        if a is None:
+            self.pairs_note.object = f"**{LABELS[self.method]}**: no agreement computed."
+            self.pairs_table.object = pd.DataFrame()
+        else:
+            self.pairs_table.object = pd.DataFrame(pair_rows(a.to_dict(), res.t))
+            worst = [(w.rms, c.channel, w) for c in a.channels
+                     if (w := c.worst_pair()) is not None]
+            text = (f"**Pairs of neighbouring images, {LABELS[self.method]}** (RMS in DN with "
+                    "the result's ratio and with the pair's own; the fitted ratio over the "
+                    f"nominal t_k / t_j; codes {a.code_range[0]}..{a.code_range[1]})")
+            if worst:
+                _, ch, w = max(worst, key=lambda x: x[0])
+                text += (f". Worst: images {w.j + 1}\u2192{w.k + 1} in {ch}, "
+                         f"{dn(w.rms)} DN ({dn(w.rms_fitted)} DN with its ratio fitted).")
+            self.pairs_note.object = text
+        self._warn(untrusted_reason(res, self.responses))
+
+    def _warn(self, reason: str | None) -> None:
+        self.warning_alert.object = f"**Warning:** {reason}" if reason else ""
+        self.warning_alert.visible = bool(reason)
 
     @batched
     def _render_hdr(self) -> None:

@@ -35,6 +35,9 @@ def _no_result_cache(monkeypatch: pytest.MonkeyPatch) -> None:
     """No test reads or fills the user's result cache (app/cache.py), and no test sees another
     test's results; a test of the cache points CCDCORE_CACHE at its own folder."""
     monkeypatch.setenv("CCDCORE_CACHE", "off")
+    # nor the server-wide store of shared results (app/cache.py): a fresh one per test
+    import app.cache as cache
+    monkeypatch.setattr(cache, "_SHARED", None)
 
 
 # ------------------------------------------------------------------------------ sessions -------

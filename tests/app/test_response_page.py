@@ -1,17 +1,34 @@
 """The Response & HDR page without a browser: what it computes and shows, and what it says
-without a bracket or with a bracket it cannot use."""
+without a bracket or with a bracket it cannot use; a colour bracket's channel choice, the
+prediction agreement with its warning, and one computation shared by every browser session."""
 from __future__ import annotations
 
+import asyncio
+import dataclasses
 import shutil
+import time
 
 import numpy as np
 import pytest
+from bokeh.document import Document
 
-from app.pages.response_hdr import NO_BRACKET_MESSAGE, ResponsePage
+import app.cache
+import app.pages.response_hdr as response_hdr
+from app.cache import SharedResults
+from app.pages.response_hdr import LABELS, NO_BRACKET_MESSAGE, ResponsePage, untrusted_reason
 from app.response_plots import tone_map
 from app.state import AppState
+from ccdcore.channels import channel_names
+from ccdcore.errors import CcdError
 from ccdcore.response.methods import METHODS
+from ccdcore.simulate import simulate
 from _coro import run as _run
+
+
+@pytest.fixture(autouse=True)
+def _own_store(monkeypatch):
+    """Each test shares results through its own process-wide store (no test sees another's)."""
+    monkeypatch.setattr(app.cache, "_SHARED", SharedResults())
 
 
 def _page(path, **kw):
@@ -118,3 +135,283 @@ def test_white_balance_gains_on_the_page(assets):
     assert c.white_balance and not np.allclose(c.a, c.t)
     assert np.allclose(page.responses["debevec"]["L"].a, c.t)
     assert "a_k / t_k" in page.ab_table.object.columns
+
+
+# ------------------------------------------------------------------ a colour bracket ---------
+
+@pytest.fixture(scope="module")
+def rgb_root(tmp_path_factory):
+    """A small simulated colour bracket (tsin01 pipeline, one E per channel)."""
+    root = tmp_path_factory.mktemp("rgb") / "bracket"
+    simulate("tsin01", root, seed=11, size=(64, 48), layout="rgb")
+    return root
+
+
+def _state(root) -> AppState:
+    state = AppState(allowed_roots=[root.parent.resolve()])
+    assert state.load(root), state.error
+    return state
+
+
+def _models(root) -> dict[str, set[str]]:
+    found: dict[str, set[str]] = {}
+    for m in root.references():
+        found.setdefault(type(m).__name__, set()).add(m.id)
+    return {k: found.get(k, set()) for k in ("figure", "ColumnDataSource")}
+
+
+@pytest.fixture(scope="module")
+def rgb_shown(rgb_root):
+    """The page on the colour bracket, rendered into a Bokeh document *before* the bracket
+    is shown (as in a browser: the served channel buttons then take part)."""
+    state = _state(rgb_root)
+    page = ResponsePage(state, auto=False)
+    root = page.__panel__().get_root(Document())
+    _run(page.refresh())
+    return state, page, root
+
+
+def test_rgb_bracket_sets_the_channel_choice_consistently(rgb_shown):
+    state, page, root = rgb_shown
+    assert page.error == "" and state.error == "", (page.error, state.error)
+    assert list(page.param.channel.objects) == ["R", "G", "B"] and page.channel == "R"
+    assert list(page.channel_select.options) == ["R", "G", "B"]
+    assert page.channel_select.value == "R" and page.channel_select.visible
+    # the served radio group holds the same labels and the active button
+    model = next(m for m in root.references() if type(m).__name__ == "RadioButtonGroup"
+                 and list(m.labels) == ["R", "G", "B"])
+    assert model.active == 0
+
+
+def test_rgb_channel_choice_shows_each_channel_in_place(rgb_shown):
+    _, page, root = rgb_shown
+    before = _models(root)
+    curves = {}
+    for ch in ("G", "B", "R"):
+        page.channel_select.value = ch                  # as a click in the browser does
+        assert page.channel == ch
+        for m in METHODS:
+            np.testing.assert_array_equal(page.curves.curve(m), page.responses[m][ch].g)
+        curves[ch] = page.curves.curve("debevec").copy()
+    assert not np.array_equal(curves["R"], curves["G"])  # three curves, not one shown thrice
+    assert _models(root) == before                       # sources fed, nothing rebuilt
+
+
+def _known(monkeypatch, **by_channels):
+    """``compute_responses`` replaced by the results already computed (counted, slowed), by
+    the session's channels: the tests of sharing and of the channel choice need results, not
+    the estimators' time. A copy each call, as a computation gives a new object."""
+    def known(session, *args, **kwargs):
+        return dict(by_channels["".join(channel_names(session.camera.layout))])
+    counted = _Counting(known)
+    monkeypatch.setattr(response_hdr, "compute_responses", counted)
+    return counted
+
+
+def test_new_session_with_other_channels_keeps_choice_and_widget_in_step(
+        rgb_root, rgb_shown, shown, assets, monkeypatch):
+    """RGB, then a mono bracket, then RGB again on the same rendered page."""
+    _known(monkeypatch, RGB=rgb_shown[1].responses, L=shown[1].responses)
+    state = AppState(allowed_roots=[rgb_root.parent.resolve(), assets.resolve()])
+    page = ResponsePage(state, auto=False)
+    page.__panel__().get_root(Document())
+    for root, names in ((rgb_root, ["R", "G", "B"]), (assets / "tsin01", ["L"]),
+                        (rgb_root, ["R", "G", "B"])):
+        assert state.load(root)
+        _run(page.refresh())
+        assert page.error == "", page.error
+        assert list(page.param.channel.objects) == names
+        assert list(page.channel_select.options) == names
+        assert page.channel == page.channel_select.value == names[0]
+        assert page.channel_select.visible == (len(names) > 1)
+
+
+# ------------------------------------------------------------------ agreement ----------------
+def test_agreement_tables_show_every_method_and_the_chosen_ones_pairs(rgb_shown):
+    _, page, _ = rgb_shown
+    pooled = page.agreement_table.object
+    assert list(pooled["method"]) == [LABELS[m] for m in METHODS]
+    for m, row in zip(METHODS, pooled.to_dict("records")):
+        a = page.responses[m].agreement
+        assert list(row.values())[1:] == [f"{a.rms:.2f}", f"{a.rms_fitted:.2f}",
+                                          f"{a.rms_blend:.2f}"], m
+    for method in ("robertson", "debevec"):
+        page.method = method
+        res = page.responses[method]
+        pairs = page.pairs_table.object
+        assert len(pairs) == res.t.size - 1
+        t = res.t
+        for ch in res.channels:
+            for p, (_, row) in zip(res.agreement[ch].pairs, pairs.iterrows()):
+                assert row["images"] == f"{p.j + 1}\u2192{p.k + 1}"
+                assert row[f"{ch}: RMS"] == f"{p.rms:.2f}"
+                assert row[f"{ch}: fitted"] == f"{p.rms_fitted:.2f}"
+                assert row[f"{ch}: ratio fit/nominal"] == \
+                    f"{p.ratio_fitted / (t[p.k] / t[p.j]):.3f}"
+        assert LABELS[method] in page.pairs_note.object
+    page.method = "tsin"
+
+
+def _worse(result, factor: float):
+    a = result.agreement
+    return dataclasses.replace(result, agreement=dataclasses.replace(a, rms=a.rms * factor))
+
+
+def test_untrusted_reason_rules(rgb_shown):
+    _, page, _ = rgb_shown
+    results = dict(page.responses)
+    best = min(results, key=lambda m: results[m].agreement.rms)
+    for m, r in results.items():
+        assert untrusted_reason(r, results) is None, m    # a clean simulated bracket
+    bad = _worse(results["debevec"], 1.6 * results[best].agreement.rms
+                 / results["debevec"].agreement.rms)
+    reason = untrusted_reason(bad, results)
+    assert reason is not None and "1.6\u00d7" in reason and LABELS[best] in reason
+    fine = _worse(results["debevec"], 1.4 * results[best].agreement.rms
+                  / results["debevec"].agreement.rms)
+    assert untrusted_reason(fine, results) is None
+    res = results["robertson"]
+    stuck = dataclasses.replace(res, responses=(
+        res.responses[0], dataclasses.replace(res.responses[1], converged=False),
+        res.responses[2]))
+    reason = untrusted_reason(stuck, list(results.values()))
+    assert reason is not None and "did not converge (channel G)" in reason
+    no_agreement = dataclasses.replace(res, agreement=None)
+    assert untrusted_reason(no_agreement, results) is None
+
+
+def test_untrusted_result_shows_a_warning_for_the_chosen_method_only(rgb_shown):
+    _, page, _ = rgb_shown
+    saved = dict(page.responses)
+    best = min(saved.values(), key=lambda r: r.agreement.rms).agreement.rms
+    try:
+        page.responses["mitsunaga-nayar"] = _worse(
+            saved["mitsunaga-nayar"], 2 * best / saved["mitsunaga-nayar"].agreement.rms)
+        page.method = "robertson"
+        assert not page.warning_alert.visible
+        page.method = "mitsunaga-nayar"
+        assert page.warning_alert.visible
+        assert "Mitsunaga & Nayar's curves may not be trustworthy" in page.warning_alert.object
+        assert page.error == "" and not page.error_alert.visible   # a warning, not an error
+        page.method = "robertson"
+        assert not page.warning_alert.visible
+    finally:
+        page.responses.clear()
+        page.responses.update(saved)
+        page.method = "tsin"
+
+
+# ------------------------------------------------------------------ shared computations ------
+class _Counting:
+    """``func`` counted, each call slowed (so a second caller arrives while it runs)."""
+
+    def __init__(self, func, delay: float = 0.5):
+        self.func, self.delay, self.calls = func, delay, 0
+
+    def __call__(self, *args, **kwargs):
+        self.calls += 1
+        time.sleep(self.delay)
+        return self.func(*args, **kwargs)
+
+
+async def _ticking(until: "asyncio.Future") -> int:
+    """How many 20 ms sleeps the event loop runs until ``until`` is done."""
+    ticks = 0
+    while not until.done():
+        await asyncio.sleep(0.02)
+        ticks += 1
+    return ticks
+
+
+def _gather_with_ticks(*coros):
+    async def go():
+        work = asyncio.ensure_future(asyncio.gather(*coros))
+        ticks = await _ticking(work)
+        return await work, ticks
+    return _run(go())
+
+
+def test_two_pages_on_one_state_compute_once(rgb_root, rgb_shown, monkeypatch):
+    responses = _known(monkeypatch, RGB=rgb_shown[1].responses)
+    hdr = _Counting(response_hdr.compute_hdr)
+    monkeypatch.setattr(response_hdr, "compute_hdr", hdr)
+    state = _state(rgb_root)
+    one, two = ResponsePage(state, auto=False), ResponsePage(state, auto=False)
+    _, ticks = _gather_with_ticks(one.refresh(), two.refresh())
+    assert responses.calls == 1 and hdr.calls == 1
+    assert one.responses is two.responses and one.hdr is two.hdr
+    assert one.error == two.error == state.error == ""
+    assert ticks >= 20                 # the event loop ran on while both waited (> 0.4 s)
+
+
+def test_browser_sessions_share_one_computation(rgb_root, rgb_shown, monkeypatch):
+    """Two browser sessions (two states, each opening the folder) on one server: one
+    computation, which the second waits for; a third, later, gets it at once."""
+    responses = _known(monkeypatch, RGB=rgb_shown[1].responses)
+    hdr = _Counting(response_hdr.compute_hdr)
+    monkeypatch.setattr(response_hdr, "compute_hdr", hdr)
+    first, second = _state(rgb_root), _state(rgb_root)
+    assert first.session is not second.session
+    statuses: list[str] = []
+    second.param.watch(lambda e: statuses.append(e.new), "status")
+    one, two = ResponsePage(first, auto=False), ResponsePage(second, auto=False)
+    _, ticks = _gather_with_ticks(one.refresh(), two.refresh())
+    assert responses.calls == 1 and hdr.calls == 1
+    assert one.responses is two.responses and one.hdr is two.hdr
+    assert any("another browser tab" in s for s in statuses), statuses
+    assert ticks >= 20
+    third = ResponsePage(_state(rgb_root), auto=False)
+    _run(third.refresh())
+    assert responses.calls == 1 and hdr.calls == 1 and third.responses is one.responses
+    # other options are another computation
+    third.param.update(bloom_radius=0)
+    third._session = None
+    _run(third.refresh())
+    assert responses.calls == 2 and third.responses is not one.responses
+
+
+def _slow(progress=None, fail: bool = False, steps: int = 60):
+    for i in range(steps):
+        progress("working", i / steps)        # raises Cancelled once cancelled
+        time.sleep(0.02)
+    if fail:
+        raise CcdError("bracket", "every frame saturated")
+    return {"value": 42}
+
+
+def _two_callers(rgb_root, func, act=None, *, delay: float = 0.2):
+    """Session one starts ``func`` shared, session two asks for it ``delay`` later; ``act``
+    (states) runs after another ``delay``. Both outcomes and the calls."""
+    counted = _Counting(func, delay=0.0)
+    store = SharedResults()
+    one, two = _state(rgb_root), _state(rgb_root)
+
+    async def go():
+        a = asyncio.ensure_future(one.shared_compute("slow", {}, counted, label="slow",
+                                                     pass_progress=True, store=store))
+        await asyncio.sleep(delay)
+        b = asyncio.ensure_future(two.shared_compute("slow", {}, counted, label="slow",
+                                                     pass_progress=True, store=store))
+        await asyncio.sleep(delay)
+        if act is not None:
+            act(one, two)
+        return await a, await b
+    return (*_run(go()), counted.calls, one, two)
+
+
+def test_a_cancelled_shared_computation_is_taken_over_by_the_waiter(rgb_root):
+    a, b, calls, one, two = _two_callers(rgb_root, _slow, lambda one, two: one.cancel())
+    assert a is None and b == {"value": 42} and calls == 2
+    assert one.status == "Cancelled slow." and two.error == ""
+
+
+def test_a_waiter_cancelling_stops_only_its_wait(rgb_root):
+    a, b, calls, one, two = _two_callers(rgb_root, _slow, lambda one, two: two.cancel())
+    assert a == {"value": 42} and b is None and calls == 1
+    assert two.status == "Stopped waiting for slow." and not two.busy
+
+
+def test_a_shared_error_reaches_every_waiter_once_computed(rgb_root):
+    a, b, calls, one, two = _two_callers(rgb_root, lambda progress: _slow(progress, True))
+    assert a is None and b is None and calls == 1
+    assert one.error == two.error == "bracket: every frame saturated"
