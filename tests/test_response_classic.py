@@ -250,6 +250,31 @@ def test_invalid_observations_ignored(name, tsin01, fits):
     assert fit.iterations == fits[name].iterations
 
 
+@pytest.mark.parametrize("name", METHODS)
+def test_image_order_does_not_matter(name, tsin01, fits):
+    """The images are sorted by exposure whatever order they come in."""
+    data, _ = tsin01
+    order = np.random.default_rng(3).permutation(data.n_images)
+    shuffled = BracketData(data.z[order], data.valid[order], data.t[order], data.levels,
+                           data.channel, files=tuple(data.files[i] for i in order))
+    fit = run(name, shuffled)
+    assert np.allclose(fit.g, fits[name].g, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_bad_codes_and_times(name, tsin01):
+    data, _ = tsin01
+    z = data.z.copy()
+    k, j = np.argwhere(data.valid)[0]
+    z[k, j] = 256                                          # a usable code beyond 8 bits
+    with pytest.raises(CcdError, match="fall outside"):
+        run(name, BracketData(z, data.valid, data.t, data.levels))
+    t = data.t.copy()
+    t[1] = t[0]
+    with pytest.raises(CcdError, match="same exposure time"):
+        run(name, BracketData(data.z, data.valid, t, data.levels))
+
+
 # ------------------------------------------------ the formulas, against direct implementations --
 def small_bracket(data: BracketData, n: int, seed: int = 0) -> BracketData:
     """``n`` random pixels of ``data`` usable in two images or more."""
