@@ -57,12 +57,11 @@ __all__ = ["CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement", "agre
 
 #: codes counted by default, for 8 bits (scaled to other bit depths by :func:`code_range`)
 CODE_RANGE = (10, 245)
-#: most pixels per channel the figures are computed from (an even sample beyond)
-MAX_PIXELS = 400_000
+#: most pixels per channel the blend figure is computed from (an even sample beyond; the pair
+#: figures count every pixel)
+MAX_PIXELS = 100_000
 #: a fitted ratio is searched within this factor of the result's own ratio
 RATIO_SPAN = 4.0
-#: most predictions of a pair its ratio is fitted on (then scored on all of them)
-FIT_PIXELS = 20_000
 
 
 def code_range(levels: int) -> tuple[int, int]:
@@ -188,40 +187,46 @@ def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = Non
     a = np.asarray(data.t if a is None else a, np.float64)
     b = np.zeros(N) if b is None else np.asarray(b, np.float64)
     lo, hi = code_range(data.levels) if codes is None else codes
-    cols = _sample_columns(data.n_pixels, max_pixels)
-    z = np.asarray(data.z)[:, cols]
-    ok = (z >= lo) & (z <= hi)
+    L = g.size
+    zall = np.asarray(data.z)
     f = inverse(g)
-    gz = g[np.clip(z, 0, g.size - 1)]
     pairs = []
     sse = sse_f = 0.0
     n_all = 0
     for j in range(N - 1):
         k = j + 1
-        m = ok[j] & ok[k]
+        zj, zk = zall[j], zall[k]
+        m = (zj >= lo) & (zj <= hi) & (zk >= lo) & (zk <= hi)
         n = int(np.count_nonzero(m))
         r0 = float(a[k] / a[j])
         if n == 0:
             pairs.append(PairAgreement(j, k, 0, float("nan"), float("nan"), r0, float("nan")))
             continue
-        sj, sk = gz[j, m] - b[j], gz[k, m] - b[k]
-        zj, zk = z[j, m].astype(np.float64), z[k, m].astype(np.float64)
+        # a prediction depends on the pixel's pair of codes only: the moments of the predicted
+        # image's codes per code of the other make every sum over pixels a sum over codes
+        # (exact, and one pass over the pixels per pair)
+        xj, xk = zj[m].astype(np.int64), zk[m].astype(np.int64)
+        mom = []
+        for src, dst in ((xj, xk), (xk, xj)):
+            w = dst.astype(np.float64)
+            mom.append((np.bincount(src, minlength=L).astype(np.float64),
+                        np.bincount(src, weights=w, minlength=L),
+                        np.bincount(src, weights=w * w, minlength=L)))
+        (n_j, s1_j, s2_j), (n_k, s1_k, s2_k) = mom
+        sig_j, sig_k = g - b[j], g - b[k]          # the signal of every code, each image
 
-        def cost(lr: float, sub: slice | NDArray = slice(None)) -> float:
+        def cost(lr: float) -> float:
             r = math.exp(lr)
-            ek = f(r * sj[sub] + b[k]) - zk[sub]
-            ej = f(sk[sub] / r + b[j]) - zj[sub]
-            return float(ek @ ek + ej @ ej)
+            pk = f(r * sig_j + b[k])                # image k from each code of image j
+            pj = f(sig_k / r + b[j])                # image j from each code of image k
+            return float(n_j @ (pk * pk) - 2.0 * (s1_j @ pk) + s2_j.sum()
+                         + n_k @ (pj * pj) - 2.0 * (s1_k @ pj) + s2_k.sum())
 
-        c0 = cost(math.log(r0))
-        # the ratio is fitted on an even sample of the pair (a 1-D search), then scored on all
-        sub = _sample_columns(n, FIT_PIXELS)
+        c0 = max(cost(math.log(r0)), 0.0)
         span = math.log(RATIO_SPAN)
-        opt = minimize_scalar(lambda lr: cost(lr, sub),
-                              bounds=(math.log(r0) - span, math.log(r0) + span),
-                              method="bounded", options={"xatol": 1e-5})
-        c1 = cost(float(opt.x))
-        lr = float(opt.x)
+        opt = minimize_scalar(cost, bounds=(math.log(r0) - span, math.log(r0) + span),
+                              method="bounded", options={"xatol": 1e-6})
+        c1, lr = max(float(opt.fun), 0.0), float(opt.x)
         if not c1 < c0:
             c1, lr = c0, math.log(r0)
         pairs.append(PairAgreement(j, k, 2 * n, _rms(c0, 2 * n), _rms(c1, 2 * n), r0,
@@ -229,6 +234,10 @@ def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = Non
         sse += c0
         sse_f += c1
         n_all += 2 * n
+    cols = _sample_columns(data.n_pixels, max_pixels)
+    z = zall[:, cols]
+    ok = (z >= lo) & (z <= hi)
+    gz = g[np.clip(z, 0, g.size - 1)]
     # each image from the blend of the others: eq. 9 with the weights of eq. 18,
     # w_i ∝ a_i / σ(a_i, z_i), σ taken as g'(z_i) (the output noise, the same for every image),
     # over the others' readable codes

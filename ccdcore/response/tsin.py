@@ -165,7 +165,7 @@ class TsinOptions:
     tol: float = 1e-5
     max_iter: int = 30
     min_pool: int = 10
-    edge: float = 0.0
+    edge: float = 5.0
     clip_fraction: float = 0.02
     mad_factor: float | None = None
     groups: int = 64
@@ -601,6 +601,9 @@ class _Setup:
 MIN_ETA = 1.0 / 64
 #: the largest relative change of a gain a_k in one step of the white-balance fit
 MAX_GAIN_STEP = 0.05
+#: the white-balance fit's trust region grows to at most this many MAX_GAIN_STEP after accepted
+#: steps (on a real bracket the gains travel far in one direction, step after step)
+MAX_RADIUS = 8.0
 #: the white-balance fit stops when three steps in a row lower its objective by less than
 #: this fraction each
 FLAT = 1e-5
@@ -874,8 +877,8 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     if g0 is not None:
         gk = np.interp(s.knots.codes, np.arange(L, dtype=np.float64), np.asarray(g0, float))
         gk = gk * s.knots.codes[k_hi] / gk[k_hi] / (L - 1.0)
-    P_s = _second_differences(K)
-    P_s = P_s.T @ P_s
+    D2 = _second_differences(K)
+    P_s = D2.T @ D2
     bw = opts.smoothness * (K - 1) / 255.0
     free = np.ones(K, bool)
     free[k_hi] = False
@@ -1006,7 +1009,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
             if rel > MAX_GAIN_STEP * radius:
                 d = d * (MAX_GAIN_STEP * radius / rel)
-            radius = min(1.0, 2.0 * radius)
+            radius = min(MAX_RADIUS, 2.0 * radius)
             delta = d[:K]
             a_new = a + opts.eta * d[K:K + N]
             if np.any(a_new <= 0):
