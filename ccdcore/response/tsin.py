@@ -47,10 +47,15 @@ Departures from the paper, each for a measured reason (docs/response.md):
   its form (the sum runs over the pool's trace). Which images join a pool's trace depends only on
   the pool (its clipped fraction), never on one pixel's own noise, so the clipping biases no
   mean either.
-* **Smoothness on g**, not on Δg: a penalty λ Σ (g(z-1) - 2 g(z) + g(z+1))² in eq. 15. The
-  printed term on Δg only damps the steps and leaves the fixed point unregularised: codes seen by
-  a few pools then wander. ``smoothness`` is the bandwidth in 8-bit code steps (λ = bandwidth^4
-  times the median data weight of a knot).
+* **Smoothness on g relative to its slope**, not on Δg: a penalty λ Σ (g''(z) / g'(z))² in
+  eq. 15, the second differences of g weighted by (median slope / g'(z))² (from the last pass).
+  The printed term on Δg only damps the steps and leaves the fixed point unregularised: codes
+  seen by a few pools then wander. Relative to the slope because a real camera's curve spans
+  decades: an absolute penalty on g'' is largest where g is steep, and on a real bracket it
+  flattened the sparse highlights of the shoulder (the agreement of the longest exposures fell
+  behind Debevec's hat-weighted smoothing); on a power law g''/g' = (γ-1)/z is small there.
+  ``smoothness`` is the bandwidth in 8-bit code steps (λ = bandwidth^4 times the median data
+  weight of a knot) where the slope is the median one.
 * **One fixed point, where the pools are.** With a_k the nominal times and b_k = 0 only the
   scale of g is free: one fixed point (a second would contradict b = 0), at the 75th percentile
   of the pools' codes (:func:`_anchors`; the white-balance fit also holds the 25th); g is then
@@ -717,7 +722,7 @@ def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
     counts = _row_counts(start, mflag, inc, paper, K)
     # small brackets: lower the pool threshold to what their size allows (at least 10)
     per_code = P / max(1, K)
-    min_pool = int(max(10, min(opts.min_pool, 0.4 * per_code)))
+    min_pool = int(max(min(10, opts.min_pool), min(opts.min_pool, 0.4 * per_code)))
     ok = counts >= min_pool
     rows = np.argwhere(ok)
     if rows.shape[0] < 3:
@@ -928,6 +933,10 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         H = JW.T @ Jm[:, :K]
         dg = np.diag(H)
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
+        # the smoothness of g relative to its slope, Σ (g''/g')² (scale-free; see the module
+        # notes): each second difference weighted by (median slope / slope)², from this pass
+        gpk = np.maximum(np.gradient(gk), 1e-12)[1:-1]
+        P_s = D2.T @ (((np.median(gpk) / gpk) ** 2)[:, None] * D2)
         Hs = H + lam * P_s
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
         if restore:
