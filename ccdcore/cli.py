@@ -239,6 +239,12 @@ def _print_product(product: Any, folder: Path) -> None:
             f"σ_c2 {_fmt(r['sigma_c2'][i])} DN" for i, c in enumerate(r["channels"]))
         print(f"  response       g per channel ({', '.join(r['channels'])}, {r['levels']} "
               f"codes) by {r['method']}; noise {noise}")
+        ag = r.get("agreement")
+        if isinstance(ag, dict) and ag.get("rms") is not None:
+            print(f"                 predicts its images within {ag['rms']:.2f} DN RMS from a "
+                  f"neighbour ({_fmt(ag.get('rms_fitted'))} DN with fitted ratios; sec. 4.2)")
+        for w in r.get("warnings") or ():
+            _say("warning", f"response: {w}")
     for name, sv in est.get("scene", {}).items():
         print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
               "(relative variance of the surface)")

@@ -113,6 +113,8 @@ def untrusted_reason(result: ResponseResult,
             reasons.append(f"it predicts the bracket's images within {own:.2f} DN RMS, {times} "
                            f"the best method's {best:.2f} DN "
                            f"({LABELS.get(best_result.method, best_result.method)})")
+    # the library's own checks (collapsed curves, exposures the images disagree with)
+    reasons += [w for w in result.warnings() if "without converging" not in w]
     if not reasons:
         return None
     return (f"{LABELS.get(result.method, result.method)}'s curves may not be trustworthy: "
