@@ -609,6 +609,8 @@ MAX_GAIN_STEP = 0.05
 #: the white-balance fit's trust region grows to at most this many MAX_GAIN_STEP after accepted
 #: steps (on a real bracket the gains travel far in one direction, step after step)
 MAX_RADIUS = 8.0
+#: the smoothness relative to the slope counts slopes from this fraction of the median one
+SLOPE_FLOOR = 0.1
 #: the white-balance fit stops when three steps in a row lower its objective by less than
 #: this fraction each
 FLAT = 1e-5
@@ -927,7 +929,11 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             before = _pick_pool(s, resid, gk)
         # steps 6-7: eq. 13 per pool, eq. 15 with the smoothness term and the fixed point
         Jm = J / n[:, None]
-        W = 1.0 / np.maximum(se, 1e-12) ** 2
+        # a pool's mean error cannot be known better than its codes' quantisation (1/12 DN²) at
+        # a tenth of the curve's mean slope: where a step flattened g, the errors there vanish
+        # with the slope and their weights would grow without bound
+        floor = 0.1 * max(float(gk[-1] - gk[0]), 1e-12) / (L - 1) / np.sqrt(12.0 * n)
+        W = 1.0 / np.maximum(se, floor) ** 2
         JWfull = Jm * W[:, None]
         JW = JWfull[:, :K]
         H = JW.T @ Jm[:, :K]
@@ -935,8 +941,10 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
         # the smoothness of g relative to its slope, Σ (g''/g')² (scale-free; see the module
         # notes): each second difference weighted by (median slope / slope)², from this pass
-        gpk = np.maximum(np.gradient(gk), 1e-12)[1:-1]
-        P_s = D2.T @ (((np.median(gpk) / gpk) ** 2)[:, None] * D2)
+        gpk = np.gradient(gk)[1:-1]
+        gmed = float(np.median(gpk[gpk > 0])) if np.any(gpk > 0) else 1.0
+        gpk = np.maximum(gpk, SLOPE_FLOOR * gmed)       # a flat run does not stiffen without bound
+        P_s = D2.T @ (((gmed / gpk) ** 2)[:, None] * D2)
         Hs = H + lam * P_s
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
         if restore:
