@@ -465,7 +465,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     from .distributed import STREAMED, describe, get_client
     from .io import write_image, write_map
     from .product import load_product
-    from .response.brackets import _check_times, bracket_records, load_bracket
+    from .response.brackets import check_times, bracket_records, load_bracket
     from .response.hdr import merge_bracket
     from .response.methods import response_of
     from .session import open_session
@@ -483,7 +483,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                                          "bits in the manifest (the response has 2**bits "
                                          "values)")
             levels = 2 ** int(session.camera.bits)
-            times = np.sort(_check_times([r.exposure for r in records], files), kind="stable")
+            times = np.sort(check_times([r.exposure for r in records], files), kind="stable")
         else:
             frames = [session.read(r) for r in records]      # read once: traces and merge
             brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,

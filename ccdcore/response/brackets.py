@@ -36,7 +36,7 @@ from scipy import ndimage
 from .. import channels as chan
 from ..errors import CcdError
 
-__all__ = ["BracketData", "load_bracket", "bracket_records", "bracket_data", "preprocess", "bloom_mask", "kept_mask",
+__all__ = ["BracketData", "load_bracket", "bracket_records", "bracket_data", "check_times", "preprocess", "bloom_mask", "kept_mask",
            "BAYER_MAD_FACTOR",
            "DEFAULT_BLOOM_RADIUS", "DEFAULT_BORDER"]
 
@@ -163,7 +163,9 @@ def bloom_mask(plane: ArrayLike, levels: int, radius: int = DEFAULT_BLOOM_RADIUS
     return ndimage.binary_dilation(saturated, structure=(yy * yy + xx * xx) <= r * r)
 
 
-def _check_times(t: Sequence[Any], files: Sequence[str]) -> NDArray[np.float64]:
+def check_times(t: Sequence[Any], files: Sequence[str]) -> NDArray[np.float64]:
+    """A bracket's exposure times as an array, or one clear error naming the frame: at least
+    two, each a positive finite number, no two the same."""
     where = files[0] if files else "bracket"
     if len(t) < 2:
         raise CcdError(where, f"a bracket needs at least two exposures, got {len(t)}")
@@ -194,7 +196,7 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
     ``0 .. 2**bits - 1``). Pixels with no usable observation in any frame are left out.
     """
     files = tuple(str(f) for f in files) or tuple(f"frame {k}" for k in range(len(frames)))
-    times = _check_times(list(t), files)
+    times = check_times(list(t), files)
     if len(frames) != times.size:
         raise CcdError(files[0], f"{len(frames)} frames but {times.size} exposure times")
     if bits is None or not 1 <= int(bits) <= 16:
