@@ -112,3 +112,19 @@ def test_reported_scale_and_rms_after_the_free_scale():
     bumped = truth.copy()
     bumped[100] += 0.01                               # one code off by 0.01 over 246 codes
     assert scale.rms_error(bumped, truth) == pytest.approx(0.01 / np.sqrt(246), rel=0.02)
+
+
+@pytest.mark.parametrize("fraction", [0.001, 0.02, 0.3])
+def test_bloom_mask_is_the_disk_dilation_sparse_or_dense(fraction):
+    """The direct marking used for few saturated pixels gives the binary dilation by the disk
+    exactly, at the frame's edges too."""
+    from scipy import ndimage
+
+    from ccdcore.response.brackets import bloom_mask
+
+    rng = np.random.default_rng(11)
+    z = np.where(rng.random((61, 83)) < fraction, 255, 100).astype(np.uint8)
+    z[0, 0] = z[-1, 40] = 255
+    yy, xx = np.mgrid[-3:4, -3:4]
+    ref = ndimage.binary_dilation(z == 255, structure=(yy * yy + xx * xx) <= 9)
+    assert np.array_equal(bloom_mask(z, 256, 3), ref)

@@ -118,17 +118,21 @@ class BracketData:
 
 
 def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-               border: int = DEFAULT_BORDER) -> NDArray[np.bool_]:
+               border: int = DEFAULT_BORDER, bloom: NDArray[np.bool_] | None = None
+               ) -> NDArray[np.bool_]:
     """Usable pixels of one 2-D channel frame (sec. 3.2, step 1).
 
     A pixel is dropped when its code is clipped (0 or ``levels - 1``), when it lies within
     ``bloom_radius`` pixels (Euclidean disk) of a saturated pixel (blooming, sec. 2), or within
-    ``border`` pixels of the frame's edge.
+    ``border`` pixels of the frame's edge. ``bloom``: the frame's :func:`bloom_mask`, when
+    already made.
     """
     z = np.asarray(frame)
     if z.ndim != 2:
         raise CcdError("bracket", f"expected a 2-D channel, got shape {z.shape}")
-    usable = (z > 0) & (z < levels - 1) & ~bloom_mask(z, levels, bloom_radius)
+    if bloom is None:
+        bloom = bloom_mask(z, levels, bloom_radius)
+    usable = (z > 0) & (z < levels - 1) & ~bloom
     if border > 0:
         b = int(border)
         usable[:b, :] = usable[-b:, :] = False
@@ -137,12 +141,15 @@ def preprocess(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLO
 
 
 def kept_mask(frame: ArrayLike, levels: int, *, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-              border: int = DEFAULT_BORDER) -> NDArray[np.bool_]:
+              border: int = DEFAULT_BORDER, bloom: NDArray[np.bool_] | None = None
+              ) -> NDArray[np.bool_]:
     """Observations of one 2-D channel frame that are not outliers: the boundary and the
     unsaturated pixels within ``bloom_radius`` of a saturated one are dropped; clipped codes stay
     (they are observations of "at or beyond the clip level")."""
     z = np.asarray(frame)
-    kept = ~(bloom_mask(z, levels, bloom_radius) & (z < levels - 1))
+    if bloom is None:
+        bloom = bloom_mask(z, levels, bloom_radius)
+    kept = ~(bloom & (z < levels - 1))
     if border > 0:
         b = int(border)
         kept[:b, :] = kept[-b:, :] = False
@@ -160,7 +167,18 @@ def bloom_mask(plane: ArrayLike, levels: int, radius: int = DEFAULT_BLOOM_RADIUS
         return np.zeros(z.shape, bool)
     r = int(radius)
     yy, xx = np.mgrid[-r:r + 1, -r:r + 1]
-    return ndimage.binary_dilation(saturated, structure=(yy * yy + xx * xx) <= r * r)
+    disk = (yy * yy + xx * xx) <= r * r
+    ys, xs = np.nonzero(saturated)
+    if ys.size * disk.sum() > z.size:
+        return ndimage.binary_dilation(saturated, structure=disk)
+    # few saturated pixels (lights in a scene): mark the disk around each one directly
+    out = np.zeros(z.shape, bool)
+    h, w = z.shape
+    for dy, dx in zip(yy[disk].tolist(), xx[disk].tolist()):
+        y, x = ys + dy, xs + dx
+        ok = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+        out[y[ok], x[ok]] = True
+    return out
 
 
 def check_times(t: Sequence[Any], files: Sequence[str]) -> NDArray[np.float64]:
@@ -225,10 +243,13 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
     for name in split[0]:
         planes = [s[name] for s in split]
         h, w = planes[0].shape
-        valid = np.stack([preprocess(p, levels, bloom_radius=bloom_radius, border=border)
-                          for p in planes]).reshape(len(planes), -1)
-        kept = np.stack([kept_mask(p, levels, bloom_radius=bloom_radius, border=border)
-                         for p in planes]).reshape(len(planes), -1)
+        blooms = [bloom_mask(p, levels, bloom_radius) for p in planes]
+        valid = np.stack([preprocess(p, levels, bloom_radius=bloom_radius, border=border,
+                                     bloom=m) for p, m in zip(planes, blooms)]
+                         ).reshape(len(planes), -1)
+        kept = np.stack([kept_mask(p, levels, bloom_radius=bloom_radius, border=border,
+                                   bloom=m) for p, m in zip(planes, blooms)]
+                        ).reshape(len(planes), -1)
         z = np.stack([p.reshape(-1) for p in planes]).astype(np.int32)
         keep = np.flatnonzero(valid.any(axis=0))
         out[name] = BracketData(z[:, keep], valid[:, keep], times, levels, name, (h, w), keep,
