@@ -367,7 +367,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         """Set a choice's options and value as the page's own: no event, so no step is
         scheduled (the caller shows it); the user's choices schedule theirs."""
         widget = {"offset": self.setting_select, "base": self.base_select,
-                  "frame": self.frame_select}[choice]
+                  "frame": self.frame_select, "channel": self.channel_select}[choice]
         set_choices(self, {choice: (widget, objects, value)}, trigger=False)
 
     def _on_session(self, *events: Any) -> None:
@@ -444,9 +444,9 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self._choose("offset", settings, settings[0] if settings else None)
         self.setting_select.visible = bool(settings)
         names = channel_names(session.camera.layout)
-        self.param.channel.objects = list(names)
-        if self.channel not in names:
-            self.param.update(channel=names[0])
+        # the options and the value together (an RGB session after a mono one: the widget
+        # must never see a value outside its options)
+        self._choose("channel", list(names), self.channel if self.channel in names else names[0])
         self.channel_select.visible = len(names) > 1
         self.content.visible = True
         await self.show_setting()

@@ -281,3 +281,23 @@ def test_choices_the_page_makes_schedule_nothing_the_users_schedule_their_step(d
     page.setting_select.value = "ZDI"
     page.frame_select.value = next(f for f in page.param.frame.objects if f != page.frame)
     assert scheduled == [page.show_base, page.show_setting, page.show_frame]
+
+
+def test_an_rgb_session_after_a_mono_one_sets_channel_options_and_value_together(delasarte07):
+    """Served widgets see the channel's options and value change at once: with the options
+    first, the button group cleared its value, which the channel selector refuses."""
+    from bokeh.document import Document
+
+    state = AppState(allowed_roots=[delasarte07.parent.resolve()])
+    assert state.load(delasarte07)
+    page = FlatFieldPage(state, auto=False)
+    # as after a mono session: the page and its served widget hold the channel "L"
+    page.param.channel.objects = ["L"]
+    page.channel = "L"
+    page.channel_select.param.update(options=["L"], value="L")
+    page.__panel__().get_root(Document())
+    _run(page.refresh())
+    assert page.error == "" and state.error == ""
+    assert list(page.param.channel.objects) == ["R", "G", "B"]
+    assert page.channel == "R" and page.channel_select.value == "R"
+    assert list(page.channel_select.options) == ["R", "G", "B"]
