@@ -855,8 +855,7 @@ def _sqrt_err(v: float, e: float) -> tuple[float, float]:
 
 # ------------------------------------------------------------------------------ estimate ------
 def estimate(data: BracketData, options: TsinOptions | None = None, *,
-             progress: Callable[[float, str], None] | None = None,
-             g0: ArrayLike | None = None) -> ChannelResponse:
+             progress: Callable[[float, str], None] | None = None) -> ChannelResponse:
     """The iterative calibration of sec. 3.2 on one channel of a bracket.
 
     Returns the response and noise on the reported scale, with the 1-sigma band of g (a
@@ -881,9 +880,6 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     # the fixed points of the fit, where the pools are (a departure: see _anchors)
     k_lo, k_hi = _anchors(s)
     gk = s.knots.codes / (L - 1.0)          # step 2: the straight line through the fixed points
-    if g0 is not None:
-        gk = np.interp(s.knots.codes, np.arange(L, dtype=np.float64), np.asarray(g0, float))
-        gk = gk * s.knots.codes[k_hi] / gk[k_hi] / (L - 1.0)
     D2 = _second_differences(K)
     P_s = D2.T @ D2
     bw = opts.smoothness * (K - 1) / 255.0
