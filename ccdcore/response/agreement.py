@@ -20,8 +20,9 @@ Three figures per channel, in DN:
     directions, least squares in DN). The difference from ``rms`` is what exposure errors cost;
     what remains is the curve's shape.
 ``rms_blend``
-    Each image predicted from the blend of all the others (eq. 9's radiance with constant
-    weights, then eq. 10's prediction), with the result's exposures.
+    Each image predicted from the blend of all the others (eq. 9's radiance with eq. 18's
+    weights, σ taken as g', over the others' readable codes; an even sample of at most
+    :data:`MAX_PIXELS` pixels), with the result's exposures.
 
 Every pair's figures are kept (``PairAgreement``), so one bad frame (a moved camera, a wrong
 exposure in the manifest) shows as the pairs it takes part in.
