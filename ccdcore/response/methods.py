@@ -26,6 +26,9 @@ session_response(session, method, ...)
 """
 from __future__ import annotations
 
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -243,15 +246,28 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
     names = tuple(brackets)
     if not names:
         raise CcdError("response", "the bracket has no channel")
-    out = []
-    for i, name in enumerate(names):
-        def sub(frac: float, msg: str, i: int = i, name: str = name) -> None:
+    done = [0.0] * len(names)
+    lock = threading.Lock()
+
+    def one(i: int) -> ChannelResponse:
+        name = names[i]
+
+        def sub(frac: float, msg: str) -> None:
             if progress is not None:
-                progress((i + frac) / len(names), f"channel {name}: {msg}")
-        if white_balance:
-            out.append(METHODS[method].run(brackets[name], sub, white_balance=True))
-        else:
-            out.append(METHODS[method].run(brackets[name], sub))
+                with lock:
+                    done[i] = frac
+                    progress(sum(done) / len(names), f"channel {name}: {msg}")
+        kw = {"white_balance": True} if white_balance else {}
+        return METHODS[method].run(brackets[name], sub, **kw)
+
+    # the channels are independent: one thread each, up to the cores (the kernels release
+    # the GIL); the first error of any channel is raised as it is
+    workers = max(1, min(len(names), os.cpu_count() or 1))
+    if workers == 1:
+        out = [one(i) for i in range(len(names))]
+    else:
+        with ThreadPoolExecutor(workers, thread_name_prefix="response") as pool:
+            out = list(pool.map(one, range(len(names))))
     first = brackets[names[0]]
     if progress is not None:
         progress(0.99, "agreement: each image predicted from its neighbours (sec. 4.2)")

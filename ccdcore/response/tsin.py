@@ -61,7 +61,8 @@ Departures from the paper, each for a measured reason (docs/response.md):
   of the pools' codes (:func:`_anchors`; the white-balance fit also holds the 25th); g is then
   reported with g(z_hi) fixed (:mod:`ccdcore.response.scale`).
 * **A guarded step** (sec. 3.2 without white balance, and its first phase): a step that raises
-  the objective is taken back and halved; at 1/64 of a step the fit has converged.
+  the objective is taken back and halved; at 1/8 of a step, or once a step moves g by less
+  than a tenth of its statistical error (:data:`RESOLUTION`), the fit has converged.
 * **Pools** count from ``min_pool`` = 10 pixels and keep at most :data:`POOL_CAP` pixels.
 * **Shot noise** is linear in the signal, σ² = σ_s² a E + σ_c1² + g'(z)² σ_c2² (eq. 7 reads
   a²E² as extracted; sec. 2 says the shot variance is proportional to E t). Eq. 17 carries the
@@ -251,7 +252,7 @@ class ChannelResponse:
 
 
 # ------------------------------------------------------------------------------ kernels ------
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pool_counts(pb, obs, clip, K):  # pragma: no cover - compiled
     """seen[j, m, i]: pixels of pool (j, m) observed in image i; clipped[j, m, i] those clipped."""
     N, P = pb.shape
@@ -270,7 +271,7 @@ def _pool_counts(pb, obs, clip, K):  # pragma: no cover - compiled
     return seen, clipped
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _pool_members(pb, obs, clip, K, cap):  # pragma: no cover - compiled
     """The pixels of every pool (j, m), pool by pool (CSR: ``start`` indexed j * K + m); a
     pool larger than ``cap`` keeps ``cap`` of its pixels, evenly spread over the frame."""
@@ -301,7 +302,7 @@ def _pool_members(pb, obs, clip, K, cap):  # pragma: no cover - compiled
     return start, members
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _trace(q, j, m, mflag, inc, paper, idx):  # pragma: no cover - compiled
     """The images of membership q's trace within pool (j, m), written to idx; their number.
     ``mflag`` bit 0: observed, bit 1: clipped."""
@@ -321,7 +322,7 @@ def _trace(q, j, m, mflag, inc, paper, idx):  # pragma: no cover - compiled
     return ns
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _row_counts(start, mflag, inc, paper, K):  # pragma: no cover - compiled
     N = mflag.shape[1]
     counts = np.zeros((N, K, N), np.int64)
@@ -340,7 +341,7 @@ def _row_counts(start, mflag, inc, paper, K):  # pragma: no cover - compiled
     return counts
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _knot(code, step, identity, K):  # pragma: no cover - compiled
     """Knot j0 and fraction f of a code: g(z) = (1 - f) g[j0] + f g[j0 + 1]."""
     if identity:
@@ -350,7 +351,7 @@ def _knot(code, step, identity, K):  # pragma: no cover - compiled
     return j0, u - j0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wimg, wcode, K, step,
           identity, want_noise, with_a):  # pragma: no cover - compiled
     """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
@@ -517,7 +518,7 @@ def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wim
     return J, X, resid, egrp
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _row_stats(resid, offsets, trim, mad_c):  # pragma: no cover - compiled
     """Per row (``resid`` sorted within each row): trimmed mean (eq. 11), MAD sigma (eq. 12),
     standard error of the trimmed mean (Tukey-McLaughlin) and the winsorising limits."""
@@ -545,7 +546,7 @@ def _row_stats(resid, offsets, trim, mad_c):  # pragma: no cover - compiled
     return tm, sig, se, lo, hi, wmean
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _sorted_mad(x, c):  # pragma: no cover - compiled
     """median |x - c| of a sorted array by merging the deviations on either side of c."""
     n = x.size
@@ -569,7 +570,7 @@ def _sorted_mad(x, c):  # pragma: no cover - compiled
     return 0.5 * (prev + cur)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _group_sums(resid, egrp, offsets, lo, hi, wmean, trim, G):  # pragma: no cover - compiled
     """Per row and block of pixels: the summed influence of the row's pixels on its trimmed
     mean (winsorised deviation / ((1 - 2α) n))."""
@@ -603,7 +604,7 @@ class _Setup:
 
 #: the shortest step of g (as a fraction of eq. 16's step) tried before the fit is taken as
 #: converged: no step along the update lowers its objective
-MIN_ETA = 1.0 / 64
+MIN_ETA = 1.0 / 8
 #: the largest relative change of a gain a_k in one step of the white-balance fit
 MAX_GAIN_STEP = 0.05
 #: the white-balance fit's trust region grows to at most this many MAX_GAIN_STEP after accepted
@@ -611,6 +612,11 @@ MAX_GAIN_STEP = 0.05
 MAX_RADIUS = 8.0
 #: the smoothness relative to the slope counts slopes from this fraction of the median one
 SLOPE_FLOOR = 0.1
+#: the iteration has converged once a step moves g by less than this fraction of g's
+#: statistical error (the mean over the free knots of eq. 15's 1-sigma, per knot): further
+#: steps only trade one noisy trimmed mean for another (on real brackets the guarded step was
+#: then rejected again and again while the objective wobbled by 1e-4 of itself)
+RESOLUTION = 0.1
 #: the white-balance fit stops when three steps in a row lower its objective by less than
 #: this fraction each
 FLAT = 1e-5
@@ -688,7 +694,8 @@ def _sample(data: BracketData) -> tuple[BracketData, int]:
     cap = MAX_ENTRIES // max(1, N * (N - 1))
     if P <= cap:
         return data, 0
-    keep = np.unique(np.linspace(0, P - 1, cap).astype(np.int64))
+    keep = np.linspace(0, P - 1, cap).astype(np.int64)      # sorted: drop repeats
+    keep = keep[np.r_[True, keep[1:] != keep[:-1]]]
     return data.take(keep), P
 
 
@@ -899,10 +906,12 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     phase = 1
     kept: tuple | None = None                    # the last accepted state of phase 2
     radius = 1.0                                 # of the trust region, in MAX_GAIN_STEP
+    predicted = 0.0                              # the model's fall of the objective, last step
     flat = 0                                     # accepted steps in a row that gained < FLAT
     last: tuple | None = None                    # phase 1: (objective, g, Δg) last accepted
     eta = float(opts.eta)                        # phase 1: the step, halved on a worse fit
     restore = False
+    resolution = 0.0                             # a tenth of g's statistical error (per knot)
     it = 0
 
     def advance(g_from: NDArray, delta: NDArray, eta: float) -> NDArray:
@@ -956,7 +965,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                                 "a_step": a_step, "chi2": chi2, "pools": int(tm.size),
                                 "rejected": True})
                 eta *= 0.5
-                if eta < MIN_ETA:
+                if eta < MIN_ETA or eta * last[3] < resolution:
                     # no step along Δg improves the fit: it is at a minimum of the objective
                     if fit_a:
                         gk, phase, free[k_lo] = last[1], 2, False
@@ -993,6 +1002,15 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             if flat >= 3:
                 converged = True                 # the fit no longer improves: flat
                 break
+            if kept is not None and predicted > 0:
+                # the trust region follows how well the quadratic model predicted the gain
+                # (grown on a good prediction, kept on a fair one, shrunk on a poor one); grown
+                # on every accepted step (as first built), it zig-zagged on a real bracket:
+                # every other step rejected, a pass each
+                rho = (kept[0] - cost) / predicted
+                radius = (min(MAX_RADIUS, 2.0 * radius) if rho > 0.4 else
+                          radius if rho > 0.1 else 0.5 * radius)
+                history[-1]["rho"] = rho
             kept = (cost, chi2, gk, a, b)
         if phase == 1:
             rhs = -(Jm[:, :K].T @ (W * tm)) - lam * (P_s @ gk)
@@ -1000,6 +1018,8 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             Hf = Hs[np.ix_(free, free)]
             try:
                 delta[free] = np.linalg.solve(Hf, rhs[free])
+                resolution = RESOLUTION * float(np.mean(np.sqrt(np.maximum(
+                    np.diag(np.linalg.inv(Hf)), 0.0))))
             except np.linalg.LinAlgError:
                 delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
         else:
@@ -1022,7 +1042,9 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
             if rel > MAX_GAIN_STEP * radius:
                 d = d * (MAX_GAIN_STEP * radius / rel)
-            radius = min(MAX_RADIUS, 2.0 * radius)
+            # the fall of the pools' χ² the linearised model predicts for this step
+            dd = opts.eta * d
+            predicted = float(2.0 * (dd @ grad) - dd @ Hfull @ dd)
             delta = d[:K]
             a_new = a + opts.eta * d[K:K + N]
             if np.any(a_new <= 0):
@@ -1033,7 +1055,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             a_step = float(np.max(np.abs(a_new / a - 1.0)))
             a, b = a_new, b + opts.eta * d[K + N:]
         if phase == 1:
-            last = (obj, gk, delta)
+            last = (obj, gk, delta, float(np.mean(np.abs(delta))))
             gk_new = advance(gk, delta, eta)
             eta = min(float(opts.eta), 2.0 * eta)
         else:
@@ -1046,7 +1068,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             progress(min(0.95, it / (4.0 if not fit_a else 12.0)),
                      f"iteration {it}: mean |Δg| {step:.1e}")
         if not fit_a:
-            if step < opts.tol:                   # step 10
+            if step < max(opts.tol, resolution):  # step 10
                 converged = True
                 break
             continue
