@@ -530,7 +530,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from app.report import write_report  # here: Bokeh loads for this verb only (not Panel)
+    from ccdcore_app.report import write_report  # here: Bokeh loads for this verb only (not Panel)
 
     last = [""]
 
@@ -545,7 +545,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_app(args: argparse.Namespace) -> int:
-    from app.main import serve
+    from ccdcore_app.main import serve
 
     if args.session is not None and not Path(args.session).exists():
         raise CcdError(args.session, "session not found")

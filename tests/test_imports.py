@@ -5,7 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-UI_PACKAGES = ("panel", "holoviews", "bokeh", "app")
+UI_PACKAGES = ("panel", "holoviews", "bokeh", "ccdcore_app")
 
 
 def test_importing_ccdcore_imports_no_ui_package():

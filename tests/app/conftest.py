@@ -12,7 +12,7 @@ from typing import Any, Callable, Iterator
 import numpy as np
 import pytest
 
-from app.state import assets_dir
+from ccdcore_app.state import assets_dir
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -36,7 +36,7 @@ def _no_result_cache(monkeypatch: pytest.MonkeyPatch) -> None:
     test's results; a test of the cache points CCDCORE_CACHE at its own folder."""
     monkeypatch.setenv("CCDCORE_CACHE", "off")
     # nor the server-wide store of shared results (app/cache.py): a fresh one per test
-    import app.cache as cache
+    import ccdcore_app.cache as cache
     monkeypatch.setattr(cache, "_SHARED", None)
 
 
@@ -164,7 +164,7 @@ def _wait_alive(url: str, timeout: float = 20.0) -> None:
 @pytest.fixture(scope="session")
 def warmed() -> None:
     """Import the estimators' scipy modules once for the whole run (as ``serve`` does)."""
-    from app.main import warm_up
+    from ccdcore_app.main import warm_up
 
     warm_up()
 
@@ -172,11 +172,11 @@ def warmed() -> None:
 @pytest.fixture
 def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
     """``serve_app(session_path=None, allowed_roots=None, **server_options) -> url``: the app on
-    a free port, served threaded as ``app.main.serve`` does (``server_options`` go to the Bokeh
+    a free port, served threaded as ``ccdcore_app.main.serve`` does (``server_options`` go to the Bokeh
     server); every server is stopped after the test."""
     import panel as pn
 
-    from app.main import create_app, server_resources
+    from ccdcore_app.main import create_app, server_resources
 
     def start(session_path: str | Path | None = None, allowed_roots=None,
               **server_options: Any) -> str:

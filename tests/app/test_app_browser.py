@@ -54,7 +54,7 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
     assert _outside(requests) == []
     # the app's BokehJS speed-ups (app/static/bokeh_speed.js) found what they patch
     assert page.evaluate("() => window.ccdBokehSpeed") == ["css-variables", "base-font-size"]
-    # Bootstrap's stylesheet is loaded once by the page, in no component (app.main.AppDesign)
+    # Bootstrap's stylesheet is loaded once by the page, in no component (ccdcore_app.main.AppDesign)
     inside, outside = page.evaluate("""() => {
         const roots = [];
         const walk = (node) => { for (const el of node.querySelectorAll('*')) {
@@ -100,7 +100,7 @@ def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_a
     hover tooltip shows the exact DN of the pixel under the cursor."""
     import numpy as np
 
-    from app import plots
+    from ccdcore_app import plots
     from ccdcore.session import open_session
 
     url = serve_app(None)
@@ -148,7 +148,7 @@ def test_closing_the_browser_session_releases_its_results(page: Page, serve_app,
     and the app drops the session's capture session and results."""
     import time
 
-    from app.state import AppState
+    from ccdcore_app.state import AppState
 
     states: list[AppState] = []
     closed: list[AppState] = []
@@ -164,7 +164,7 @@ def test_closing_the_browser_session_releases_its_results(page: Page, serve_app,
 
     monkeypatch.setattr(AppState, "__init__", recording_init)
     monkeypatch.setattr(AppState, "close", recording_close)
-    from app.main import AppShell
+    from ccdcore_app.main import AppShell
     shells: list[AppShell] = []
     shell_init = AppShell.__init__
 

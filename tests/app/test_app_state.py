@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from app import plots
-from app.pages import PAGES, build_page, is_available
-from app.pages.session import SessionPage, frames_frame, groups_frame
-from app.state import AppState, demo_sessions
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from ccdcore_app import plots
+from ccdcore_app.pages import PAGES, build_page, is_available
+from ccdcore_app.pages.session import SessionPage, frames_frame, groups_frame
+from ccdcore_app.state import AppState, demo_sessions
 from _coro import run as _run
 
 
@@ -160,7 +160,7 @@ def test_set_choices_gives_watchers_only_the_final_choice():
     import panel as pn
     import param
 
-    from app.pages._choices import set_choices
+    from ccdcore_app.pages._choices import set_choices
 
     class Page(param.Parameterized):
         choice = param.Selector(default=None, objects=[], allow_None=True)
@@ -237,8 +237,8 @@ def test_compute_reports_progress_and_cancel_stops_it(tmp_path):
 def test_warm_up_imports_every_built_page_once():
     import sys
 
-    from app import main
-    from app.pages import PAGES, is_available
+    from ccdcore_app import main
+    from ccdcore_app.pages import PAGES, is_available
 
     main.start_warm_up()
     thread = main._warm_thread

@@ -1,4 +1,4 @@
-"""app.batch.frozen_models: the model graph is walked once at the end, and only if it changed."""
+"""ccdcore_app.batch.frozen_models: the model graph is walked once at the end, and only if it changed."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,7 +7,7 @@ from bokeh.layouts import column
 from bokeh.models import ColumnDataSource, Div
 from bokeh.plotting import figure
 
-from app.batch import frozen_models
+from ccdcore_app.batch import frozen_models
 
 
 def _doc():

@@ -9,7 +9,7 @@ from pathlib import Path
 import bokeh
 import panel
 
-import app
+import ccdcore_app
 
 #: a visual property's CSS variable: --bk-[prefix-](line|fill|text|hatch)-NAME, being defined
 VISUAL_VARIABLE = re.compile(r"--bk-[a-z0-9-]*?(?:line|fill|text|hatch)-[a-z-]+\s*:")
@@ -32,7 +32,7 @@ def test_the_pattern_finds_a_definition():
 
 
 def test_the_app_defines_no_bokeh_visual_variable():
-    root = Path(app.__file__).resolve().parent
+    root = Path(ccdcore_app.__file__).resolve().parent
     files = [*root.rglob("*.py"), *root.rglob("*.css"), *root.rglob("*.js")]
     assert files
     assert _defined(files) == {}

@@ -1,4 +1,4 @@
-"""The disk cache of finished results (app.cache, AppState.cached_compute) and its use by the
+"""The disk cache of finished results (ccdcore_app.cache, AppState.cached_compute) and its use by the
 Photon transfer and Maps pages: round trips, reopening without computing, what makes a miss
 (a changed frame, another ROI, a corrupt entry) and the size bound."""
 from __future__ import annotations
@@ -15,15 +15,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-import app.main  # noqa: F401  (loads the Panel extensions, as serving does)
-import app.pages.maps
-import app.pages.photon_transfer
-from app import cache as cache_mod
-from app.cache import (ResultCache, cache_folder, default_cache, estimates_entry, fingerprint,
+import ccdcore_app.main  # noqa: F401  (loads the Panel extensions, as serving does)
+import ccdcore_app.pages.maps
+import ccdcore_app.pages.photon_transfer
+from ccdcore_app import cache as cache_mod
+from ccdcore_app.cache import (ResultCache, cache_folder, default_cache, estimates_entry, fingerprint,
                        photon_transfer_entry)
-from app.pages.maps import MapsPage
-from app.pages.photon_transfer import PhotonTransferPage
-from app.state import AppState
+from ccdcore_app.pages.maps import MapsPage
+from ccdcore_app.pages.photon_transfer import PhotonTransferPage
+from ccdcore_app.state import AppState
 from ccdcore.io import read_header, read_image, write_image
 from ccdcore.noise import PhotonTransfer, photon_transfer
 from ccdcore.product import Estimates, estimate_all
@@ -165,9 +165,9 @@ def test_another_state_shows_both_pages_without_computing(cache_dir, demo, monke
     est = first.results.estimates
     assert est is not None and first.status.startswith("Computed")
 
-    for module, name in ((app.pages.maps, "estimate_all"),
-                         (app.pages.photon_transfer, "photon_transfer"),
-                         (app.pages.photon_transfer, "ptc_points")):
+    for module, name in ((ccdcore_app.pages.maps, "estimate_all"),
+                         (ccdcore_app.pages.photon_transfer, "photon_transfer"),
+                         (ccdcore_app.pages.photon_transfer, "ptc_points")):
         monkeypatch.setattr(module, name, Failing(getattr(module, name), fail_from=0))
     # the stat index gives the content hash: no frame is read to recognise the session
     monkeypatch.setattr(Session, "content_hash", Failing(Session.content_hash, fail_from=0))
@@ -191,7 +191,7 @@ def test_another_state_shows_both_pages_without_computing(cache_dir, demo, monke
 
 def test_a_changed_frame_misses(cache_dir, demo, monkeypatch):
     counted = Failing(photon_transfer, fail_from=2)
-    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    monkeypatch.setattr(ccdcore_app.pages.photon_transfer, "photon_transfer", counted)
     run(PhotonTransferPage(_state(demo), auto=False).refresh())
     run(PhotonTransferPage(_state(demo), auto=False).refresh())
     assert counted.calls == 1
@@ -208,7 +208,7 @@ def test_a_changed_frame_misses(cache_dir, demo, monkeypatch):
 
 def test_another_roi_misses_and_its_own_result_is_kept(cache_dir, demo, monkeypatch):
     counted = Failing(photon_transfer, fail_from=3)
-    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    monkeypatch.setattr(ccdcore_app.pages.photon_transfer, "photon_transfer", counted)
     state = _state(demo)
     page = PhotonTransferPage(state, auto=False)
     run(page.refresh())
@@ -227,7 +227,7 @@ def test_another_roi_misses_and_its_own_result_is_kept(cache_dir, demo, monkeypa
 
 def test_a_corrupt_entry_is_computed_again(cache_dir, demo, monkeypatch):
     counted = Failing(photon_transfer, fail_from=2)
-    monkeypatch.setattr(app.pages.photon_transfer, "photon_transfer", counted)
+    monkeypatch.setattr(ccdcore_app.pages.photon_transfer, "photon_transfer", counted)
     run(PhotonTransferPage(_state(demo), auto=False).refresh())
     (entry,) = ResultCache(cache_dir).entries()
     data = entry.read_bytes()

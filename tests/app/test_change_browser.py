@@ -9,7 +9,7 @@ import time
 import numpy as np
 from playwright.sync_api import Page, expect
 
-from app.pages.change import DEFAULT_PFA, PFA_STEPS
+from ccdcore_app.pages.change import DEFAULT_PFA, PFA_STEPS
 from ccdcore.change import LABEL_CHANGE, ChangeOptions, session_change
 from ccdcore.session import open_session
 

@@ -11,11 +11,11 @@ import pytest
 from bokeh.document import Document
 from scipy import stats
 
-from app import change_plots
-from app.change_plots import ABOVE_COLOUR, BELOW_COLOUR, label_colour, label_rgb, pack_rgba
-from app.pages import change as change_page
-from app.pages.change import DEFAULT_PFA, PFA_STEPS, ChangePage, compute_change
-from app.state import AppState
+from ccdcore_app import change_plots
+from ccdcore_app.change_plots import ABOVE_COLOUR, BELOW_COLOUR, label_colour, label_rgb, pack_rgba
+from ccdcore_app.pages import change as change_page
+from ccdcore_app.pages.change import DEFAULT_PFA, PFA_STEPS, ChangePage, compute_change
+from ccdcore_app.state import AppState
 from ccdcore.change import LABEL_CHANGE, ChangeOptions
 from ccdcore.common import format_pm
 from _coro import run as _run

@@ -6,8 +6,8 @@ import re
 
 from playwright.sync_api import Page, expect
 
-from app.flat_plots import group_label
-from app.pages.flat_field import default_frame
+from ccdcore_app.flat_plots import group_label
+from ccdcore_app.pages.flat_field import default_frame
 from ccdcore.common import format_pm
 from ccdcore.flatfield import flat_field_from_session, recommend_base
 from ccdcore.session import open_session

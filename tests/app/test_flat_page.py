@@ -8,11 +8,11 @@ import holoviews as hv
 import numpy as np
 import pytest
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from app import flat_plots
-from app.pages.flat_field import (NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE, FlatFieldPage,
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from ccdcore_app import flat_plots
+from ccdcore_app.pages.flat_field import (NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE, FlatFieldPage,
                                   default_frame)
-from app.state import AppState, FlatResults
+from ccdcore_app.state import AppState, FlatResults
 from ccdcore.common import format_pm
 from ccdcore.flatfield import (BaseRecommendation, FlatField, base_image_study,
                                flat_field_from_session, recommend_base, zero_dark)
@@ -23,7 +23,7 @@ from _coro import run as _run
 
 @pytest.fixture(scope="module")
 def delasarte07() -> Path:
-    from app.state import assets_dir
+    from ccdcore_app.state import assets_dir
 
     return assets_dir() / "delasarte07"
 

@@ -1,4 +1,4 @@
-"""app.image_view: plain Bokeh image and histogram views fed in place."""
+"""ccdcore_app.image_view: plain Bokeh image and histogram views fed in place."""
 from __future__ import annotations
 
 from types import SimpleNamespace
@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from app.image_view import HistogramView, ImageView, frame_size, palette
+from ccdcore_app.image_view import HistogramView, ImageView, frame_size, palette
 
 
 def _drawn(view: ImageView) -> tuple[np.ndarray, float, float, float, float]:
@@ -97,7 +97,7 @@ def test_events_reach_the_callbacks_and_marks_cover_pixel_edges():
 
 
 def test_marked_pixels_are_crosses_at_their_centres():
-    from app.flat_plots import flagged_pixels
+    from ccdcore_app.flat_plots import flagged_pixels
 
     view = ImageView()
     view.set_points(np.array([], int), np.array([], int))

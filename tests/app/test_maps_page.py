@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 import ccdcore.fixedpattern
-from app import map_plots, plots
-from app.image_view import HistogramView
-from app.pages import maps
-from app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
+from ccdcore_app import map_plots, plots
+from ccdcore_app.image_view import HistogramView
+from ccdcore_app.pages import maps
+from ccdcore_app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
                             missing_sentences, scene_patch_frame)
-from app.state import AppState
+from ccdcore_app.state import AppState
 from ccdcore.common import format_pm
 from ccdcore.io import read_image
 from ccdcore.planning import check_session_plan, plan_acquisition

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from bokeh.document import Document
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from app.pages.session import SessionPage
-from app.product_panel import (CORRECT, IN_VIEW, LINEARISE, ROLE, ProductPanel,
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from ccdcore_app.pages.session import SessionPage
+from ccdcore_app.product_panel import (CORRECT, IN_VIEW, LINEARISE, ROLE, ProductPanel,
                                estimate_headline, estimates_frame, save_corrected, snup_table,
                                view_roi)
-from app.state import AppState
+from ccdcore_app.state import AppState
 from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image, write_image, write_map

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from bokeh.document import Document
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from app import ptc_plots
-from app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, parameter_frame,
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from ccdcore_app import ptc_plots
+from ccdcore_app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, parameter_frame,
                                        verdict_message)
-from app.state import AppState
+from ccdcore_app.state import AppState
 from ccdcore.common import check_roi, format_pm
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-from app.report import write_report
+from ccdcore_app.report import write_report
 
 DEMOS = ("healey94", "delasarte07", "tsin01", "change")
 
@@ -81,7 +81,7 @@ def _open(page: Page, path: Path) -> None:
 def test_change_labels_are_drawn_in_the_apps_colours(page: Page, reports, assets):
     from PIL import Image
 
-    from app.change_plots import label_colour
+    from ccdcore_app.change_plots import label_colour
     from ccdcore.change import session_change
     from ccdcore.session import open_session
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-import app.cache
-from app.cache import SharedResults
+import ccdcore_app.cache
+from ccdcore_app.cache import SharedResults
 from ccdcore.response.brackets import load_bracket
 from ccdcore.response.methods import response_of
 from ccdcore.session import open_session
@@ -22,7 +22,7 @@ TIMEOUT = 90_000  # four methods with their bands are computed on first visit
 def _own_store(monkeypatch):
     """The served app shares results through a store of this test's own (the page tests'
     results, computed in this process, are not reused)."""
-    monkeypatch.setattr(app.cache, "_SHARED", SharedResults())
+    monkeypatch.setattr(ccdcore_app.cache, "_SHARED", SharedResults())
 
 
 BAND_AT = """(code) => {

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from bokeh.document import Document
 
-import app.cache
-import app.pages.response_hdr as response_hdr
-from app.cache import SharedResults
-from app.pages.response_hdr import LABELS, NO_BRACKET_MESSAGE, ResponsePage, untrusted_reason
-from app.response_plots import tone_map
-from app.state import AppState
+import ccdcore_app.cache
+import ccdcore_app.pages.response_hdr as response_hdr
+from ccdcore_app.cache import SharedResults
+from ccdcore_app.pages.response_hdr import LABELS, NO_BRACKET_MESSAGE, ResponsePage, untrusted_reason
+from ccdcore_app.response_plots import tone_map
+from ccdcore_app.state import AppState
 from ccdcore.channels import channel_names
 from ccdcore.errors import CcdError
 from ccdcore.response.methods import METHODS
@@ -28,7 +28,7 @@ from _coro import run as _run
 @pytest.fixture(autouse=True)
 def _own_store(monkeypatch):
     """Each test shares results through its own process-wide store (no test sees another's)."""
-    monkeypatch.setattr(app.cache, "_SHARED", SharedResults())
+    monkeypatch.setattr(ccdcore_app.cache, "_SHARED", SharedResults())
 
 
 def _page(path, **kw):

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from app import plots
-from app.main import AppShell, _session_header, create_app
-from app.pages import PAGES, build_page, get_page, is_available
-from app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
-from app.state import AppState, is_allowed
+import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
+from ccdcore_app import plots
+from ccdcore_app.main import AppShell, _session_header, create_app
+from ccdcore_app.pages import PAGES, build_page, get_page, is_available
+from ccdcore_app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
+from ccdcore_app.state import AppState, is_allowed
 from ccdcore.io import write_image
 from ccdcore.session import open_session
 from _coro import run as _run
@@ -258,7 +258,7 @@ def test_serve_entry_point_answers_on_localhost(warmed):
         port = s.getsockname()[1]
     url = f"http://127.0.0.1:{port}"
     try:
-        app.main.serve(None, port=port, threaded=True)
+        ccdcore_app.main.serve(None, port=port, threaded=True)
         for _ in range(200):                       # wait for /liveness (at most ~20 s)
             try:
                 with urllib.request.urlopen(url + "/liveness", timeout=2) as r:
@@ -274,8 +274,8 @@ def test_serve_entry_point_answers_on_localhost(warmed):
 
 
 def test_python_dash_m_app_help():
-    out = subprocess.run([sys.executable, "-m", "app", "--help"], capture_output=True, text=True,
-                         cwd=Path(app.__file__).parents[1], timeout=60)
+    out = subprocess.run([sys.executable, "-m", "ccdcore_app", "--help"], capture_output=True, text=True,
+                         cwd=Path(ccdcore_app.__file__).parents[1], timeout=60)
     assert out.returncode == 0 and "--port" in out.stdout and "SESSION" in out.stdout.upper()
 
 
@@ -324,7 +324,7 @@ def test_bayer_frames_offer_the_four_cfa_planes(state, tmp_path, small_session):
 
 
 def test_groups_say_mixed_and_unreadable(state, small_session, unreadable_session):
-    from app.pages.session import groups_frame
+    from ccdcore_app.pages.session import groups_frame
 
     root = small_session
     write_image(root / "dark/wide.tif", np.zeros((24, 40), np.uint16), exposure=0.01, bits=12)

@@ -1,4 +1,4 @@
-"""Tiled previews of large frames (app.tiles): the pyramid's levels are block means of the full
+"""Tiled previews of large frames (ccdcore_app.tiles): the pyramid's levels are block means of the full
 frame, a region of a level is its slice, a view draws what it draws for the frame in memory, and
 only the visible region is read."""
 from __future__ import annotations
@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app import plots, tiles
-from app.image_view import ImageView
-from app.tiles import FramePyramid, TiledPlane, needs_tiles
+from ccdcore_app import plots, tiles
+from ccdcore_app.image_view import ImageView
+from ccdcore_app.tiles import FramePyramid, TiledPlane, needs_tiles
 from ccdcore.io import read_header, write_image
 
 
@@ -192,9 +192,9 @@ def test_the_session_page_previews_a_large_frame_from_its_pyramid(tmp_path, smal
                                                                   monkeypatch):
     """With the threshold below the fixture's 24 × 32 frames, the page never reads a frame
     whole: the view, the readout, the range and the channels come from the pyramid."""
-    import app.main  # noqa: F401  (the Panel extensions, as serving does)
-    from app.pages.session import SessionPage
-    from app.state import AppState
+    import ccdcore_app.main  # noqa: F401  (the Panel extensions, as serving does)
+    from ccdcore_app.pages.session import SessionPage
+    from ccdcore_app.state import AppState
     from ccdcore.io import read_image
     from ccdcore.session import Session
     from _coro import run
@@ -237,9 +237,9 @@ def test_the_session_page_previews_a_large_frame_from_its_pyramid(tmp_path, smal
 
 
 def test_the_photon_transfer_preview_of_a_large_frame(tmp_path, assets, monkeypatch):
-    import app.main  # noqa: F401
-    from app.pages.photon_transfer import PhotonTransferPage
-    from app.state import AppState
+    import ccdcore_app.main  # noqa: F401
+    from ccdcore_app.pages.photon_transfer import PhotonTransferPage
+    from ccdcore_app.state import AppState
     from ccdcore.io import read_image
     from ccdcore.session import Session
     from _coro import run

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from _coro import run as _run
-from app.pages.walkthrough import DOWNSTREAM, WalkthroughPage
-from app.state import AppState
+from ccdcore_app.pages.walkthrough import DOWNSTREAM, WalkthroughPage
+from ccdcore_app.state import AppState
 from ccdcore import guide
 from ccdcore.capture import plan_captures
 from ccdcore.noise import photon_transfer
@@ -126,7 +126,7 @@ def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
     np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E731
     from emva1288.camera.dataset_generator import DatasetGenerator
 
-    from app.pages.walkthrough import emva_table
+    from ccdcore_app.pages.walkthrough import emva_table
     from ccdcore.datasheet import emva_figures
 
     gen = DatasetGenerator(steps=20, L=4, image_format="tif", outdir=str(tmp_path / "d"),

@@ -30,9 +30,9 @@ NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE
 Every number comes from :mod:`ccdcore.flatfield` and :mod:`ccdcore.uniformity`; the frames are
 grouped by the session (:meth:`ccdcore.session.Session.flat_groups`, ``dark_groups``,
 ``settings``) and the channels named by :mod:`ccdcore.channels`. Computing runs off the UI thread
-through :meth:`app.state.AppState.compute`; results are cached in ``state.results.flat``
-(:class:`app.state.FlatResults`, by offset setting and base group); the plots come from
-:mod:`app.flat_plots` and :mod:`app.plots`.
+through :meth:`ccdcore_app.state.AppState.compute`; results are cached in ``state.results.flat``
+(:class:`ccdcore_app.state.FlatResults`, by offset setting and base group); the plots come from
+:mod:`ccdcore_app.flat_plots` and :mod:`ccdcore_app.plots`.
 """
 from __future__ import annotations
 
@@ -420,7 +420,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     @property
     def _cache(self) -> Any:
-        """The flat-field results of the loaded session (:class:`app.state.FlatResults`)."""
+        """The flat-field results of the loaded session (:class:`ccdcore_app.state.FlatResults`)."""
         return self.state.results.flat
 
     def _current(self, session: Session, generation: int | None = None,

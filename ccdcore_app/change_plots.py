@@ -1,7 +1,7 @@
 """The Change detection page's plots: plain Bokeh figures built once and fed in place.
 
 RgbView
-    An :class:`app.image_view.ImageView` showing a colour picture (H, W, 3 values in [0, 1]) as
+    An :class:`ccdcore_app.image_view.ImageView` showing a colour picture (H, W, 3 values in [0, 1]) as
     RGBA, with the same linked zoom, screen-resolution redraw and pointer callbacks.
 D2Histogram
     The background's d² against the χ² density with ``dof`` degrees of freedom (Tsin, Ramesh &

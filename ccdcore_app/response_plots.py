@@ -173,7 +173,7 @@ class PoolHistogram:
 
 def hdr_views(width: int, classes: tuple[str, str]) -> tuple[Any, Any]:
     """The HDR radiance view (tone-mapped for display) and its relative-sigma view, zoom
-    linked (:class:`app.image_view.ImageView`), with CSS classes ``classes``."""
+    linked (:class:`ccdcore_app.image_view.ImageView`), with CSS classes ``classes``."""
     from .image_view import ImageView
 
     rad = ImageView(frame_width=width, max_frame_height=width, cmap="gray", label="display",

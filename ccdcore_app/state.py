@@ -21,10 +21,10 @@ default_roots(extra=())
 is_allowed(path, roots)
     Whether ``path`` lies inside one of ``roots``.
 
-Finished results are kept on disk (:mod:`app.cache`) by :meth:`AppState.cached_compute`, keyed
+Finished results are kept on disk (:mod:`ccdcore_app.cache`) by :meth:`AppState.cached_compute`, keyed
 by the session's content hash: a session reopened (in this or another browser session, or after
 a restart) shows them without computing again. :meth:`AppState.shared_compute` also shares them
-in memory between the browser sessions of one server (:class:`app.cache.SharedResults`): a
+in memory between the browser sessions of one server (:class:`ccdcore_app.cache.SharedResults`): a
 computation one session started is waited for by the others, never started twice.
 """
 from __future__ import annotations
@@ -62,16 +62,16 @@ ASSETS_ENV = "CCDCORE_ASSETS"
 
 
 def assets_dir() -> Path:
-    """The bundled demo sessions: ``<repo>/assets`` next to the ``app`` package.
+    """The bundled demo sessions: ``<repo>/assets`` next to the ``ccdcore_app`` package.
 
     The environment variable ``CCDCORE_ASSETS``, when set, names another folder instead.
     """
     override = os.environ.get(ASSETS_ENV)
     if override:
         return Path(override).expanduser().resolve()
-    import app
+    import ccdcore_app
 
-    return Path(app.__file__).resolve().parents[1] / "assets"
+    return Path(ccdcore_app.__file__).resolve().parents[1] / "assets"
 
 
 def demo_sessions(assets: Path | None = None) -> dict[str, Path]:
@@ -219,7 +219,7 @@ class AppState(param.Parameterized):
     allowed_roots = param.List(default=[], item_type=Path,
                                doc="Folders sessions may be opened from (resolved paths).")
     cache = param.ClassSelector(class_=ResultCache, default=None, allow_None=True, doc=(
-        "The disk cache of finished results (app.cache.default_cache() unless given; None: "
+        "The disk cache of finished results (ccdcore_app.cache.default_cache() unless given; None: "
         "nothing cached)."))
 
     def __init__(self, **params: Any):
@@ -229,7 +229,7 @@ class AppState(param.Parameterized):
             params["cache"] = default_cache()
         super().__init__(**params)
         self._trackers: set[Tracker] = set()   # the running computations
-        #: the loaded session and the task hashing its content (app.cache.session_hash)
+        #: the loaded session and the task hashing its content (ccdcore_app.cache.session_hash)
         self._hashing: tuple[Session, asyncio.Future] | None = None
 
     # ---- opening sessions ---------------------------------------------------------------------
@@ -504,8 +504,8 @@ class AppState(param.Parameterized):
                              store: SharedResults | None = None, **kwargs: Any) -> Any | None:
         """:meth:`cached_compute` (``disk=False``: :meth:`compute`), shared by every browser
         session of this server: the result of ``name`` with ``params`` on the session's
-        content is computed once per process (:class:`app.cache.SharedResults`, by default
-        :func:`app.cache.shared_results`; ``hold=False`` keeps a large result only while some
+        content is computed once per process (:class:`ccdcore_app.cache.SharedResults`, by default
+        :func:`ccdcore_app.cache.shared_results`; ``hold=False`` keeps a large result only while some
         session holds it).
 
         The first caller computes (off the UI thread, with progress and cancel); a caller

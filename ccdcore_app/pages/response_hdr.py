@@ -27,13 +27,13 @@ untrusted_reason(result, others)
 NO_BRACKET_MESSAGE
     What the page says when the session has no bracket.
 
-Computing runs off the UI thread, once per server: :meth:`app.state.AppState.shared_compute`
+Computing runs off the UI thread, once per server: :meth:`ccdcore_app.state.AppState.shared_compute`
 keys the responses (and each method's HDR) by the session's content hash and the options, so a
 second browser tab on the same session waits for the first one's computation instead of
 starting its own; the responses are also kept in the disk cache. Each browser session keeps
 what it shows in ``state.results.response`` by blooming radius and white balance. Widget
-changes feed the figures' sources in place (:mod:`app.response_plots`,
-:class:`app.image_view.ImageView`).
+changes feed the figures' sources in place (:mod:`ccdcore_app.response_plots`,
+:class:`ccdcore_app.image_view.ImageView`).
 """
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ cache_folder()
 default_cache(), max_bytes()
     A :class:`ResultCache` on :func:`cache_folder` with the size bound of
     ``CCDCORE_CACHE_MAX_BYTES`` (default 2 GiB), or None when disabled; that bound (the tiled
-    previews of :mod:`app.tiles` keep their own pyramids within it too).
+    previews of :mod:`ccdcore_app.tiles` keep their own pyramids within it too).
 code_version()
     The ccdcore version and a digest of its source files, part of every key.
 fingerprint(result)
@@ -31,7 +31,7 @@ photon_transfer_entry(roi), estimates_entry(noise, **options)
 SharedResults, shared_results()
     Results in this process's memory, shared by every browser session of the server: a
     computation running for one session is waited for by the others (never started twice);
-    the process-wide store (:meth:`app.state.AppState.shared_compute` uses it).
+    the process-wide store (:meth:`ccdcore_app.state.AppState.shared_compute` uses it).
 
 Notes
 -----

@@ -1,6 +1,6 @@
 """The info and error alerts that the analysis pages share.
 
-A page using :class:`PageMessages` has ``state`` (the :class:`~app.state.AppState`),
+A page using :class:`PageMessages` has ``state`` (the :class:`~ccdcore_app.state.AppState`),
 ``info_alert`` and ``error_alert`` (``pn.pane.Alert``), ``content`` (what the info message
 hides), ``_session`` (the session it shows) and an ``error`` string that tests and the header
 read.

@@ -43,7 +43,7 @@ its warnings, V_S and the correction check on the session's max-intensity frame)
 The page's own state (maps shown and selected, the patch, the planning inputs) is declared with
 ``param``; watchers (``@param.depends(..., watch=True)``) redraw what depends on it, once per
 change: the page sets choices together with their options and data through
-:func:`app.pages._choices.set_choices`.
+:func:`ccdcore_app.pages._choices.set_choices`.
 """
 from __future__ import annotations
 
@@ -214,7 +214,7 @@ def export_bytes(layer: MapLayer, fmt: str, clim: tuple[float, float] | None = N
 
     ``"exr"`` and ``"fits"``: the float32 map (:func:`ccdcore.io.write_map`, bit-exact when read
     back). ``"png"``: a 16-bit greyscale picture of the map scaled to ``clim`` (0 at its low end,
-    65535 at its high end, :func:`app.map_plots.scaled_uint16`), not the values themselves.
+    65535 at its high end, :func:`ccdcore_app.map_plots.scaled_uint16`), not the values themselves.
     """
     if fmt not in EXPORT_FORMATS:
         raise ValueError(f"fmt: expected one of {', '.join(EXPORT_FORMATS)}, got {fmt!r}")
@@ -302,7 +302,7 @@ class MapsPage(pn.viewable.Viewer):
         "True while the page computes the estimates (a request meanwhile is ignored)."))
     # ---- the Maps tab
     layers = param.Dict(default={}, precedence=-1, doc=(
-        "The maps on the page: key -> app.map_plots.MapLayer, from the dark reference and K̂."))
+        "The maps on the page: key -> ccdcore_app.map_plots.MapLayer, from the dark reference and K̂."))
     shown = param.ListSelector(default=[], objects=[], doc=(
         "Keys of the maps shown in the grid (linked zoom), in display order."))
     active = param.Selector(default=None, objects=[], allow_None=True, doc=(

@@ -4,7 +4,7 @@ A frame above :func:`tile_threshold` pixels is not read whole. Its channel plane
 once, in bands of rows read with :func:`ccdcore.io.read_region` (the memory used is that of a
 band), to levels of block means of 2 × 2, 4 × 4, 8 × 8 ... pixels, down to a level that fits in
 :data:`COARSEST` × :data:`COARSEST`. The levels are ``.npy`` files in the cache folder
-(:func:`app.cache.cache_folder`, else a temporary folder of this process), keyed by the file's
+(:func:`ccdcore_app.cache.cache_folder`, else a temporary folder of this process), keyed by the file's
 path, size and modification time, and opened with ``mmap_mode="r"``: a view reads only the
 part it shows. Level 0 is the file itself (:func:`ccdcore.io.read_region`).
 
@@ -18,7 +18,7 @@ FramePyramid
     The levels of every channel plane of one frame (:meth:`FramePyramid.open` builds or reuses
     them); ``plane(channel)`` gives a :class:`TiledPlane`.
 overview(tiled, x_range, y_range, width, height)
-    What :func:`app.plots.overview` gives for an in-memory plane (``how="mean"``), from the
+    What :func:`ccdcore_app.plots.overview` gives for an in-memory plane (``how="mean"``), from the
     coarsest level still at least as fine as the screen, reading only the visible region.
 needs_tiles(header, layout), tile_threshold()
     Whether a frame is previewed from a pyramid: more pixels than ``CCDCORE_TILE_PIXELS``
@@ -238,7 +238,7 @@ class FramePyramid:
         (the file read once, in bands of about ``band_pixels`` pixels; ``progress(fraction)``
         after each band). The least recently used other pyramids under ``root`` are then
         deleted until they all take at most ``bound`` bytes (default
-        :func:`app.cache.max_bytes`).
+        :func:`ccdcore_app.cache.max_bytes`).
 
         Raises
         ------
@@ -382,13 +382,13 @@ def _evict(root: Path, keep: Path, bound: int) -> list[Path]:
 def overview(tiled: TiledPlane, x_range: tuple[float, float] | None,
              y_range: tuple[float, float] | None, width: int | None, height: int | None
              ) -> tuple[NDArray, tuple[float, float, float, float], int, int]:
-    """The visible part of ``tiled`` at screen resolution, as :func:`app.plots.overview` with
+    """The visible part of ``tiled`` at screen resolution, as :func:`ccdcore_app.plots.overview` with
     ``how="mean"`` gives it for the plane in memory, plus the level read.
 
     The level is the coarsest whose block size ``F`` does not exceed the factor the screen
     needs (so it still has at least one pixel per screen pixel); only the level's pixels under
     the visible part are read (level 0: from the file), then reduced further by
-    :func:`app.plots.overview` to fit the screen. Returns the array, its bounds ``(left,
+    :func:`ccdcore_app.plots.overview` to fit the screen. Returns the array, its bounds ``(left,
     bottom, right, top)`` in level-0 pixel coordinates, the block size in level-0 pixels and
     the level.
     """

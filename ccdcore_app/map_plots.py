@@ -18,13 +18,13 @@ default_clim(layer)
     The colour range a map opens with (0.5–99.5 % percentiles; symmetric about 1 for K̂; the
     category range for flags).
 layer_view(layer, frame_width=380, link=None), show_layer(view, layer, clim, how)
-    A zoomable view (:class:`app.image_view.ImageView`) in the map's colour map, built once
+    A zoomable view (:class:`ccdcore_app.image_view.ImageView`) in the map's colour map, built once
     per map key and linked to the others, and drawing a map in it at screen resolution with a
     stated reduction (extreme or mean) when zoomed out.
 overview_how(layer, how), overview_centre(layer)
     The reduction a zoomed-out view of a map uses, and the value "extreme" measures from.
 histogram_input(layer)
-    The values and bin count of a map's histogram (:class:`app.image_view.HistogramView`).
+    The values and bin count of a map's histogram (:class:`ccdcore_app.image_view.HistogramView`).
 profile_columns(layer, row, col), ProfileFigures
     One row and one column of a map as source columns, and their two Bokeh figures built once.
 pixel_values(layers, x, y)
@@ -174,7 +174,7 @@ def map_layers(dark: Any = None, fixed_pattern: Any = None) -> dict[str, MapLaye
 def default_clim(layer: MapLayer) -> tuple[float, float]:
     """The colour range a map opens with.
 
-    Values: the 0.5–99.5 % percentiles (:func:`app.plots.auto_clim`); diverging maps: the same
+    Values: the 0.5–99.5 % percentiles (:func:`ccdcore_app.plots.auto_clim`); diverging maps: the same
     made symmetric about ``layer.centre`` (so 1 is white for K̂); counts: their integer range
     (± 0.5); flags: the three categories.
     """
@@ -235,7 +235,7 @@ def show_layer(view: ImageView, layer: MapLayer, clim: tuple[float, float], how:
 
 def histogram_input(layer: MapLayer) -> tuple[NDArray, int]:
     """What a map's histogram counts: ``(values, bins)``; integer maps get one bin per value
-    (:func:`app.plots.histogram_edges`), others 100 bins over their range."""
+    (:func:`ccdcore_app.plots.histogram_edges`), others 100 bins over their range."""
     if layer.integer:
         return layer.data.astype(np.int32), 256
     return layer.data, 100

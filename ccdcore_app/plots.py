@@ -2,7 +2,7 @@
 
 Every function takes arrays and options and returns arrays or plain numbers, so the plotting
 pipeline is tested without a browser and the page classes stay thin; the pages draw images with
-:class:`app.image_view.ImageView`.
+:class:`ccdcore_app.image_view.ImageView`.
 
 Public objects
 --------------
@@ -31,7 +31,7 @@ OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
 visible_span(rng, n), block_factor(cols, rows, width, height), block_reduce(plane, f, how=...)
     The pixels an axis range overlaps; the block size fitting pixels into screen pixels; the
     reduction of f × f blocks (shared by :func:`overview` and the tiled previews of
-    :mod:`app.tiles`).
+    :mod:`ccdcore_app.tiles`).
 load_kernels(dtypes=None)
     Compile or load the reduction's kernels ahead of the first zoom.
 frame_size(shape, frame_width, max_frame_height=560)

@@ -172,7 +172,7 @@ def compute_response(session: Session, progress: Callable | None = None) -> tupl
 
 
 def compute_report(session: Session, product: Any) -> str:
-    """The report of the walkthrough's product (:func:`app.report.build_report`; nothing is
+    """The report of the walkthrough's product (:func:`ccdcore_app.report.build_report`; nothing is
     estimated again)."""
     from ..report import build_report
 

@@ -6,7 +6,7 @@ create_app(session_path=None, *, allowed_roots=None)
     A fresh app (one per browser session): a Bootstrap template with the page registry in the
     sidebar and the loaded session in the header.
 serve(session_path=None, port=5006, show=False, threaded=False, address="127.0.0.1")
-    Serve the app (what ``ccdcore app [SESSION] [--port N]`` and ``python -m app`` call).
+    Serve the app (what ``ccdcore app [SESSION] [--port N]`` and ``python -m ccdcore_app`` call).
 AppShell
     The navigation between the registry's pages (built on the first visit, then kept in the
     document and only hidden: a revisit draws nothing new).
@@ -96,7 +96,7 @@ _NAV_CSS = """
 
 
 class AppShell(param.Parameterized):
-    """Sidebar navigation over :data:`app.pages.PAGES` and the main area showing one page."""
+    """Sidebar navigation over :data:`ccdcore_app.pages.PAGES` and the main area showing one page."""
 
     page = param.Selector(default=PAGES[0].slug, objects=[p.slug for p in PAGES],
                           doc="Slug of the page shown.")
@@ -329,7 +329,7 @@ def warm_up() -> None:
     waits for an import on the event loop (Python's import lock makes a page built meanwhile
     wait for its own module only).
 
-    The numba kernels (ccdcore's, and the map views' block reduction :func:`app.plots.overview`)
+    The numba kernels (ccdcore's, and the map views' block reduction :func:`ccdcore_app.plots.overview`)
     are cached on disk (``cache=True``): loading them takes milliseconds. The app does not use
     datashader, whose kernels numba compiled again in every server process (10 s of CPU holding
     the interpreter against the first pages; docs/notes.md).

@@ -3,14 +3,14 @@
 A page builds its views once; showing another frame, channel or map, moving a colour range or
 zooming replaces the data of their sources and a few model properties, so the browser redraws
 without building a plot (docs/architecture.md, "How app pages draw and compute"). Every method
-that changes the figures holds the document's events (:func:`app.batch.batched`): that sends
+that changes the figures holds the document's events (:func:`ccdcore_app.batch.batched`): that sends
 them as one message, and makes it safe to call from any callback of a served page (a raw Bokeh
 model changed outside Panel's document lock is refused).
 
 ImageView(frame_width=560, max_frame_height=560, cmap="gray", ...)
-    A zoomable view of one 2-D plane at screen resolution (:func:`app.plots.overview`; a
-    frame larger than memory as an :class:`app.tiles.TiledPlane`, drawn from the pyramid
-    level that fits the zoom, :func:`app.tiles.overview`), with
+    A zoomable view of one 2-D plane at screen resolution (:func:`ccdcore_app.plots.overview`; a
+    frame larger than memory as an :class:`ccdcore_app.tiles.TiledPlane`, drawn from the pyramid
+    level that fits the zoom, :func:`ccdcore_app.tiles.overview`), with
     square pixels, a colour bar, a hover readout, optional linked zoom with other views, a
     crosshair, a box and marked pixels; Python callbacks for the pointer, a tap and a drawn box.
 HistogramView(height=220, ...)
@@ -18,7 +18,7 @@ HistogramView(height=220, ...)
 palette(cmap, n=256)
     A colour-map name (as HoloViews names them) or a list of colours -> a list of colours.
 frame_size(shape, frame_width, max_frame_height)
-    The frame size giving square pixels (:func:`app.plots.frame_size`).
+    The frame size giving square pixels (:func:`ccdcore_app.plots.frame_size`).
 """
 from __future__ import annotations
 
@@ -53,9 +53,9 @@ class ImageView:
 
     Pixel ``(row, col)`` is centred on ``(x, y) = (col, row)`` with row 0 at the top. Each zoom
     or pan (Bokeh's ``RangesUpdate``, once a gesture ends) draws the visible part again through
-    :func:`app.plots.overview`: when more pixels than screen pixels are visible, blocks of
+    :func:`ccdcore_app.plots.overview`: when more pixels than screen pixels are visible, blocks of
     f × f pixels become one value (``how``: ``"mean"``, ``"extreme"`` -- the pixel farthest
-    from ``centre`` -- or ``"max"``), and the title says so. A :class:`app.tiles.TiledPlane`
+    from ``centre`` -- or ``"max"``), and the title says so. A :class:`ccdcore_app.tiles.TiledPlane`
     is drawn from its pyramid (always block means): only the visible region of the level that
     fits the zoom is read.
 
@@ -203,7 +203,7 @@ class ImageView:
         self.mapper.update(low=lo, high=hi)
 
     def set_how(self, how: str, centre: float | None = None) -> None:
-        """How a zoomed-out screen pixel is made (a key of :data:`app.plots.OVERVIEWS`)."""
+        """How a zoomed-out screen pixel is made (a key of :data:`ccdcore_app.plots.OVERVIEWS`)."""
         self.show(self.plane, how=how, centre=centre, reset=False)
 
     def visible_ranges(self) -> tuple[tuple[float, float], tuple[float, float]]:
@@ -330,7 +330,7 @@ class HistogramView:
     as a translucent band; :meth:`show` replaces the bars, :meth:`set_band` moves the band.
 
     Integer planes get one bin per code when they span at most ``bins`` codes
-    (:func:`app.plots.histogram_edges`). Counts read as plain numbers with thousands separators.
+    (:func:`ccdcore_app.plots.histogram_edges`). Counts read as plain numbers with thousands separators.
     """
 
     def __init__(self, *, height: int = 220, title: str = "Histogram", label: str = "DN",

@@ -10,7 +10,7 @@ SessionPage
     channel (R, G, B or the luminance of colour frames; the CFA planes R, G1, G2, B of raw Bayer
     frames, by the camera's layout: :func:`ccdcore.channels.split_channels`). Its *Calibration
     product* tab opens a product and applies it to the session's frames
-    (:class:`app.product_panel.ProductPanel`).
+    (:class:`ccdcore_app.product_panel.ProductPanel`).
 create_page(state)
     The registry entry point.
 groups_frame(session), frames_frame(session)
@@ -20,8 +20,8 @@ inferred_summary(session)
     Which metadata keys were inferred, from what, for how many frames.
 
 Widgets call ccdcore (``open_session``, ``Session.read``, ``draft_manifest``); the plots come from
-:mod:`app.plots`. A mono or colour frame larger than :func:`app.tiles.tile_threshold` pixels is
-not read whole: it is previewed from a pyramid of block means on disk (:mod:`app.tiles`, built
+:mod:`ccdcore_app.plots`. A mono or colour frame larger than :func:`ccdcore_app.tiles.tile_threshold` pixels is
+not read whole: it is previewed from a pyramid of block means on disk (:mod:`ccdcore_app.tiles`, built
 once per file in bands of rows), each zoom reading only the visible region of the level that
 fits it, and its histogram and automatic colour range come from a level of about a megapixel. Long work (opening a session, reading a frame) runs in a worker thread from
 async callbacks, so the page stays responsive, with a progress bar or loading spinner meanwhile.
@@ -186,7 +186,7 @@ class SessionPage(pn.viewable.Viewer):
         self._shown: FrameRecord | None = None    # its record
         self._planes: dict[str, np.ndarray] = {}  # its channel choices (none when mono)
         self._plane: np.ndarray | TiledPlane | None = None   # its shown channel (2-D)
-        self._tiled: FramePyramid | None = None   # the previewed frame, when large (app.tiles)
+        self._tiled: FramePyramid | None = None   # the previewed frame, when large (ccdcore_app.tiles)
         self._frame_request = 0                   # newest preview request (older ones drop)
         self._layout: pn.Column | None = None
         self._build_open_widgets()
@@ -681,7 +681,7 @@ class SessionPage(pn.viewable.Viewer):
     @property
     def product_panel(self) -> ProductPanel:
         """The *Calibration product* tab: open a product, apply it to this session's frames
-        (:class:`app.product_panel.ProductPanel`, built on first use)."""
+        (:class:`ccdcore_app.product_panel.ProductPanel`, built on first use)."""
         if self._product_panel is None:
             from ..product_panel import ProductPanel
 

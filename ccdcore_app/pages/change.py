@@ -26,7 +26,7 @@ PFA_STEPS
 no_brackets_message(missing)
     What the page says when the session lacks the reference or target bracket.
 
-Computing runs off the UI thread (:meth:`app.state.AppState.compute`); the result is cached in
+Computing runs off the UI thread (:meth:`ccdcore_app.state.AppState.compute`); the result is cached in
 ``state.results.change`` by the detector's options. The estimation lives in
 :mod:`ccdcore.change`; this page only shows it.
 """

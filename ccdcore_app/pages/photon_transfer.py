@@ -26,7 +26,7 @@ for a fit it still shows the levels measured by ``ptc_points``. The fit and the 
 through ``state.results.ptc`` and ``state.results.ptc_points``; the measured levels at an ROI
 are kept on disk (``AppState.cached_compute``, keyed by the session's content and the ROI), so a
 session opened again shows them without reading its frames. The plots come from
-:mod:`app.ptc_plots` and :mod:`app.plots`.
+:mod:`ccdcore_app.ptc_plots` and :mod:`ccdcore_app.plots`.
 """
 from __future__ import annotations
 
@@ -559,7 +559,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     def _read(session: Session, rec: FrameRecord
               ) -> tuple[np.ndarray | TiledPlane | None, str]:
         """The frame's own pixel grid to preview (a raw mosaic as it is, the luminance of
-        colour): read whole, or for a large frame its pyramid (:mod:`app.tiles`: read by the
+        colour): read whole, or for a large frame its pyramid (:mod:`ccdcore_app.tiles`: read by the
         region)."""
         try:
             if tiles.needs_tiles(session.header_or_none(rec), None):

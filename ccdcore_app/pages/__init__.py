@@ -1,6 +1,6 @@
 """The page registry: every page of the app, in navigation order.
 
-A page is a module ``app.pages.<slug>`` defining ``create_page(state: AppState) -> Viewable``.
+A page is a module ``ccdcore_app.pages.<slug>`` defining ``create_page(state: AppState) -> Viewable``.
 Pages listed here whose module does not exist yet are shown as *coming*: a badge in the navigation
 and a placeholder page saying what is planned. Adding a page means writing its module; the entry
 below is already there.
@@ -36,7 +36,7 @@ class PageSpec:
     Attributes
     ----------
     slug
-        Module name under ``app.pages`` (and the page id).
+        Module name under ``ccdcore_app.pages`` (and the page id).
     title
         Navigation label and page heading.
     icon

@@ -73,7 +73,7 @@ _SHADOW_COLOURS = ("#0072B2", "#56B4E9", "#CC79A7", "#009E73", "#E69F00")
 
 def _label_colour(label: int) -> str:
     """The colour of a change label (Tsin et al. sec. 5), as the app's Change detection page
-    draws it (a test compares them with :func:`app.change_plots.label_colour`)."""
+    draws it (a test compares them with :func:`ccdcore_app.change_plots.label_colour`)."""
     from ccdcore.change import LABEL_CHANGE, LABEL_UNDETERMINED
 
     fixed = {0: "#d9d9d9", LABEL_CHANGE: "#D55E00", LABEL_UNDETERMINED: "#F0E442"}

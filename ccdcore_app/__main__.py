@@ -1,4 +1,4 @@
-"""``python -m app [SESSION] [--port N] [--show]``: serve the app on 127.0.0.1."""
+"""``python -m ccdcore_app [SESSION] [--port N] [--show]``: serve the app on 127.0.0.1."""
 from __future__ import annotations
 
 import argparse
@@ -6,7 +6,7 @@ import sys
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m app",
+    parser = argparse.ArgumentParser(prog="python -m ccdcore_app",
                                      description="Serve the ccdcore app on 127.0.0.1.")
     parser.add_argument("session", nargs="?", default=None,
                         help="session folder, session.toml, folder of images or EMVA1288 "

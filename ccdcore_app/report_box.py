@@ -1,13 +1,13 @@
 """The sidebar's report download, on every page: the calibration report of the loaded session.
 
-The report (:mod:`app.report`) runs every estimate the session allows, so it is prepared off the
-UI thread with the header's progress bar (:meth:`app.state.AppState.compute`), then offered as a
+The report (:mod:`ccdcore_app.report`) runs every estimate the session allows, so it is prepared off the
+UI thread with the header's progress bar (:meth:`ccdcore_app.state.AppState.compute`), then offered as a
 download; a new session withdraws it.
 
 Public objects
 --------------
 ReportBox
-    The two buttons (prepare, download) bound to an :class:`~app.state.AppState`.
+    The two buttons (prepare, download) bound to an :class:`~ccdcore_app.state.AppState`.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ __all__ = ["ReportBox", "make_report"]
 
 
 def make_report(session: Any, progress: Callable[[str, float], None] | None = None) -> str:
-    """The report of ``session`` as HTML text (:func:`app.report.build_report`)."""
+    """The report of ``session`` as HTML text (:func:`ccdcore_app.report.build_report`)."""
     from .report import build_report
 
     return build_report(session, progress=progress)
