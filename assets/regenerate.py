@@ -4,7 +4,7 @@
     .venv/bin/python -m assets.regenerate healey94   # one
 
 Each demo is ``ccdcore.simulate.simulate(preset, assets/<preset>, seed=DEMO_SEED,
-**DEMOS[preset])``.  The simulators' bytes do not depend on the CPU's vector features (AVX2,
+**DEMOS[preset])`` (:mod:`ccdcore.simulate.demos`, which also writes them for an installed package).  The simulators' bytes do not depend on the CPU's vector features (AVX2,
 AVX-512, NEON): digital numbers are computed without NumPy's CPU-dispatched vector functions,
 and truth.json's floats carry 12 significant digits.  ``tests/test_assets.py`` checks
 that the committed files are what this writes: frames, masks and ``session.toml`` byte for byte,
@@ -13,32 +13,17 @@ digit (the margin for a value that an ulp upstream could round either way).
 """
 from __future__ import annotations
 
-import shutil
 import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-DEMO_SEED = 1994
-#: preset -> options for the demo (small enough to commit: all of assets/ stays well under 20 MB)
-DEMOS: dict[str, dict] = {
-    "healey94": {"size": (256, 192)},
-    "delasarte07": {},
-    "tsin01": {},
-    "tsin01-camera": {"size": (192, 128)},        # RGB, 10 exposures one stop apart, ~1 MB
-    "change": {},
-}
+from ccdcore.simulate.demos import DEMO_SEED, DEMOS, write_demo  # noqa: E402,F401
 
 
 def regenerate(preset: str, out_root: Path = HERE) -> Path:
-    from ccdcore.simulate import simulate
-
-    out = out_root / preset
-    if out.exists():
-        shutil.rmtree(out)
-    simulate(preset, out, seed=DEMO_SEED, **DEMOS[preset])
-    return out
+    return write_demo(preset, out_root)
 
 
 def main(argv: list[str]) -> None:

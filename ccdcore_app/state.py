@@ -48,6 +48,7 @@ from ccdcore.product import Estimates
 from ccdcore.progress import Cancelled, Tracker, tracking
 from ccdcore.scene import SceneVariation
 from ccdcore.session import MANIFEST_NAME, Session, open_session
+from ccdcore.simulate.demos import ensure_demos, user_demos_dir
 
 from .cache import ResultCache, SharedResults, code_version, default_cache, shared_results
 
@@ -62,7 +63,10 @@ ASSETS_ENV = "CCDCORE_ASSETS"
 
 
 def assets_dir() -> Path:
-    """The bundled demo sessions: ``<repo>/assets`` next to the ``ccdcore_app`` package.
+    """The demo sessions' folder: ``<repo>/assets`` next to the ``ccdcore_app`` package in a
+    checkout; for an installed package (no ``assets`` beside it), the user's demos folder
+    (:func:`ccdcore.simulate.demos.user_demos_dir`), where :func:`demo_sessions` writes them on
+    first use.
 
     The environment variable ``CCDCORE_ASSETS``, when set, names another folder instead.
     """
@@ -71,12 +75,24 @@ def assets_dir() -> Path:
         return Path(override).expanduser().resolve()
     import ccdcore_app
 
-    return Path(ccdcore_app.__file__).resolve().parents[1] / "assets"
+    repo = Path(ccdcore_app.__file__).resolve().parents[1] / "assets"
+    if (repo / "regenerate.py").is_file():
+        return repo
+    return user_demos_dir()
 
 
 def demo_sessions(assets: Path | None = None) -> dict[str, Path]:
-    """Name -> folder of every demo session (a sub-folder of ``assets`` with ``session.toml``)."""
+    """Name -> folder of every demo session (a sub-folder of ``assets`` with ``session.toml``).
+
+    In the user's demos folder of an installed package the demos it lacks are written first
+    (the simulators, deterministic, about 3 s once); a folder that cannot be written to gives
+    the demos it has, with a logged warning."""
     assets = assets_dir() if assets is None else Path(assets)
+    if assets == user_demos_dir():
+        try:
+            ensure_demos(assets, say=log.warning)
+        except (OSError, CcdError) as exc:
+            log.warning("cannot write the demo sessions into %s: %s", assets, exc)
     if not assets.is_dir():
         return {}
     return {p.name: p for p in sorted(assets.iterdir())

@@ -26,6 +26,31 @@ def test_demo_sessions_are_found(assets):
     assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "tsin01-camera", "change"}
 
 
+def test_an_installed_package_writes_its_demos_once(tmp_path, monkeypatch, assets):
+    """Installed without assets/ beside the package, the app writes the demos into the user's
+    data folder on first use: the same bytes as the committed ones (the simulators are
+    deterministic), and never again once there."""
+    import ccdcore_app
+    from ccdcore_app import state as st
+
+    fake_pkg = tmp_path / "site" / "ccdcore_app"
+    fake_pkg.mkdir(parents=True)
+    monkeypatch.setattr(ccdcore_app, "__file__", str(fake_pkg / "__init__.py"))
+    monkeypatch.delenv(st.ASSETS_ENV, raising=False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    where = tmp_path / "data" / "ccdcore" / "demos"
+    assert st.assets_dir() == where
+    found = demo_sessions()
+    assert set(found) == set(demo_sessions(assets))
+    for name in ("tsin01", "healey94"):
+        for f in (assets / name).rglob("*.toml"):
+            assert (where / name / f.relative_to(assets / name)).read_bytes() == f.read_bytes()
+    stamp = (where / "tsin01" / "session.toml").stat().st_mtime_ns
+    assert set(demo_sessions()) == set(found)
+    assert (where / "tsin01" / "session.toml").stat().st_mtime_ns == stamp
+    assert not [p for p in where.iterdir() if p.name.startswith(".")]    # no leftovers
+
+
 def test_load_demo_fills_state(state, healey94):
     assert state.load(healey94)
     assert state.session is not None and state.error == ""
