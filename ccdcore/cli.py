@@ -34,13 +34,62 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _size(text: str) -> tuple[int, int]:
+    """WxH, at most the library's pixel limit: a frame no read would accept is not written
+    (100000x100000 would ask 75 GiB per float frame before failing)."""
+    from .io import pixel_limit
+
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"size '{text}' is not WxH, e.g. 256x192") from None
     if w < 1 or h < 1:
         raise argparse.ArgumentTypeError(f"size '{text}' must be positive")
+    try:
+        limit = pixel_limit()
+    except CcdError as err:  # a bad CCDCORE_MAX_PIXELS
+        raise argparse.ArgumentTypeError(str(err)) from None
+    if w * h > limit:
+        raise argparse.ArgumentTypeError(f"size '{text}' is {w * h:,} pixels, over the pixel "
+                                         f"limit of {limit:,} (CCDCORE_MAX_PIXELS)")
     return w, h
+
+
+def _seed(text: str) -> int:
+    """A random seed: NumPy's generators take whole numbers >= 0 only."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed '{text}' is not a whole number") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"seed must be 0 or more, got {n}")
+    return n
+
+
+def _bloom_radius(text: str) -> int:
+    """0 .. MAX_BLOOM_RADIUS: the blooming disk's cost grows with its area (3000 would ask
+    hundreds of GiB), and a halo wider than that is lens flare, not blooming."""
+    from .response.brackets import MAX_BLOOM_RADIUS
+
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number of pixels") from None
+    if not 0 <= n <= MAX_BLOOM_RADIUS:
+        raise argparse.ArgumentTypeError(
+            f"must be in 0..{MAX_BLOOM_RADIUS} pixels, got {n} (blooming spills a few pixels; "
+            "a halo wider than that is lens flare, not blooming)")
+    return n
+
+
+def _port(text: str) -> int:
+    """A TCP port, 1..65535 (Bokeh asserts on 70000; -1 gave a resolver error)."""
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--port '{text}' is not a whole number") from None
+    if not 1 <= n <= 65535:
+        raise argparse.ArgumentTypeError(f"must be in 1..65535, got {n}")
+    return n
 
 
 def _positive(text: str) -> int:
@@ -82,6 +131,43 @@ def _say(label: str, text: str, *, file: Any = None, indent: str = "  ") -> None
     print("\n".join(lines), file=file or sys.stdout)
 
 
+def _channel(name: str) -> str:
+    """A channel's name for a reader: ``L`` is the one channel of a mono camera."""
+    return "L (mono)" if name == "L" else str(name)
+
+
+def _cores() -> int:
+    """The CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+#: below this many pixels read (frames x pixels per frame), streaming them takes about a second
+#: and a local cluster's start-up (seconds) cannot pay off
+_SMALL_SESSION_PIXELS = 100_000_000
+
+
+def _workers_note(workers: int | None, frames: int, pixels: int) -> None:
+    """With ``--workers N``: one note on stderr when a local cluster is unlikely to be faster
+    than the streamed default (few cores, or a small session), so ``--json`` stays clean."""
+    if workers is None:
+        return
+    cores = _cores()
+    why = []
+    if cores <= 2 or workers > cores:
+        why.append(f"this machine has {cores} CPU core{'s' if cores != 1 else ''}")
+    if pixels < _SMALL_SESSION_PIXELS:
+        why.append(f"the session is small ({frames} frames, {pixels / 1e6:.3g} megapixels in "
+                   "all)")
+    if why:
+        _say("note", f"--workers {workers}: {' and '.join(why)}; starting a local cluster of "
+                     f"{workers} worker process{'es' if workers != 1 else ''} takes seconds, so "
+                     "the streamed default (no --workers) is likely faster here",
+             file=sys.stderr, indent="")
+
+
 def _print_problems(problems: Sequence[Any], label: str, limit: int = 3) -> None:
     """Each problem on its own line; beyond ``limit`` of one kind (code), the first ``limit``
     and a count of the rest, so a thousand-frame session stays readable."""
@@ -108,7 +194,8 @@ def _get(d: dict, key: str) -> float:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import simulate
 
-    truth = simulate(args.preset, args.out_dir, seed=args.seed, size=args.size)
+    truth = simulate(args.preset, args.out_dir, seed=args.seed, size=args.size,
+                     force=args.force)
     if args.json:
         _print_json({"preset": args.preset, "out_dir": str(args.out_dir), "seed": args.seed,
                      "truth": truth})
@@ -175,6 +262,8 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     with get_client(args.scheduler, args.workers) as client:
         res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
                               exclude_levels=tuple(args.exclude or ()), client=client)
+    _workers_note(args.workers, sum(2 * p.n_pairs for p in res.points),
+                  sum(2 * p.n_pairs * p.n_pixels for p in res.points))
     if args.json:
         _print_json(res.to_dict())
         return 0
@@ -190,14 +279,42 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
           f" (read noise {format_pm(res.read_noise_dn, res.read_noise_dn_err, unit='DN')} = "
           f"{format_pm(res.read_noise_e, res.read_noise_e_err, unit='e⁻')}; quantisation "
           f"q²/12 = {res.quantisation_dn2:.4g} DN²)")
-    print(f"fit         χ² = {res.chi2:.4g} with {res.dof} degrees of freedom, Q = {res.Q:.3g}: "
-          f"{res.verdict}")
+    print(f"fit         χ² = {res.chi2:.4g} with {res.dof} degrees of freedom, Q = {res.Q:.3g} "
+          f"(chance of so large a χ² if the line fits): {res.verdict}")
     print(f"black level b0 = {res.black_level_dn:.4g} DN ({res.black_level_source})")
-    if res.robust_dropped:
-        print(f"robust mode dropped levels {', '.join(map(str, res.robust_dropped))}")
+    if args.robust:
+        dropped = res.robust_dropped
+        print("robust mode  on: a level more than 3 σ off the line is dropped and the line "
+              "refitted, one at a time; " + (
+                  f"dropped level{'s' if len(dropped) != 1 else ''} "
+                  f"{', '.join(map(str, dropped))}" if dropped else "no level dropped"))
+    advice = _ptc_advice(res, robust=bool(args.robust))
+    if advice:
+        _say("advice", advice, indent="")
     for note in res.notes:
         _say("note", note, indent="")
     return 0
+
+
+def _ptc_advice(res: Any, *, robust: bool) -> str:
+    """What to do when the photon-transfer line does not fit its points (verdict poor or
+    model rejected), naming the worst levels; empty when the fit is acceptable."""
+    if res.verdict not in ("poor", "model rejected"):
+        return ""
+    used = [p for p in res.points if p.used and p.var_err > 0]
+    worst = sorted(used, key=lambda p: -abs(p.var - (res.A * p.mu + res.sigma_c2)) / p.var_err)
+    named = ", ".join(f"level {p.level} "
+                      f"({(p.var - (res.A * p.mu + res.sigma_c2)) / p.var_err:+.1f} σ)"
+                      for p in worst[:2])
+    top = max((p.mu for p in used), default=float("nan"))
+    steps = [f"the fit is {res.verdict}: the points scatter about the line more than their "
+             f"errors allow (largest residuals: {named or 'none'})",
+             f"leave out levels near saturation (--exclude LEVEL; the brightest used level has "
+             f"a mean of {top:.4g} DN above b0) and levels in the dark floor",
+             "check the fit range with a region of uniform light (--roi X,Y,W,H)"]
+    if not robust:
+        steps.append("or try --robust, which drops levels more than 3 σ off the line")
+    return "; ".join(steps)
 
 
 def _print_product(product: Any, folder: Path) -> None:
@@ -211,23 +328,36 @@ def _print_product(product: Any, folder: Path) -> None:
     if "dark" in est:
         d = est["dark"]
         print(f"  dark D̂_D       {d['s']} frames, mean {format_pm(_get(d, 'mean'), _get(d, 'mean_sem'), unit='DN')}, "
-              f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels")
+              f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels "
+              "(D̂_D: the mean dark frame)")
     if "fixed_pattern" in est:
         k = est["fixed_pattern"]
         bound = "infinite" if k["var_bound"] is None else format(k["var_bound"], ".3g")
-        print(f"  fixed pattern  K̂ from n1 = {k['n1']} card/lamp positions × n2 = {k['n2']} "
-              f"frames: mean {_get(k, 'mean'):.6g}, spatial std {_get(k, 'spatial_std'):.4g}, "
-              f"error variance {_get(k, 'K_var_mean'):.3g} (eq. 50 bound {bound})")
+        print(f"  fixed pattern  K̂ (each pixel's relative gain, no unit) from n1 = {k['n1']} "
+              f"card/lamp positions × n2 = {k['n2']} frames: mean {_get(k, 'mean'):.6g}, "
+              f"spatial std {_get(k, 'spatial_std'):.4g}, mean error variance "
+              f"{_get(k, 'K_var_mean'):.3g} (eq. 50 bound {bound})")
     if "correction_check" in est:
         c = est["correction_check"]
         print(f"  correction     eq. 51 on the max-intensity frame changes "
-              f"{100 * c['frac_gt_1q']:.1f} % of pixels by more than 1 quantisation step, "
-              f"{100 * c['frac_gt_2q']:.1f} % by more than 2, at most {c['max_change_q']:.2f}")
+              f"{100 * c['frac_gt_1q']:.1f} % of pixels by more than 1 quantisation step q "
+              f"(1 DN), {100 * c['frac_gt_2q']:.1f} % by more than 2 q; the largest change is "
+              f"{c['max_change_q']:.2f} q")
     if "flat_field" in est:
         ff = est["flat_field"]
-        ks = ", ".join(f"{c['name']} {c['k']:.4g} DN" for c in ff["channels"])
-        print(f"  flat field     G, O from base {ff['base']} ({ff['n_base']} frames) and "
-              f"{ff['n_dark']} darks; k per channel: {ks}; {ff['n_flagged']} pixels flagged")
+        ks = ", ".join(f"{_channel(c['name'])} {c['k']:.4g} DN" for c in ff["channels"])
+        base = ff.get("base")
+        if isinstance(base, (list, tuple)) and len(base) == 2:
+            level, t = base
+            where = ("level " + ("–" if level is None else f"{level:g}" if isinstance(
+                level, (int, float)) else str(level)) + ", exposure "
+                     + ("–" if t is None else f"{t:g} s"))
+        else:
+            where = str(base)
+        print(f"  flat field     gain and offset maps G, O (corrected = O + G·raw) from the "
+              f"recommended base flat: {where} ({ff['n_base']} frames), and {ff['n_dark']} "
+              f"dark frames; target level k per channel: {ks}; {ff['n_flagged']} pixels "
+              "flagged")
     if "plan" in est:
         pl = est["plan"]
         print(f"  plan           n1 = {pl['n1_required']} card/lamp positions needed, "
@@ -235,10 +365,12 @@ def _print_product(product: Any, folder: Path) -> None:
     if "response" in est:
         r = est["response"]
         noise = "; ".join(
-            f"{c}: σ_s {_fmt(r['sigma_s'][i])}, σ_c1 {_fmt(r['sigma_c1'][i])}, "
-            f"σ_c2 {_fmt(r['sigma_c2'][i])} DN" for i, c in enumerate(r["channels"]))
-        print(f"  response       g per channel ({', '.join(r['channels'])}, {r['levels']} "
-              f"codes) by {r['method']}; noise {noise}")
+            f"{_channel(c)}: shot σ_s {_fmt(r['sigma_s'][i])} (√g), dark/input σ_c1 "
+            f"{_fmt(r['sigma_c1'][i])} (g), output/read σ_c2 {_fmt(r['sigma_c2'][i])} DN"
+            for i, c in enumerate(r["channels"]))
+        print(f"  response       inverse response g (code -> relative exposure) per channel "
+              f"({', '.join(_channel(c) for c in r['channels'])}, {r['levels']} codes) by "
+              f"{r['method']}; noise {noise}")
         ag = r.get("agreement")
         if isinstance(ag, dict) and ag.get("rms") is not None:
             print(f"                 predicts its images within {ag['rms']:.2f} DN RMS from a "
@@ -247,7 +379,7 @@ def _print_product(product: Any, folder: Path) -> None:
             _say("warning", f"response: {w}")
     for name, sv in est.get("scene", {}).items():
         print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
-              "(relative variance of the surface)")
+              "(relative variance of the surface, no unit)")
     if product.emva1288 is not None:
         _print_emva(product.emva1288)
     print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
@@ -267,9 +399,9 @@ def _print_emva(e: dict) -> None:
             ("quantum eff.", f"η = {pm('QE', '%')}"),
             ("dark noise", f"σ_y.dark = {pm('sigma_y_dark', 'DN')}; σ_d = {pm('sigma_d', 'e⁻')} "
                            f"from darks, {pm('sigma_d_ptc', 'e⁻')} from photon transfer"),
-            ("saturation", f"μ_p.sat = {pm('u_p_sat', 'p')}, "
+            ("saturation", f"μ_p.sat = {pm('u_p_sat', 'photons')}, "
                            f"μ_e.sat = {pm('u_e_sat', 'e⁻')}, SNR_max = {pm('SNR_max')}"),
-            ("sensitivity", f"μ_p.min = {pm('u_p_min', 'p')}"),
+            ("sensitivity", f"μ_p.min = {pm('u_p_min', 'photons')}"),
             ("dynamic range", f"DR = {pm('DR')} = {pm('DR_dB', 'dB')}"),
             ("linearity", f"LE_min = {pm('LE_min', '%')}, LE_max = {pm('LE_max', '%')}")]
     if e.get("DSNU1288") is not None or e.get("PRNU1288") is not None:
@@ -286,13 +418,26 @@ def _fmt(v: Any) -> str:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .product import calibrate
+    from .io import check_outputs
+    from .product import PRODUCT_FILE, calibrate, session_inputs
+    from .session import open_session
 
     from .distributed import get_client
 
-    with get_client(args.scheduler, args.workers) as client:
-        product = calibrate(args.session, roi=args.roi, client=client)
-    folder = product.save(args.out)
+    session = open_session(args.session)
+    inputs = session_inputs(session)
+    # before the work: the product's files must not be (or hold) the session's
+    check_outputs(args.out, {PRODUCT_FILE: False, "maps": True}, inputs)
+    earlier = (Path(args.out) / PRODUCT_FILE).is_file()
+    try:
+        with get_client(args.scheduler, args.workers) as client:
+            product = calibrate(session, roi=args.roi, client=client)
+        folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
+    except KeyboardInterrupt:
+        print("ccdcore calibrate: interrupted: nothing was written" + (
+            f"; the earlier product in {args.out} is kept as it was" if earlier else ""),
+              file=sys.stderr)
+        return 130
     if args.json:
         out = product.to_dict()
         out["folder"] = str(folder)
@@ -339,7 +484,41 @@ def _cmd_apply(args: argparse.Namespace) -> int:
                             linearise=args.linearise)
     for path in written:
         print(path)
+    _say("", _applied_text(args.calib, linearise=args.linearise, n=len(written)), indent="")
     return 0
+
+
+def _applied_text(calib: Any, *, linearise: bool, n: int) -> str:
+    """What ``apply`` did to each image, from the product's maps (read from its description,
+    not its maps): dark subtracted, fixed pattern divided, flat-field gain/offset, or the
+    response; the product named."""
+    from .product import PRODUCT_FILE
+
+    try:
+        doc = json.loads((Path(calib) / PRODUCT_FILE).read_text())
+        maps = set(doc.get("maps") or ())
+        channels = (doc.get("estimates", {}).get("response") or {}).get("channels") or []
+    except (OSError, ValueError, AttributeError):
+        maps, channels = set(), []
+    images = f"{n} image{'s' if n != 1 else ''}"
+    if linearise:
+        what = ("codes mapped through the inverse response g"
+                + (f" of channel{'s' if len(channels) != 1 else ''} "
+                   f"{', '.join(_channel(c) for c in channels)}" if channels else "")
+                + " (values linear in exposure, g's scale)")
+    elif "flat_G" in maps:
+        what = ("flat-field corrected with the gain and offset maps flat_G, flat_O: "
+                "corrected = O + G·raw (dark image, PRNU and vignetting removed; de Lasarte et "
+                "al. 2007)")
+    elif "K" in maps:
+        what = ("dark reference subtracted and the fixed pattern divided out with the maps "
+                "dark, K: corrected = (raw − D̂_D)/K̂ (eq. 51)")
+    elif "dark" in maps:
+        what = ("dark reference subtracted with the map dark: corrected = raw − D̂_D (no "
+                "fixed-pattern map K in the product)")
+    else:
+        what = "corrected"
+    return f"applied to {images} (listed above, float32): {what}; product {Path(calib)}"
 
 
 def _print_response(res: Any) -> None:
@@ -347,25 +526,35 @@ def _print_response(res: Any) -> None:
     from .response.scale import reference_codes
 
     _, z_hi = reference_codes(res.levels)
-    print(f"inverse response by {METHODS[res.method].label} from {len(res.files)} exposures "
-          f"({', '.join(f'{t:.4g}' for t in res.t)} s), {res.levels} codes; scale: "
-          f"g({z_hi}) = {z_hi / (res.levels - 1):.4g}")
     top = res.levels - 1
+    print(f"inverse response by {METHODS[res.method].label} from {len(res.files)} exposures "
+          f"({', '.join(f'{t:.4g}' for t in res.t)} s), {res.levels} codes")
+    _say("", f"g(z) is the inverse response: the relative exposure (light × time) that gives "
+             f"the code z, on a scale of its own: g({z_hi}) = {z_hi}/{top} = "
+             f"{z_hi / top:.4g} (the code 90 % up the range maps to 0.9; no unit)")
     codes = sorted({round(top * f) for f in (0.05, 0.1, 0.25, 0.5, 0.75, 0.95)})
-    print(f"  {'code':>7} " + " ".join(f"{c:>17}" for c in res.channels))
+    names = [_channel(c) for c in res.channels]
+    print(f"  {'code z':>7} " + " ".join(f"{'g, ' + c:>20}" for c in names))
     for z in codes:
         print(f"  {z:>7} " + " ".join(
-            f"{format_pm(float(r.g[z]), float(r.g_err[z])):>17}" for r in res.responses))
+            f"{format_pm(float(r.g[z]), float(r.g_err[z])):>20}" for r in res.responses))
     for ch, r in zip(res.channels, res.responses):
         noise = ", ".join(f"{label} = {format_pm(v, e, unit=u)}" for label, v, e, u in (
-            ("σ_s", r.sigma_s, r.sigma_s_err, ""), ("σ_c1", r.sigma_c1, r.sigma_c1_err, ""),
-            ("σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
+            ("shot noise σ_s", r.sigma_s, r.sigma_s_err, "√g"),
+            ("dark/input noise σ_c1", r.sigma_c1, r.sigma_c1_err, "g"),
+            ("output/read noise σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
         state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
                  + ("" if r.converged else ", not converged"))
-        print(f"  {ch}: noise (eq. 7) {noise or 'not estimated'}; {state}")
+        _say(_channel(ch), f"noise (eq. 7: σ² = σ_s²·(g − b) + σ_c1² + g'²·σ_c2²) "
+                           f"{noise or 'not estimated'}; {state}")
         if r.white_balance:
-            gains = ", ".join(f"{a / t:.4f}" for a, t in zip(r.a, r.t))
-            print(f"  {ch}: gains a_k / t_k (gauge: zero mean and trend of the logs): {gains}")
+            _say(_channel(ch), "white balance, per exposure: gain a_k/t_k (relative to the "
+                               "nominal time; gauge: zero mean and trend of the logs) and "
+                               "offset b_k (units of g; the smallest-norm choice)")
+            print(f"    {'t_k [s]':>10} {'a_k/t_k':>20} {'b_k':>22}")
+            for a, a_err, b, b_err, t in zip(r.a, r.a_err, r.b, r.b_err, r.t):
+                print(f"    {t:>10.4g} {format_pm(a / t, a_err / t):>20} "
+                      f"{format_pm(float(b), float(b_err)):>22}")
         for note in r.notes:
             _say("note", note, indent="    ")
     ag = res.agreement
@@ -394,24 +583,24 @@ def _cmd_response(args: argparse.Namespace) -> int:
     return 0
 
 
-def _out_folder(out_dir: Path, names: Sequence[str], records: Sequence[Any]) -> Path:
-    """The output folder, created; a clear error when an output would overwrite an input."""
-    folder = Path(out_dir)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CcdError(folder, f"cannot create the folder: {exc.strerror}") from None
-    outputs = {(folder / n).resolve() for n in names}
-    for rec in records:
-        if Path(rec.path).resolve() in outputs:
-            raise CcdError(rec.relpath, "an output would overwrite this input; choose another "
-                                        "-o folder")
-    return folder
+def _out_folder(out_dir: Path, names: Sequence[str], session: Any,
+                calib: Path | None = None) -> Path:
+    """The output folder, checked before any work (:func:`ccdcore.io.check_outputs`): a clear
+    error when an output would be (or be inside) an input of the run -- the session's files,
+    the product folder -- or is a FIFO or a device. The files are then written as one set
+    (:func:`ccdcore.io.output_set`), which creates the folder."""
+    from .io import check_outputs
+    from .product import session_inputs
+
+    inputs = session_inputs(session) + ([Path(calib)] if calib is not None else [])
+    check_outputs(out_dir, names, inputs)
+    return Path(out_dir)
 
 
 def _cmd_change(args: argparse.Namespace) -> int:
     from .change import ChangeOptions, session_change
-    from .io import write_image, write_map
+    from .io import write_image, write_map, write_outputs
+    from .product import session_inputs
     from .response.brackets import bracket_records
     from .session import open_session
 
@@ -423,39 +612,56 @@ def _cmd_change(args: argparse.Namespace) -> int:
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
     from .distributed import STREAMED, describe, get_client
 
+    folder = _out_folder(args.out_dir, names, session, args.calib)
     with get_client(args.scheduler, args.workers) as client:
-        folder = _out_folder(args.out_dir, names, records)
         res, inputs = session_change(session, opts, calib=args.calib,
                                      bloom_radius=args.bloom_radius, client=client)
         scheduler = describe(client)
+    _workers_note(args.workers, len(records), len(records) * int(res.labels.size))
     change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
     d2 = np.where(res.valid, res.d2_best, np.nan).astype(np.float32)
-    paths = [write_image(folder / names[0], change),
-             write_image(folder / names[1], res.labels),
-             write_map(folder / names[2], d2),
-             write_map(folder / names[3], res.predicted.astype(np.float32))]
+    paths = write_outputs(folder, {   # as one set: never new and old files mixed
+        names[0]: lambda p: write_image(p, change),
+        names[1]: lambda p: write_image(p, res.labels),
+        names[2]: lambda p: write_map(p, d2),
+        names[3]: lambda p: write_map(p, res.predicted.astype(np.float32))},
+        inputs=session_inputs(session) + ([args.calib] if args.calib else []))
     summary = res.to_dict()
     if args.json:
         _print_json({"source": inputs["source"], "channels": list(inputs["channels"]),
                      **summary, "files": [str(p) for p in paths], "scheduler": scheduler})
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
+    channels = [str(c) for c in inputs["channels"]]
     if scheduler != STREAMED:
         print(f"  brackets merged on {scheduler}")
     print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "
           f"(χ²_{res.dof}: {summary['threshold_chi2']:.3g}; observed on the background "
           f"{summary['pfa_observed']:.3g}, {summary['pfa_observed_at_chi2_threshold']:.3g} at "
           "the χ² threshold)")
+    if res.clusters and len(channels) != res.clusters[0].M.shape[0]:
+        channels = [str(i + 1) for i in range(res.clusters[0].M.shape[0])]
+    if res.clusters:
+        _say("", "each cluster's colour transform M (eq. 20) maps a pixel's reference radiance "
+                 "to its target radiance, E_target = E_reference · M (row vectors): row k = "
+                 "reference channel k, column j = target channel j, so M[k, j] is how much of "
+                 "reference channel k goes into target channel j (no unit; 1 on the diagonal "
+                 "means unchanged light)")
     for c in res.clusters:
         what = "background" if c.label == 0 else f"shadow {c.label}"
         print(f"  cluster {c.label} ({what}): {c.pixels} pixels, median d² {c.d2_median:.2f}")
-        for row, err in zip(c.M, np.sqrt(np.diag(c.M_cov)).reshape(c.M.shape)):
-            print("    " + "  ".join(f"{v:8.4f} ± {e:.4f}" for v, e in zip(row, err)))
+        print(f"    {'M':<9}" + "".join(f"{'target ' + j:>18}" for j in channels))
+        for k, row, err in zip(channels, c.M, np.sqrt(np.diag(c.M_cov)).reshape(c.M.shape)):
+            print(f"    {'ref ' + k:<9}" + "".join(f"{f'{v:.4f} ± {e:.4f}':>18}"
+                                                   for v, e in zip(row, err)))
     print(f"  changed pixels {summary['changed_pixels']}, undetermined "
           f"{summary['undetermined_pixels']}; background mean d² "
           f"{summary['background_d2_mean']:.2f}")
     for n in res.notes:
         print(f"  note: {n}")
+    _say("written", "change mask (255 = changed), labels (0 background, 1.. shadows, 255 "
+                    "changed, 254 undetermined), d² under the best cluster, predicted target "
+                    "radiance")
     for p in paths:
         print(f"  {p}")
     return 0
@@ -463,8 +669,8 @@ def _cmd_change(args: argparse.Namespace) -> int:
 
 def _cmd_hdr(args: argparse.Namespace) -> int:
     from .distributed import STREAMED, describe, get_client
-    from .io import write_image, write_map
-    from .product import load_product
+    from .io import write_image, write_map, write_outputs
+    from .product import load_product, session_inputs
     from .response.brackets import check_times, bracket_records, load_bracket
     from .response.hdr import merge_bracket
     from .response.methods import response_of
@@ -473,6 +679,8 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     session = open_session(args.session)
     session.raise_if_invalid()
     records = bracket_records(session, args.stack)
+    names = ("radiance.exr", "sigma.exr", "flags.png")
+    folder = _out_folder(args.out_dir, names, session, args.calib)
     with get_client(args.scheduler, args.workers) as client:
         frames = None
         if args.calib is not None and client is not None:
@@ -509,10 +717,11 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                             bloom_radius=args.bloom_radius, frames=frames, client=client,
                             session=session)
         scheduler = describe(client)
-    folder = _out_folder(args.out_dir, ("radiance.exr", "sigma.exr", "flags.png"), records)
-    paths = [write_map(folder / "radiance.exr", out.radiance),
-             write_map(folder / "sigma.exr", out.sigma),
-             write_image(folder / "flags.png", out.flag_image())]
+    paths = write_outputs(folder, {   # as one set: never new and old files mixed
+        names[0]: lambda p: write_map(p, out.radiance),
+        names[1]: lambda p: write_map(p, out.sigma),
+        names[2]: lambda p: write_image(p, out.flag_image())},
+        inputs=session_inputs(session) + ([args.calib] if args.calib else []))
     if args.json:
         _print_json({"source": source, "channels": list(out.channels),
                      "files": [str(p) for p in paths],
@@ -545,10 +754,11 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_app(args: argparse.Namespace) -> int:
-    from ccdcore_app.main import serve
+    from ccdcore_app.main import check_port, serve
 
     if args.session is not None and not Path(args.session).exists():
         raise CcdError(args.session, "session not found")
+    check_port(args.port)  # a busy port is one line, before "serving on" is claimed
     print(f"serving the ccdcore app on http://127.0.0.1:{args.port} (Ctrl+C to stop)", flush=True)
     serve(args.session, port=args.port, show=False)
     return 0
@@ -594,8 +804,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = verb("simulate", "write a simulated capture session and its truth.json", _cmd_simulate)
     p.add_argument("preset", choices=sorted(PRESETS), help="which paper's capture procedure")
-    p.add_argument("out_dir", type=Path, help="folder to write (created)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("out_dir", type=Path, help="folder to write (created): new, empty, or an "
+                                              "earlier simulation (its truth.json)")
+    p.add_argument("--force", action="store_true",
+                   help="write into a folder that holds other files (those of the same names "
+                        "are replaced)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed, 0 or more (default 0)")
     p.add_argument("--size", type=_size, default=None, metavar="WxH",
                    help="frame size WxH in pixels (default: the preset's)")
     json_flag(p)
@@ -627,7 +841,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
     p.add_argument("-o", "--out", type=Path, required=True,
-                   help="product folder to write (new, empty, or an earlier product)")
+                   help="product folder to write (new, empty, or an earlier product, which "
+                        "is replaced whole: its calibration.json and maps/, so maps this "
+                        "calibration does not make are removed; other files are left alone)")
     cluster_args(p)
     json_flag(p)
 
@@ -653,16 +869,17 @@ def build_parser() -> argparse.ArgumentParser:
                    help="channel layout (default: from the file; give it for mosaicked raw data)")
     json_flag(p)
 
-    from .response.brackets import DEFAULT_BLOOM_RADIUS
+    from .response.brackets import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
     from .response.methods import METHODS
 
     def bracket_args(p: argparse.ArgumentParser) -> None:
         p.add_argument("session", type=Path, help=_SESSION_HELP)
         p.add_argument("--stack", type=int, default=None,
                        help="which bracket of the session (its 'stack'; default the first)")
-        p.add_argument("--bloom-radius", type=int, default=DEFAULT_BLOOM_RADIUS, metavar="R",
-                       help="pixels within R of a saturated pixel are dropped as blooming "
-                            f"(default {DEFAULT_BLOOM_RADIUS}; 0 keeps them)")
+        p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
+                       metavar="R", help="pixels within R of a saturated pixel are dropped as "
+                                         f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps "
+                                         f"them; at most {MAX_BLOOM_RADIUS})")
 
     p = verb("response", "inverse camera response g per channel, with its band and the noise "
                          "terms (Tsin et al. 2001 and classic methods)", _cmd_response,
@@ -696,9 +913,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "the reference bracket)")
-    p.add_argument("--bloom-radius", type=int, default=DEFAULT_BLOOM_RADIUS, metavar="R",
-                   help="pixels within R of a saturated pixel are dropped as blooming "
-                        f"(default {DEFAULT_BLOOM_RADIUS}; 0 keeps them)")
+    p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
+                   metavar="R", help="pixels within R of a saturated pixel are dropped as "
+                                     f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps them; "
+                                     f"at most {MAX_BLOOM_RADIUS})")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
     cluster_args(p)
@@ -717,7 +935,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)
     p.add_argument("session", nargs="?", default=None,
                    help="session to open (default: the bundled demo)")
-    p.add_argument("--port", type=int, default=5006, help="port (default 5006)")
+    p.add_argument("--port", type=_port, default=5006, help="port, 1..65535 (default 5006)")
     return parser
 
 
@@ -737,6 +955,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     except CcdError as err:
         print(f"ccdcore {args.verb}: error: {err}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RecursionError:
+        # Last resort: a parser met input nested deeper than Python's stack (a hostile or
+        # corrupt TOML/JSON file, e.g. ten thousand "[" in a row) and did not say which file.
+        inputs = [str(v) for k, v in vars(args).items()
+                  if isinstance(v, Path) and k not in ("out", "out_dir")]
+        where = f"{', '.join(inputs)}: " if inputs else ""
+        print(f"ccdcore {args.verb}: error: {where}a file holds tables or arrays nested too "
+              "deeply to read (corrupt?)", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         # the reader went away (``ccdcore session ... | head``): stop quietly, as Unix tools do

@@ -42,7 +42,9 @@ check_averageable(frame, header, first)
     :class:`~ccdcore.stats.PixelMoments`' checks of a frame, from its header.
 get_client(scheduler=None, workers=None)
     Context manager: a client on ``scheduler`` (or ``CCDCORE_SCHEDULER``), on a new local
-    cluster of ``workers`` processes, or ``None`` (streamed).
+    cluster of ``workers`` processes (on 127.0.0.1, no dashboard unless
+    ``CCDCORE_DASK_DASHBOARD`` asks), or ``None`` (streamed); :func:`max_workers` bounds
+    ``workers``, :data:`CONNECT_TIMEOUT` the whole connection to a scheduler.
 describe(client)
     What a product's provenance records: ``"streamed (this process)"`` or the address and
     number of workers.
@@ -79,10 +81,11 @@ from .io import read_image, read_region
 from .progress import Cancelled, checkpoint
 from .stats import MomentsResult, PixelMoments
 
-__all__ = ["Frame", "frames_of", "headers_of", "check_averageable", "get_client", "describe", "bands", "band_moments",
+__all__ = ["Frame", "frames_of", "headers_of", "check_averageable", "check_pixels", "get_client", "describe", "bands", "band_moments",
            "group_moments", "iter_group_moments", "zero_counts", "pair_sums", "PairSums",
            "frame_sums", "check_bracket", "band_merge", "merge_halo",
-           "BAND_BYTES", "RETRIES", "PTC_RTOL", "SCHEDULER_ENV", "STREAMED"]
+           "BAND_BYTES", "RETRIES", "PTC_RTOL", "SCHEDULER_ENV", "STREAMED", "CONNECT_TIMEOUT",
+           "DASHBOARD_ENV", "LOCAL_HOST", "MAX_WORKERS", "max_workers"]
 
 #: environment variable naming the default scheduler address of the CLI
 SCHEDULER_ENV = "CCDCORE_SCHEDULER"
@@ -94,8 +97,38 @@ RETRIES = 3
 PTC_RTOL = 1e-12
 #: provenance of a reduction run in this process
 STREAMED = "streamed (this process)"
-#: seconds to wait for a scheduler before giving up
-CONNECT_TIMEOUT = 5
+#: seconds to wait for a scheduler before giving up: the whole connection and handshake, not
+#: each of Dask's retries (a server that accepts and never answers, or answers something else,
+#: fails within this)
+CONNECT_TIMEOUT = 10
+#: environment variable asking for the local cluster's Dask dashboard: ``host:port`` or
+#: ``port`` (bound to 127.0.0.1 when no host is given); unset: no dashboard
+DASHBOARD_ENV = "CCDCORE_DASK_DASHBOARD"
+#: the interface a local cluster's scheduler and workers listen on (never every interface)
+LOCAL_HOST = "127.0.0.1"
+#: the most local worker processes ``--workers`` may start, whatever the number of cores
+MAX_WORKERS = 256
+
+
+def max_workers() -> int:
+    """The largest ``--workers``: four per core, at most :data:`MAX_WORKERS` (a typo such as
+    ``--workers 99999999999999999999`` is refused in one line, not tried)."""
+    return max(1, min(MAX_WORKERS, 4 * (os.cpu_count() or 1)))
+
+
+def _dashboard_address() -> str | None:
+    """The dashboard address ``CCDCORE_DASK_DASHBOARD`` asks for (``port`` alone, or an empty
+    host, bound to 127.0.0.1), or None (no dashboard: nothing listens that was not asked for)."""
+    value = os.environ.get(DASHBOARD_ENV, "").strip()
+    if not value:
+        return None
+    host, sep, port = value.rpartition(":")
+    if not sep:
+        host, port = "", value
+    if not port.isdigit() or int(port) > 65535:
+        raise CcdError(DASHBOARD_ENV, f"{value!r} is not host:port or port (e.g. "
+                                      f"127.0.0.1:8787)")
+    return f"{host or LOCAL_HOST}:{int(port)}"
 
 
 @dataclass(frozen=True)
@@ -126,7 +159,8 @@ def frames_of(records: Iterable[Any]) -> tuple[Frame, ...]:
 def headers_of(records: Sequence[Any], session: Any = None) -> list[tuple[Frame, Any]]:
     """``(Frame, ImageHeader)`` per record or path, in order: from the session's header cache
     for its records, else read here (:func:`ccdcore.io.read_header`: the streamed reader's
-    error for a file whose header does not read)."""
+    error for a file whose header does not read); a frame above the pixel limit is refused
+    (:func:`check_pixels`)."""
     from .io import read_header
 
     out = []
@@ -135,6 +169,7 @@ def headers_of(records: Sequence[Any], session: Any = None) -> list[tuple[Frame,
             out.append((frame, session.header(rec)))
         else:
             out.append((frame, read_header(frame.path)))
+        check_pixels(frame.path, out[-1][1].shape)
     return out
 
 
@@ -165,7 +200,10 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
         Address of a running scheduler (``tcp://host:8786``); default the environment variable
         ``CCDCORE_SCHEDULER``.
     workers
-        Start a local cluster of this many worker processes (one thread each) instead.
+        Start a local cluster of this many worker processes (one thread each) instead, at most
+        :func:`max_workers`. Its scheduler and workers listen on 127.0.0.1 only, and it has no
+        dashboard unless ``CCDCORE_DASK_DASHBOARD`` asks for one (``host:port``, or ``port``
+        on 127.0.0.1).
 
     Yields
     ------
@@ -175,7 +213,9 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
     Raises
     ------
     CcdError
-        Both given, ``workers`` < 1, or the scheduler cannot be reached (one line naming it).
+        Both given, ``workers`` < 1 or above :func:`max_workers`, or the scheduler cannot be
+        reached, or does not answer as a Dask scheduler, within :data:`CONNECT_TIMEOUT`
+        seconds (one line naming it).
     """
     if scheduler is None and workers is None:
         scheduler = os.environ.get(SCHEDULER_ENV) or None
@@ -188,18 +228,68 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
     from distributed import Client, LocalCluster
 
     if workers is not None:
-        if int(workers) < 1:
+        n = int(workers)
+        if n < 1:
             raise CcdError("--workers", f"must be at least 1, got {workers}")
-        with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                          dashboard_address=":0") as cluster, Client(cluster) as client:
+        if n > max_workers():
+            raise CcdError("--workers", f"{workers} worker processes is more than the limit of "
+                                        f"{max_workers()} (4 per core, at most {MAX_WORKERS})")
+        # scheduler and workers on the loopback interface only; the dashboard (an HTTP server
+        # showing the tasks and the files' paths) only when asked for, by default on loopback.
+        # (Dask's scheduler always serves a few HTTP routes (health, metrics): without a
+        # dashboard they go to a free port of 127.0.0.1 rather than to 8787.)
+        dashboard = _dashboard_address()
+        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOCAL_HOST,
+                          dashboard_address=dashboard, worker_dashboard_address=None,
+                          scheduler_kwargs={"dashboard": dashboard is not None,
+                                            "dashboard_address": dashboard
+                                            or f"{LOCAL_HOST}:0"}) as cluster, \
+                Client(cluster) as client:
             yield client
         return
+    yield from _connected(scheduler)
+
+
+def _connected(scheduler: str) -> Iterator[Any]:
+    """A client of the scheduler at ``scheduler``, within :data:`CONNECT_TIMEOUT` seconds in
+    all: Dask's own ``timeout`` bounds each attempt, and a server that accepts but is not a
+    scheduler (silent, or speaking HTTP) can keep it retrying, so the whole connection runs in
+    a thread that is given up on (and its client closed when it does end) after the bound."""
+    import concurrent.futures
+    import threading
+
+    from distributed import Client
+
+    timeout = float(CONNECT_TIMEOUT)
+    done: concurrent.futures.Future = concurrent.futures.Future()
+    abandoned = threading.Event()
+
+    def connect() -> None:
+        try:
+            client = Client(scheduler, timeout=timeout)
+        except BaseException as exc:          # reported by the caller, whatever it is
+            done.set_exception(exc)
+            return
+        if abandoned.is_set():                # answered after the caller gave up
+            with contextlib.suppress(Exception):
+                client.close()
+            return
+        done.set_result(client)
+
+    threading.Thread(target=connect, name="ccdcore-dask-connect", daemon=True).start()
     try:
-        client = Client(scheduler, timeout=CONNECT_TIMEOUT)
-    except (OSError, TimeoutError, ValueError) as exc:
+        client = done.result(timeout=timeout)
+    except concurrent.futures.TimeoutError:
+        abandoned.set()
+        if done.done() and done.exception() is None:     # (a race at the very end)
+            client = done.result()
+        else:
+            raise CcdError(scheduler, f"cannot reach the Dask scheduler (no Dask answer "
+                                      f"within {timeout:g} s)") from None
+    except Exception as exc:
+        text = str(exc).splitlines()[0] if str(exc).strip() else "no answer"
         raise CcdError(scheduler, f"cannot reach the Dask scheduler ({type(exc).__name__}: "
-                                  f"{str(exc).splitlines()[0] if str(exc) else 'no answer'})"
-                       ) from None
+                                  f"{text})") from None
     with client:
         yield client
 
@@ -238,9 +328,49 @@ def bands(height: int, width: int, *, channels: int = 1, band_rows: int | None =
     return [(y, min(rows, height - y)) for y in range(0, height, rows)]
 
 
+def check_pixels(path: str | os.PathLike, shape: Sequence[int]) -> None:
+    """Refuse a frame of ``shape`` (from its header) above the pixel limit of the streamed
+    reader (:func:`ccdcore.io.pixel_limit`: width x height x channels pixel values), before
+    anything is submitted or decoded.
+
+    A band read (:func:`ccdcore.io.read_region`) only bounds the band, so without this a small
+    file declaring 40000 x 40000 pixels would be decoded band after band for minutes, and the
+    client would allocate its full-size maps. Raises :class:`ImageReadError` naming ``path``.
+    """
+    from .io import check_pixel_limit
+
+    h, w = int(shape[0]), int(shape[1])
+    c = int(shape[2]) if len(shape) > 2 else 1
+    check_pixel_limit(path, w, h, c)
+
+
+_CHECKED: dict[tuple[str, int, int], tuple[int, ...]] = {}
+
+
+def _check_file_pixels(path: str) -> None:
+    """:func:`check_pixels` of a file from its header, on a worker: each file (by path, size
+    and modification time) is read for its header once per process."""
+    from .io import read_header
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        return                      # the read that follows gives the streamed error
+    key = (path, st.st_size, st.st_mtime_ns)
+    shape = _CHECKED.get(key)
+    if shape is None:
+        shape = tuple(read_header(path).shape)
+        if len(_CHECKED) > 4096:
+            _CHECKED.clear()
+        _CHECKED[key] = shape
+    check_pixels(path, shape)
+
+
 def _read_band(frame: Frame, x: int, y: int, w: int, h: int) -> np.ndarray:
     """Rows ``y:y+h``, columns ``x:x+w`` of a frame; a file that does not decode gives the
-    streamed reader's own error (it is read whole with :func:`read_image`)."""
+    streamed reader's own error (it is read whole with :func:`read_image`), one whose header
+    declares more pixels than the limit the streamed reader's refusal (nothing decoded)."""
+    _check_file_pixels(frame.path)
     try:
         return read_region(frame.path, x, y, w, h)
     except ImageReadError:
@@ -409,6 +539,7 @@ def iter_group_moments(client: Any, groups: Mapping[Any, Sequence[Any]], *,
         frames = frames_of(groups[key])
         if not frames:
             raise CcdError(str(key), "no frames")
+        check_pixels(frames[0].path, shape)
         submitted.append(_submit(client, _moments_task,
                                  [(frames, 0, y0, w, rows) for y0, rows in cut]))
     total = sum(len(f) for f in submitted)
@@ -459,6 +590,8 @@ def zero_counts(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...], l
     """Per channel ``(zero pixel values, pixel values)`` over ``frames`` (the flat field's
     zero-dark fraction), counted band by band on the cluster (exact)."""
     fr = frames_of(frames)
+    if fr:
+        check_pixels(fr[0].path, shape)
     h, w = shape[0], shape[1]
     chans = shape[2] if len(shape) == 3 else 1
     cut = bands(h, w, channels=chans, band_rows=band_rows, even=layout.startswith("bayer"))
@@ -531,6 +664,8 @@ def pair_sums(client: Any, levels: Mapping[Any, Sequence[tuple[Any, Any]]], *,
     for key in keys:
         pairs = tuple((frames_of([a])[0], frames_of([b])[0]) for a, b in levels[key])
         pairs_of.append(pairs)
+        if pairs:
+            check_pixels(pairs[0][0].path, shapes[key])
         x, y, w, h = _region(shapes[key], roi)
         cut = [(y + y0, rows) for y0, rows in bands(h, w, band_rows=band_rows)]
         submitted.append(_submit(client, _pairs_task,
@@ -558,6 +693,8 @@ def frame_sums(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...],
     """Per frame ``(sum, pixel count)`` over ``roi`` (or the frame), on the cluster (exact for
     integer data; sums over bands otherwise, to float64 rounding)."""
     fr = frames_of(frames)
+    if fr:
+        check_pixels(fr[0].path, shape)
     x, y, w, h = _region(shape, roi)
     cut = [(y + y0, rows) for y0, rows in bands(h, w, band_rows=band_rows)]
     futures = _submit(client, _sums_task, [(fr, x, y0, w, rows) for y0, rows in cut])
@@ -661,6 +798,7 @@ def band_merge(client: Any, paths_or_records: Sequence[Any], models: Any, *, lay
     fr = frames_of(paths_or_records)
     if not fr:
         raise CcdError("bracket", "no frames to merge")
+    check_pixels(fr[0].path, shape)
     lay = check_layout(tuple(shape), layout, "bracket")
     if isinstance(models, Mapping):
         portable: Any = {c: ResponseModel.of(m) for c, m in models.items()}

@@ -17,6 +17,9 @@ Public objects
     Atomic writes (temporary file in the same folder, then rename) with deterministic bytes.
 :func:`atomic_path`, :func:`atomic_write_text`, :func:`atomic_write_bytes`
     The atomic-write building blocks.
+:func:`output_set`, :func:`write_outputs`, :func:`check_output`, :func:`check_not_inputs`
+    Every verb's outputs written as one set (a temporary folder swapped in), never over an
+    input of the run nor over a FIFO or a device.
 
 Policy: integers stay integers of the stored width (no rescaling to [0, 1], no gamma); a single
 channel comes back as a 2-D ``(H, W)`` array, several as ``(H, W, C)``.
@@ -36,6 +39,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
+import signal
+import stat
 import sys
 import tempfile
 import threading
@@ -43,7 +49,7 @@ import warnings
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterable, Iterator, Mapping
 
 import numpy as np
 
@@ -53,7 +59,9 @@ __all__ = [
     "ImageHeader", "read_header", "read_image", "read_frame", "read_region", "write_image",
     "write_map", "atomic_path", "atomic_write_text", "atomic_write_bytes", "IMAGE_EXTENSIONS",
     "RAW_EXTENSIONS", "FITS_EXTENSIONS", "is_image_path", "MAX_PIXELS", "MAX_PIXELS_ENV",
-    "pixel_limit",
+           "check_pixel_limit",
+    "pixel_limit", "TEMP_PREFIX", "output_set", "write_outputs", "check_output", "check_outputs",
+    "check_not_inputs", "real_path", "remove_stale_temporaries",
 ]
 
 FITS_EXTENSIONS = frozenset({".fits", ".fit", ".fts"})
@@ -264,13 +272,16 @@ def pixel_limit(max_pixels: int | None = None) -> int:
     return limit
 
 
-def _refuse_over_limit(path: Path, width: int, height: int, channels: int, limit: int,
-                       what: str = "image is") -> None:
+def check_pixel_limit(path: str | Path, width: int, height: int, channels: int,
+                      limit: int | None = None, what: str = "image is") -> None:
     """Raise :class:`ImageReadError` when ``width x height x channels`` exceeds ``limit``.
 
     Called with the header's numbers, before any pixel is decoded, so that a small file declaring
-    a huge image (a decompression bomb, or a corrupt header) cannot exhaust memory.
+    a huge image (a decompression bomb, or a corrupt header) cannot exhaust memory. ``limit``:
+    :func:`pixel_limit` when ``None``. Every reader of frames (the streamed reads here, a
+    session's validation, the cluster paths, the app's previews) checks through this one rule.
     """
+    limit = pixel_limit() if limit is None else int(limit)
     values = int(width) * int(height) * int(channels)
     if values > limit:
         raise ImageReadError(
@@ -450,7 +461,7 @@ def _read_oiio_rows(oiio, inp, spec, box, path: Path, limit: int):
     x, y, w, h = box
     rows = spec.get_int_attribute("tiff:RowsPerStrip", 0) or 1
     y0, y1 = y - y % rows, min(_round_up(y + h, rows), spec.height)
-    _refuse_over_limit(path, spec.width, y1 - y0, spec.nchannels, limit,
+    check_pixel_limit(path, spec.width, y1 - y0, spec.nchannels, limit,
                        what="the rows holding this region are")
     data = inp.read_scanlines(0, 0, spec.y + y0, spec.y + y1, spec.z, 0, spec.nchannels,
                               oiio.UNKNOWN)
@@ -463,7 +474,7 @@ def _read_oiio_tiles(oiio, inp, spec, box, path: Path, limit: int):
     tw, th = spec.tile_width, spec.tile_height
     x0, y0 = x - x % tw, y - y % th
     x1, y1 = min(_round_up(x + w, tw), spec.width), min(_round_up(y + h, th), spec.height)
-    _refuse_over_limit(path, x1 - x0, y1 - y0, spec.nchannels, limit,
+    check_pixel_limit(path, x1 - x0, y1 - y0, spec.nchannels, limit,
                        what="the tiles holding this region are")
     data = inp.read_tiles(0, 0, spec.x + x0, spec.x + x1, spec.y + y0, spec.y + y1,
                           spec.z, spec.z + max(spec.depth, 1), 0, spec.nchannels, oiio.UNKNOWN)
@@ -712,7 +723,7 @@ def read_frame(path: str | os.PathLike, *,
     path = Path(path)
     limit = pixel_limit(max_pixels)
     header = read_header(path)
-    _refuse_over_limit(path, header.width, header.height, header.channels, limit)
+    check_pixel_limit(path, header.width, header.height, header.channels, limit)
     return _checked(path, _read_pixels(path, header), header.shape), header
 
 
@@ -768,14 +779,14 @@ def read_region(path: str | os.PathLike, x: int, y: int, width: int, height: int
     limit = pixel_limit(max_pixels)
     header = read_header(path)
     box = _region_box(path, header, x, y, width, height)
-    _refuse_over_limit(path, box[2], box[3], header.channels, limit, what="the region is")
+    check_pixel_limit(path, box[2], box[3], header.channels, limit, what="the region is")
     x, y, w, h = box
     shape = (h, w) if header.channels == 1 else (h, w, header.channels)
     suffix = path.suffix.lower()
     if suffix in FITS_EXTENSIONS:
         return _checked(path, _read_fits_region(path, header, box), shape)
     if suffix in RAW_EXTENSIONS:
-        _refuse_over_limit(path, header.width, header.height, 1, limit,
+        check_pixel_limit(path, header.width, header.height, 1, limit,
                            what="a camera raw file is decoded whole; the image is")
         return _checked(path, _read_raw(path)[y:y + h, x:x + w], shape)
     with _libpng_quiet(path):
@@ -913,6 +924,251 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     """Write UTF-8 ``text`` to ``path`` atomically (see :func:`atomic_write_bytes`)."""
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+# --------------------------------------------------------------------------------------------
+# output sets: every write of a verb as one set, never over an input nor a special file
+# --------------------------------------------------------------------------------------------
+#: the prefix of the temporary folders an output set is written into (removed on failure, on
+#: SIGTERM, and by the next write into the same folder once the process that made it is gone)
+TEMP_PREFIX = ".ccdcore-tmp-"
+
+
+def real_path(path: str | os.PathLike) -> Path:
+    """``path`` absolute with every symlink resolved (what a write would really touch)."""
+    return Path(os.path.abspath(path)).resolve()
+
+
+def _not_regular(mode: int) -> str:
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    if stat.S_ISREG(mode):
+        return "a file"
+    return "a folder" if stat.S_ISDIR(mode) else "not a regular file"
+
+
+def check_output(path: str | os.PathLike, *, folder: bool = False) -> None:
+    """Refuse an output path that exists as something a write must not replace.
+
+    A file output may be absent or a regular file (or a symlink to one: the link is replaced);
+    a folder output may be absent or a folder. A FIFO, a device node or a socket -- or a
+    symlink to one -- would otherwise be replaced by a regular file (or, for a FIFO, block).
+
+    Raises
+    ------
+    CcdError
+        Naming ``path`` and what it is.
+    """
+    path = Path(path)
+    if not os.path.lexists(path):
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return  # a dangling symlink: the link itself is replaced
+    except OSError as exc:
+        raise CcdError(path, f"cannot check the output: {exc.strerror}") from None
+    wanted = stat.S_ISDIR(mode) if folder else stat.S_ISREG(mode)
+    if not wanted:
+        link = f"is a symlink to {os.path.realpath(path)}, which is" if path.is_symlink() \
+            else "is"
+        kind = "a folder" if folder else "a file"
+        raise CcdError(path, f"{link} {_not_regular(mode)}, not {kind}; choose another -o")
+
+
+def check_not_inputs(outputs: Iterable[str | os.PathLike],
+                     inputs: Iterable[str | os.PathLike], *, contain: bool = True) -> None:
+    """Refuse an output equal to, inside, or (``contain``) containing an input of the same run
+    (resolved paths, so a symlink or ``..`` does not hide it): writing would destroy what is
+    being read.
+
+    Raises
+    ------
+    CcdError
+        Naming the output and the input it would overwrite.
+    """
+    ins = [(Path(i), real_path(i)) for i in inputs]
+    for out in outputs:
+        o = real_path(out)
+        for given, i in ins:
+            if o == i:
+                raise CcdError(out, "would overwrite an input of this run; choose another -o")
+            if i in o.parents or (contain and o in i.parents):
+                how = "is inside" if i in o.parents else "holds"
+                raise CcdError(out, f"{how} {given}, an input of this run: writing there would "
+                                    "overwrite an input; choose another -o")
+
+
+def check_outputs(folder: str | os.PathLike, names: Iterable[str] | Mapping[str, bool],
+                  inputs: Iterable[str | os.PathLike] = ()) -> None:
+    """Check the outputs ``folder/name`` of a run before anything is computed or written:
+    ``folder`` a folder (or absent) neither an input nor inside one, each output a regular
+    file (a folder where ``names`` maps the name to ``True``) or absent, and none equal to,
+    inside or containing an input (:func:`check_output`, :func:`check_not_inputs`).
+
+    Raises
+    ------
+    CcdError
+        Naming the output and the problem.
+    """
+    folder = Path(folder)
+    inputs = list(inputs)
+    check_output(folder, folder=True)
+    check_not_inputs([folder], inputs, contain=False)
+    kinds = names if isinstance(names, Mapping) else dict.fromkeys(names, False)
+    for name, is_folder in kinds.items():
+        check_output(folder / name, folder=is_folder)
+    check_not_inputs([folder / n for n in kinds], inputs)
+
+
+class _Terminated(BaseException):
+    """SIGTERM while an output set is written: unwinds like KeyboardInterrupt so the temporary
+    folder goes."""
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> None:
+    """Remove the temporary folders killed writes left in ``folder`` (not those of live
+    processes: their name ends with the writer's process id)."""
+    for p in Path(folder).glob(f"{TEMP_PREFIX}*"):
+        pid = p.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
+            continue
+        shutil.rmtree(p, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _renamed(err: CcdError, tmp: Path, folder: Path) -> CcdError:
+    """``err`` naming ``folder`` where it named the internal temporary folder ``tmp``."""
+    def fix(text: str | None) -> str | None:
+        return None if text is None else text.replace(str(tmp), str(folder))
+
+    cls = ImageWriteError if isinstance(err, ImageWriteError) else CcdError
+    return cls(fix(err.where), fix(err.problem) or "")
+
+
+def _swap_in(tmp: Path, folder: Path, last: str | None, replaces: Iterable[str]) -> None:
+    """Move the entries of ``tmp`` into ``folder`` (or ``tmp`` onto ``folder`` when there is
+    none yet); a folder entry replaces the earlier one whole; the entries ``replaces`` of the
+    earlier set go even when not written again; ``last`` goes last, and its earlier version
+    first (so ``folder`` is never a mix of two sets that ``last`` describes)."""
+    if not folder.exists():
+        os.chmod(tmp, 0o755)
+        os.replace(tmp, folder)
+        return
+    names = sorted(n for n in os.listdir(tmp) if n != last)
+    old = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}old-", suffix=f"-{os.getpid()}",
+                                dir=folder))
+    if last is not None and os.path.lexists(folder / last):
+        os.replace(folder / last, old / last)
+    for name in replaces:
+        if name != last and name not in names and os.path.lexists(folder / name):
+            os.replace(folder / name, old / name)
+    for name in names:
+        dst = folder / name
+        if (tmp / name).is_dir() and dst.is_dir() and not dst.is_symlink():
+            os.replace(dst, old / name)
+        os.replace(tmp / name, dst)
+    if last is not None and os.path.lexists(tmp / last):
+        os.replace(tmp / last, folder / last)
+    shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(tmp, ignore_errors=True)
+    _sync_folder(folder)
+
+
+@contextlib.contextmanager
+def output_set(folder: str | os.PathLike, *, inputs: Iterable[str | os.PathLike] = (),
+               last: str | None = None, replaces: Iterable[str] = ()) -> Iterator[Path]:
+    """Yield a temporary folder; what the body writes into it becomes part of ``folder`` as
+    one set once the body is done.
+
+    The one mechanism of every output (product saves, ``report``, ``apply``, ``hdr``,
+    ``change``, ``simulate``): the body writes into a hidden ``.ccdcore-tmp-…-<pid>`` folder in
+    ``folder`` (or beside it when ``folder`` does not exist yet, which then becomes it by one
+    rename), so a full disk, an error, Ctrl+C or SIGTERM while writing leaves the earlier
+    outputs untouched and removes the temporary folder; only then are the new entries renamed
+    into ``folder`` (SIGTERM waits until the renames are done). Entries of ``folder`` the body
+    did not write are left alone, except those named in ``replaces`` (the parts of an earlier
+    set, removed); ``last`` is renamed in last (a description of the set). Leftovers of a killed process (SIGKILL) are removed by the
+    next write into the same place.
+
+    Before anything is written, each entry's target is checked (:func:`check_output`, and
+    :func:`check_not_inputs` against ``inputs``); errors name ``folder``'s entries, never the
+    temporary folder.
+
+    Raises
+    ------
+    CcdError
+        ``folder`` is not a folder, an output is a special file or an input, or writing failed
+        (the message names the path the user gave and the system's reason).
+    """
+    folder = Path(os.path.abspath(folder))
+    inputs = list(inputs)
+    check_outputs(folder, (), inputs)
+    home = folder if folder.is_dir() else folder.parent
+    try:
+        home.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(home)
+        if home != folder.parent and folder.parent.is_dir():
+            remove_stale_temporaries(folder.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX, suffix=f"-{os.getpid()}", dir=home))
+    except OSError as exc:
+        raise CcdError(folder, f"cannot write into the folder: {_os_problem(exc)}") from None
+    state = {"defer": False, "pending": False}
+
+    def on_term(signum: int, frame: Any) -> None:
+        if state["defer"]:
+            state["pending"] = True
+        else:
+            raise _Terminated()
+
+    previous = None
+    with contextlib.suppress(ValueError):  # not the main thread: signals cannot be handled here
+        previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        try:
+            yield tmp
+            check_outputs(folder, {n: (tmp / n).is_dir() for n in os.listdir(tmp)}, inputs)
+            state["defer"] = True
+            _swap_in(tmp, folder, last, tuple(replaces))
+        except _Terminated:
+            raise SystemExit(128 + signal.SIGTERM) from None
+        except CcdError as err:
+            raise _renamed(err, tmp, folder) from None
+        except OSError as exc:
+            raise CcdError(folder, "cannot write the outputs: "
+                                   f"{_os_problem(exc, tmp, folder)}") from None
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    if state["pending"]:
+        raise SystemExit(128 + signal.SIGTERM)
+
+
+def write_outputs(folder: str | os.PathLike, writers: Mapping[str, Callable[[Path], Any]], *,
+                  inputs: Iterable[str | os.PathLike] = (), last: str | None = None
+                  ) -> list[Path]:
+    """Write the files ``name -> writer(path)`` into ``folder`` as one set (:func:`output_set`);
+    the paths written, in ``folder``."""
+    folder = Path(folder)
+    with output_set(folder, inputs=inputs, last=last) as tmp:
+        for name, writer in writers.items():
+            writer(tmp / name)
+    return [folder / name for name in writers]
 
 
 def _as_hwc(array: np.ndarray, path: Path) -> np.ndarray:

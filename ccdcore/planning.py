@@ -280,13 +280,20 @@ def check_session_plan(session: Any, plan: AcquisitionPlan) -> list[str]:
     n1 = len(configs)
     if n1 < plan.n1_required:
         out.append(f"fixed_pattern: {n1} configuration{'s' if n1 != 1 else ''}, the plan needs "
-                   f"n1 = {plan.n1_required} ({plan.n1_formula})")
+                   f"n1 = {plan.n1_required} card/lamp positions, so that the error of the "
+                   "fixed-pattern map K̂ moves a full-scale pixel by less than a third of a "
+                   f"quantisation step (sec. V-B): capture {plan.n1_required - n1} more "
+                   f"(formula: {plan.n1_formula})")
     short = {cid: len(recs) for cid, recs in configs.items() if len(recs) < plan.n2_required}
     if short:
         listed = ", ".join(f"{cid}: {n}" for cid, n in list(short.items())[:5])
         more = f" and {len(short) - 5} more" if len(short) > 5 else ""
         out.append(f"fixed_pattern: {len(short)} configuration(s) have fewer than n2 = "
-                   f"{plan.n2_required} frames ({listed}{more}; {plan.n2_formula})")
+                   f"{plan.n2_required} frames, the number whose mean keeps the temporal "
+                   "noise variance at full scale below "
+                   f"{plan.inputs.get('n2_var_limit', 0.2):g} q² (sec. V-B): capture more frames "
+                   f"at each of them (frames now, by configuration: {listed}{more}; formula: "
+                   f"{plan.n2_formula})")
     s = plan.inputs.get("s")
     n_dark = len(session.dark_frames())
     if s is not None and n_dark < int(s):

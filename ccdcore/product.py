@@ -25,12 +25,9 @@ import datetime
 import json
 import math
 import os
-import shutil
-import signal
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator, Mapping, Union
+from typing import Any, Callable, Iterable, Mapping, Union
 
 import numpy as np
 
@@ -41,8 +38,9 @@ from .datasheet import EmvaFigures
 from .errors import CcdError
 from .fixedpattern import CorrectionCheck, FixedPattern
 from .flatfield import FlatField
-from .io import (FITS_EXTENSIONS, atomic_write_text, read_frame, read_header, read_image,
-                 write_image, write_map)
+from .io import (FITS_EXTENSIONS, atomic_write_text, check_outputs, output_set,
+                 read_frame, read_header, read_image, remove_stale_temporaries, write_image,
+                 write_map)
 from .noise import PhotonTransfer
 from .planning import AcquisitionPlan
 from .scene import SceneVariation
@@ -51,13 +49,10 @@ from .session import MAX_INTENSITY, Camera, Session, open_session
 __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
            "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE",
-           "ESTIMATE_STEPS"]
+           "ESTIMATE_STEPS", "session_inputs", "map_problem"]
 
 PRODUCT_FILE = "calibration.json"
 PRODUCT_SCHEMA = 1
-#: the prefix of the temporary folders a save writes into (removed on failure, on SIGTERM and
-#: by the next save into the same parent folder)
-TEMP_PREFIX = ".ccdcore-tmp-"
 
 #: a value of ``calibration.json`` (strict JSON: no NaN)
 JsonValue = Union[None, bool, int, float, str, list["JsonValue"], dict[str, "JsonValue"]]
@@ -138,37 +133,34 @@ class CalibrationProduct:
                     "notes": list(self.notes)})
         return out
 
-    def save(self, folder: str | os.PathLike) -> Path:
+    def save(self, folder: str | os.PathLike, *,
+             inputs: Iterable[str | os.PathLike] = ()) -> Path:
         """Write ``calibration.json`` and the maps into ``folder`` atomically; return the folder.
 
-        Everything is written into a temporary sibling folder first, which becomes ``folder``
-        only once complete (an earlier product in ``folder`` is replaced file by file, the
-        description last, so the folder can be the current directory); a failure, Ctrl+C or
-        SIGTERM removes it, and leftovers of a killed save are removed by the next save.
+        Everything is written into a temporary folder first (:func:`ccdcore.io.output_set`),
+        which becomes ``folder``, or replaces the earlier product in it, only once complete: the
+        earlier description goes first and the new one comes last, so the folder is never a mix
+        of two products (it can be the current directory). An earlier product is replaced
+        whole: its maps this product does not have are removed; other files of the folder are
+        left alone. A failure, Ctrl+C or SIGTERM removes the temporary folder, and leftovers of
+        a killed save are removed by the next save. ``inputs`` (the session's files) must not
+        be overwritten.
         """
         folder = Path(os.path.abspath(folder))
         if folder.exists() and not folder.is_dir():
             raise CcdError(folder, "exists and is not a folder; choose a new or empty folder")
+        if folder.is_dir():
+            remove_stale_temporaries(folder)
         if folder.exists() and not (folder / PRODUCT_FILE).exists() and any(folder.iterdir()):
             raise CcdError(folder, "exists and is not a calibration product; "
                                    "choose an empty or new folder")
-        try:
-            folder.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise CcdError(folder.parent, f"cannot create the folder: {exc.strerror}") from None
-        _remove_stale_temporaries(folder.parent)
-        if folder.is_dir():
-            _remove_stale_temporaries(folder)
-        with _temporary_folder(folder.parent) as tmp:
+        _check_maps(self.maps, folder / PRODUCT_FILE)   # never write what load_product refuses
+        with output_set(folder, inputs=inputs, last=PRODUCT_FILE,
+                        replaces=(PRODUCT_FILE, "maps")) as tmp:
             for name, m in self.maps.items():
                 write_map(tmp / "maps" / f"{name}.exr", m)
             text = json.dumps(self.to_dict(), indent=2, allow_nan=False)
             atomic_write_text(tmp / PRODUCT_FILE, text + "\n")
-            os.chmod(tmp, 0o755)
-            if folder.exists():
-                _replace_contents(folder, tmp)
-            else:
-                os.replace(tmp, folder)
         return folder
 
     # -------------------------------------------------------------------------------------
@@ -263,71 +255,25 @@ class CalibrationProduct:
 
 
 # ---------------------------------------------------------------------------------------------
-# the folder: temporary folders, signals, validation on load
+# the folder: validation on load (writing goes through ccdcore.io.output_set)
 # ---------------------------------------------------------------------------------------------
-def _remove_stale_temporaries(parent: Path) -> None:
-    """Remove temporary folders a killed save left in ``parent`` (not those of live saves)."""
-    for p in parent.glob(f"{TEMP_PREFIX}*"):
-        pid = p.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
-            continue
-        shutil.rmtree(p, ignore_errors=True)
-
-
-def _replace_contents(folder: Path, new: Path) -> None:
-    """Replace the product in ``folder`` by the one in ``new`` (which is removed): the old
-    description goes first (the folder is then not a product, never a mix of two), the new one
-    comes last."""
-    old = folder / f"{TEMP_PREFIX}old-{os.getpid()}"
-    old.mkdir()
-    for name in (PRODUCT_FILE, "maps"):
-        if (folder / name).exists():
-            os.replace(folder / name, old / name)
-    os.replace(new / "maps", folder / "maps") if (new / "maps").exists() else None
-    os.replace(new / PRODUCT_FILE, folder / PRODUCT_FILE)
-    shutil.rmtree(old, ignore_errors=True)
-    shutil.rmtree(new, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
-class _Terminated(BaseException):
-    """SIGTERM during a save: unwinds like KeyboardInterrupt so the temporary folder goes."""
-
-
-@contextlib.contextmanager
-def _temporary_folder(parent: Path) -> Iterator[Path]:
-    """A new temporary folder in ``parent``, removed unless the body moved it away; SIGTERM
-    (in the main thread) raises inside the body so the folder is removed too."""
-    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}", suffix=f"-{os.getpid()}", dir=parent))
-    previous = None
-
-    def on_term(signum: int, frame: Any) -> None:
-        raise _Terminated()
-
-    try:
-        previous = signal.signal(signal.SIGTERM, on_term)
-    except ValueError:  # not the main thread: signals cannot be handled here
-        previous = None
-    try:
-        yield tmp
-    except _Terminated:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise SystemExit(128 + signal.SIGTERM) from None
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+def map_problem(name: str, m: np.ndarray) -> str | None:
+    """Why map ``name`` would make a damaged product (``None``: it is fine): not a numeric
+    image, ``K`` not finite and > 0 everywhere (it divides), the other checked maps not finite.
+    The one check of :func:`load_product`, of :meth:`CalibrationProduct.save` and of
+    :func:`estimate_all` (a map that fails it makes its estimate skipped)."""
+    m = np.asarray(m)
+    if m.dtype.kind not in "fiub" or m.ndim not in (2, 3):
+        return f"map '{name}' is not a numeric image (shape {m.shape}, {m.dtype})"
+    if name in _POSITIVE_MAPS:
+        bad = int(np.count_nonzero(~(np.isfinite(m) & (m > 0))))
+        if bad:
+            return f"map '{name}' has {bad} pixel(s) that are not finite and > 0 (it divides)"
+    elif name in _FINITE_MAPS:
+        bad = int(np.count_nonzero(~np.isfinite(m)))
+        if bad:
+            return f"map '{name}' has {bad} non-finite pixel(s)"
+    return None
 
 
 def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
@@ -341,19 +287,117 @@ def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
             raise CcdError(manifest, f"maps of different shapes ({listing}); the product is "
                                      "damaged: calibrate again")
     for name, m in maps.items():
-        if m.dtype.kind not in "fiu" or m.ndim not in (2, 3):
-            raise CcdError(manifest, f"map '{name}' is not a numeric image (shape {m.shape}, "
-                                     f"{m.dtype})")
-        if name in _POSITIVE_MAPS:
-            bad = int(np.count_nonzero(~(np.isfinite(m) & (m > 0))))
-            if bad:
-                raise CcdError(manifest, f"map '{name}' has {bad} pixel(s) that are not finite "
-                                         "and > 0 (it divides); the product is damaged")
-        elif name in _FINITE_MAPS:
-            bad = int(np.count_nonzero(~np.isfinite(m)))
-            if bad:
-                raise CcdError(manifest, f"map '{name}' has {bad} non-finite pixel(s); the "
-                                         "product is damaged")
+        problem = map_problem(name, m)
+        if problem is not None:
+            raise CcdError(manifest, f"{problem}; the product is damaged")
+
+
+# the types of the estimates' fields that readers (``report``, ``calibrate``'s summary, the
+# app, ``apply --linearise``) use, checked on load so a damaged field is one line naming it
+# rather than a traceback: "number" is a number or null (NaN is stored as null), "text" a
+# string, "flag" a boolean, "list"/"object" any list/object; [spec] a list of spec,
+# {key: spec} an object whose keys present match ("*": every key)
+_NUMBERS = ["number"]
+_CURVES = [_NUMBERS]
+_ESTIMATE_FIELDS: dict[str, Any] = {
+    "noise": {"A": "number", "A_err": "number", "sigma_c2": "number", "sigma_c2_err": "number",
+              "cov": _CURVES, "chi2": "number", "dof": "number", "Q": "number",
+              "verdict": "text", "black_level_dn": "number", "black_level_source": "text",
+              "conversion_gain_e_per_dn": "number", "read_noise_e": "number",
+              "read_noise_dn": "number", "quantisation_dn2": "number", "bits": "number",
+              "robust_dropped": _NUMBERS, "notes": ["text"], "source": "text",
+              "points": [{"level": "number", "mu": "number", "var": "number",
+                          "var_err": "number", "used": "flag", "exposure": "number",
+                          "n_pairs": "number", "n_pixels": "number"}]},
+    "dark": {"s": "number", "shape": _NUMBERS, "mean": "number", "mean_sem": "number",
+             "spatial_std": "number", "spatial_std_signal": "number", "noise_var": "number",
+             "n_hot": "number", "n_dead": "number", "hot_rule": "text", "dead_rule": "text",
+             "exposure": "number", "notes": ["text"]},
+    "fixed_pattern": {"n1": "number", "n2": "number", "window": "number", "p": "number",
+                      "shape": _NUMBERS, "mean": "number", "spatial_std": "number",
+                      "sigma_hat": "number", "var_bound": "number", "sd_bound": "number",
+                      "K_var_mean": "number", "config_ids": "list",
+                      "config_levels": _NUMBERS, "notes": ["text"]},
+    "plan": {"n1_required": "number", "n2_required": "number", "n1_hat": "number",
+             "n2_exact": "number", "n1_formula": "text", "n2_formula": "text",
+             "n2_reading": "text", "n2_alternatives": {"*": "number"},
+             "inputs": {"*": "number"}, "notes": ["text"], "warnings": ["text"]},
+    "correction_check": {"*": "number"},
+    "scene": {"*": {"name": "text", "V_S": "number", "V_S_err": "number", "chi2": "number",
+                    "dof": "number", "Q": "number", "measurements": ["object"],
+                    "excluded": "list", "notes": ["text"]}},
+    "flat_field": {"layout": "text", "shape": _NUMBERS, "n_dark": "number",
+                   "n_base": "number", "n_flagged": "number", "noise_limit": "number",
+                   "window": "number", "flag_rule": "text", "base": _NUMBERS,
+                   "setting": "text", "dark_exposure": "number", "notes": ["text"],
+                   "channels": [{"name": "text", "k": "number", "dark_level": "number",
+                                 "base_level": "number", "n_flagged": "number",
+                                 "n_pixels": "number"}]},
+    "response": {"method": "text", "channels": ["text"], "levels": "number",
+                 "scale": {"fixed_code": "number", "g_at_fixed_code": "number",
+                           "offset": "flag"}, "exposure_times": _NUMBERS, "g": _CURVES,
+                 "g_err": _CURVES, "a": _CURVES, "b": _CURVES, "a_err": _CURVES,
+                 "b_err": _CURVES, "sigma_s": _NUMBERS, "sigma_c1": _NUMBERS,
+                 "sigma_c2": _NUMBERS, "sigma_s_err": _NUMBERS, "sigma_c1_err": _NUMBERS,
+                 "sigma_c2_err": _NUMBERS, "iterations": _NUMBERS, "converged": ["flag"],
+                 "bloom_radius": "number", "white_balance": ["flag"],
+                 "notes": {"*": ["text"]}, "warnings": ["text"],
+                 "agreement": {"rms": "number", "rms_fitted": "number", "rms_blend": "number",
+                               "code_range": _NUMBERS,
+                               "channels": [{"channel": "text", "rms": "number",
+                                             "rms_fitted": "number", "rms_blend": "number",
+                                             "pairs": ["object"]}]}},
+}
+_PROVENANCE_FIELDS: dict[str, Any] = {
+    "ccdcore": "text", "session": "text", "source": "text", "n_frames": "number",
+    "session_hash": "text", "date": "text", "scheduler": "text", "steps": {"*": "object"}}
+
+
+def _type_problem(value: Any, spec: Any, where: str) -> str | None:
+    """Where ``value`` does not have the type ``spec`` says (see ``_ESTIMATE_FIELDS``)."""
+    if isinstance(spec, str):
+        ok = {"number": (value is None or (isinstance(value, (int, float))
+                                           and not isinstance(value, bool))),
+              "text": isinstance(value, str), "flag": isinstance(value, bool),
+              "list": isinstance(value, list), "object": isinstance(value, dict)}[spec]
+        word = {"number": "a number", "text": "a string", "flag": "true or false",
+                "list": "a list", "object": "an object"}[spec]
+        return None if ok else f"'{where}' must be {word}, got {_json_kind(value)}"
+    if isinstance(spec, list):
+        if not isinstance(value, list):
+            return f"'{where}' must be a list, got {_json_kind(value)}"
+        for i, item in enumerate(value):
+            problem = _type_problem(item, spec[0], f"{where}[{i}]")
+            if problem:
+                return problem
+        return None
+    if not isinstance(value, dict):
+        return f"'{where}' must be an object, got {_json_kind(value)}"
+    for key, item in value.items():
+        sub = spec.get(key, spec.get("*"))
+        problem = None if sub is None else _type_problem(item, sub, f"{where}.{key}")
+        if problem:
+            return problem
+    return None
+
+
+def _json_kind(value: Any) -> str:
+    if value is None:
+        return "null"
+    name = {bool: "true/false", int: "a number", float: "a number", str: "a string",
+            list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
+    return f"{name} ({json.dumps(value)[:40]})" if isinstance(value, (str, int, float)) \
+        and not isinstance(value, bool) else name
+
+
+def _check_fields(estimates: Mapping[str, Any], provenance: Mapping[str, Any],
+                  manifest: Path) -> None:
+    """The fields of the estimates and the provenance that readers use have their types."""
+    problem = _type_problem(dict(estimates), {k: v for k, v in _ESTIMATE_FIELDS.items()},
+                            "estimates") or _type_problem(dict(provenance), _PROVENANCE_FIELDS,
+                                                          "provenance")
+    if problem:
+        raise CcdError(manifest, f"{problem}; the product is damaged: calibrate again")
 
 
 def _camera_from(doc: Any, manifest: Path) -> Camera:
@@ -390,6 +434,9 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
         doc = json.loads(manifest.read_bytes().decode("utf-8-sig"))
     except (OSError, ValueError) as exc:
         raise CcdError(manifest, f"cannot read the product description: {exc}") from None
+    except RecursionError:
+        raise CcdError(manifest, "objects or lists nested too deeply to read (a damaged "
+                                 "product description?)") from None
     if not isinstance(doc, dict):
         raise CcdError(manifest, f"must hold a JSON object, not a {type(doc).__name__}")
     if doc.get("schema") != PRODUCT_SCHEMA:
@@ -402,6 +449,7 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     estimates = doc.get("estimates", {})
     if not all(isinstance(v, dict) for v in estimates.values()):
         raise CcdError(manifest, "every entry of 'estimates' must be an object")
+    _check_fields(estimates, doc.get("provenance", {}), manifest)
     emva = doc.get("emva1288")
     if emva is not None and not isinstance(emva, dict):
         raise CcdError(manifest, "'emva1288' must be a JSON object")
@@ -639,7 +687,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
             roles = lacking[name]
             what = " and no ".join(r if " " in r else f"{r} frames" for r in roles)
             req = requirement(name)
-            skipped.append(Skipped(name, "missing-frames", f"no {what}: {req.purpose} needs "
+            skipped.append(Skipped(name, "missing-frames", f"no {what}: for {req.purpose}, capture "
                                                            f"{req.capture}", roles))
             return
         absent = [n for n in needs if made.get(n) is None]
@@ -648,9 +696,16 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                                    f"{'s' if len(absent) > 1 else ''}, which was not made"))
             return
         try:
-            made[name] = run()
+            result = run()
         except CcdError as err:
             skipped.append(Skipped(name, "failed", str(err)))
+            return
+        problem = _damaged_maps(name, result)
+        if problem is not None:  # a product holding it would not load: skip it, say why
+            skipped.append(Skipped(name, "failed", f"{problem}; the estimate was left out "
+                                                   "(a product holding it would be damaged)"))
+            return
+        made[name] = result
 
     def dark_run() -> DarkReference:
         fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
@@ -719,6 +774,23 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                      scene=made.get("scene"), correction_check=made.get("correction_check"),
                      flat=made.get("flat_field"), response=made.get("response"),
                      skipped=tuple(skipped), emva1288=made.get("emva1288"))
+
+
+def _damaged_maps(name: str, result: Any) -> str | None:
+    """What makes the maps of estimate ``name`` unusable in a product (:func:`map_problem`),
+    e.g. all-NaN darks (a non-finite K̂ everywhere) or a single dark frame (no variance)."""
+    if name == "dark":
+        maps = {"dark": result.mean_map, "dark_var": result.var_map}
+    elif name == "fixed_pattern":
+        maps = {"K": result.K, "K_var": result.K_var}
+    elif name == "flat_field":
+        maps = result.maps()
+    else:
+        return None
+    for map_name, m in maps.items():
+        if m is not None and (problem := map_problem(map_name, m)) is not None:
+            return problem
+    return None
 
 
 def calibrate(session_or_path: Session | str | os.PathLike, *,
@@ -832,6 +904,21 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
                               warnings=e.plan_warnings, emva1288=emva)
 
 
+def session_inputs(session: Session) -> list[Path]:
+    """The files a run over ``session`` reads, which no output of the run may overwrite: its
+    frames, its manifest, and a simulation's ``truth.json`` with the true maps it names."""
+    files = [Path(r.path) for r in session.frames]
+    if session.manifest_path is not None:
+        files.append(Path(session.manifest_path))
+    truth = Path(session.root) / "truth.json"
+    if truth.is_file():
+        files.append(truth)
+        with contextlib.suppress(OSError, ValueError, AttributeError, TypeError):
+            maps = json.loads(truth.read_text(encoding="utf-8")).get("maps") or {}
+            files += [Path(session.root) / str(rel) for rel in maps.values()]
+    return files
+
+
 def _scheduler(client: Any) -> str:
     """The provenance's ``scheduler``: "streamed (this process)" or the Dask address and
     workers (:func:`ccdcore.distributed.describe`; dask is imported only with a client)."""
@@ -859,7 +946,9 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
 
     Output keeps the base name; TIFF, EXR and FITS keep their format, others become ``.tif``
     (float32 cannot be stored in PNG/PNM). Inputs are never modified; an output that would
-    overwrite an input is refused.
+    overwrite an input is refused, and so is one inside the product folder or over a FIFO or a
+    device. The images are written as one set (:func:`ccdcore.io.output_set`): a failure or
+    SIGTERM leaves the earlier outputs of ``out_dir`` as they were.
 
     ``compression`` (one of :data:`COMPRESSIONS`) applies to TIFF and EXR outputs: ``"none"`` by
     default, because deflating float32 noise saves about a quarter of the size at ten times the
@@ -869,7 +958,10 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
     ``linearise`` maps each image's codes through the product's inverse response g instead
     (:meth:`CalibrationProduct.linearise`): values linear in exposure.
     """
+    inputs = [Path(p) for p in images]
     if not isinstance(product, CalibrationProduct):
+        given = Path(product)
+        inputs.append(given if given.is_dir() else given.parent)
         product = load_product(product)
     if linearise:
         product.response_models()          # a clear error before anything is read
@@ -888,18 +980,19 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
         if dst in seen:
             raise CcdError(src, f"has the same output name as {seen[dst]}")
         seen[dst] = src
+    check_outputs(out_dir, [t.name for t in targets], inputs)   # before anything is read
     shape = None if linearise else product.shape
     for src in images:  # check every header before writing anything
         header = read_header(src)
         if shape is not None and header.shape != shape:
             raise CcdError(src, f"image shape {header.shape} differs from the calibration "
                                 f"maps' {shape}")
-    written = []
-    for src, dst in zip(images, targets):
-        attrs = ({"compression": compression} if dst.suffix.lower() in (".tif", ".tiff", ".exr")
-                 else None)
-        data, header = read_frame(src)
-        fix = product.linearise if linearise else product.correct
-        written.append(write_image(dst, fix(data, name=str(src)), attributes=attrs,
-                                   exposure=header.exposure))
-    return written
+    with output_set(out_dir, inputs=inputs) as tmp:   # all images as one set, or none
+        for src, dst in zip(images, targets):
+            attrs = ({"compression": compression}
+                     if dst.suffix.lower() in (".tif", ".tiff", ".exr") else None)
+            data, header = read_frame(src)
+            fix = product.linearise if linearise else product.correct
+            write_image(tmp / dst.name, fix(data, name=str(src)), attributes=attrs,
+                        exposure=header.exposure)
+    return targets

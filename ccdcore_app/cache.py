@@ -1,17 +1,21 @@
 """Finished results kept on disk, keyed by the session's content, so that reopening is instant.
 
-A result (a frozen ccdcore dataclass holding numpy arrays) is pickled into a cache folder under a
-key made of the session's content hash (:meth:`ccdcore.session.Session.content_hash`), the
-ccdcore version (with a digest of its source, :func:`code_version`), the computation's name and
-its parameters. The content hash reads every byte of
-every frame; a small persistent index maps the files' stats (path, size and modification time of
-the manifest and of every frame) to it, so that a session whose files did not change is
-recognised without reading them. A changed stat hashes again.
+A result (a frozen ccdcore dataclass holding numpy arrays) is written into a cache folder as an
+``.npz`` (its arrays, and a JSON description of the structure around them: :func:`encode`),
+under a key made of the session's content hash (:func:`content_hash`: BLAKE2b of every byte of
+the manifest and of every frame), the ccdcore version (with a digest of its source,
+:func:`code_version`), the computation's name and its parameters. Each file's digest is
+remembered in this process under its stat (path, size, modification and change times, inode),
+so an unchanged file is read once; a small persistent index maps the same stats of a session's
+files to its content hash, so that a session whose files did not change is recognised without
+reading them. A changed stat hashes again: a file rewritten with its modification time set back
+still has a new change time (which ``os.utime`` cannot set), so it is read again.
 
 Public objects
 --------------
 ResultCache
-    The cache folder: :meth:`~ResultCache.get`, :meth:`~ResultCache.put` (atomic),
+    The cache folder (refused when unsafe, :meth:`~ResultCache.usable`):
+    :meth:`~ResultCache.get`, :meth:`~ResultCache.put` (atomic),
     :meth:`~ResultCache.key`, :meth:`~ResultCache.session_hash` (through the stat index),
     :meth:`~ResultCache.known_hash` (the index alone), least-recently-used eviction beyond
     ``max_bytes``, :meth:`~ResultCache.clear`.
@@ -23,6 +27,12 @@ default_cache(), max_bytes()
     previews of :mod:`ccdcore_app.tiles` keep their own pyramids within it too).
 code_version()
     The ccdcore version and a digest of its source files, part of every key.
+content_hash(session), file_digest(path)
+    The session's content hash; one file's BLAKE2b digest (memoised per stat in the process).
+encode(value, arrays), decode(data, arrays), Unserialisable
+    A result as JSON data and named arrays, and back (ccdcore dataclasses and enums only).
+unsafe_folder(folder, root)
+    Why a cache folder may not be used (another owner, writable by group or others), or None.
 fingerprint(result)
     A short digest of a result's ``to_dict()``, for a result passed as a parameter (the noise
     model handed to ``estimate_all``).
@@ -35,7 +45,13 @@ SharedResults, shared_results()
 
 Notes
 -----
-Entries are pickles, read back only from the user's own cache folder. A corrupt, truncated or
+Entries cannot run code when read: ``np.load(allow_pickle=False)`` and :func:`decode`, which
+makes plain data, arrays and the dataclasses and enums of ccdcore's own modules only (looked up
+by name, checked, never anything else called). A result holding anything else is not cached
+(computed again next time). Older pickle entries (``*.pkl``) are never read; they are deleted.
+The folder is used only when it and its sub-folders are owned by the user and not writable by
+group or others (:func:`unsafe_folder`; folders are made with mode 0o700): otherwise one
+warning is logged and nothing is cached. A corrupt, truncated or
 incompatible entry (another format, a class that changed or vanished) is a miss: it is deleted
 and the result computed again; no error reaches the user. The bound is kept after every write by
 deleting the least recently used entries (a hit touches its entry's modification time).
@@ -43,12 +59,15 @@ deleting the least recently used entries (a hit touches its entry's modification
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
+import enum
 import functools
 import hashlib
+import importlib
 import json
 import logging
 import os
-import pickle
+import stat as stat_mod
 import tempfile
 import threading
 import time
@@ -58,13 +77,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
+import numpy as np
+
 import ccdcore
 from ccdcore.session import Session
 
 __all__ = ["ResultCache", "cache_folder", "code_version", "default_cache", "max_bytes",
            "fingerprint",
            "photon_transfer_entry", "estimates_entry", "SharedResults", "Shared",
-           "shared_results", "CACHE_ENV",
+           "shared_results", "CACHE_ENV", "content_hash", "file_digest", "encode", "decode",
+           "Unserialisable", "unsafe_folder",
            "CACHE_SIZE_ENV", "DEFAULT_MAX_BYTES"]
 
 log = logging.getLogger(__name__)
@@ -75,8 +97,15 @@ CACHE_ENV = "CCDCORE_CACHE"
 CACHE_SIZE_ENV = "CCDCORE_CACHE_MAX_BYTES"
 #: the default bound of the results' total size
 DEFAULT_MAX_BYTES = 2 * 1024 ** 3
-#: the version of the entries' layout (a change makes every older entry a miss)
-FORMAT = 1
+#: the version of the entries' layout (a change makes every older entry a miss); 2: ``.npz``
+#: entries (arrays and a JSON description, nothing that runs code when read)
+FORMAT = 2
+#: the entries' file suffix (older ``.pkl`` entries are never read, only deleted)
+SUFFIX = ".npz"
+#: bytes read at a time while hashing a file
+CHUNK = 1024 ** 2
+#: the modules whose dataclasses and enums an entry may name
+TRUSTED_PREFIX = "ccdcore."
 #: how many sessions the stat -> content hash index remembers
 INDEX_SIZE = 512
 
@@ -184,8 +213,247 @@ def estimates_entry(noise: Any, **options: Any) -> tuple[str, dict[str, Any]]:
 
 
 def _stat(path: Path) -> list[Any]:
+    return list(_file_stat(path))
+
+
+# ---------------------------------------------------------------------------------------------
+# entries that cannot run code: arrays in an .npz, the structure around them in JSON
+# ---------------------------------------------------------------------------------------------
+class Unserialisable(TypeError):
+    """A result holding something :func:`encode` does not write (it is then not cached)."""
+
+
+def _class_name(cls: type) -> str:
+    return f"{cls.__module__}:{cls.__qualname__}"
+
+
+def _trusted(module: str) -> bool:
+    return module == "ccdcore" or module.startswith(TRUSTED_PREFIX)
+
+
+def encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
+    """``value`` as JSON data, its numpy arrays moved to ``arrays`` (named ``a0``, ``a1`` ...).
+
+    Written: None, bool, int, float, str, :class:`~pathlib.Path`, lists, tuples, dicts,
+    numpy arrays and scalars of plain dtypes (not ``object``), and the dataclasses, named
+    tuples and enums of ccdcore's own modules (by class name and fields, items or value). Raises
+    :class:`Unserialisable` for anything else (a function, another library's object).
+    """
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, float)) and type(value) in (int, float):
+        return value
+    if isinstance(value, np.ndarray) or isinstance(value, np.generic):
+        arr = np.asarray(value)
+        if arr.dtype.hasobject or arr.dtype.kind not in "biufcSUMm":
+            raise Unserialisable(f"an array of dtype {arr.dtype}")
+        name = f"a{len(arrays)}"
+        arrays[name] = arr
+        return {"__ndarray__": name, "scalar": isinstance(value, np.generic)}
+    if isinstance(value, enum.Enum):
+        cls = type(value)
+        if not _trusted(cls.__module__):
+            raise Unserialisable(f"the enum {_class_name(cls)}")
+        return {"__enum__": _class_name(cls), "value": encode(value.value, arrays)}
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        cls = type(value)
+        if not _trusted(cls.__module__) or "<locals>" in cls.__qualname__:
+            raise Unserialisable(f"the class {_class_name(cls)}")
+        return {"__dataclass__": _class_name(cls),
+                "fields": {f.name: encode(getattr(value, f.name), arrays)
+                           for f in dataclasses.fields(value)}}
+    if isinstance(value, Path):
+        return {"__path__": str(value)}
+    if isinstance(value, tuple) and type(value) is not tuple and hasattr(value, "_fields"):
+        cls = type(value)                                      # a NamedTuple (e.g. Roi)
+        if not _trusted(cls.__module__) or "<locals>" in cls.__qualname__:
+            raise Unserialisable(f"the named tuple {_class_name(cls)}")
+        return {"__namedtuple__": _class_name(cls), "items": [encode(v, arrays) for v in value]}
+    if type(value) is tuple:
+        return {"__tuple__": [encode(v, arrays) for v in value]}
+    if type(value) is list:
+        return [encode(v, arrays) for v in value]
+    if type(value) is dict:
+        return {"__dict__": [[encode(k, arrays), encode(v, arrays)] for k, v in value.items()]}
+    raise Unserialisable(f"a {type(value).__module__}.{type(value).__qualname__}")
+
+
+def _trusted_class(name: Any, kind: str) -> type:
+    """The class ``module:QualName`` of a ccdcore module, when it is a dataclass (``kind``
+    "dataclass"), a named tuple ("namedtuple") or an enum ("enum"); nothing else is looked up,
+    and nothing is called."""
+    if not isinstance(name, str) or name.count(":") != 1:
+        raise ValueError(f"not a class name: {name!r}")
+    module, qualname = name.split(":")
+    if not _trusted(module) or not qualname or "<" in qualname \
+            or any(not part.isidentifier() or part.startswith("__")
+                   for part in qualname.split(".")):
+        raise ValueError(f"{name} is not a ccdcore class")
+    obj: Any = importlib.import_module(module)
+    for part in qualname.split("."):
+        obj = getattr(obj, part)
+    if not isinstance(obj, type):
+        ok = False
+    elif kind == "dataclass":
+        ok = dataclasses.is_dataclass(obj)
+    elif kind == "namedtuple":
+        ok = issubclass(obj, tuple) and isinstance(getattr(obj, "_fields", None), tuple)
+    else:
+        ok = issubclass(obj, enum.Enum)
+    if not ok or not _trusted(obj.__module__):
+        raise ValueError(f"{name} is not a ccdcore {kind}")
+    return obj
+
+
+def decode(data: Any, arrays: Any) -> Any:
+    """The value :func:`encode` wrote (``arrays``: the entry's arrays by name). Only ccdcore's
+    dataclasses and enums are instantiated; raises ValueError (or KeyError, TypeError) for
+    anything else."""
+    if data is None or isinstance(data, (bool, int, float, str)):
+        return data
+    if isinstance(data, list):
+        return [decode(v, arrays) for v in data]
+    if not isinstance(data, dict) or len(data) == 0:
+        raise ValueError(f"unexpected {type(data).__name__} in an entry")
+    if "__ndarray__" in data:
+        name = data["__ndarray__"]
+        if not isinstance(name, str) or not name.startswith("a"):
+            raise ValueError(f"bad array name {name!r}")
+        arr = arrays[name]
+        return arr[()] if data.get("scalar") else arr
+    if "__tuple__" in data:
+        return tuple(decode(v, arrays) for v in data["__tuple__"])
+    if "__dict__" in data:
+        return {_hashable(decode(k, arrays)): decode(v, arrays) for k, v in data["__dict__"]}
+    if "__path__" in data:
+        return Path(str(data["__path__"]))
+    if "__namedtuple__" in data:
+        cls = _trusted_class(data["__namedtuple__"], "namedtuple")
+        return cls(*[decode(v, arrays) for v in data["items"]])
+    if "__enum__" in data:
+        return _trusted_class(data["__enum__"], "enum")(decode(data["value"], arrays))
+    if "__dataclass__" in data:
+        cls = _trusted_class(data["__dataclass__"], "dataclass")
+        fields = data["fields"]
+        if not isinstance(fields, dict):
+            raise ValueError("bad dataclass fields")
+        known = {f.name: f for f in dataclasses.fields(cls)}
+        if set(fields) != set(known):
+            raise ValueError(f"{data['__dataclass__']} has other fields now")
+        values = {k: decode(v, arrays) for k, v in fields.items()}
+        obj = cls(**{k: v for k, v in values.items() if known[k].init})
+        for k, v in values.items():          # fields the constructor does not take
+            if not known[k].init:
+                object.__setattr__(obj, k, v)
+        return obj
+    raise ValueError(f"unexpected keys {sorted(data)[:3]} in an entry")
+
+
+def _hashable(key: Any) -> Any:
+    if isinstance(key, list):
+        raise ValueError("a list as a dict key")
+    return key
+
+
+# ---------------------------------------------------------------------------------------------
+# the session's content hash
+# ---------------------------------------------------------------------------------------------
+_FILE_DIGESTS: OrderedDict[tuple, str] = OrderedDict()
+_FILE_DIGESTS_LOCK = threading.Lock()
+#: (folder, reason) of the refused cache folders already warned about
+_REFUSED: set[tuple[str, str]] = set()
+#: how many files' digests this process remembers
+FILE_MEMO_SIZE = 8192
+
+
+def _file_stat(path: Path) -> tuple:
+    """What identifies a file's version without reading it: path, size, ``st_mtime_ns``,
+    ``st_ctime_ns``, inode and device. The change time cannot be set back (``os.utime`` sets
+    it to now): a file rewritten with its old size and modification time restored differs."""
     st = os.stat(path)
-    return [str(path), int(st.st_size), int(st.st_mtime_ns)]
+    return (str(path), int(st.st_size), int(st.st_mtime_ns), int(st.st_ctime_ns),
+            int(st.st_ino), int(st.st_dev))
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """The BLAKE2b digest (hex) of a file's bytes, read in 1 MiB chunks; remembered in this
+    process under :func:`_file_stat`, so an unchanged file is not read again (a page does not
+    rehash on every widget change). Raises OSError."""
+    path = Path(path)
+    key = _file_stat(path)
+    with _FILE_DIGESTS_LOCK:
+        known = _FILE_DIGESTS.get(key)
+        if known is not None:
+            _FILE_DIGESTS.move_to_end(key)
+            return known
+    digest = hashlib.blake2b(digest_size=32)
+    with open(path, "rb") as f:
+        while chunk := f.read(CHUNK):
+            digest.update(chunk)
+    if _file_stat(path) != key:            # changed while read: not remembered
+        return digest.hexdigest()
+    with _FILE_DIGESTS_LOCK:
+        _FILE_DIGESTS[key] = digest.hexdigest()
+        while len(_FILE_DIGESTS) > FILE_MEMO_SIZE:
+            _FILE_DIGESTS.popitem(last=False)
+    return digest.hexdigest()
+
+
+def content_hash(session: Session) -> str:
+    """The session's content hash (64 hex digits): BLAKE2b over the manifest's bytes and, per
+    frame in session order, its path relative to the session root and its bytes' digest
+    (:func:`file_digest`; each field length-prefixed). The same files give the same hash
+    wherever the folder lies; a changed byte, a renamed, added or reordered frame changes it.
+    Raises OSError."""
+    digest = hashlib.blake2b(b"ccdcore_app cache content v2\0", digest_size=32)
+
+    def field_(text: str) -> None:
+        data = text.encode("utf-8")
+        digest.update(len(data).to_bytes(8, "little"))
+        digest.update(data)
+
+    field_("" if session.manifest_path is None else file_digest(session.manifest_path))
+    for rec in session.frames:
+        field_(str(rec.relpath))
+        field_(file_digest(rec.path))
+    return digest.hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------
+# the folder
+# ---------------------------------------------------------------------------------------------
+def unsafe_folder(folder: Path, root: Path) -> str | None:
+    """Why ``folder`` (``root`` or a folder inside it) may not hold the cache, or None: each
+    folder from ``root`` down to ``folder`` must be a real folder owned by this user and not
+    writable by its group or by others (someone else could plant entries). Missing folders are
+    fine (they are made with mode 0o700)."""
+    if not hasattr(os, "getuid"):       # (Windows: no owners or modes to check this way)
+        return None
+    uid = os.getuid()
+    parts = [root] + [root.joinpath(*folder.relative_to(root).parts[:i + 1])
+                      for i in range(len(folder.relative_to(root).parts))]
+    for part in parts:
+        try:
+            st = os.stat(part, follow_symlinks=False)
+        except FileNotFoundError:
+            return None
+        except OSError as err:
+            return f"{part}: {err.strerror or err}"
+        if stat_mod.S_ISLNK(st.st_mode):
+            try:
+                st = os.stat(part)
+            except OSError as err:
+                return f"{part}: {err.strerror or err}"
+        if not stat_mod.S_ISDIR(st.st_mode):
+            return f"{part} is not a folder"
+        if st.st_uid != uid:
+            return f"{part} is owned by uid {st.st_uid}, not by this user (uid {uid})"
+        if st.st_mode & 0o022:
+            return (f"{part} is writable by its group or by others (mode "
+                    f"{stat_mod.S_IMODE(st.st_mode):04o}); make it 0700")
+    return None
+
+
 
 
 class ResultCache:
@@ -214,6 +482,32 @@ class ResultCache:
         self.folder = Path(folder)
         self.max_bytes = int(max_bytes)
         self._lock = threading.Lock()
+        self._refused: str | None = None      # why the folder is not used (said once)
+        self._swept = False                   # older pickle entries deleted
+
+    def usable(self, create: bool = False) -> bool:
+        """Whether the folder may hold the cache (:func:`unsafe_folder`, checked on every
+        use; ``create``: the folders are made first, mode 0o700). A refused folder is not
+        used at all (every :meth:`get` misses, :meth:`put` stores nothing), with one logged
+        warning."""
+        if create:
+            try:
+                self.results_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
+            except OSError as err:
+                log.warning("could not create the cache folder %s: %s", self.results_dir, err)
+                return False
+        why = unsafe_folder(self.results_dir, self.folder)
+        if why is not None:
+            if self._refused is None and (str(self.folder), why) not in _REFUSED:
+                _REFUSED.add((str(self.folder), why))      # said once per process
+                log.warning("not using the result cache in %s: %s", self.folder, why)
+            self._refused = why
+            return False
+        if create and not self._swept:
+            self._swept = True
+            for old in self.results_dir.glob("*.pkl"):   # an older format: never unpickled
+                self._remove(old)
+        return True
 
     @property
     def results_dir(self) -> Path:
@@ -233,7 +527,7 @@ class ResultCache:
                         "session": content_hash, "name": name, "params": params or {}})
 
     def _path(self, key: str) -> Path:
-        return self.results_dir / f"{key}.pkl"
+        return self.results_dir / f"{key}{SUFFIX}"
 
     # ---- results ------------------------------------------------------------------------------
     def get(self, key: str) -> Any | None:
@@ -250,9 +544,15 @@ class ResultCache:
         if not _is_key(key):
             return None
         path = self._path(key)
+        if not path.is_file() or not self.usable():
+            return None
         try:
-            with open(path, "rb") as f:
-                entry = pickle.load(f)
+            # arrays and JSON only: allow_pickle=False, and decode() makes nothing but plain
+            # data and ccdcore's own dataclasses and enums
+            with np.load(path, allow_pickle=False) as z:
+                entry = json.loads(bytes(z["__entry__"]).decode("utf-8"))
+                if isinstance(entry, dict) and "value" in entry:
+                    entry["value"] = decode(entry["value"], z)
         except FileNotFoundError:
             return None
         except Exception as err:  # truncated, corrupt, a class that changed: recompute
@@ -273,7 +573,8 @@ class ResultCache:
 
     def put(self, key: str, value: Any) -> bool:
         """Store ``value`` under ``key`` (temporary file, then an atomic rename) and keep the
-        bound; False (logged) when it cannot be written. None is never stored."""
+        bound; False (logged) when it cannot be written or holds something :func:`encode`
+        does not write (it is then computed again next time). None is never stored."""
         if value is None:
             return False
         return self._write(key, {"format": FORMAT, "key": key, "value": value})
@@ -290,15 +591,18 @@ class ResultCache:
             raise ValueError(f"key: not a cache key: {key!r}")
         tmp = None
         try:
-            data = pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)
-            self.results_dir.mkdir(parents=True, exist_ok=True)
+            arrays: dict[str, np.ndarray] = {}
+            entry = {**entry, "value": encode(entry["value"], arrays)}
+            text = json.dumps(entry, allow_nan=True).encode("utf-8")
+            if not self.usable(create=True):
+                return False
             fd, tmp = tempfile.mkstemp(dir=self.results_dir, prefix=f".{key[:16]}-",
                                        suffix=".tmp")
             with os.fdopen(fd, "wb") as f:
-                f.write(data)
+                np.savez(f, __entry__=np.frombuffer(text, dtype=np.uint8), **arrays)
             os.replace(tmp, self._path(key))
             tmp = None
-        except Exception as err:  # an unpicklable result, a full disk: the app goes on
+        except Exception as err:  # a result encode() does not write, a full disk: app goes on
             log.warning("could not cache %s: %s: %s", key[:16], type(err).__name__, err)
             return False
         finally:
@@ -313,7 +617,7 @@ class ResultCache:
         try:
             with os.scandir(self.results_dir) as it:
                 for e in it:
-                    if e.name.endswith(".pkl"):
+                    if e.name.endswith(SUFFIX) and not e.name.startswith("."):
                         try:
                             st = e.stat()
                         except OSError:
@@ -376,13 +680,16 @@ class ResultCache:
     # ---- the session's content hash -------------------------------------------------------
     @staticmethod
     def stat_key(session: Session) -> str:
-        """A digest of the manifest's and every frame's path, size and ``st_mtime_ns`` (in
-        session order): what the index maps to the content hash. Raises OSError."""
+        """A digest of the manifest's and every frame's path, size, ``st_mtime_ns``,
+        ``st_ctime_ns``, inode and device (in session order): what the index maps to the
+        content hash. Raises OSError."""
         files: Iterable[Path] = [rec.path for rec in session.frames]
         manifest = None if session.manifest_path is None else _stat(session.manifest_path)
         return _digest({"manifest": manifest, "frames": [_stat(p) for p in files]})
 
     def _read_index(self) -> dict[str, Any]:
+        if not self.index_path.is_file() or not self.usable():
+            return {}
         try:
             data = json.loads(self.index_path.read_text())
             if isinstance(data, dict) and data.get("format") == FORMAT \
@@ -398,7 +705,8 @@ class ResultCache:
             sessions = {k: sessions[k] for k in keep}
         tmp = None
         try:
-            self.folder.mkdir(parents=True, exist_ok=True)
+            if not self.usable(create=True):
+                return
             fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".hashes-", suffix=".tmp")
             with os.fdopen(fd, "w") as f:
                 json.dump({"format": FORMAT, "sessions": sessions}, f)
@@ -427,8 +735,7 @@ class ResultCache:
 
     def session_hash(self, session: Session) -> str:
         """The session's content hash: from the index when no file's stat changed, else
-        :meth:`Session.content_hash` (every byte read; slow for a large session), then
-        remembered.
+        :func:`content_hash` (every byte of a changed file read), then remembered.
 
         Raises
         ------
@@ -439,7 +746,7 @@ class ResultCache:
         known = self._indexed(stat)
         if known is not None:
             return known
-        content = session.content_hash()
+        content = content_hash(session)
         with self._lock:
             sessions = self._read_index()
             sessions[stat] = {"hash": content, "used": time.time(),

@@ -35,7 +35,7 @@ from .batch import batched
 from .report_box import ReportBox
 from .state import AppState, default_roots
 
-__all__ = ["create_app", "serve", "AppShell", "TITLE"]
+__all__ = ["create_app", "serve", "check_port", "AppShell", "TITLE"]
 
 log = logging.getLogger(__name__)
 
@@ -365,6 +365,32 @@ def server_resources() -> dict[str, Any]:
     return {"static_dirs": {STATIC_ROUTE: str(STATIC_DIR)}}
 
 
+def check_port(port: int, address: str = "127.0.0.1") -> None:
+    """Raise one :class:`~ccdcore.errors.CcdError` line when the app cannot listen on ``port``.
+
+    Checked before anything says "serving on …": Bokeh's own failure comes after that line
+    and says "Address already in use" without the port.  The probe binds as Tornado does
+    (``SO_REUSEADDR``), so a port left in TIME_WAIT by a stopped app still counts as free.
+    """
+    import errno
+    import socket
+
+    from ccdcore.errors import CcdError
+
+    if not (isinstance(port, int) and 1 <= port <= 65535):
+        raise CcdError("--port", f"must be in 1..65535, got {port!r}")
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((address, port))
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                raise CcdError("--port", f"port {port} is in use: choose another with "
+                                         "--port") from None
+            raise CcdError("--port", f"cannot listen on {address}:{port}: "
+                                     f"{exc.strerror or exc}") from None
+
+
 def serve(session_path: str | Path | None = None, port: int = 5006, show: bool = False,
           threaded: bool = False, address: str = "127.0.0.1") -> Any:
     """Serve the app on ``address:port`` (default 127.0.0.1:5006).
@@ -375,6 +401,7 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
     a page's first visit would wait for them). ``threaded=True`` returns the running server thread (stop it with
     ``pn.state.kill_all_servers()``); otherwise this blocks until interrupted.
     """
+    check_port(port, address)
     prepare_first_page()
     origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
 

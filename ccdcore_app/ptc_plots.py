@@ -22,7 +22,10 @@ mu_grid(points, n=200, log=False)
 transfer_columns(points, result=None), residual_columns(result), loglog_columns(points, result)
     What each plot draws, as source columns (band and line, used and excluded points, curves).
 residual_limit(columns), loglog_limits(columns)
-    The y ranges of the residual and the log-log plots.
+    The y ranges of the residual and the log-log plots (the residuals' from the used levels).
+clip_residuals(columns, limit)
+    The excluded levels' residuals split into those inside ±limit and those drawn clipped at the
+    plot's edge (triangles pointing off the plot).
 PtcFigures
     The three figures with their sources; ``update(points, result)``.
 """
@@ -39,7 +42,7 @@ from ccdcore.noise import PhotonTransfer, PtcPoint
 
 __all__ = ["USED_COLOR", "EXCLUDED_COLOR", "FIT_COLOR", "points_table", "mu_grid",
            "transfer_columns", "residual_columns", "loglog_columns", "residual_limit",
-           "loglog_limits", "PtcFigures"]
+           "clip_residuals", "loglog_limits", "PtcFigures"]
 
 #: colour of the levels used by the fit
 USED_COLOR = "#1f5f99"
@@ -157,11 +160,45 @@ def residual_columns(result: PhotonTransfer | None) -> dict[str, dict[str, Any]]
 
 
 def residual_limit(columns: Mapping[str, Mapping[str, Any]]) -> float:
-    """The residual plot's half height: ±3.8, or the largest residual plus 1.2."""
-    values = np.concatenate([np.asarray(columns[k]["residual"], float)
-                             for k in ("used", "excluded")])
+    """The residual plot's half height: ±3.8, or the largest residual of a *used* level plus 1.2.
+
+    The excluded levels do not widen it: a level beyond saturation can be millions of σ off the
+    line, and an axis scaled to it would flatten the used levels' residuals to zero. Those are
+    drawn clipped at the edge (:func:`clip_residuals`)."""
+    values = np.asarray(columns["used"]["residual"], float)
     values = values[np.isfinite(values)]
     return max(3.8, float(np.abs(values).max()) + 1.2) if values.size else 3.8
+
+
+#: where a clipped residual is drawn, as a fraction of the plot's half height
+CLIP_AT = 0.92
+
+
+def clip_residuals(columns: Mapping[str, Mapping[str, Any]], limit: float
+                   ) -> dict[str, dict[str, Any]]:
+    """The excluded levels of ``columns`` (:func:`residual_columns`) against the half height
+    ``limit`` (:func:`residual_limit`).
+
+    Returns ``"excluded"``: those with |residual| ≤ ``limit``, drawn as they are (same columns);
+    ``"clipped"``: the others, drawn at ``y`` = ±``CLIP_AT``·``limit`` with ``marker``
+    ``"triangle"`` (above the plot) or ``"inverted_triangle"`` (below), keeping their true
+    ``residual`` (and ``level``, ``mu``, ``n_pairs``, ``status``, ``reason``) for the hover.
+    """
+    ex = columns["excluded"]
+    r = np.asarray(ex["residual"], float)
+    inside = np.abs(r) <= limit
+    keep = {k: (np.asarray(v)[inside] if isinstance(v, np.ndarray) else
+                [x for x, ok in zip(v, inside) if ok]) for k, v in ex.items()}
+    out = ~inside
+    clipped = {"level": [x for x, o in zip(ex["level"], out) if o],
+               "mu": np.asarray(ex["mu"], float)[out],
+               "residual": r[out],
+               "y": np.sign(r[out]) * CLIP_AT * limit,
+               "marker": ["triangle" if v > 0 else "inverted_triangle" for v in r[out]],
+               "n_pairs": [x for x, o in zip(ex["n_pairs"], out) if o],
+               "status": [x for x, o in zip(ex["status"], out) if o],
+               "reason": [x for x, o in zip(ex["reason"], out) if o]}
+    return {"excluded": keep, "clipped": clipped}
 
 
 def loglog_columns(points: Sequence[PtcPoint], result: PhotonTransfer | None = None
@@ -251,7 +288,8 @@ class PtcFigures:
     transfer, residual, loglog
         The figures: σ̂²_N against μ with the fitted line and its 1-σ band (eq. 41); the
         residuals in units of each point's standard error with lines at 0, ±1 and ±3 (the robust
-        mode's limit); temporal noise against signal on log axes (EMVA 1288 style) with the
+        mode's limit), scaled to the used levels (excluded ones beyond it as triangles at the
+        edge); temporal noise against signal on log axes (EMVA 1288 style) with the
         model, the read-noise floor and the shot-noise asymptote.
     sources
         ``(figure name, layer) -> ColumnDataSource``.
@@ -294,6 +332,18 @@ class PtcFigures:
                                   line_dash=dash, line_width=1))
         _point_renderers(r, {k: src("residual", k, rcols[k]) for k in ("used", "excluded")},
                          "residual", "residual / \u03c3", [])
+        # excluded levels beyond the axis: a hollow triangle at the edge, the true value on hover
+        from bokeh.core.properties import field
+        from bokeh.models import HoverTool
+
+        clipped = r.scatter("mu", "y", source=src("residual", "clipped",
+                                                  clip_residuals(rcols, 3.8)["clipped"]),
+                            marker=field("marker"), size=11, fill_alpha=0.0,
+                            line_color=EXCLUDED_COLOR, line_width=2)
+        r.add_tools(HoverTool(renderers=[clipped], tooltips=[
+            ("level", "@level"), (_XLABEL, "@mu{0.000}"),
+            ("residual / \u03c3", "@residual{0.0000} (off the plot)"), ("pairs", "@n_pairs"),
+            ("status", "@status"), ("reason", "@reason")]))
         self.residual = r
 
         # ---- log-log
@@ -320,13 +370,14 @@ class PtcFigures:
 
     def update(self, points: Sequence[PtcPoint], result: PhotonTransfer | None) -> None:
         """Draw ``points`` and the fit ``result`` (None: the points only)."""
+        residual = residual_columns(result)
+        limit = residual_limit(residual)              # from the used levels only
         data = {"transfer": transfer_columns(points, result),
-                "residual": residual_columns(result),
+                "residual": {**residual, **clip_residuals(residual, limit)},
                 "loglog": loglog_columns(points, result)}
         for (fig, layer), source in self.sources.items():
             source.data = dict(data[fig][layer])
-        self.residual.y_range.update(start=-residual_limit(data["residual"]),
-                                     end=residual_limit(data["residual"]))
+        self.residual.y_range.update(start=-limit, end=limit)
         limits = loglog_limits(data["loglog"])
         if limits is not None:
             self.loglog.y_range.update(start=limits[0], end=limits[1])

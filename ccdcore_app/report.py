@@ -1521,41 +1521,42 @@ def build_report(source: Any, *, product: CalibrationProduct | None = None, chan
 
 
 def _input_files(source: Any) -> tuple[list[Path], Any]:
-    """The files a report of ``source`` reads (an output must not be one of them), and the
-    opened source (a session is opened once)."""
+    """The files (and the product folder) a report of ``source`` reads -- an output must not be
+    one of them nor inside one -- and the opened source (a session is opened once)."""
+    from ccdcore.product import session_inputs
+
     if isinstance(source, Session):
-        return [r.path for r in source.frames] + (
-            [source.manifest_path] if source.manifest_path else []), source
+        return session_inputs(source), source
     if isinstance(source, CalibrationProduct):
         return [], source
     path = Path(source)
     if _is_product(path):
-        folder = path if path.is_dir() else path.parent
-        return [folder / PRODUCT_FILE] + sorted((folder / "maps").glob("*")), source
+        return [path if path.is_dir() else path.parent], source
     session = open_session(path)
-    return [r.path for r in session.frames] + (
-        [session.manifest_path] if session.manifest_path else []), session
+    return session_inputs(session), session
 
 
 def write_report(source: Any, out_path: str | os.PathLike, **kw: Any) -> Path:
-    """:func:`build_report` written to ``out_path`` atomically (a temporary file renamed into
-    place once complete: a failure leaves an earlier report untouched); returns the path.
+    """:func:`build_report` written to ``out_path`` atomically (a temporary folder beside it,
+    :func:`ccdcore.io.output_set`, renamed into place once complete: a failure or SIGTERM
+    leaves an earlier report untouched and no temporary file); returns the path.
 
     Raises
     ------
     CcdError
-        As :func:`build_report`; or ``out_path`` is a folder or one of the files the report
-        reads (it is refused before anything is computed).
+        As :func:`build_report`; or ``out_path`` is a folder, a FIFO or a device (or a symlink
+        to one), one of the files the report reads or inside the product folder (it is
+        refused before anything is computed); or writing failed (naming ``out_path``).
     """
-    from ccdcore.io import atomic_write_text
+    from ccdcore.io import atomic_write_text, check_output, check_outputs, output_set
 
     out = Path(out_path)
     if out.is_dir():
         raise CcdError(out, "is a folder; give the report's file name, e.g. report.html")
+    check_output(out)
     inputs, source = _input_files(source)
-    target = Path(os.path.abspath(out)).resolve()
-    for p in inputs:
-        if Path(os.path.abspath(p)).resolve() == target:
-            raise CcdError(out, "the report would overwrite an input of it; choose another -o")
+    check_outputs(out.parent, [out.name], inputs)
     text = build_report(source, **kw)
-    return atomic_write_text(out, text)
+    with output_set(out.parent, inputs=inputs) as tmp:
+        atomic_write_text(tmp / out.name, text)
+    return out

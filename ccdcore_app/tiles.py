@@ -42,6 +42,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from ccdcore.distributed import check_pixels
 from ccdcore.io import ImageHeader, read_header, read_region
 
 from . import plots
@@ -243,7 +244,8 @@ class FramePyramid:
         Raises
         ------
         ImageReadError
-            The file cannot be read.
+            The file cannot be read, or its header declares more pixel values (width x height
+            x channels) than :func:`ccdcore.io.pixel_limit` (refused before decoding).
         """
         path = Path(path).resolve()
         root = _tiles_root() if root is None else Path(root)
@@ -295,6 +297,10 @@ class FramePyramid:
     def _build(path: Path, layout: str | None, folder: Path, coarsest: int, band_pixels: int,
                progress: Callable[[float], None] | None) -> dict[str, Any]:
         header = read_header(path)
+        # the whole image against the readers' pixel limit (width x height x channels), from
+        # the header: each band is within the limit on its own, so without this a small file
+        # declaring 40000 x 40000 would be decoded band after band in full
+        check_pixels(path, header.shape)
         h, w = header.height, header.width
         kind = _layout(header.shape, layout)
         if kind not in ("mono", "rgb"):

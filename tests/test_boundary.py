@@ -15,10 +15,9 @@ import pytest
 
 from ccdcore.cli import build_parser, main
 from ccdcore.errors import CcdError, SessionError
-from ccdcore.io import write_image, write_map
+from ccdcore.io import TEMP_PREFIX, write_image, write_map
 from ccdcore.noise import photon_transfer
-from ccdcore.product import (REQUIREMENTS, TEMP_PREFIX, calibrate, load_product,
-                             missing_frames)
+from ccdcore.product import REQUIREMENTS, calibrate, load_product, missing_frames
 from ccdcore.session import open_session
 from ccdcore.simulate import simulate
 

@@ -4,12 +4,10 @@ from __future__ import annotations
 import errno
 import os
 import signal
-import struct
 import subprocess
 import sys
 import textwrap
 import warnings
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +17,7 @@ from ccdcore import io as ccd_io
 from ccdcore.errors import CcdError, ImageReadError, ImageWriteError
 from ccdcore.io import (MAX_PIXELS, atomic_write_text, pixel_limit, read_frame, read_header,
                         read_image, read_region, write_image, write_map)
+from imagefiles import bomb_tiff
 
 RNG = np.random.default_rng(20261)
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,27 +27,6 @@ def _frame(shape=(40, 56), dtype=np.uint16):
     return RNG.integers(0, 4000, size=shape).astype(dtype)
 
 
-def _bomb_tiff(path: Path, width: int, height: int, rows: int = 256, pad: int = 1_500_000):
-    """A real deflate TIFF of ``width x height`` zeros that takes about ``pad`` bytes on disk.
-
-    Every strip points at the same compressed block of zeros, so the file is written in
-    milliseconds; ``pad`` trailing bytes keep the compression ratio near deflate's real ~1000:1
-    (OpenImageIO refuses to open a file claiming a far higher ratio).
-    """
-    blob = zlib.compress(bytes(width * rows), 9)
-    n = -(-height // rows)
-    offsets_at = 8 + len(blob)
-    counts_at = offsets_at + 4 * n
-    ifd_at = counts_at + 4 * n
-    tags = [(256, 4, 1, width), (257, 4, 1, height), (258, 3, 1, 8), (259, 3, 1, 8),
-            (262, 3, 1, 1), (273, 4, n, offsets_at), (277, 3, 1, 1), (278, 4, 1, rows),
-            (279, 4, n, counts_at), (284, 3, 1, 1)]
-    ifd = (struct.pack("<H", len(tags)) + b"".join(struct.pack("<HHII", *t) for t in tags)
-           + struct.pack("<I", 0))
-    path.write_bytes(b"II*\x00" + struct.pack("<I", ifd_at) + blob
-                     + struct.pack(f"<{n}I", *[8] * n) + struct.pack(f"<{n}I", *[len(blob)] * n)
-                     + ifd + bytes(pad))
-    return path
 
 
 # --------------------------------------------------------------------------------------------
@@ -121,7 +99,7 @@ def test_bad_max_pixels_arguments_are_named(tmp_path, value):
 
 def test_decompression_bomb_lists_but_does_not_load(tmp_path, monkeypatch):
     monkeypatch.delenv("CCDCORE_MAX_PIXELS", raising=False)
-    bomb = _bomb_tiff(tmp_path / "bomb.tif", 40000, 40000)
+    bomb = bomb_tiff(tmp_path / "bomb.tif", 40000, 40000)
     assert bomb.stat().st_size < 2_000_000
     header = read_header(bomb)                      # a session can still list it
     assert (header.width, header.height, header.channels) == (40000, 40000, 1)

@@ -401,3 +401,74 @@ def test_raw_header_carries_the_exif_camera_settings(tmp_path: Path, monkeypatch
     assert (hdr.exposure, hdr.bits, hdr.layout, hdr.shape) == (0.004, 14, "bayer-rggb", (4, 6))
     assert hdr.attributes == {"Make": "Nikon", "Model": "D850", "FNumber": 5.6}
     assert folder_mod.capture_settings(hdr) == {"camera": "Nikon D850", "aperture": "f/5.6"}
+
+
+# --------------------------------------------------------------------------------------------
+# roles from file names, photon-transfer pairs from exposure times
+# --------------------------------------------------------------------------------------------
+def _tif(root: Path, rel: str, seconds: float | None, gain: float | None = None) -> None:
+    attrs = {"GAIN": gain} if gain is not None else None     # a FITS header's gain
+    write_image(root / rel, np.full((8, 8), int(100 * (seconds or 0.01)) + 10, np.uint16),
+                exposure=seconds, attributes=attrs)
+
+
+@pytest.mark.parametrize("name, role", [
+    ("dark_0.01s_001.tif", "dark"), ("bias-3.tif", "dark"), ("DARK001.tif", "dark"),
+    ("ptc_L03_a.tif", "ptc"), ("FLAT_10ms_a.tif", "flat"), ("fpn 2.tif", "fixed_pattern"),
+    ("darkroom.tif", None), ("white_wall.tif", None), ("img_0001.tif", None), ("dark.tif", "dark"),
+    ("bracket_1.tif", None), ("flat", None)])
+def test_file_name_roles(name, role) -> None:
+    assert folder_mod.file_name_role(name) == role
+
+
+def test_top_level_tiffs_named_for_roles_and_ptc_pairs_by_exposure(tmp_path: Path) -> None:
+    root = tmp_path / "ccd"
+    for t in (0.01, 0.02, 0.04):
+        for k in "ab":
+            _tif(root, f"ptc_{t:.3f}s_{k}.tif", t)
+    for i in range(3):
+        _tif(root, f"dark_{i:03d}.tif", 0.01)
+    _tif(root, "img_0001.tif", 0.01)
+    s = open_session(root)
+    assert s.ok, s.problems
+    roles = {r.relpath: r.role for r in s.frames}
+    assert roles["dark_000.tif"] == "dark" and roles["img_0001.tif"] == "scene"
+    levels = {lv: sorted(r.relpath for r in recs) for lv, recs in s.ptc_levels().items()}
+    assert levels == {1: ["ptc_0.010s_a.tif", "ptc_0.010s_b.tif"],
+                      2: ["ptc_0.020s_a.tif", "ptc_0.020s_b.tif"],
+                      3: ["ptc_0.040s_a.tif", "ptc_0.040s_b.tif"]}
+    assert all("level" in r.inferred for r in s.by_role("ptc"))
+    [note] = [p.message for p in s.problems if p.code == "folder-inferred"]
+    assert "the file names of 9 frames" in note
+    assert "ptc levels 1-3 from the frames' exposure times" in note
+
+
+def test_ptc_levels_from_file_numbers_first_and_nothing_guessed_without_pairs(tmp_path) -> None:
+    root = tmp_path / "a"
+    for lv in (1, 2):                      # numbers make pairs: kept, whatever the exposures
+        for k in "ab":
+            _tif(root, f"ptc/L0{lv}_{k}.tif", 0.01 * (3 - lv))
+    s = open_session(root)
+    assert sorted(s.ptc_levels()) == [1, 2]
+    root = tmp_path / "b"                  # one frame per exposure: no pairs, not guessed
+    for i, t in enumerate((0.01, 0.02, 0.04)):
+        _tif(root, f"ptc/img_{i}.tif", t)
+    s = open_session(root)
+    assert sorted(s.ptc_levels()) == [0, 1, 2]
+    assert "one frame" in " ".join(p.message for p in s.errors)
+    assert not any("exposure times (frames of one" in p.message for p in s.problems)
+    root = tmp_path / "c"                  # pairs by exposure, but two gains: not guessed
+    for t, g in ((0.01, 1.0), (0.01, 2.0), (0.02, 1.0), (0.02, 2.0)):
+        _tif(root, f"ptc/img_{t}_{g}.fits", t, gain=g)
+    s = open_session(root)
+    assert {r.gain for r in s.frames} == {1.0, 2.0}
+    assert not any("exposure times (frames of one" in p.message for p in s.problems)
+
+
+def test_flat_pairs_stay_flats(tmp_path: Path) -> None:
+    root = tmp_path / "f"
+    for t in (0.01, 0.02):
+        for k in "ab":
+            _tif(root, f"flat_{k}_{t}.tif", t)
+    s = open_session(root)
+    assert {r.role for r in s.frames} == {"flat"} and not s.ptc_levels()

@@ -93,6 +93,8 @@ def open_session(path: str | Path, *, check_pixels: bool = False) -> Session:
     p = Path(path)
     if not p.exists():
         raise CcdError(p, "does not exist")
+    if not p.is_dir() and not p.is_file():  # opening a FIFO to sniff it would block forever
+        raise CcdError(p, "is a FIFO/special file, not a folder, session.toml or descriptor")
     if p.is_dir():
         manifest = p / MANIFEST_NAME
         session = open_manifest(manifest) if manifest.exists() else open_folder(p)

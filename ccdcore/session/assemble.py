@@ -15,13 +15,17 @@ from typing import Any, Callable
 
 from ..common import format_size, group_by
 from ..errors import ImageReadError
-from ..io import ImageHeader, read_header
-from .records import (EXPOSURE_ROLES, ROLES, UNIFORM_ROLES, Camera, FrameRecord, Problem,
-                      Session)
+from ..io import ImageHeader, check_pixel_limit, pixel_limit, read_header
+from .records import (EXPOSURE_ROLES, MAX_EXPOSURE, MIN_EXPOSURE, ROLES, UNIFORM_ROLES, Camera,
+                      FrameRecord, Problem, Session)
 
 __all__ = ["Candidate", "path_problem", "assemble"]
 
 _HEADER_KEYS = ("exposure", "gain", "temperature")  # metadata a file header can supply
+#: :func:`path_problem`'s answers that are not about leaving the folder, with their codes
+_NUL_PATH = "path holds a NUL character (\\0): no file can have that name"
+_LINK_LOOP = "symbolic link loop (the link leads back to itself): no file to read"
+_PATH_CODES = {_NUL_PATH: "bad-value", _LINK_LOOP: "not-a-file"}
 
 
 @dataclass
@@ -44,12 +48,17 @@ def path_problem(root: Path, relpath: str) -> str | None:
     """Why ``relpath`` is not a safe path inside ``root`` (resolved), or None when it is."""
     if not relpath:
         return "empty path"
+    if "\0" in relpath:  # the OS cannot name such a file; Path.resolve would raise ValueError
+        return _NUL_PATH
     if PurePosixPath(relpath).is_absolute() or PureWindowsPath(relpath).is_absolute():
         return "absolute path; paths must be relative to the session folder"
     norm = posixpath.normpath(relpath)
     if norm == ".." or norm.startswith("../"):
         return "path escapes the session folder ('..')"
-    target = (root / norm).resolve()
+    try:
+        target = (root / norm).resolve()
+    except (RuntimeError, OSError):  # Python 3.11 raises RuntimeError for a loop, 3.13 OSError
+        return _LINK_LOOP
     if not target.is_relative_to(root):
         return f"resolves outside the session folder (symbolic link to {target})"
     return None
@@ -65,6 +74,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
     twice.
     """
     read = read or read_header
+    limit = pixel_limit()  # a frame over it could be listed but never read: an error now
     headers: dict[Path, ImageHeader] = {}
     records: list[FrameRecord] = []
     seen: dict[Path, str] = {}
@@ -81,7 +91,8 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
         origin = f" ({cand.entry})" if cand.entry.startswith("groups") else ""
         why = path_problem(root, cand.relpath)
         if why is not None:
-            problems.append(Problem(cand.relpath, why + origin, code="path-outside", roles=roles))
+            problems.append(Problem(cand.relpath.replace("\0", "\\0"), why + origin,
+                                    code=_PATH_CODES.get(why, "path-outside"), roles=roles))
             continue
         path = (root / posixpath.normpath(cand.relpath)).resolve()
         if not path.exists():
@@ -89,7 +100,8 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                                     roles=roles))
             continue
         if not path.is_file():
-            problems.append(Problem(cand.relpath, "is a folder, not an image file",
+            what = "a folder" if path.is_dir() else "a FIFO/special file"
+            problems.append(Problem(cand.relpath, f"is {what}, not an image file",
                                     code="not-a-file", roles=roles))
             continue
         if path in seen:
@@ -112,6 +124,11 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                                     roles=roles))
             hdr = None
         if hdr is not None:
+            try:  # a tiny file declaring a huge image (a decompression bomb) is not "valid"
+                check_pixel_limit(path, hdr.width, hdr.height, hdr.channels, limit)
+            except ImageReadError as exc:
+                problems.append(Problem(cand.relpath, exc.problem + origin, code="unreadable",
+                                        roles=roles))
             for key in _HEADER_KEYS:
                 value = getattr(hdr, key)
                 if meta.get(key) is None and value is not None:
@@ -120,6 +137,15 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
         if cand.role in EXPOSURE_ROLES and meta.get("exposure") is None and hdr is not None:
             problems.append(Problem(cand.relpath, _missing_exposure(cand, source),
                                     code="missing-exposure", roles=roles))
+        exposure = meta.get("exposure")
+        if cand.role in EXPOSURE_ROLES and exposure is not None and not (
+                MIN_EXPOSURE <= exposure <= MAX_EXPOSURE):
+            # a bracket's exposures divide its codes: 0 would make the radiance NaN downstream
+            problems.append(Problem(cand.relpath, (
+                f"exposure is 0 s: a {cand.role} frame needs a positive exposure time"
+                if exposure == 0 else
+                f"exposure {exposure:g} s is outside {MIN_EXPOSURE:g} to {MAX_EXPOSURE:g} s"),
+                code="bad-value", roles=roles))
         roi = meta.get("roi")
         if roi is not None and hdr is not None:
             x, y, w, h = roi

@@ -161,6 +161,11 @@ def open_emva_descriptor(path: str | Path) -> Session:
     if fmt is None:
         problems.append(Problem(desc.name, "no 'n <bits> <width> <height>' line",
                                 code="descriptor-line"))
+    if not candidates and not any(p.severity == "error" for p in problems):
+        # a session of 0 frames is nothing to calibrate: never "valid" (as an empty manifest)
+        problems.append(Problem(desc.name, "the descriptor lists no images: add 'b' or 'd' "
+                                           "points, each followed by its 'i' image lines",
+                                code="no-frames"))
     camera = Camera(name=f"EMVA1288 {desc.stem}", bits=fmt[0] if fmt else None, layout="mono")
     session = assemble(desc.parent.resolve(), desc, "emva1288", camera, candidates, problems)
     if fmt is None:

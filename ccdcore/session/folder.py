@@ -1,6 +1,7 @@
 """Plain folders of images without a manifest: roles from folder names, metadata from headers.
 
-``dark/``, ``darks/``, ``bias/`` ... hold dark frames, ``ptc/`` photon-transfer pairs (a level per
+``dark/``, ``darks/``, ``bias/`` ... hold dark frames (or files named ``dark_001.tif``, see
+:data:`FILE_ROLE_WORDS`), ``ptc/`` photon-transfer pairs (a level per
 sub-folder ``ptc/L03/`` or per file name number ``ptc/L03_a.tif``), ``flats/`` flat fields and so on
 (:data:`ROLE_SYNONYMS`).  Exposures, gains and temperatures come from EXIF/FITS headers.
 
@@ -30,7 +31,7 @@ from ..io import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
 from .assemble import Candidate, assemble, path_problem
 from .records import MANIFEST_NAME, ROLES, Camera, Problem, Session
 
-__all__ = ["ROLE_SYNONYMS", "open_folder"]
+__all__ = ["ROLE_SYNONYMS", "FILE_ROLE_WORDS", "file_name_role", "open_folder"]
 
 #: folder name (lower case) -> role, for plain folders without a manifest
 ROLE_SYNONYMS: dict[str, str] = {
@@ -49,6 +50,61 @@ ROLE_SYNONYMS: dict[str, str] = {
 
 #: the id key a plain folder's frames of a role get from their sub-folder or file name
 _ID_KEYS = {"ptc": "level", "fixed_pattern": "config"}
+
+#: the first word of a file name (lower case) -> role, for images not in a folder named for a
+#: role: ``dark_0.01s_001.tif``, ``bias-3.tif``, ``ptc_L03_a.tif``, ``flat_1.tif``. Only the
+#: calibration roles, and only words that name them plainly (``white`` or ``black``, which name
+#: subjects too, are not read from file names)
+FILE_ROLE_WORDS: dict[str, str] = {
+    "dark": "dark", "darks": "dark", "bias": "dark", "biases": "dark",
+    "ptc": "ptc", "flat": "flat", "flats": "flat", "flatfield": "flat",
+    "fpn": "fixed_pattern", "prnu": "fixed_pattern",
+}
+
+
+def file_name_role(name: str) -> str | None:
+    """The role a file name states by its first word (:data:`FILE_ROLE_WORDS`): the letters
+    before the first digit, ``_``, ``-``, ``.`` or space, or None."""
+    word = re.match(r"[A-Za-z]+", name)
+    if word is None or word.end() == len(name) or name[word.end()] not in "0123456789_-. ":
+        return None
+    return FILE_ROLE_WORDS.get(word.group().lower())
+
+
+def _in_role_subfolder(rel: str) -> bool:
+    """``ptc/L03/a.tif``: in a sub-folder of a folder named for a role (which numbers it)."""
+    parts = rel.split("/")
+    return len(parts) > 2 and ROLE_SYNONYMS.get(parts[0].lower()) is not None
+
+
+def _ptc_levels(rels: list[str], headers: "_Headers") -> tuple[dict[str, int | None], str]:
+    """Levels of photon-transfer frames that no sub-folder numbers: ``(relpath -> level, how)``.
+
+    From the first number of each file name (``L03_a.tif``) when that makes pairs (two levels
+    or more, every level two frames or more); else, when every frame's header gives an exposure time, all at one gain,
+    and every exposure time is shared by two frames or more, the exposure times in increasing
+    order (level 1 the shortest; ``how`` is ``"exposure"``); else the file-name numbers (the
+    session then reports levels of one frame)."""
+    by_name: dict[str, int | None] = {}
+    for rel in rels:
+        number = re.search(r"\d+", PurePosixPath(rel).stem)
+        by_name[rel] = int(number.group()) if number else None
+
+    def pairs(levels: dict[str, int | None]) -> bool:
+        counts = Counter(levels.values())
+        return None not in counts and len(counts) >= 2 and min(counts.values()) >= 2
+
+    if pairs(by_name):
+        return by_name, "name"
+    hdrs = [headers.get(rel) for rel in rels]
+    if all(h is not None and h.exposure is not None for h in hdrs) \
+            and len({h.gain for h in hdrs}) == 1:            # type: ignore[union-attr]
+        keys = [_exposure_key(h.exposure) for h in hdrs]     # type: ignore[union-attr]
+        rank = {k: i for i, k in enumerate(sorted(set(keys)), start=1)}
+        by_exposure: dict[str, int | None] = {rel: rank[k] for rel, k in zip(rels, keys)}
+        if pairs(by_exposure):
+            return by_exposure, "exposure"
+    return by_name, "name"
 
 
 def _subfolder_ids(names: list[str]) -> dict[str, int]:
@@ -334,9 +390,12 @@ def _find_brackets(relpaths: list[str], named: dict[str, str | None], headers: _
 def open_folder(folder: Path) -> Session:
     """Open a plain folder of images as a session (no manifest).
 
-    Roles come from the first folder name under the root (:data:`ROLE_SYNONYMS`); images at the
-    top level and in folders not named for a role are scenes, unless they form an exposure
-    bracket.  Exposure brackets, one per folder (the folder holding the images):
+    Roles come from the first folder name under the root (:data:`ROLE_SYNONYMS`), else from the
+    first word of the file name for the calibration roles (:data:`FILE_ROLE_WORDS`:
+    ``dark_001.tif``, ``ptc_0.01s_a.tif``); other images at the top level and in folders not
+    named for a role are scenes, unless they form an exposure bracket. Photon-transfer levels
+    come from the sub-folder, else the file names' numbers, else (pairs of) exposure times
+    (:func:`_ptc_levels`).  Exposure brackets, one per folder (the folder holding the images):
 
     * the images of a folder named for brackets (``bracket/``, ``hdr/``, ``exposures/`` ...);
     * the images of the top-level folder or of a folder not named for a role, when they come
@@ -370,26 +429,33 @@ def open_folder(folder: Path) -> Session:
     # ptc level / fixed_pattern config from the sub-folder (ptc/L03/a.tif) or else from the
     # first number of the file name (ptc/L03_a.tif)
     named: dict[str, str | None] = {}
+    by_file_name = 0
     for rel in relpaths:
         parts = rel.split("/")
         named[rel] = ROLE_SYNONYMS.get(parts[0].lower()) if len(parts) > 1 else None
+        if named[rel] is None:      # not in a folder named for a role: the file name may say
+            named[rel] = file_name_role(parts[-1])
+            by_file_name += named[rel] is not None
     brackets = _find_brackets(relpaths, named, headers)
     sub: dict[str, list[str]] = {}
     roles: dict[str, str] = {}
     for rel in relpaths:
         parts = rel.split("/")
         roles[rel] = "bracket" if rel in brackets.stacks else named[rel] or "scene"
-        if roles[rel] in _ID_KEYS and len(parts) > 2:
+        if roles[rel] in _ID_KEYS and _in_role_subfolder(rel):
             sub.setdefault(roles[rel], []).append(parts[1])
     ids = {role: _subfolder_ids(sorted(set(names))) for role, names in sub.items()}
+    # ptc frames no sub-folder numbers: levels from file names, or pairs of exposure times
+    loose = [rel for rel in relpaths if roles[rel] == "ptc" and not _in_role_subfolder(rel)]
+    ptc_levels, ptc_how = _ptc_levels(loose, headers) if loose else ({}, "name")
     for rel in relpaths:
         role, parts = roles[rel], rel.split("/")
         meta: dict[str, Any] = {}
         inferred = ["role"]
         if role in _ID_KEYS:
             number = re.search(r"\d+", PurePosixPath(rel).stem)
-            value = ids[role][parts[1]] if len(parts) > 2 else (
-                int(number.group()) if number else None)
+            value = ids[role][parts[1]] if _in_role_subfolder(rel) else (
+                ptc_levels[rel] if rel in ptc_levels else int(number.group()) if number else None)
             if value is not None:
                 meta[_ID_KEYS[role]] = value
                 inferred.append(_ID_KEYS[role])
@@ -417,7 +483,13 @@ def open_folder(folder: Path) -> Session:
     summary = ", ".join(f"{role}: {n}" for role, n in session.roles().items())
     if relpaths:
         how = "folder names and EXIF exposure times" if brackets.from_exif else "folder names"
+        if by_file_name:
+            how += f", and the file names of {by_file_name} frame{'s' if by_file_name != 1 else ''}"
         found = (f"; exposure brackets: {'; '.join(brackets.notes)}" if brackets.notes else "")
+        if ptc_how == "exposure":
+            n_levels = len(set(ptc_levels.values()))
+            found += (f"; ptc levels 1-{n_levels} from the frames' exposure times (frames of "
+                      f"one exposure time and gain form one level's pairs)")
         note = (f"no {MANIFEST_NAME}: roles inferred from {how} ({summary}){found}; exposures "
                 f"from file headers for {n_exp} of {len(relpaths)} frames, camera "
                 f"'{name}', bits = {bits}, layout = {layout}; check them, write a manifest "

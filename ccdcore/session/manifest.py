@@ -18,7 +18,8 @@ from ..channels import LAYOUTS
 from ..errors import CcdError
 from ..io import IMAGE_EXTENSIONS
 from .assemble import Candidate, assemble
-from .records import FLAGS, MAX_INTENSITY, META_KEYS, ROLES, SCHEMA, Camera, Problem, Session
+from .records import (FLAGS, MAX_EXPOSURE, MAX_INTENSITY, META_KEYS, MIN_EXPOSURE, ROLES, SCHEMA,
+                      Camera, Problem, Session)
 
 __all__ = ["open_manifest", "parse_legacy_note"]
 
@@ -42,11 +43,17 @@ def _check_value(key: str, value: Any) -> tuple[Any, str | None]:
     if key in ("level", "config"):
         return (value, None) if _is_int(value) else (None, f"'{key}' must be an integer, "
                                                            f"got {value!r}")
-    if key in ("exposure", "photons"):
+    if key == "exposure":
+        # 0 is a dark frame's (bias) exposure; outside 1 ns .. 1e6 s (11.6 days) a value is a typo
+        # or a unit slip, and 1e-320 or 1e300 overflow the response fits' arithmetic
+        if _is_number(value) and (value == 0 or MIN_EXPOSURE <= value <= MAX_EXPOSURE):
+            return float(value), None
+        return None, (f"'exposure' must be 0 or from {MIN_EXPOSURE:g} to {MAX_EXPOSURE:g} "
+                      f"seconds, got {value!r}")
+    if key == "photons":
         if _is_number(value) and value >= 0:
             return float(value), None
-        unit = "seconds" if key == "exposure" else "photons per pixel"
-        return None, f"'{key}' must be a finite number >= 0 ({unit}), got {value!r}"
+        return None, f"'{key}' must be a finite number >= 0 (photons per pixel), got {value!r}"
     if key in ("gain", "temperature"):
         return (float(value), None) if _is_number(value) else (
             None, f"'{key}' must be a finite number, got {value!r}")
@@ -117,7 +124,10 @@ def _parse_entry(entry: dict, where: str, allowed: frozenset[str],
 
 def _entry_label(kind: str, i: int, entry: dict, key: str) -> str:
     value = entry.get(key)
-    return f"{kind}[{i}] ({value})" if isinstance(value, str) else f"{kind}[{i}]"
+    if not isinstance(value, str):
+        return f"{kind}[{i}]"
+    shown = value.replace("\0", "\\0")  # a NUL character shown as \0, not printed
+    return f"{kind}[{i}] ({shown})"
 
 
 def _parse_camera(doc: dict, problems: list[Problem]) -> Camera:
@@ -181,8 +191,16 @@ def _glob(root: Path, pattern: str) -> tuple[list[str], int]:
 
 
 def _read_toml(manifest_path: Path) -> dict:
+    """The manifest as a dict, or one :class:`CcdError` line naming it.
+
+    A FIFO or device is refused before it is opened (reading one would block or never end); a
+    manifest nested deeper than Python's recursion limit (``a = [[[[…]]]]``, only a corrupt or
+    hostile file) is refused instead of letting ``tomllib``'s RecursionError out as a traceback.
+    """
     if manifest_path.is_dir():
         raise CcdError(manifest_path, "is a folder, not a manifest file")
+    if manifest_path.exists() and not manifest_path.is_file():
+        raise CcdError(manifest_path, "is a FIFO/special file, not a manifest file")
     try:
         text = manifest_path.read_bytes().decode("utf-8-sig")  # a byte-order mark is fine
     except UnicodeDecodeError as exc:
@@ -194,6 +212,9 @@ def _read_toml(manifest_path: Path) -> dict:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CcdError(manifest_path, f"TOML syntax error: {exc}") from None
+    except RecursionError:
+        raise CcdError(manifest_path, "tables or arrays nested too deeply to read (a corrupt "
+                                      "manifest?)") from None
 
 
 def open_manifest(manifest_path: Path) -> Session:

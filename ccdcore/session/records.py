@@ -35,6 +35,7 @@ from ..io import ImageHeader, read_header, read_image
 from ..progress import checkpoint
 
 __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "META_KEYS", "EXPOSURE_ROLES",
+           "MIN_EXPOSURE", "MAX_EXPOSURE",
            "UNIFORM_ROLES", "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA", "Camera", "FrameRecord",
            "Problem", "Session"]
 
@@ -48,6 +49,11 @@ SCHEMA = 1
 MAX_INTENSITY = "max-intensity"
 #: the frame flags the manifest accepts (key ``flags``, a list of these)
 FLAGS: tuple[str, ...] = (MAX_INTENSITY,)
+
+#: the exposure times (seconds) a frame may have besides 0: 1 ns to 1e6 s (11.6 days); beyond
+#: them a value is a typo or a unit slip, and a response fit's logs and ratios overflow
+MIN_EXPOSURE = 1e-9
+MAX_EXPOSURE = 1e6
 
 #: roles whose frames need an exposure time (manifest or file header)
 EXPOSURE_ROLES = frozenset({"bracket", "reference", "target"})
@@ -455,8 +461,35 @@ class Session:
             return None
 
     def read(self, rec: FrameRecord) -> np.ndarray:
-        """The pixels of one frame, in the stored dtype (``(H, W)`` or ``(H, W, C)``)."""
-        return read_image(rec.path)
+        """The pixels of one frame, in the stored dtype (``(H, W)`` or ``(H, W, C)``).
+
+        Raises
+        ------
+        ImageReadError
+            The file cannot be read.
+        CcdError
+            A value exceeds ``[camera] bits`` (see :meth:`check_codes`).
+        """
+        return self.check_codes(rec, read_image(rec.path))
+
+    def check_codes(self, rec: FrameRecord, data: np.ndarray) -> np.ndarray:
+        """``data`` once no value of it exceeds the camera's ``2**bits - 1``.
+
+        Headers cannot tell: a 12-bit camera is stored in 16-bit files, so a camera declared
+        8-bit whose frames hold values up to 65535 passes every header check and gives a dark
+        mean of thousands of DN.  One maximum per frame read (a fraction of its decoding time)
+        catches it.  Float data and containers no wider than ``bits`` are not checked.
+        """
+        bits = self.camera.bits
+        if (bits is None or data.dtype.kind not in "ui" or data.dtype.itemsize * 8 <= bits
+                or not data.size):
+            return data
+        top = int(data.max())
+        if top >= 1 << bits:
+            raise CcdError(rec.relpath, f"{data.dtype} sample type holds value {top}, beyond "
+                                        f"camera.bits = {bits} (codes 0..{(1 << bits) - 1}): "
+                                        "frames of another camera, or a wrong [camera] bits?")
+        return data
 
     def iter_frames(self, records: Iterable[FrameRecord] | None = None, *,
                     read_ahead: int = 0) -> Iterator[tuple[FrameRecord, np.ndarray]]:
@@ -499,7 +532,8 @@ class Session:
 
     def verify_pixels(self) -> Session:
         """Decode every frame once, one at a time, and return a copy of the session whose
-        problems also list the frames whose pixel data cannot be read (truncated or corrupt).
+        problems also list the frames whose pixel data cannot be read (truncated or corrupt)
+        and those holding values beyond ``[camera] bits`` (code ``bit-depth``).
 
         Opening a session reads headers only, so a file cut short after its header is caught
         here (or when the frame is first read), not at open time.
@@ -512,6 +546,9 @@ class Session:
                 self.read(rec)
             except ImageReadError as exc:
                 extra.append(Problem(rec.relpath, exc.problem, code="unreadable",
+                                     roles=(rec.role,)))
+            except CcdError as exc:  # values beyond camera.bits (check_codes)
+                extra.append(Problem(rec.relpath, exc.problem, code="bit-depth",
                                      roles=(rec.role,)))
         return dataclasses.replace(self, problems=self.problems + tuple(extra))
 

@@ -34,13 +34,14 @@ goes into the manifest's keys (``setting``, ``patch``, ``flags``), never into ``
 from __future__ import annotations
 
 import importlib
+import json
 from pathlib import Path
 from typing import Any
 
 from ..errors import CcdError
 from .truth import Truth, find_truth, load_truth
 
-__all__ = ["PRESETS", "simulate", "Truth", "load_truth", "find_truth"]
+__all__ = ["PRESETS", "simulate", "is_simulation", "Truth", "load_truth", "find_truth"]
 
 #: preset name -> module (relative to this package) implementing it
 PRESETS: dict[str, str] = {
@@ -52,8 +53,20 @@ PRESETS: dict[str, str] = {
 }
 
 
+def is_simulation(folder: str | Path) -> bool:
+    """Whether ``folder`` holds a session an earlier :func:`simulate` wrote: its ``truth.json``
+    is an object naming one of :data:`PRESETS` and the seed (a real capture has no such
+    file, and a user's files are never taken for one)."""
+    try:
+        truth = json.loads((Path(folder) / "truth.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(truth, dict) and truth.get("preset") in PRESETS and "seed" in truth
+
+
 def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
-             size: tuple[int, int] | None = None, **options: Any) -> dict[str, Any]:
+             size: tuple[int, int] | None = None, force: bool = False,
+             **options: Any) -> dict[str, Any]:
     """Write the session of ``preset`` into ``out_dir`` and return its truth dictionary.
 
     Parameters
@@ -61,14 +74,23 @@ def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
     preset
         One of :data:`PRESETS`.
     out_dir
-        Folder to write into (created if needed).
+        Folder to write into (created if needed): new, empty, or an earlier simulation
+        (:func:`is_simulation`), whose files of the same names are replaced. A folder holding
+        anything else (a real session, say) is refused unless ``force``.
     seed
         Seed of the random generator; the same seed gives the same bytes.
     size
         ``(width, height)`` of the frames; ``None`` uses the preset's default.
+    force
+        Write into a folder that holds other files too.
     **options
         Preset-specific options (numbers of frames, noise parameters ...), see each module.
+
+    The session is written as one set (:func:`ccdcore.io.output_set`): into a temporary
+    folder, then renamed into ``out_dir``, so a failure or SIGTERM leaves ``out_dir`` as it was.
     """
+    from ..io import TEMP_PREFIX, check_output, output_set   # here: importing stays light
+
     if preset not in PRESETS:
         raise CcdError(preset, f"unknown preset; choose one of {', '.join(PRESETS)}")
     module = importlib.import_module(f".{PRESETS[preset]}", __name__)
@@ -78,4 +100,12 @@ def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
         if w < 8 or h < 8:
             raise CcdError("--size", f"{w}x{h} is too small; use at least 8x8")
         kwargs["size"] = (int(w), int(h))
-    return module.simulate(Path(out_dir), seed=int(seed), **kwargs)
+    out = Path(out_dir)
+    check_output(out, folder=True)
+    if (not force and out.is_dir() and not is_simulation(out)
+            and any(not p.name.startswith(TEMP_PREFIX) for p in out.iterdir())):
+        raise CcdError(out, "holds files that are not an earlier simulation (no truth.json of "
+                            "ours); choose a new or empty folder, or give --force to write "
+                            "into it")
+    with output_set(out) as tmp:
+        return module.simulate(tmp, seed=int(seed), **kwargs)

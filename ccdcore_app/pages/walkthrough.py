@@ -70,6 +70,45 @@ DOWNSTREAM: dict[str, tuple[str, ...]] = {
 IMAGE_WIDTH = 360
 
 
+#: the dark step lists the dark level per exposure as a table up to this many exposures, and
+#: plots it against the exposure beyond
+DARK_TABLE_MAX = 8
+
+
+def dark_level_columns(levels: list[dict[str, Any]]) -> dict[str, Any]:
+    """The dark step's plot of dark level against exposure, as Bokeh source columns: the levels
+    of :func:`ccdcore.guide.dark_step` with a known exposure, sorted by it: ``exposure`` (s),
+    ``mean`` (DN), ``sem`` (its standard error, 0 when unknown), ``lo``/``hi`` (the error bar's
+    ends) and ``n`` (frames)."""
+    known = sorted((lv for lv in levels if lv["exposure"] is not None),
+                   key=lambda lv: lv["exposure"])
+    t = np.array([float(lv["exposure"]) for lv in known])
+    mean = np.array([float(lv["mean"]) for lv in known])
+    sem = np.array([float(lv["sem"]) if math.isfinite(lv["sem"]) else 0.0 for lv in known])
+    return {"exposure": t, "mean": mean, "sem": sem, "lo": mean - sem, "hi": mean + sem,
+            "n": [int(lv["n"]) for lv in known]}
+
+
+def _dark_level_figure() -> tuple[Any, Any]:
+    """The dark-level figure (built once, fed through its source): mean dark level (DN) with a
+    ±1 standard-error bar against the exposure (s)."""
+    from bokeh.models import ColumnDataSource, HoverTool
+    from bokeh.plotting import figure
+
+    src = ColumnDataSource(dark_level_columns([]))
+    fig = figure(title="Dark level against exposure", height=300, sizing_mode="stretch_width",
+                 tools="pan,wheel_zoom,box_zoom,reset,save", x_axis_label="exposure (s)",
+                 y_axis_label="mean dark level (DN)", output_backend="canvas")
+    fig.toolbar.logo = None
+    fig.segment(x0="exposure", y0="lo", x1="exposure", y1="hi", source=src,
+                line_color="#1f5f99", line_width=1.5)
+    dots = fig.scatter("exposure", "mean", source=src, size=7, color="#1f5f99")
+    fig.add_tools(HoverTool(renderers=[dots], tooltips=[
+        ("exposure", "@exposure{0.0000} s"), ("mean", "@mean{0.0000} DN"),
+        ("\u00b1", "@sem{0.0000} DN"), ("frames", "@n")]))
+    return fig, src
+
+
 def _table(css: str) -> pn.pane.DataFrame:
     return pn.pane.DataFrame(pd.DataFrame(), index=False, sizing_mode="stretch_width",
                              escape=True, css_classes=[css], stylesheets=[TABLE_CSS])
@@ -318,13 +357,20 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     def _build_dark(self) -> None:
         self.dark_view = ImageView(frame_width=IMAGE_WIDTH, max_frame_height=IMAGE_WIDTH,
                                    cmap="viridis", label="DN", symbol="D̂_D",
+                                   title="Dark reference D̂_D (DN)",
                                    css_classes=["ccd-wt-dark-map"])
         self.dark_pane = view_pane(self.dark_view)
         self.dark_levels = _table("ccd-wt-dark-levels")
+        # many exposures (a dark-current series): a plot of the level against the exposure
+        self.dark_level_fig, self.dark_level_source = _dark_level_figure()
+        self.dark_level_plot = pn.Column(pn.pane.Bokeh(self.dark_level_fig,
+                                                       sizing_mode="stretch_width"),
+                                         visible=False, sizing_mode="stretch_width",
+                                         css_classes=["ccd-wt-dark-plot"])
         self.bodies["dark"].objects = [pn.Row(self.dark_pane, pn.Column(
             pn.pane.Markdown("**Dark level per exposure** (red crosses on the map: hot and dead "
-                             "pixels)"), self.dark_levels, sizing_mode="stretch_width"),
-            sizing_mode="stretch_width")]
+                             "pixels)"), self.dark_levels, self.dark_level_plot,
+            sizing_mode="stretch_width"), sizing_mode="stretch_width")]
 
     def _build_ptc(self) -> None:
         self.ptc_figs = PtcFigures(height=320)
@@ -603,11 +649,16 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             flagged = np.nonzero(step.dark.hot_mask | step.dark.dead_mask)
             self.dark_view.set_points(flagged[0][:2000], flagged[1][:2000])
             self.dark_pane.visible = True
+        cols = dark_level_columns(step.levels)
+        plot = len(cols["exposure"]) > DARK_TABLE_MAX    # a series: plot it, no long table
+        self.dark_level_source.data = cols
+        self.dark_level_plot.visible = plot
+        self.dark_levels.visible = not plot
         self.dark_levels.object = pd.DataFrame([
             {"exposure (s)": "–" if lv["exposure"] is None else f"{lv['exposure']:.4g}",
              "frames": lv["n"], "mean (DN)": f"{lv['mean']:.4f}",
              "± (DN)": "–" if not math.isfinite(lv["sem"]) else f"{lv['sem']:.2g}"}
-            for lv in step.levels]) if step.levels else pd.DataFrame()
+            for lv in step.levels]) if step.levels and not plot else pd.DataFrame()
 
     async def _ensure_ptc(self) -> Any:
         """The photon-transfer result (``None`` when skipped or failed; the gate says why)."""

@@ -4,6 +4,8 @@ Photon transfer and Maps pages: round trips, reopening without computing, what m
 from __future__ import annotations
 
 import dataclasses
+import io
+import json
 import math
 import os
 import pickle
@@ -96,6 +98,13 @@ def _state(path: Path) -> AppState:
     return state
 
 
+def _npz(entry: Any) -> bytes:
+    """An .npz holding ``entry`` as the JSON description of a cache entry."""
+    buf = io.BytesIO()
+    np.savez(buf, __entry__=np.frombuffer(json.dumps(entry).encode(), dtype=np.uint8))
+    return buf.getvalue()
+
+
 def _touch_frame(session_root: Path, relpath: str) -> None:
     """Rewrite a frame with one pixel changed and a later modification time."""
     path = session_root / relpath
@@ -171,6 +180,7 @@ def test_another_state_shows_both_pages_without_computing(cache_dir, demo, monke
         monkeypatch.setattr(module, name, Failing(getattr(module, name), fail_from=0))
     # the stat index gives the content hash: no frame is read to recognise the session
     monkeypatch.setattr(Session, "content_hash", Failing(Session.content_hash, fail_from=0))
+    monkeypatch.setattr(cache_mod, "content_hash", Failing(cache_mod.content_hash, fail_from=0))
 
     second = _state(demo)          # another browser session (or the server restarted)
     ptc = PhotonTransferPage(second, auto=False)
@@ -236,11 +246,12 @@ def test_a_corrupt_entry_is_computed_again(cache_dir, demo, monkeypatch):
     page = PhotonTransferPage(state, auto=False)
     run(page.refresh())
     assert counted.calls == 2 and state.error == "" and page.result is not None
-    assert pickle.loads(entry.read_bytes())["value"] is not None   # written again
-    other = entry.with_name("f" * 64 + ".pkl")     # a whole entry under another key's name
+    assert ResultCache(cache_dir).get(entry.stem) is not None      # written again
+    other = entry.with_name("f" * 64 + ".npz")     # a whole entry under another key's name
     other.write_bytes(entry.read_bytes())
     assert ResultCache(cache_dir).get(other.stem) is None and not other.exists()
-    for bad in (b"not a pickle", pickle.dumps({"format": -1}), pickle.dumps([1, 2])):
+    for bad in (b"not an npz", _npz({"format": -1, "key": entry.stem, "value": 1}),
+                _npz([1, 2]), pickle.dumps({"format": cache_mod.FORMAT})):
         entry.write_bytes(bad)
         assert ResultCache(cache_dir).get(entry.stem) is None
         assert not entry.exists()
@@ -252,7 +263,7 @@ def test_a_link_gives_its_target_and_dies_with_it(cache_dir):
     assert cache.link(link, target) and cache.get(link) is None
     cache.put(target, np.arange(3))
     np.testing.assert_array_equal(cache.get(link), np.arange(3))
-    (cache_dir / "results" / f"{target}.pkl").unlink()
+    (cache_dir / "results" / f"{target}.npz").unlink()
     assert cache.get(link) is None
 
 
@@ -265,7 +276,7 @@ def test_eviction_keeps_the_bound_and_the_recently_used(cache_dir):
     cache.put(keys[1], arrays[1])
     past = 1_600_000_000_000_000_000
     for i, key in enumerate(keys[:2]):
-        os.utime(cache_dir / "results" / f"{key}.pkl", ns=(past + i, past + i))
+        os.utime(cache_dir / "results" / f"{key}.npz", ns=(past + i, past + i))
     np.testing.assert_array_equal(cache.get(keys[0]), arrays[0])   # keys[0] used last
     cache.put(keys[2], arrays[2])
     assert cache.get(keys[1]) is None
@@ -300,17 +311,17 @@ def test_a_new_session_is_computed_while_it_is_hashed(cache_dir, demo, monkeypat
     runs while the hash is made; the result is stored under the hash afterwards."""
     started = threading.Event()
     seen: list[bool] = []
-    real_hash = Session.content_hash
+    real_hash = cache_mod.content_hash
 
-    def slow_hash(self: Session) -> str:
+    def slow_hash(session: Session) -> str:
         seen.append(started.wait(timeout=20))   # the estimator starts meanwhile
-        return real_hash(self)
+        return real_hash(session)
 
     def estimator() -> int:
         started.set()
         return 42
 
-    monkeypatch.setattr(Session, "content_hash", slow_hash)
+    monkeypatch.setattr(cache_mod, "content_hash", slow_hash)
     state = _state(demo)
     assert run(state.cached_compute("answer", {}, estimator, label="the answer")) == 42
     assert seen == [True] and state.status == "Computed the answer."
@@ -340,3 +351,158 @@ def test_cancelled_and_failed_computations_are_not_cached(cache_dir, demo):
         assert run(state.cached_compute("x", {}, failing, label="x")) is None
         assert "too few" in state.error
         assert ResultCache(cache_dir).entries() == []
+
+
+# ------------------------------------------------------------------- entries run no code ---
+class _Payload:
+    """Unpickled, it would create ``marker``."""
+
+    def __init__(self, marker: Path):
+        self.marker = marker
+
+    def __reduce__(self) -> tuple:
+        return (Path.touch, (self.marker,))
+
+
+def test_a_planted_pickle_entry_is_never_executed(cache_dir, demo, tmp_path):
+    marker = tmp_path / "pwned"
+    state = _state(demo)
+    name, params = photon_transfer_entry(None)
+    key = run(state.cache_key(name, params))
+    results = cache_dir / "results"
+    results.mkdir(parents=True, mode=0o700, exist_ok=True)
+    entry = {"format": 1, "key": key, "value": _Payload(marker)}
+    (results / f"{key}.pkl").write_bytes(pickle.dumps(entry))        # the old format's name
+    (results / f"{key}.npz").write_bytes(pickle.dumps(entry))        # and the new one's
+    assert ResultCache(cache_dir).get(key) is None
+    page = PhotonTransferPage(_state(demo), auto=False)
+    run(page.refresh())                                               # computed, not loaded
+    assert page.result is not None and not marker.exists()
+    assert not (results / f"{key}.pkl").exists()                     # old entries removed
+    # an .npz whose array holds pickled objects is refused by np.load(allow_pickle=False)
+    buf = io.BytesIO()
+    np.savez(buf, __entry__=np.frombuffer(json.dumps(
+        {"format": cache_mod.FORMAT, "key": key,
+         "value": {"__ndarray__": "a0", "scalar": False}}).encode(), dtype=np.uint8),
+             a0=np.array([_Payload(marker)], dtype=object))
+    (results / f"{key}.npz").write_bytes(buf.getvalue())
+    assert ResultCache(cache_dir).get(key) is None and not marker.exists()
+
+
+@pytest.mark.parametrize("name", ["os:system", "subprocess:Popen", "builtins:eval",
+                                  "ccdcore.io:read_image", "ccdcore.io:os.system",
+                                  "ccdcore.noise:PhotonTransfer.__init__.__globals__",
+                                  "ccdcore_app.cache:Shared", "pathlib:Path"])
+def test_an_entry_naming_another_class_is_refused(cache_dir, name, tmp_path):
+    marker = tmp_path / "pwned"
+    key = "3" * 64
+    cache = ResultCache(cache_dir)
+    assert cache.put(key, np.arange(2))
+    values = [{"__dataclass__": name, "fields": fields} for fields in
+              ({"command": f"touch {marker}"}, {"args": ["touch", str(marker)]},
+               {"source": f"open({str(marker)!r}, 'w')"}, {"path": str(marker)})]
+    values += [{"__enum__": name, "value": f"touch {marker}"},
+               {"__namedtuple__": name, "items": [f"touch {marker}"]},
+               {"__namedtuple__": name, "items": [["touch", str(marker)]]}]
+    for value in values:
+        (cache_dir / "results" / f"{key}.npz").write_bytes(
+            _npz({"format": cache_mod.FORMAT, "key": key, "value": value}))
+        assert cache.get(key) is None and not marker.exists()
+        with pytest.raises(ValueError, match="ccdcore|class name"):
+            cache_mod.decode(value, {})
+        assert not marker.exists()
+
+
+# --------------------------------------------------------------------------- the folder ---
+def test_a_folder_others_may_write_is_refused(cache_dir, caplog):
+    key = "4" * 64
+    cache = ResultCache(cache_dir)
+    assert cache.put(key, np.arange(3))
+    assert (cache_dir / "results").stat().st_mode & 0o777 == 0o700
+    os.chmod(cache_dir, 0o777)
+    with caplog.at_level("WARNING", logger="ccdcore_app.cache"):
+        assert cache.get(key) is None
+        assert not cache.put("5" * 64, np.arange(3))
+        assert cache.get(key) is None
+    warnings = [r for r in caplog.records if "not using the result cache" in r.getMessage()]
+    assert len(warnings) == 1 and "writable by its group or by others" in warnings[0].getMessage()
+    assert not (cache_dir / "results" / f"{'5' * 64}.npz").exists()
+    os.chmod(cache_dir, 0o700)
+    os.chmod(cache_dir / "results", 0o770)                            # a sub-folder too
+    assert ResultCache(cache_dir).get(key) is None
+    os.chmod(cache_dir / "results", 0o700)
+    np.testing.assert_array_equal(ResultCache(cache_dir).get(key), np.arange(3))
+
+
+def test_a_folder_owned_by_another_user_is_refused(cache_dir, monkeypatch, demo):
+    key = "6" * 64
+    assert ResultCache(cache_dir).put(key, np.arange(3))
+    real = os.getuid()
+    monkeypatch.setattr(os, "getuid", lambda: real + 1)              # the folder is not ours
+    cache = ResultCache(cache_dir)
+    assert cache.get(key) is None and not cache.put("7" * 64, np.arange(3))
+    assert "owned by uid" in (cache._refused or "")
+    state = _state(demo)                                               # the app goes on
+    assert run(state.cached_compute("seven", {}, lambda: 7, label="seven")) == 7
+    assert state.error == ""
+    monkeypatch.setattr(os, "getuid", lambda: real)
+    np.testing.assert_array_equal(ResultCache(cache_dir).get(key), np.arange(3))
+
+
+# ------------------------------------------------------------------------ content keys ---
+def test_a_frame_rewritten_with_its_mtime_restored_misses(cache_dir, demo):
+    calls = []
+
+    def count() -> int:
+        calls.append(1)
+        return len(calls)
+
+    assert run(_state(demo).cached_compute("count", {}, count, label="count")) == 1
+    assert run(_state(demo).cached_compute("count", {}, count, label="count")) == 1
+    session = open_session(demo)
+    path = session.by_role("ptc")[0].path
+    before = path.stat()
+    _touch_frame(demo, session.by_role("ptc")[0].relpath)           # other bytes ...
+    os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))       # ... the old mtime
+    after = path.stat()
+    assert (after.st_size, after.st_mtime_ns) == (before.st_size, before.st_mtime_ns)
+    state = _state(demo)
+    assert run(state.cached_compute("count", {}, count, label="count")) == 2
+    assert state.status == "Computed count."
+    # the same bytes elsewhere (another folder, other mtimes) give the same key
+    copy = Path(shutil.copytree(demo, demo.parent / "copy"))
+    assert ResultCache(cache_dir).session_hash(open_session(copy)) == \
+        ResultCache(cache_dir).session_hash(open_session(demo))
+
+
+def test_content_hash_reads_each_unchanged_file_once(demo, monkeypatch):
+    session = open_session(demo)
+    first = cache_mod.content_hash(session)
+    monkeypatch.setattr(cache_mod, "open", lambda *a, **k: pytest.fail("read again"),
+                        raising=False)
+    assert cache_mod.content_hash(session) == first
+
+
+# ------------------------------------------------------------ round trips of each type ---
+def test_round_trip_of_every_cached_result_type(cache_dir, assets, demo_results):
+    from ccdcore.common import Roi
+    from ccdcore.noise import ptc_points
+    from ccdcore_app.pages.response_hdr import compute_hdr, compute_responses
+
+    cache = ResultCache(cache_dir)
+    pt, est = demo_results
+    tsin = open_session(assets / "tsin01")
+    responses = compute_responses(tsin)
+    values = {
+        "photon_transfer": pt, "estimate_all": est,
+        "ptc_points": ptc_points(open_session(assets / "healey94")),
+        "responses": responses,
+        "hdr": compute_hdr(tsin, next(iter(responses.values()))),
+        "plain": {"roi": Roi(1, 2, 3, 4), (1, "a"): [None, True, 2, 2.5, float("nan"), "s"],
+                  "scalar": np.float32(1.5), "int": np.int64(3), "path": Path("a/b"),
+                  "empty": (), "nested": ((np.zeros((2, 0)),),)},
+    }
+    for i, (name, value) in enumerate(values.items()):
+        key = f"{i + 10:064x}"
+        assert cache.put(key, value), name
+        assert_same(cache.get(key), value, name)

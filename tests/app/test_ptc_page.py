@@ -378,3 +378,38 @@ def test_a_level_toggle_updates_the_plots_in_place(state, healey94):
     assert excluded_levels() == []
     hidden = [item for m in _models(root)["Legend"] for item in m.items if not item.visible]
     assert hidden, "the empty 'excluded levels' entry stays in the legend"
+
+
+def test_residual_axis_follows_the_used_levels_and_clips_the_excluded(demo_pt):
+    """A level far beyond saturation (here 5e6 σ off the line) is excluded: it no longer sets
+    the axis; it is drawn as a triangle at the edge with its true residual for the hover."""
+    pts = list(demo_pt.points)
+    far = dataclasses.replace(pts[-1], level=99, mu=pts[-1].mu * 1.1,
+                              var=pts[-1].var + 5e6 * pts[-1].var_err)
+    low = dataclasses.replace(pts[-2], level=98, var=pts[-2].var - 2.0 * pts[-2].var_err)
+    res = dataclasses.replace(demo_pt, points=tuple(pts) + (
+        dataclasses.replace(far, used=False, exclusion="nonlinear", reason="beyond"),
+        dataclasses.replace(low, used=False, exclusion="user", reason="excluded by user")))
+    cols = ptc_plots.residual_columns(res)
+    used = np.asarray(cols["used"]["residual"])
+    limit = ptc_plots.residual_limit(cols)
+    assert limit == max(3.8, float(np.abs(used).max()) + 1.2) < 10
+    split = ptc_plots.clip_residuals(cols, limit)
+    assert split["excluded"]["level"] == [98]                      # inside: drawn as it is
+    clipped = split["clipped"]
+    assert clipped["level"] == [99] and clipped["marker"] == ["triangle"]
+    assert clipped["y"][0] == pytest.approx(ptc_plots.CLIP_AT * limit)
+    assert clipped["residual"][0] == pytest.approx(5e6, rel=1e-3)
+    assert clipped["reason"] == ["beyond"]
+    # below the axis: an inverted triangle
+    down = ptc_plots.clip_residuals({"excluded": {**clipped, "residual": np.array([-50.0]),
+                                                  "err": np.ones(1), "lo": np.zeros(1),
+                                                  "hi": np.zeros(1)}}, 4.0)
+    assert down["clipped"]["marker"] == ["inverted_triangle"]
+    assert down["clipped"]["y"][0] == pytest.approx(-ptc_plots.CLIP_AT * 4.0)
+    # the figures: the axis set from the used levels, the clipped layer fed
+    figs = ptc_plots.PtcFigures()
+    figs.update(res.points, res)
+    assert (figs.residual.y_range.start, figs.residual.y_range.end) == (-limit, limit)
+    assert list(figs.sources[("residual", "clipped")].data["level"]) == [99]
+    assert list(figs.sources[("residual", "excluded")].data["level"]) == [98]

@@ -13,6 +13,7 @@ from ccdcore_app import plots, tiles
 from ccdcore_app.image_view import ImageView
 from ccdcore_app.tiles import FramePyramid, TiledPlane, needs_tiles
 from ccdcore.io import read_header, write_image
+from imagefiles import bomb_tiff
 
 
 def block_means(plane: np.ndarray, f: int) -> np.ndarray:
@@ -281,3 +282,40 @@ def test_old_pyramids_are_deleted_beyond_the_bound(tmp_path):
     FramePyramid.open(paths[0], "mono", root=root, coarsest=8, bound=0)   # reused: no eviction
     alone = FramePyramid.open(paths[1], "mono", root=root, coarsest=8, bound=0)
     assert [p for p in root.iterdir()] == [alone.folder]        # never the one just built
+
+
+# ------------------------------------------------------------------------ the pixel limit ---
+
+
+def _no_decoding(*args, **kwargs):
+    raise AssertionError("pixels were decoded")
+
+
+def test_a_bomb_is_refused_from_its_header(tmp_path, monkeypatch):
+    from ccdcore.errors import ImageReadError
+
+    monkeypatch.delenv("CCDCORE_MAX_PIXELS", raising=False)
+    bomb = bomb_tiff(tmp_path / "bomb.tif", 40000, 40000)
+    assert needs_tiles(read_header(bomb))
+    monkeypatch.setattr(tiles, "read_region", _no_decoding)
+    with pytest.raises(ImageReadError) as info:
+        FramePyramid.open(bomb, root=tmp_path / "tiles")
+    message = str(info.value)
+    assert message.startswith(str(bomb)) and "40000x40000" in message and "\n" not in message
+    assert "over the limit" in message and "CCDCORE_MAX_PIXELS" in message
+    assert not [p for p in (tmp_path / "tiles").iterdir()]        # no pyramid left behind
+
+
+def test_the_limit_counts_every_channel(tmp_path, monkeypatch):
+    """An RGB frame whose each band (and each plane) is within the limit, but not the whole
+    image with its three channels, is refused (the rule of ccdcore.io.read_frame)."""
+    from ccdcore.errors import ImageReadError
+
+    rgb = write_image(tmp_path / "rgb.tif",
+                      np.random.default_rng(3).integers(0, 255, (64, 80, 3), dtype=np.uint8))
+    monkeypatch.setenv("CCDCORE_MAX_PIXELS", str(64 * 80 * 2))          # below 64 x 80 x 3
+    monkeypatch.setattr(tiles, "read_region", _no_decoding)
+    with pytest.raises(ImageReadError, match=r"80x64 pixels x 3 channel"):
+        FramePyramid.open(rgb, root=tmp_path / "tiles", band_pixels=80 * 8, coarsest=8)
+    monkeypatch.undo()
+    assert FramePyramid.open(rgb, root=tmp_path / "tiles", coarsest=8).plane("R") is not None

@@ -143,3 +143,43 @@ def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
     assert page.emva_holder.visible
     page.exclude = [1]                       # a new photon transfer drops the figures too
     assert "emva" not in page.results
+
+
+def test_dark_step_plots_a_dark_series_and_lists_few_exposures(assets: Path, tmp_path) -> None:
+    """Many dark exposures (a dark-current series): a plot of the level against the exposure,
+    not a long table; one exposure (healey94): the table."""
+    import numpy as np
+
+    from ccdcore.io import write_image
+    from ccdcore_app.pages.walkthrough import DARK_TABLE_MAX, dark_level_columns
+
+    root = tmp_path / "series"
+    times = [0.01 * (i + 1) for i in range(12)]
+    for i, t in enumerate(times):
+        for k in range(2):
+            write_image(root / "dark" / f"d{i:02d}_{k}.fits",
+                        np.full((8, 8), 100 + 50 * i + k, np.uint16), exposure=t)
+    page = _page(root)
+    _run(page.run_step("dark"))
+    step = page.results["dark"]
+    assert len(step.levels) == 12 > DARK_TABLE_MAX
+    assert page.dark_level_plot.visible and not page.dark_levels.visible
+    data = page.dark_level_source.data
+    np.testing.assert_allclose(data["exposure"], times)
+    np.testing.assert_allclose(data["mean"], [100.5 + 50 * i for i in range(12)])
+    assert list(data["n"]) == [2] * 12
+    assert page.dark_level_fig.xaxis[0].axis_label == "exposure (s)"
+    assert page.dark_level_fig.yaxis[0].axis_label == "mean dark level (DN)"
+    # the map has a title of its own: no stray "·" before "mean of 2×2 px"
+    assert page.dark_view.title == "Dark reference D̂_D (DN)"
+    # few exposures: the table, no plot
+    few = _page(assets / "healey94")
+    _run(few.run_step("dark"))
+    assert few.dark_levels.visible and not few.dark_level_plot.visible
+    assert list(few.dark_levels.object["exposure (s)"]) == ["0.033"]
+    # the pure part: unknown exposures left out, sorted, a missing error drawn as none
+    cols = dark_level_columns([{"exposure": 0.2, "n": 3, "mean": 5.0, "sem": 0.1},
+                               {"exposure": None, "n": 1, "mean": 9.0, "sem": float("nan")},
+                               {"exposure": 0.1, "n": 1, "mean": 4.0, "sem": float("nan")}])
+    assert list(cols["exposure"]) == [0.1, 0.2] and list(cols["sem"]) == [0.0, 0.1]
+    assert list(cols["hi"]) == [4.0, 5.1]

@@ -1,0 +1,271 @@
+"""Hostile and odd input at the edges: one clear line on stderr and exit code 2, never a traceback.
+
+Each test builds a tiny session in ``tmp_path`` (as tests/test_session.py and tests/test_cli.py
+do) and runs the command line in-process: deeply nested manifests and product files, strange
+frame paths (NUL, symbolic-link loops, FIFOs), decompression bombs, empty EMVA1288 descriptors,
+values beyond the camera's bit depth, absurd exposure times, constant brackets, and options out
+of range (blooming radius, frame size, seed, port).
+"""
+from __future__ import annotations
+
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ccdcore.cli import main
+from ccdcore.errors import CcdError
+from ccdcore.io import write_image
+from ccdcore.product import load_product
+from ccdcore.response.brackets import MAX_BLOOM_RADIUS, bloom_mask, check_times
+from ccdcore.session import open_session
+from imagefiles import bomb_tiff
+
+DEEP = 100_000  # far beyond Python's recursion limit (1000)
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    """Run the command line; argparse's exit is an exit code too."""
+    try:
+        code = main([str(a) for a in argv])
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def one_line(err: str) -> str:
+    """The single error line of stderr (and nothing like a traceback)."""
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def manifest(root: Path, body: str, camera: str = "bits = 8") -> Path:
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "session.toml").write_text(f"schema = 1\n[camera]\n{camera}\n\n{body}\n",
+                                       encoding="utf-8")
+    return root
+
+
+def frames_body(role: str, names: list[str], exposures: list[str] | None = None) -> str:
+    out = []
+    for i, name in enumerate(names):
+        out.append(f'[[frames]]\npath = "{name}"\nrole = "{role}"\n'
+                   + (f"exposure = {exposures[i]}\n" if exposures else ""))
+    return "\n".join(out)
+
+
+def bracket(root: Path, exposures: list[str], role: str = "bracket", prefix: str = "b",
+            constant: bool = False) -> list[str]:
+    """8-bit frames of one static scene, brighter with each exposure (or all code 13)."""
+    base = np.random.default_rng(1).uniform(10, 60, (24, 32))
+    names = []
+    for k in range(len(exposures)):
+        codes = np.full((24, 32), 13) if constant else np.clip(base * (k + 1), 1, 250)
+        names.append(f"{prefix}{k}.tif")
+        write_image(root / names[-1], codes.astype(np.uint8))
+    return names
+
+
+# --------------------------------------------------------------------------------------------
+# 1. deep nesting
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("value", ["[" * DEEP + "]" * DEEP, "{b = " * DEEP + "1" + "}" * DEEP])
+def test_deeply_nested_manifest_is_one_line(capsys, tmp_path, value):
+    root = manifest(tmp_path / "s", "a = " + value)
+    with pytest.raises(CcdError, match="nested too deeply"):
+        open_session(root)
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    line = one_line(err)
+    assert "session.toml" in line and "nested too deeply" in line
+
+
+def test_deeply_nested_product_json_is_one_line(capsys, tmp_path):
+    product = tmp_path / "prod"
+    product.mkdir()
+    (product / "calibration.json").write_text("[" * DEEP + "]" * DEEP)
+    image = write_image(tmp_path / "img.tif", np.zeros((8, 8), np.uint16))
+    code, out, err = run(capsys, "apply", product, image, "-o", tmp_path / "out")
+    assert code == 2
+    line = one_line(err)
+    assert "nested too deeply" in line and "calibration.json" in line
+    with pytest.raises(CcdError, match="nested too deeply"):
+        load_product(product)
+
+
+# --------------------------------------------------------------------------------------------
+# 2. frame paths, bombs, empty descriptors, bit depth
+# --------------------------------------------------------------------------------------------
+def test_nul_character_in_a_frame_path(capsys, tmp_path):
+    root = manifest(tmp_path / "s", '[[frames]]\npath = "a\\u0000b.tif"\nrole = "dark"\n')
+    session = open_session(root)
+    assert [p.code for p in session.errors] == ["bad-value"]
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    line = one_line(err)
+    assert "NUL" in line and "\0" not in line + out
+
+
+def test_symlink_loop_as_a_frame(capsys, tmp_path):
+    root = manifest(tmp_path / "s", frames_body("dark", ["a.tif"]))
+    os.symlink(root / "a.tif", root / "b.tif")
+    os.symlink(root / "b.tif", root / "a.tif")
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    line = one_line(err)
+    assert "a.tif" in line and "symbolic link loop" in line
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_fifo_is_not_called_a_folder(capsys, tmp_path):
+    root = manifest(tmp_path / "s", frames_body("dark", ["a.tif"]))
+    os.mkfifo(root / "a.tif")
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    line = one_line(err)
+    assert "FIFO/special file" in line and "folder" not in line
+    fifo = tmp_path / "fifo"   # given as the session itself: refused, never opened (would block)
+    os.mkfifo(fifo)
+    code, out, err = run(capsys, "session", fifo)
+    assert code == 2
+    assert "FIFO/special file, not a folder" in one_line(err)
+    (tmp_path / "t").mkdir()   # a session.toml that is a FIFO: refused, never read
+    os.mkfifo(tmp_path / "t" / "session.toml")
+    code, out, err = run(capsys, "session", tmp_path / "t")
+    assert code == 2
+    assert "FIFO/special file, not a manifest" in one_line(err)
+
+
+def test_session_of_bomb_frames_is_not_valid(capsys, tmp_path):
+    root = tmp_path / "s"
+    root.mkdir()
+    for i in range(2):
+        bomb_tiff(root / f"d{i}.tif", 40000, 40000)   # ~1.5 MB each
+    manifest(root, frames_body("dark", ["d0.tif", "d1.tif"]))
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    assert "valid" not in out.splitlines()[-1].replace("invalid", "")
+    line = one_line(err)
+    assert "d0.tif" in line and "40000x40000" in line and "over the limit" in line
+
+
+def test_emva_descriptor_without_points_is_refused(capsys, tmp_path):
+    desc = tmp_path / "EMVA1288descriptor.txt"
+    desc.write_text("v 4.0\nn 8 16 12\n")
+    code, out, err = run(capsys, "session", desc)
+    assert code == 2
+    assert "no images" in one_line(err) and "invalid" in out
+
+
+def test_values_beyond_the_declared_bit_depth_are_refused(capsys, tmp_path):
+    root = tmp_path / "s"
+    root.mkdir()
+    names = [f"d{i}.tif" for i in range(3)]
+    for i, name in enumerate(names):   # a 16-bit camera's darks, declared 8-bit
+        write_image(root / name, np.full((12, 16), 3217 + i % 2, np.uint16))
+    manifest(root, frames_body("dark", names))
+    session = open_session(root)
+    with pytest.raises(CcdError, match=r"d0\.tif: uint16 sample type holds value 3217, "
+                                       r"beyond camera\.bits = 8 \(codes 0\.\.255\)"):
+        session.read(session.frames[0])
+    assert {p.code for p in session.verify_pixels().errors} == {"bit-depth"}
+    code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "out")
+    assert code == 2
+    assert "beyond camera.bits = 8" in one_line(err)
+
+
+# --------------------------------------------------------------------------------------------
+# 3. exposure times and constant brackets
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("exposure", ["1e-320", "1e300"])
+def test_absurd_bracket_exposures_are_one_line(capsys, tmp_path, exposure):
+    root = tmp_path / "s"
+    root.mkdir()
+    times = [exposure, "0.02", "0.04"]
+    manifest(root, frames_body("bracket", bracket(root, times), times))
+    code, out, err = run(capsys, "response", root)
+    assert code == 2
+    line = one_line(err)
+    assert "b0.tif" in line and "'exposure' must be 0 or from 1e-09 to 1e+06 seconds" in line
+    for bad in (float(exposure), -0.0 + 1e-12, 2e6):
+        with pytest.raises(CcdError, match=r"f0\.tif: exposure time .* outside"):
+            check_times([bad, 0.02], ["f0.tif", "f1.tif"])
+
+
+def test_zero_exposure_in_a_bracket_names_the_frame(capsys, tmp_path):
+    root = tmp_path / "s"
+    root.mkdir()
+    times = ["0", "0.02", "0.04"]
+    manifest(root, frames_body("bracket", bracket(root, times), times))
+    code, out, err = run(capsys, "response", root)
+    assert code == 2
+    assert one_line(err).endswith("b0.tif: exposure is 0 s: a bracket frame needs a positive "
+                                  "exposure time")
+    with pytest.raises(CcdError, match=r"f0\.tif: exposure time is 0"):
+        check_times([0.0, 0.02], ["f0.tif", "f1.tif"])
+
+
+def test_zero_exposure_in_a_change_bracket_is_not_a_nan_radiance(capsys, tmp_path):
+    root = tmp_path / "s"
+    root.mkdir()
+    times = ["0", "0.02", "0.04"]
+    body = (frames_body("reference", bracket(root, times, prefix="r"), times) + "\n"
+            + frames_body("target", bracket(root, times, prefix="t"), times))
+    manifest(root, body)
+    code, out, err = run(capsys, "change", root, "-o", tmp_path / "out")
+    assert code == 2
+    line = one_line(err)
+    assert "r0.tif: exposure is 0 s" in line and "NaN" not in line
+
+
+def test_constant_bracket_is_refused(capsys, tmp_path):
+    root = tmp_path / "s"
+    root.mkdir()
+    times = ["0.01", "0.02", "0.04"]
+    manifest(root, frames_body("bracket", bracket(root, times, constant=True), times))
+    code, out, err = run(capsys, "response", root)
+    assert code == 2
+    line = one_line(err)
+    assert "every usable code is 13" in line and "no code range to calibrate" in line
+
+
+# --------------------------------------------------------------------------------------------
+# 4. options out of range
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv, message", [
+    (["response", "s", "--bloom-radius", "3000"], "must be in 0..64 pixels"),
+    (["hdr", "s", "--bloom-radius", "-1", "-o", "x"], "must be in 0..64 pixels"),
+    (["change", "s", "--bloom-radius", "65", "-o", "x"], "lens flare, not blooming"),
+    (["simulate", "healey94", "x", "--size", "100000x100000"], "over the pixel limit"),
+    (["simulate", "healey94", "x", "--seed", "-1"], "seed must be 0 or more"),
+    (["app", "--port", "70000"], "--port: must be in 1..65535"),
+    (["app", "--port", "-1"], "--port: must be in 1..65535"),
+])
+def test_options_out_of_range_are_one_line(capsys, argv, message):
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert message in one_line(err)
+
+
+def test_bloom_mask_refuses_a_huge_radius_quickly():
+    plane = np.zeros((48, 64), np.uint8)
+    plane[10, 10] = 255
+    assert bloom_mask(plane, 256, MAX_BLOOM_RADIUS).sum() > 0
+    with pytest.raises(CcdError, match="bloom_radius: must be from 0 to 64"):
+        bloom_mask(plane, 256, 3000)
+
+
+def test_busy_port_is_named_before_serving(capsys):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        code, out, err = run(capsys, "app", "--port", port)
+    assert code == 2
+    assert "serving" not in out
+    assert one_line(err).endswith(f"port {port} is in use: choose another with --port")

@@ -1,0 +1,198 @@
+"""The words a camera engineer reads: every number of the CLI's summaries with its unit and a
+plain name beside the symbol, advice where a verdict is bad, notes where a choice is slow."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import ccdcore.cli as cli
+from ccdcore.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+ASSETS = ROOT / "assets"
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture(scope="module")
+def h94_product(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("p") / "h94"
+    assert main(["calibrate", str(ASSETS / "healey94"), "-o", str(folder), "--json"]) == 0
+    return folder
+
+
+def test_calibrate_names_the_correction_and_flat_field_figures(capsys, tmp_path):
+    code, out, err = run(capsys, "calibrate", ASSETS / "healey94", "-o", tmp_path / "h")
+    assert code == 0, err
+    doc = json.loads((tmp_path / "h" / "calibration.json").read_text())
+    c = doc["estimates"]["correction_check"]
+    assert f"the largest change is {c['max_change_q']:.2f} q" in out
+    assert "K̂ (each pixel's relative gain, no unit)" in out
+    # the plan's warning: a sentence first, the formula after
+    flat = " ".join(out.split())
+    assert re.search(r"the plan needs n1 = \d+ card/lamp positions, so that the error of the "
+                     r"fixed-pattern map K̂", flat)
+    assert "capture 93 more (formula: n̂_1" in flat
+    code, out, err = run(capsys, "calibrate", ASSETS / "delasarte07", "-o", tmp_path / "d")
+    assert code == 0, err
+    ff = json.loads((tmp_path / "d" / "calibration.json").read_text())["estimates"]["flat_field"]
+    level, t = ff["base"]
+    flat = " ".join(out.split())
+    assert f"recommended base flat: level {level:g}, exposure {t:g} s ({ff['n_base']} frames)" \
+        in flat
+    assert "corrected = O + G·raw" in flat and "[3, 0.04]" not in flat
+
+
+def test_calibrate_ctrl_c_says_nothing_was_written(capsys, tmp_path, monkeypatch):
+    import ccdcore.product as product
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(product, "calibrate", interrupted)
+    code, out, err = run(capsys, "calibrate", ASSETS / "healey94", "-o", tmp_path / "c")
+    assert code == 130 and out == ""
+    assert err.strip() == "ccdcore calibrate: interrupted: nothing was written"
+    assert not (tmp_path / "c" / "calibration.json").exists()
+
+
+def test_calibrate_ctrl_c_during_save_keeps_the_earlier_product(capsys, h94_product,
+                                                                monkeypatch):
+    import ccdcore.product as product
+
+    before = (h94_product / "calibration.json").read_text()
+
+    def interrupted(self, *a, **k):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(product.CalibrationProduct, "save", interrupted)
+    code, out, err = run(capsys, "calibrate", ASSETS / "healey94", "-o", h94_product)
+    assert code == 130
+    assert f"nothing was written; the earlier product in {h94_product} is kept as it was" in err
+    assert (h94_product / "calibration.json").read_text() == before
+
+
+def test_response_names_channel_scale_and_noise_terms(capsys):
+    code, out, err = run(capsys, "response", ASSETS / "tsin01")
+    assert code == 0, err
+    flat = " ".join(out.split())
+    assert "g, L (mono)" in out
+    assert ("g(z) is the inverse response: the relative exposure (light × time) that gives "
+            "the code z") in flat
+    assert "g(230) = 230/255 = 0.902" in flat
+    assert re.search(r"shot noise σ_s = [\d.]+ ± [\d.]+ √g", flat)
+    assert re.search(r"dark/input noise σ_c1 = [\d.]+ ± [\d.]+ g", flat)
+    assert re.search(r"output/read noise σ_c2 = [\d.]+ ± [\d.]+ DN", flat)
+
+
+def test_white_balance_prints_gains_and_offsets_with_errors(capsys):
+    from types import SimpleNamespace
+
+    from ccdcore.common import format_pm
+
+    t = np.array([0.01, 0.02, 0.04])
+    r = SimpleNamespace(g=np.linspace(0, 1.13, 256), g_err=np.full(256, 0.001), sigma_s=0.01,
+                        sigma_s_err=0.001, sigma_c1=0.02, sigma_c1_err=0.002, sigma_c2=1.5,
+                        sigma_c2_err=0.1, iterations=4, converged=True, white_balance=True,
+                        a=t * np.array([0.95, 1.0, 1.05]), a_err=t * 0.01,
+                        b=np.array([0.003, -0.001, -0.002]), b_err=np.array([1e-3, 2e-3, 3e-3]),
+                        t=t, notes=())
+    res = SimpleNamespace(levels=256, method="tsin", files=["a", "b", "c"], t=t,
+                          channels=["R"], responses=[r], agreement=None, warnings=lambda: [])
+    cli._print_response(res)
+    out = capsys.readouterr().out
+    assert "offset b_k (units of g" in " ".join(out.split())
+    for a, a_err, b, b_err, tk in zip(r.a, r.a_err, r.b, r.b_err, r.t):
+        assert re.search(rf"{tk:.4g}\s+{re.escape(format_pm(a / tk, a_err / tk))}\s+"
+                         rf"{re.escape(format_pm(float(b), float(b_err)))}", out)
+    assert re.search(r"0\.02\s+1\.000 ± 0\.010\s+-0\.0010 ± 0\.0020", out)
+
+
+def test_change_labels_the_colour_transform(capsys, tmp_path, monkeypatch):
+    import ccdcore.change as change
+
+    got = []
+    real = change.session_change
+    monkeypatch.setattr(change, "session_change",
+                        lambda *a, **k: got.append(real(*a, **k)) or got[-1])
+    code, out, err = run(capsys, "change", ASSETS / "change", "-o", tmp_path / "c")
+    assert code == 0, err
+    flat = " ".join(out.split())
+    assert "E_target = E_reference · M (row vectors): row k = reference channel k, column j = " \
+           "target channel j" in flat
+    assert re.search(r"M\s+target R\s+target G\s+target B", out)
+    m = got[0][0].clusters[0].M
+    assert re.search(rf"ref G\s+{m[1, 0]:.4f} ± [\d.]+\s+{m[1, 1]:.4f} ±", out)
+
+
+def test_ptc_says_robust_mode_ran(capsys):
+    code, out, err = run(capsys, "ptc", ASSETS / "healey94", "--robust")
+    assert code == 0, err
+    assert "robust mode  on: a level more than 3 σ off the line is dropped" in out
+    assert "no level dropped" in out
+    code, out, err = run(capsys, "ptc", ASSETS / "healey94")
+    assert "robust mode" not in out and "advice" not in out     # acceptable: no advice
+
+
+def test_ptc_poor_fit_gets_advice(capsys, monkeypatch):
+    import ccdcore.noise as noise
+
+    real = noise.photon_transfer
+
+    def poor(*a, **k):
+        return dataclasses.replace(real(*a, **k), verdict="poor", Q=0.009)
+    monkeypatch.setattr(noise, "photon_transfer", poor)
+    code, out, err = run(capsys, "ptc", ASSETS / "healey94")
+    assert code == 0, err
+    flat = " ".join(out.split())
+    assert "Q = 0.009" in flat and ": poor" in flat
+    assert "advice: the fit is poor" in flat
+    assert "leave out levels near saturation (--exclude LEVEL; the brightest used level has a " \
+           "mean of 229.5 DN above b0)" in flat
+    assert "--roi" in flat and "or try --robust" in flat
+    monkeypatch.setattr(noise, "photon_transfer",
+                        lambda *a, **k: dataclasses.replace(real(*a, **k), verdict="poor"))
+    code, out, err = run(capsys, "ptc", ASSETS / "healey94", "--robust")
+    assert "advice: the fit is poor" in " ".join(out.split()) and "try --robust" not in out
+
+
+def test_workers_note_on_a_small_session(capsys, monkeypatch):
+    monkeypatch.setattr(cli, "_cores", lambda: 2)
+    cli._workers_note(2, 16, 786_432)
+    err = " ".join(capsys.readouterr().err.split())
+    assert err == ("note: --workers 2: this machine has 2 CPU cores and the session is small "
+                   "(16 frames, 0.786 megapixels in all); starting a local cluster of 2 worker "
+                   "processes takes seconds, so the streamed default (no --workers) is likely "
+                   "faster here")
+    monkeypatch.setattr(cli, "_cores", lambda: 32)
+    cli._workers_note(8, 4000, 4000 * 4_000_000)          # a big session on a big machine
+    cli._workers_note(None, 16, 10)                       # streamed: nothing to say
+    assert capsys.readouterr().err == ""
+
+
+def test_ptc_workers_note_goes_to_stderr(capsys, monkeypatch):
+    monkeypatch.setattr(cli, "_cores", lambda: 2)
+    code, out, err = run(capsys, "ptc", ASSETS / "healey94", "--workers", "1", "--json")
+    assert code == 0
+    json.loads(out)                                       # stdout stays one JSON object
+    assert "--workers 1: this machine has 2 CPU cores and the session is small (16 frames" in \
+        " ".join(err.split())
+
+
+def test_apply_says_what_was_applied(capsys, h94_product, tmp_path):
+    src = ASSETS / "healey94" / "ptc" / "L01_a.tif"
+    code, out, err = run(capsys, "apply", h94_product, src, "-o", tmp_path / "o")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0] == str(tmp_path / "o" / "L01_a.tif")          # the paths first
+    flat = " ".join(" ".join(lines[1:]).split())
+    assert flat == ("applied to 1 image (listed above, float32): dark reference subtracted and "
+                    "the fixed pattern divided out with the maps dark, K: corrected = "
+                    f"(raw − D̂_D)/K̂ (eq. 51); product {h94_product}")
