@@ -851,9 +851,9 @@ def _kmap_average_task(configs: tuple[tuple[Frame, ...], ...], dark: np.ndarray,
     configuration, :class:`~ccdcore.stats.PixelMoments` of its frames in order (eq. 45) minus
     the dark band, e_i (eq. 46), kept here as ``"e"`` (n1, rows + top + bottom, width); per
     configuration ``(n2, pieces of Σ e_i, pieces of Σ var)`` over the band's own rows
-    (:func:`ccdcore.fixedpattern._pw_pieces`, numpy's pairwise sum of the whole frame cut at
+    (:func:`ccdcore.fixedpattern.pw_pieces`, numpy's pairwise sum of the whole frame cut at
     the band); a read error stops the task: ``"error"`` = (configuration, position, error)."""
-    from .fixedpattern import _pw_pieces
+    from .kmap_kernels import pw_pieces
 
     y, hh = y0 - top, top + rows + bottom
     e = np.empty((len(configs), hh, width))
@@ -869,8 +869,8 @@ def _kmap_average_task(configs: tuple[tuple[Frame, ...], ...], dark: np.ndarray,
                 return {"e": None, "parts": parts, "error": (i, k, _portable(err))}
         res = acc.result(in_place=True)
         np.subtract(res.mean, dark, out=e[i])                  # eq. 46
-        parts.append((res.n, _pw_pieces(e[i, inner].ravel(), lo, n),
-                      _pw_pieces(np.ascontiguousarray(res.var[inner]).ravel(), lo, n)))
+        parts.append((res.n, pw_pieces(e[i, inner].ravel(), lo, n),
+                      pw_pieces(np.ascontiguousarray(res.var[inner]).ravel(), lo, n)))
     return {"e": e, "parts": parts, "error": None}
 
 
@@ -878,12 +878,12 @@ def _kmap_slopes_task(p1: dict, tmp: tuple | None, y0: int, rows: int, top: int,
                       height: int, window: int, single: bool) -> dict:
     """The slopes of one band (eqs. 47, 48), after the band above (``tmp``: the column running
     sums of ē_i after row ``y0 − 1``, per configuration): ē_i by the whole frame's running sums
-    (:func:`ccdcore.fixedpattern._box_mean_band`, or ``_local_mean`` for a single band),
+    (:func:`ccdcore.fixedpattern.box_mean_band`, or ``local_mean`` for a single band),
     m_i = e_i/ē_i (float32), m̄ and the per-pixel sample std; keeps the slopes and m̄, gives
     ``"tmp"`` for the band below and ``"summary"`` = (pieces of Σ sd with NaN as 0, the
     non-NaN count, any finite sd) for σ̂.  After a failed band: empty."""
-    from .fixedpattern import (_box_mean_band, _local_mean, _pw_pieces, _slope_moments,
-                               _slopes_into)
+    from .kmap_kernels import (box_mean_band, local_mean, pw_pieces, slope_moments,
+                               slopes_into)
 
     e = p1["e"]
     tmp = None if tmp is None else tmp[1]          # ("ok", sums) from the band above
@@ -895,26 +895,26 @@ def _kmap_slopes_task(p1: dict, tmp: tuple | None, y0: int, rows: int, top: int,
     e_bar = np.empty((rows, width))
     for i in range(n1):
         if single:
-            _local_mean(e[i], window, e_bar)
+            local_mean(e[i], window, e_bar)
         else:
-            _box_mean_band(e[i], window, height, y0 - top, y0, tmp[i], e_bar)
-        _slopes_into(e[i, top:top + rows].copy(), e_bar, slopes[i])       # eq. 47
+            box_mean_band(e[i], window, height, y0 - top, y0, tmp[i], e_bar)
+        slopes_into(e[i, top:top + rows].copy(), e_bar, slopes[i])       # eq. 47
     m_bar = np.empty((rows, width))
     sd = np.empty((rows, width))
-    _slope_moments(slopes.reshape(n1, -1), m_bar.reshape(-1), sd.reshape(-1))   # eq. 48
+    slope_moments(slopes.reshape(n1, -1), m_bar.reshape(-1), sd.reshape(-1))   # eq. 48
     nan = np.isnan(sd)
-    summary = (_pw_pieces(np.where(nan, 0.0, sd).ravel(), y0 * width, height * width),
+    summary = (pw_pieces(np.where(nan, 0.0, sd).ravel(), y0 * width, height * width),
                int(np.count_nonzero(~nan)), bool(np.isfinite(sd).any()))
     return {"slopes": slopes, "m_bar": m_bar, "tmp": tmp, "summary": summary}
 
 
 def _kmap_reject_task(s: dict, half: float, center: str) -> tuple:
     """Pass 2 of :func:`fixed_pattern_bands`: eq. 49 over one band's slopes
-    (:func:`ccdcore.fixedpattern._eq49`): ("ok", K̂, n'_1, rejected, K_var, m̄, pixels that kept
+    (:func:`ccdcore.fixedpattern.eq49_reject`): ("ok", K̂, n'_1, rejected, K_var, m̄, pixels that kept
     no slope)."""
-    from .fixedpattern import _eq49
+    from .kmap_kernels import eq49_reject
 
-    K, rejected, used, K_var, none = _eq49(s["slopes"], s["m_bar"], half, center)
+    K, rejected, used, K_var, none = eq49_reject(s["slopes"], s["m_bar"], half, center)
     return ("ok", K, used, rejected, K_var, s["m_bar"], none)
 
 
@@ -951,7 +951,8 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
     needs every band, is known, so a worker holds its share of the n1 slope maps in between.
     """
     from .darkframe import as_dark_map
-    from .fixedpattern import _NO_SIGMA, _NOT_LIT, _finish, _pw_total
+    from .fixedpattern import fixed_pattern_of
+    from .kmap_kernels import NO_SIGMA, NOT_LIT, pw_total
 
     configs = list(configs.items()) if isinstance(configs, Mapping) else list(configs)
     notes = [] if notes is None else notes
@@ -990,10 +991,10 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
             if errors:
                 raise _rebuilt(min(errors, key=lambda r: r[1])[2])
             n2 = int(firsts[0][1][i][0])
-            level = _pw_total(n, (r[1][i][1] for r in firsts)) / n
+            level = pw_total(n, (r[1][i][1] for r in firsts)) / n
             if level <= 0:
-                raise CcdError(groups[i][0].name, _NOT_LIT.format(cid=cid, level=level))
-            var_mean = _pw_total(n, (r[1][i][2] for r in firsts)) / n
+                raise CcdError(groups[i][0].name, NOT_LIT.format(cid=cid, level=level))
+            var_mean = pw_total(n, (r[1][i][2] for r in firsts)) / n
             ids.append(cid)
             levels.append(level)
             noises.append(var_mean / n2 if n2 > 1 else float("nan"))
@@ -1016,12 +1017,12 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
                                                  keep)) as done:
             next(done)
         if any(s[2] for s in summaries):
-            tot = _pw_total(n, (s[0] for s in summaries))
+            tot = pw_total(n, (s[0] for s in summaries))
             sigma_hat = float(tot / sum(s[1] for s in summaries))
         else:
             sigma_hat = float("nan")
         if not math.isfinite(sigma_hat):
-            raise CcdError(where, _NO_SIGMA)
+            raise CcdError(where, NO_SIGMA)
 
         half = p * sigma_hat
         K, K_var, m_bar = np.empty((h, w)), np.empty((h, w)), np.empty((h, w))
@@ -1045,6 +1046,6 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
         with contextlib.suppress(Exception):
             client.cancel([f for f in p1 + chain + links if f.status != "released"])
         raise
-    return _finish(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p, window=window,
-                   center=center, none=none[0], ids=ids, levels=levels, noises=noises,
-                   n2s=n2s, notes=notes)
+    return fixed_pattern_of(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p,
+                            window=window, center=center, none=none[0], ids=ids,
+                            levels=levels, noises=noises, n2s=n2s, notes=notes)

@@ -17,7 +17,6 @@ from ccdcore.cli import main
 from ccdcore.errors import CcdError, ImageReadError
 from imagefiles import bomb_tiff
 
-pytest.importorskip("distributed")
 
 
 
@@ -26,7 +25,7 @@ pytest.importorskip("distributed")
 def _listening_hosts(client) -> list[str]:
     """The hosts of every socket listening in this process (the scheduler, its HTTP server,
     the nannies) and in its child processes (the workers and their HTTP servers)."""
-    psutil = pytest.importorskip("psutil")
+    import psutil
     me = psutil.Process()
     hosts = []
     for proc in [me, *me.children(recursive=True)]:

@@ -18,8 +18,8 @@ import pytest
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.darkframe import dark_reference  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
-from ccdcore.fixedpattern import (_box_mean, _box_mean_band, _pw_pieces,  # noqa: E402
-                                  _pw_total, fixed_pattern_map)
+from ccdcore.fixedpattern import fixed_pattern_map  # noqa: E402
+from ccdcore.kmap_kernels import box_mean, box_mean_band, pw_pieces, pw_total  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 
 HEALEY = Path(__file__).resolve().parents[1] / "assets" / "healey94"
@@ -62,9 +62,9 @@ def test_pairwise_pieces_rebuild_numpy_sum():
         n, flat = x.size, x.ravel()
         for cuts in ([0, n], sorted({0, n, *rng.integers(0, n, 9).tolist()}),
                      list(range(0, n, max(1, n // 50))) + [n]):
-            pieces = [_pw_pieces(flat[a:b], a, n) for a, b in zip(cuts[:-1], cuts[1:])]
-            assert _pw_total(n, pieces) == float(np.sum(x))
-            assert _pw_total(n, pieces) / n == float(x.mean())
+            pieces = [pw_pieces(flat[a:b], a, n) for a, b in zip(cuts[:-1], cuts[1:])]
+            assert pw_total(n, pieces) == float(np.sum(x))
+            assert pw_total(n, pieces) / n == float(x.mean())
 
 
 @pytest.mark.parametrize("window", [3, 5, 9])
@@ -74,7 +74,7 @@ def test_box_mean_band_equals_whole_frame(window):
     rng = np.random.default_rng(window)
     x = rng.standard_normal((61, 37)) * 100 + 50
     ref = np.empty_like(x)
-    _box_mean(x, window, ref)
+    box_mean(x, window, ref)
     s1 = window // 2
     for band in (1, 2, 7, 16, 61):
         out, tmp = np.empty_like(x), np.empty(x.shape[1])
@@ -82,7 +82,7 @@ def test_box_mean_band_equals_whole_frame(window):
             rows = min(band, x.shape[0] - y0)
             top, bottom = min(s1 + 1, y0), min(s1, x.shape[0] - y0 - rows)
             part = np.ascontiguousarray(x[y0 - top:y0 + rows + bottom])
-            _box_mean_band(part, window, x.shape[0], y0 - top, y0, tmp, out[y0:y0 + rows])
+            box_mean_band(part, window, x.shape[0], y0 - top, y0, tmp, out[y0:y0 + rows])
         assert np.array_equal(out, ref), band
 
 
@@ -202,7 +202,7 @@ def test_slope_chain_carries_the_column_sums(tmp_path):
     for ps in configs.values():
         e = pixel_moments(read_image(p) for p in ps).mean - dark
         tmp = np.empty(w)
-        _box_mean_band(e, window, h, 0, 0, tmp, np.empty((h, w)))
+        box_mean_band(e, window, h, 0, 0, tmp, np.empty((h, w)))
         want.append(tmp)
     tmp = None
     for y0, rows in ccd_dist.bands(h, w, band_rows=8):

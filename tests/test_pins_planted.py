@@ -31,29 +31,7 @@ from ccdcore.response import tsin as T
 from ccdcore.response.brackets import BAYER_MAD_FACTOR, BracketData, bracket_data
 from ccdcore.response.scale import rms_error
 from ccdcore.simulate import tsin as sim
-
-
-def bracket12(seed: int, size=(128, 128), bits: int = 12):
-    """tests/test_response_classic.py's bracket (copied: that module imports the session
-    package): tsin01's pipeline quantised to ``bits``,
-    z = round(top (aE + N_s + N_c1)^(1/1.2) + N_c2), N_c2 of 1 DN at 8 bits; the same draws
-    at every bit depth."""
-    top = 2 ** bits - 1
-    rng = np.random.default_rng(seed)
-    E = sim.uniform_radiance(rng, size).astype(np.float64)
-    t = sim.exposure_times()
-    frames = []
-    for tk in t:
-        signal = tk * E
-        v = (signal + 0.015 * np.sqrt(signal) * rng.standard_normal(size)
-             + 0.01 * rng.standard_normal(size))
-        v = np.minimum(v, 1.0)
-        z = np.rint(top * np.clip(v, 0.0, 1.0) ** (1 / 1.2)
-                    + top / 255 * rng.standard_normal(size))
-        z[v >= 1.0] = top
-        frames.append(np.clip(z, 0, top).astype(np.uint16))
-    truth = (np.arange(top + 1) / top) ** 1.2
-    return bracket_data(frames, t, bits)["L"], truth
+from test_response_classic import bracket12
 
 
 def sec41(seed: int, size=(64, 64)):

@@ -1,0 +1,385 @@
+"""The compiled per-pixel kernels of the fixed-pattern map K̂ (Healey & Kondepudy 1994, eqs. 45–50).
+
+They sit below both callers: :mod:`ccdcore.fixedpattern` (the streamed estimate) and
+:mod:`ccdcore.distributed` (K̂ band by band on a Dask cluster), which run the same kernels so
+the two give the same map to the bit. Nothing here reads files or knows a session.
+
+Public objects
+--------------
+slopes_into, local_mean, box_mean, box_mean_band
+    The slopes e / ē of one configuration (eqs. 46–47), ē the box mean of ``window`` pixels.
+slope_moments, eq49_reject, median_map
+    m̄ and the per-pixel spread of the slopes (eq. 48); the rejection and average of eq. 49.
+pw_pieces, pw_total, PW_BLOCK
+    Pairwise sums in fixed blocks, so a sum over bands equals the sum over the whole frame.
+NOT_LIT, NO_SIGMA
+    The messages of a configuration not above the dark level and of no usable slopes.
+"""
+from __future__ import annotations
+
+from typing import Iterable
+
+import numba
+import numpy as np
+from scipy.ndimage import uniform_filter
+
+NOT_LIT = ("configuration {cid} is not above the dark level (mean e_i = {level:.3g} DN): is it "
+            "a lit card?")
+NO_SIGMA = "no pixel has two usable slopes (ē_i > 0): cannot estimate σ̂"
+
+
+def slopes_into(e: np.ndarray, e_bar: np.ndarray, out: np.ndarray) -> None:
+    """Eq. 47: m_i = e_i/ē_i into ``out`` (float32), NaN where ē_i ≤ 0; ``e`` is overwritten."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        np.divide(e, e_bar, out=e)
+    e[~(e_bar > 0)] = np.nan                                    # no slope where ē_i ≤ 0
+    out[...] = e
+
+
+def eq49_reject(slopes: np.ndarray, m_bar: np.ndarray, half: float, center: str
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Eq. 49 over the (n1, ...) slopes: K̂, the rejections, n'_1, K̂'s variance and the number
+    of pixels that kept no slope (K̂ there is the median slope).
+
+    Reject slopes outside centre ± half (centre m̄, or the per-pixel median of the slopes) and
+    re-average; where nothing is kept, the median slope; and K̂'s error variance (see
+    FixedPattern.K_var).  One compiled pass over the n1 maps, pixel by pixel, so a band of rows
+    gives the rows of the whole frame's result.
+    """
+    n1, shape = slopes.shape[0], slopes.shape[1:]
+    K = np.empty(shape)
+    if center == "median":     # the centres go into K̂'s buffer, which eq. 49 then overwrites
+        median_slopes(slopes.reshape(n1, -1), K.reshape(-1))
+    rejected = np.empty((n1,) + shape, dtype=bool)
+    used = np.empty(shape, np.int16)
+    K_var = np.empty(shape)
+    reject_and_average(slopes.reshape(n1, -1), (m_bar if center == "mean" else K).reshape(-1),
+                        half, half ** 2, rejected.reshape(n1, -1), K.reshape(-1),
+                        used.reshape(-1), K_var.reshape(-1))
+    none = used == 0
+    count = int(none.sum())
+    if count:
+        K[none] = median_map(slopes[:, none])
+    return K, rejected, used, K_var, count
+
+
+def local_mean(e: np.ndarray, window: int, out: np.ndarray) -> None:
+    """ē = ``uniform_filter(e, window, mode="reflect")`` (float64) into ``out``.
+
+    The compiled :func:`box_mean` repeats scipy's running sums operation for operation (with
+    scipy 1.17 the same bits; ``tests/test_fixedpattern.py`` checks it to rounding) without
+    scipy's strided column pass, which took most of the filter's time (0.2 s of 0.26 s on a
+    2048² float64 map); frames smaller than the window, whose mirrored border folds more than
+    once, go to scipy.
+    """
+    if e.shape[0] < window or e.shape[1] < window:
+        uniform_filter(e, size=window, mode="reflect", output=out)
+    else:
+        box_mean(np.ascontiguousarray(e, dtype=np.float64), window, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def box_mean(e, size, out):  # pragma: no cover - compiled
+    """scipy.ndimage.uniform_filter(e, size, mode="reflect") of a 2-D float64 array, H, W ≥ size.
+
+    Per line, scipy sums the first ``size`` values of the mirrored line, then adds the entering
+    and subtracts the leaving value per step, each output being the running sum / ``size``;
+    first along the columns (here a row of running sums at a time, into ``out``), then along the
+    rows of that (each row copied to a line buffer first).
+    """
+    h, w = e.shape
+    s1 = size // 2                       # samples mirrored in before the first one
+    tmp = np.zeros(w)
+    for k in range(size):                # the first window of every column
+        r = k - s1
+        r = -r - 1 if r < 0 else r
+        for x in range(w):
+            tmp[x] += e[r, x]
+    for x in range(w):
+        out[0, x] = tmp[x] / size
+    for y in range(1, h):
+        r_in = y - 1 + size - s1
+        r_in = 2 * h - r_in - 1 if r_in >= h else r_in
+        r_out = y - 1 - s1
+        r_out = -r_out - 1 if r_out < 0 else r_out
+        for x in range(w):
+            tmp[x] += e[r_in, x] - e[r_out, x]
+            out[y, x] = tmp[x] / size
+    row_means(out, tmp, size)
+
+
+@numba.njit(cache=True, nogil=True)
+def row_means(out, line, size):  # pragma: no cover - compiled
+    """The row pass of the box mean (scipy's running sum along each row, the mirror rule at the
+    ends), in place on every row of ``out``; ``line`` is a scratch row."""
+    w = out.shape[1]
+    s1 = size // 2
+    for y in range(out.shape[0]):
+        line[:] = out[y]
+        t = 0.0
+        for k in range(size):
+            c = k - s1
+            c = -c - 1 if c < 0 else c
+            t += line[c]
+        out[y, 0] = t / size
+        for x in range(1, w):
+            c_in = x - 1 + size - s1
+            c_in = 2 * w - c_in - 1 if c_in >= w else c_in
+            c_out = x - 1 - s1
+            c_out = -c_out - 1 if c_out < 0 else c_out
+            t += line[c_in] - line[c_out]
+            out[y, x] = t / size
+
+
+@numba.njit(cache=True, nogil=True)
+def box_mean_band(e, size, h, ys, y0, tmp, out):  # pragma: no cover - compiled
+    """Rows ``y0 .. y0 + len(out)`` of :func:`box_mean` of an ``h``-row frame, from the rows
+    ``ys ..`` of it held in ``e`` (the band and its halo) and the column running sums ``tmp``
+    after row ``y0 − 1`` (ignored when ``y0 = 0``; left after the band's last row).
+
+    The same operations in the same order as :func:`box_mean`: scipy's column pass is a running
+    sum down each column, so row y's ē depends on the rounding of every row above; carrying
+    ``tmp`` from band to band keeps it.  Needs rows ``y0 − 1 − m//2 .. y0 + rows − 1 + m//2`` of
+    the frame (fewer at its top and bottom, mirrored as on the whole frame), ``h ≥ size``.
+    """
+    w = e.shape[1]
+    rows = out.shape[0]
+    s1 = size // 2
+    for y in range(y0, y0 + rows):
+        if y == 0:
+            for x in range(w):
+                tmp[x] = 0.0
+            for k in range(size):
+                r = k - s1
+                r = -r - 1 if r < 0 else r
+                for x in range(w):
+                    tmp[x] += e[r - ys, x]
+            for x in range(w):
+                out[0, x] = tmp[x] / size
+        else:
+            r_in = y - 1 + size - s1
+            r_in = 2 * h - r_in - 1 if r_in >= h else r_in
+            r_out = y - 1 - s1
+            r_out = -r_out - 1 if r_out < 0 else r_out
+            for x in range(w):
+                tmp[x] += e[r_in - ys, x] - e[r_out - ys, x]
+                out[y - y0, x] = tmp[x] / size
+    row_means(out, np.empty(w), size)
+
+
+#: numpy's pairwise summation: blocks of at most this many values are summed 8-way unrolled
+PW_BLOCK = 128
+
+
+def pw_leaves(n: int, lo: int = 0, hi: int | None = None) -> list[tuple[int, int]]:
+    """The blocks ``(start, length)`` of numpy's pairwise sum of ``n`` contiguous values (its
+    recursion: halve, rounding the first half down to a multiple of 8, down to ≤ 128 values),
+    in order, those that meet ``lo .. hi`` only."""
+    hi = n if hi is None else hi
+    out: list[tuple[int, int]] = []
+    stack = [(0, n)]
+    while stack:
+        s, m = stack.pop()
+        if s >= hi or s + m <= lo or m == 0:
+            continue
+        if m <= PW_BLOCK:
+            out.append((s, m))
+            continue
+        n2 = m // 2
+        n2 -= n2 % 8
+        stack.append((s + n2, m - n2))
+        stack.append((s, n2))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def pw_block(a):  # pragma: no cover - compiled
+    """numpy's pairwise-sum block (≤ 128 values of a 1-D float64 array): a plain loop below 8
+    values, else 8 running sums combined as ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7)),
+    then the rest."""
+    n = a.shape[0]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    r = a[:8].copy()
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+def pw_pieces(values: np.ndarray, lo: int, n: int) -> tuple:
+    """One band's share of numpy's pairwise sum of ``n`` values: ``values`` (flat float64) are
+    the values ``lo .. lo + len(values)``; returns ``(first, sums, last)``: the sums of the
+    blocks inside, and the band's part ``(start, length, values)`` of a block that begins before
+    it (``first``) or ends after it (``last``), else ``None``."""
+    hi = lo + values.size
+    first = last = None
+    inside = []
+    for s, m in pw_leaves(n, lo, hi):
+        if s >= lo and s + m <= hi:
+            inside.append((s - lo, m))
+        else:
+            part = (s, m, values[max(s, lo) - lo:min(s + m, hi) - lo].copy())
+            if s < lo:
+                first = part
+            else:
+                last = part
+    blocks = np.array(inside, dtype=np.int64).reshape(-1, 2)
+    sums = np.empty(len(blocks))
+    pw_blocks(values, blocks, sums)
+    return first, sums, last
+
+
+@numba.njit(cache=True, nogil=True)
+def pw_blocks(values, blocks, out):  # pragma: no cover - compiled
+    """:func:`pw_block` of ``values[start:start + length]`` per row of ``blocks``."""
+    for k in range(blocks.shape[0]):
+        out[k] = pw_block(values[blocks[k, 0]:blocks[k, 0] + blocks[k, 1]])
+
+
+@numba.njit(cache=True, nogil=True)
+def pw_tree(m, sums, pos):  # pragma: no cover - compiled
+    """numpy's pairwise recursion over ``m`` values whose blocks' sums are ``sums[pos:]``:
+    (the sum, the next block's position)."""
+    if m <= PW_BLOCK:
+        return sums[pos], pos + 1
+    n2 = m // 2
+    n2 -= n2 % 8
+    left, pos = pw_tree(n2, sums, pos)
+    right, pos = pw_tree(m - n2, sums, pos)
+    return left + right, pos
+
+
+def pw_total(n: int, pieces: Iterable[tuple]) -> float:
+    """``numpy.sum`` of the ``n`` values whose bands gave ``pieces`` (:func:`pw_pieces`, in
+    order): the same blocks and the same additions, so the same bits."""
+    sums: list[float] = []
+    pending: list = []
+
+    def feed(part: tuple | None) -> None:
+        if part is not None:
+            pending.append(part[2])
+            if sum(v.size for v in pending) == part[1]:   # the block is complete
+                sums.append(pw_block(np.concatenate(pending)))
+                pending.clear()
+
+    for first, block_sums, last in pieces:
+        feed(first)
+        sums.extend(block_sums.tolist())
+        feed(last)
+    return float(pw_tree(n, np.array(sums, dtype=np.float64), 0)[0])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def slope_moments(slopes, m_bar, sd):  # pragma: no cover - compiled
+    """Eq. 48 per pixel j of the (n1, N) slopes: m̄ (mean of the finite slopes) and the sample
+    standard deviation (ddof = 1) about it, float64, summed in configuration order."""
+    n1, npix = slopes.shape
+    for j in range(npix):
+        s1 = 0.0
+        cnt = 0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            if np.isfinite(m):
+                s1 += m
+                cnt += 1
+        mean = s1 / cnt
+        s2 = 0.0
+        for i in range(n1):
+            d = np.float64(slopes[i, j]) - mean
+            if np.isfinite(d):
+                s2 += d * d
+        m_bar[j] = mean
+        sd[j] = np.sqrt(s2 / (cnt - 1))
+
+
+def median_map(slopes: np.ndarray) -> np.ndarray:
+    """Per-pixel median of the (n1, ...) float32 slopes, NaNs left out (NaN where all are NaN),
+    as ``numpy.nanmedian`` gives it, float64 of shape ``slopes.shape[1:]``."""
+    out = np.empty(slopes.shape[1:])
+    median_slopes(np.ascontiguousarray(slopes).reshape(slopes.shape[0], -1), out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def median_slopes(slopes, out):  # pragma: no cover - compiled
+    """Median of the non-NaN values of each column j of the (n1, N) float32 ``slopes``: the
+    middle value, or the float32 mean of the two middle values (as ``numpy.median`` of float32).
+
+    Blocks of pixels are sorted together by odd-even transposition (n1 rounds of
+    compare-exchanges between neighbouring configurations, vectorised over the pixels of the
+    block; NaN counts as +inf and is not counted), then each pixel takes its middle values.
+    """
+    n1, npix = slopes.shape
+    B = 256
+    tmp = np.empty((n1, B), np.float32)
+    cnt = np.empty(B, np.int64)
+    for j0 in range(0, npix, B):
+        nb = min(B, npix - j0)
+        for b in range(nb):
+            cnt[b] = 0
+        for i in range(n1):
+            for b in range(nb):
+                v = slopes[i, j0 + b]
+                nan = np.isnan(v)
+                tmp[i, b] = np.inf if nan else v
+                cnt[b] += 0 if nan else 1
+        for r in range(n1):
+            for i in range(r % 2, n1 - 1, 2):
+                for b in range(nb):
+                    lo = tmp[i, b]
+                    hi = tmp[i + 1, b]
+                    tmp[i, b] = lo if lo < hi else hi
+                    tmp[i + 1, b] = hi if lo < hi else lo
+        for b in range(nb):
+            k = cnt[b]
+            if k == 0:
+                out[j0 + b] = np.nan
+            elif k % 2:
+                out[j0 + b] = tmp[k // 2, b]
+            else:
+                out[j0 + b] = (tmp[k // 2 - 1, b] + tmp[k // 2, b]) / np.float32(2.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def reject_and_average(slopes, centre, half, half2, rejected, K, used,
+                        K_var):  # pragma: no cover - compiled
+    """Eq. 49 per pixel j of the (n1, N) slopes (``centre`` may be ``K``: each pixel's centre
+    is read before its K̂ is written).
+
+    A slope is kept when |m_i − centre| ≤ half (NaN slopes are rejected); K̂ is the mean of the
+    kept slopes (float64, in configuration order; NaN where none is kept, for the caller to
+    fill); ``K_var`` = Σ(m_i − K̂)²/((n'_1 − 1)·n'_1) over the kept slopes, or
+    half²/max(n'_1, 1) where fewer than two are kept.
+    """
+    n1, npix = slopes.shape
+    for j in range(npix):
+        c = centre[j]
+        s1 = 0.0
+        n = 0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            keep = abs(m - c) <= half
+            rejected[i, j] = not keep
+            if keep:
+                s1 += m
+                n += 1
+        k = s1 / n
+        ss = 0.0
+        for i in range(n1):
+            m = np.float64(slopes[i, j])
+            if abs(m - c) <= half:
+                d = m - k
+                ss += d * d
+        K[j] = k
+        used[j] = n
+        K_var[j] = ss / ((n - 1.0) * n) if n >= 2 else half2 / max(n, 1)
