@@ -523,8 +523,7 @@ def _biweight(E, Et, var, var_t, M, c2: float, iters: int = 10) -> tuple[NDArray
     Ninv = np.zeros((M.size, M.size))
     for _ in range(iters):
         d2, _ = _d2(E, Et, var, var_t, M, want_p=False)
-        u = d2 / c2
-        w = np.where(u < 1.0, (1.0 - u) ** 2, 0.0)
+        w = biweight_weights(d2, c2)
         if np.count_nonzero(w) <= M.size:
             break
         M_new, Ninv = _gls(E, Et, var, var_t, w, M, iters=1, corrected=True)
@@ -535,29 +534,62 @@ def _biweight(E, Et, var, var_t, M, c2: float, iters: int = 10) -> tuple[NDArray
     return M, Ninv, w
 
 
-def _m_covariance(E, Et, var, var_t, M, w) -> NDArray:
-    """Covariance of vec M from the biweight fit: the sandwich of the M-estimator
-    (Huber's (Σψ') ⁻¹ Σψ² (Σψ')⁻¹ in the GLS metric), with ψ = w d."""
+def _scores(E, Et, var, var_t, M, w) -> NDArray:
+    """Per pixel, the corrected GLS estimating function of vec M (n, C²):
+    ψ_i[k, j] = w_i (E_ik (P_i e_i)_j - var_ik (M P_i)_kj) (:func:`_design_normal`)."""
+    C = E.shape[1]
+    _, P = _d2(E, Et, var, var_t, M)
+    e = E @ M - Et
+    Pe = np.einsum("ijm,im->ij", P, e)
+    MP = np.einsum("km,imj->ikj", M, P)
+    return (w[:, None, None] * (E[:, :, None] * Pe[:, None, :] - var[:, :, None] * MP)
+            ).reshape(-1, C * C)
+
+
+def biweight_weights(d2: NDArray, c2: float) -> NDArray:
+    """Tukey's biweight on d (cut-off d² = ``c2``): w = (1 - d²/c2)² inside, 0 beyond."""
+    u = d2 / c2
+    return np.where(u < 1.0, (1.0 - u) ** 2, 0.0)
+
+
+def _m_covariance(E, Et, var, var_t, M, w, c2: float | None = None) -> NDArray:
+    """Covariance of vec M from the biweight fit: the sandwich of the M-estimator,
+    B⁻¹ (Σ ψ_i ψ_iᵀ) B⁻ᵀ with ψ the corrected estimating function (:func:`_scores`).
+
+    With ``c2`` the weights are the biweight's of the pixels' d² and move with M: the bread
+    B = ∂(Σ ψ_i)/∂ vec M is then taken by central differences, weights and Σ_e⁻¹ recomputed
+    at each M (Huber's Σψ' rather than Σw: holding the weights fixed in the bread reported
+    standard errors 25-40 % below the Monte Carlo spread of M, since ψ'(d) = (1 - d²/c2)
+    (1 - 5 d²/c2) is well below w(d) = (1 - d²/c2)² at the typical d² of 3). Without ``c2``
+    the weights ``w`` are fixed and B is the normal matrix of the weighted GLS."""
     C = E.shape[1]
     member = w > 0
     if np.count_nonzero(member) <= C * C:
         return np.full((C * C, C * C), np.nan)
-    Em, Etm, vm, vtm, wm = E[member], Et[member], var[member], var_t[member], w[member]
-    d2, P = _d2(Em, Etm, vm, vtm, M)
-    # the corrected estimating function ψ_i[k, j] = w_i (E_ik (P_i e_i)_j - var_ik (M P_i)_kj)
-    # (:func:`_design_normal`); bread Σ ∂ψ_i/∂M, meat Σ ψ_i ψ_iᵀ
-    bread, _ = _design_normal(Em, Etm, P, wm, vm)
-    e = Em @ M - Etm
-    Pe = np.einsum("ijm,im->ij", P, e)
-    MP = np.einsum("km,imj->ikj", M, P)
-    g = (wm[:, None, None] * (Em[:, :, None] * Pe[:, None, :] - vm[:, :, None] * MP)
-         ).reshape(-1, C * C)
+    if c2 is None:
+        Em, Etm, vm, vtm, wm = E[member], Et[member], var[member], var_t[member], w[member]
+        _, P = _d2(Em, Etm, vm, vtm, M)
+        bread, _ = _design_normal(Em, Etm, P, wm, vm)
+        g = _scores(Em, Etm, vm, vtm, M, wm)
+    else:
+        g = _scores(E, Et, var, var_t, M, w)
+        bread = np.empty((C * C, C * C))
+        h = 1e-6 * max(1.0, float(np.max(np.abs(M))))
+
+        def total(Mp: NDArray) -> NDArray:
+            d2, _ = _d2(E, Et, var, var_t, Mp, want_p=False)
+            return _scores(E, Et, var, var_t, Mp, biweight_weights(d2, c2)).sum(axis=0)
+
+        for q in range(C * C):
+            step = np.zeros(C * C)
+            step[q] = h
+            bread[:, q] = (total(M + step.reshape(C, C)) - total(M - step.reshape(C, C))) / (2 * h)
     meat = g.T @ g
     try:
         Bi = np.linalg.inv(bread)
     except np.linalg.LinAlgError:
         Bi = np.linalg.pinv(bread)
-    return Bi @ meat @ Bi
+    return Bi @ meat @ Bi.T
 
 
 def fit_cluster(E: NDArray, Et: NDArray, var: NDArray, var_t: NDArray, coverage: float,
@@ -575,7 +607,7 @@ def fit_cluster(E: NDArray, Et: NDArray, var: NDArray, var_t: NDArray, coverage:
     M0, _ = _lts(E[sub], Et[sub], var[sub], var_t[sub], coverage, options.trials, rng)
     ref = even(REFINE)
     M, _, w = _biweight(E[ref], Et[ref], var[ref], var_t[ref], M0, c2)
-    return M, _m_covariance(E[ref], Et[ref], var[ref], var_t[ref], M, w)
+    return M, _m_covariance(E[ref], Et[ref], var[ref], var_t[ref], M, w, c2)
 
 
 # -- the detector -----------------------------------------------------------------------------
