@@ -301,12 +301,8 @@ def _ptc_advice(res: Any, *, robust: bool) -> str:
     model rejected), naming the worst levels; empty when the fit is acceptable."""
     if res.verdict not in ("poor", "model rejected"):
         return ""
-    used = [p for p in res.points if p.used and p.var_err > 0]
-    worst = sorted(used, key=lambda p: -abs(p.var - (res.A * p.mu + res.sigma_c2)) / p.var_err)
-    named = ", ".join(f"level {p.level} "
-                      f"({(p.var - (res.A * p.mu + res.sigma_c2)) / p.var_err:+.1f} σ)"
-                      for p in worst[:2])
-    top = max((p.mu for p in used), default=float("nan"))
+    named = ", ".join(f"level {level} ({z:+.1f} σ)" for level, z in res.worst_levels(2))
+    top = max((p.mu for p in res.points if p.used and p.var_err > 0), default=float("nan"))
     steps = [f"the fit is {res.verdict}: the points scatter about the line more than their "
              f"errors allow (largest residuals: {named or 'none'})",
              f"leave out levels near saturation (--exclude LEVEL; the brightest used level has "

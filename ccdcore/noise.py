@@ -283,6 +283,13 @@ class PhotonTransfer:
         out = self.A * m + self.sigma_c2
         return float(out) if out.ndim == 0 else out
 
+    def worst_levels(self, n: int = 2) -> list[tuple[int, float]]:
+        """The ``n`` used levels farthest off the line, as ``(level, residual / σ)``, largest
+        |residual| first: where to look when the fit is poor (Q small)."""
+        z = [(p.level, (p.var - (self.A * p.mu + self.sigma_c2)) / p.var_err)
+             for p in self.points if p.used and p.var_err > 0]
+        return sorted(z, key=lambda lz: -abs(lz[1]))[:max(0, int(n))]
+
     def refit(self, *, exclude_levels: Iterable[int] = (), robust: bool = False,
               linearity_tolerance: float | None = None) -> PhotonTransfer:
         """Fit the same points again with other exclusions (no frame is read)."""

@@ -143,6 +143,10 @@ def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
              f"{result.dof} degree{'s' if result.dof != 1 else ''} of freedom)")
     if result.verdict in _VERDICTS:
         kind, head, text = _VERDICTS[result.verdict]
+        worst = result.worst_levels(2) if result.verdict != "acceptable" else []
+        if worst:
+            text += " Largest residuals: " + ", ".join(
+                f"level {level} ({z:+.1f} \u03c3)" for level, z in worst) + "."
         return kind, f"**{head}** \u2014 {stats}: {text}"
     return "info", (f"**Fit untested** \u2014 {result.verdict}: with as many parameters as "
                     "levels the line passes through the points; add light levels to test it.")

@@ -247,6 +247,14 @@ def test_format_pm_and_verdicts(demo_pt):
     for verdict, expected in (("poor", "warning"), ("model rejected", "danger"),
                               ("untested (no degrees of freedom)", "info")):
         assert verdict_message(dataclasses.replace(demo_pt, verdict=verdict))[0] == expected
+    # a poor fit names the two levels farthest off the line, in σ (what to exclude or check)
+    z = {p.level: (p.var - (demo_pt.A * p.mu + demo_pt.sigma_c2)) / p.var_err
+         for p in demo_pt.points if p.used}
+    worst = sorted(z, key=lambda lv: -abs(z[lv]))[:2]
+    assert demo_pt.worst_levels(2) == [(lv, z[lv]) for lv in worst]
+    text = verdict_message(dataclasses.replace(demo_pt, verdict="poor"))[1]
+    assert text.endswith("Largest residuals: " + ", ".join(
+        f"level {lv} ({z[lv]:+.1f} \u03c3)" for lv in worst) + ".")
     frame = parameter_frame(demo_pt, (192, 256))
     assert "full frame (256 \u00d7 192 px)" in frame.iloc[-1]["value"]
     assert "from the manifest" in frame[frame["symbol"] == "b\u2080"].iloc[0]["value"]
