@@ -149,6 +149,18 @@ def _cores() -> int:
 _SMALL_SESSION_PIXELS = 100_000_000
 
 
+def _workers_note_for(workers: int | None, session: Any, records: Sequence[Any]) -> None:
+    """:func:`_workers_note` for ``records`` of ``session``, their pixels from the cached
+    headers (no pixel is read)."""
+    if workers is None:
+        return
+    pixels = 0
+    for rec in records:
+        hdr = session.header_or_none(rec)
+        pixels += 0 if hdr is None else int(hdr.width) * int(hdr.height)
+    _workers_note(workers, len(records), pixels)
+
+
 def _workers_note(workers: int | None, frames: int, pixels: int) -> None:
     """With ``--workers N``: one note on stderr when a local cluster is unlikely to be faster
     than the streamed default (few cores, or a small session), so ``--json`` stays clean."""
@@ -426,6 +438,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     check_outputs(args.out, {PRODUCT_FILE: False, "maps": True}, inputs)
     earlier = (Path(args.out) / PRODUCT_FILE).is_file()
     try:
+        _workers_note_for(args.workers, session, session.frames)
         with get_client(args.scheduler, args.workers) as client:
             product = calibrate(session, roi=args.roi, client=client)
         folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
@@ -676,6 +689,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     session.raise_if_invalid()
     records = bracket_records(session, args.stack)
     names = ("radiance.exr", "sigma.exr", "flags.png")
+    _workers_note_for(args.workers, session, records)
     folder = _out_folder(args.out_dir, names, session, args.calib)
     with get_client(args.scheduler, args.workers) as client:
         frames = None

@@ -186,6 +186,20 @@ def test_ptc_workers_note_goes_to_stderr(capsys, monkeypatch):
         " ".join(err.split())
 
 
+def test_hdr_workers_note_counts_the_bracket(capsys, monkeypatch, tmp_path):
+    """hdr says it too, with the bracket's frames and pixels from their headers."""
+    monkeypatch.setattr(cli, "_cores", lambda: 2)
+    code, out, err = run(capsys, "hdr", ASSETS / "tsin01", "-o", tmp_path / "h", "--workers", "1")
+    assert code == 0, err
+    from ccdcore.response.brackets import bracket_records
+    from ccdcore.session import open_session
+    s = open_session(ASSETS / "tsin01")
+    recs = bracket_records(s)
+    mp = sum(s.header(r).width * s.header(r).height for r in recs) / 1e6
+    assert (f"the session is small ({len(recs)} frames, {mp:.3g} megapixels in all)"
+            in " ".join(err.split()))
+
+
 def test_apply_says_what_was_applied(capsys, h94_product, tmp_path):
     src = ASSETS / "healey94" / "ptc" / "L01_a.tif"
     code, out, err = run(capsys, "apply", h94_product, src, "-o", tmp_path / "o")
