@@ -188,9 +188,8 @@ class RgbView(ImageView):
         self.factor = factor
         self.rgba.data = {"image": [pack_rgba(np.stack(parts, axis=-1))], "x": [left],
                           "y": [bottom], "dw": [right - left], "dh": [top - bottom]}
-        note = f"mean of {factor}\u00d7{factor} px"
         self.figure.title.text = (self.title if factor <= 1 else
-                                  f"{self.title} \u00b7 {note}" if self.title else note)
+                                  plots.with_note(self.title, f"mean of {factor}\u00d7{factor} px"))
 
     def shown_rgba(self) -> NDArray[np.uint32]:
         """The packed RGBA image the figure holds (tests)."""

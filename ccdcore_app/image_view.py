@@ -233,8 +233,8 @@ class ImageView:
         image = np.asarray(data, dtype=np.float32)
         self.source.data = {"image": [image], "x": [left], "y": [bottom],
                             "dw": [right - left], "dh": [top - bottom]}
-        self.figure.title.text = self.title if factor <= 1 else \
-            f"{self.title} \u00b7 {plots.OVERVIEWS[self.how]} of {factor}\u00d7{factor} px"
+        self.figure.title.text = self.title if factor <= 1 else plots.with_note(
+            self.title, f"{plots.OVERVIEWS[self.how]} of {factor}\u00d7{factor} px")
 
     # ------------------------------------------------------------------ marks ---------------
     @batched

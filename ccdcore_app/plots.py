@@ -25,7 +25,7 @@ histogram_edges(values, bins=256)
     Bin edges for a frame's histogram (one bin per DN for small integer ranges).
 histogram_counts(values, bins=256)
     Counts and edges of a plane's finite values.
-OVERVIEWS, overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
+OVERVIEWS, with_note(title, note), overview(plane, x_range, y_range, width, height, how=..., centre=0.0)
     How a zoomed-out map reduces the pixels under a screen pixel (extreme, mean, max), and
     that reduction of the visible part of a map (one compiled pass, :func:`load_kernels`).
 visible_span(rng, n), block_factor(cols, rows, width, height), block_reduce(plane, f, how=...)
@@ -172,6 +172,11 @@ OVERVIEWS: dict[str, str] = {
     "mean": "mean",
     "max": "largest",
 }
+
+
+def with_note(title: str, note: str) -> str:
+    """``title · note``, or the note alone under an empty title (never a leading "·")."""
+    return f"{title} \u00b7 {note}" if title else note
 
 
 def overview(plane: NDArray, x_range: tuple[float, float] | None,

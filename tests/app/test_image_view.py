@@ -141,3 +141,9 @@ def test_palette_names_and_lists():
     assert palette(["#000000", "#ffffff"]) == ["#000000", "#ffffff"]
     grey = palette("gray", 4)
     assert len(grey) == 4 and grey[0].lower() == "#000000" and grey[-1].lower() == "#ffffff"
+
+
+def test_a_zoomed_out_view_without_a_title_has_no_stray_separator():
+    view = ImageView(frame_width=150, max_frame_height=150)
+    view.show(np.ones((400, 600)), title="", how="mean")
+    assert view.factor == 4 and view.figure.title.text == "mean of 4\u00d74 px"
