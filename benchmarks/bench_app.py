@@ -33,6 +33,14 @@ server destroys the closed sessions (unused-session lifetime 15 s, checked every
     .venv/bin/python benchmarks/bench_app.py                  # the bundled demo assets/healey94
     .venv/bin/python benchmarks/bench_app.py --big            # a 2048x2048 healey94 simulation
     .venv/bin/python benchmarks/bench_app.py --session PATH [--repeat 3] [--port 5006]
+    .venv/bin/python benchmarks/bench_app.py --baseline [--repeat 9]   # first view vs a bare page
+
+``--baseline`` times only first views, the app's against a bare Panel page served by a second
+child process (``benchmarks/_bare_app.py``: the app's template class, design, title, header,
+raw CSS, extensions and scripts, but one Markdown pane "Loaded NAME" as its content), with the
+same "fully drawn" criterion: one discarded warm-up first view of each, then ``--repeat`` pairs
+alternating bare, app, bare, app ... (each in a new browser context), so that a load from
+another job on the machine falls on both alike; it prints both medians and their ratio.
 
 ``--big`` writes the session once into ``benchmarks/_data/app_healey94_2048`` (gitignored) with
 ``ccdcore simulate healey94 DIR --seed 1 --size 2048x2048`` in a child process.  The server's
@@ -188,6 +196,104 @@ class Visit:
             self.switch(word, "revisit")
 
 
+# ------------------------------------------------------------------------------ baseline ------
+def baseline(args: argparse.Namespace, session: Path, timeout: float) -> None:
+    """``--baseline``: the app's first view against a bare Panel page's, alternating."""
+    from playwright.sync_api import sync_playwright
+
+    port_app = args.port or _browser.free_port()
+    port_bare = _browser.free_port()
+    while port_bare == port_app:
+        port_bare = _browser.free_port()
+    servers = {
+        "bare": _browser.Server([sys.executable, str(HERE / "_bare_app.py"), session.name,
+                                 "--port", str(port_bare)], port_bare,
+                                HERE / "_out" / "bench_app_bare_server.log"),
+        "app": _browser.Server([*ccdcore_cmd(), "app", str(session), "--port", str(port_app)],
+                               port_app, HERE / "_out" / "bench_app_server.log"),
+    }
+    pollers = {k: _browser.Liveness(s.url + "/liveness") for k, s in servers.items()}
+    runs: dict[str, list[Settled]] = {"bare": [], "app": []}
+    warm: dict[str, Settled] = {}
+    notes: list[str] = []
+    try:
+        for k, server in servers.items():    # one after the other: no start competes
+            server.launch()
+            server.wait_live()
+            pollers[k].start()
+            server.wait_html()
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=_browser.CHROMIUM,
+                                         args=_browser.CHROMIUM_ARGS)
+
+            def first_view(k: str) -> Settled:
+                context = browser.new_context(viewport=VIEWPORT)
+                context.add_init_script(_browser.INIT_JS)
+                driver = _browser.Driver(context.new_page(), quiet=args.quiet,
+                                         timeout=timeout, liveness=pollers[k])
+                phases: dict[str, list[Settled]] = {}
+                try:
+                    r = Visit(driver, servers[k].url, session.name, phases).first_view()
+                finally:
+                    context.close()
+                r.stall, r.slow = pollers[k].window(r.t0, r.t_end)
+                notes.extend(f"{k}: server error: {e[:160]}" for e in driver.server_errors)
+                notes.extend(f"{k}: console: {e[:160]}" for e in driver.console_errors)
+                notes.extend(f"{k}: failed request: {u}" for u in driver.failed_requests)
+                return r
+
+            try:
+                for k in servers:                # warm-up, discarded
+                    warm[k] = first_view(k)
+                for i in range(args.repeat):
+                    for k in ("bare", "app"):
+                        runs[k].append(first_view(k))
+                    print(f"pair {i + 1} of {args.repeat}: bare "
+                          f"{_fmt(runs['bare'][-1].seconds)} s, app "
+                          f"{_fmt(runs['app'][-1].seconds)} s", file=sys.stderr, flush=True)
+            finally:
+                browser.close()
+    finally:
+        for k, server in servers.items():
+            if pollers[k].is_alive():
+                pollers[k].stop()
+            server.stop()
+
+    print(f"session {session.name}; first view only, {args.repeat} pair(s) alternating bare, app "
+          "(each after one discarded warm-up first view); 'bare' is benchmarks/_bare_app.py, "
+          "the app's template, design and resources around one Markdown pane")
+    print(f"{'page':10s}{'seconds median (min–max)':>28s}{'ok':>5s}{'stall max s':>13s}"
+          f"{'long tasks s':>14s}{'plots':>7s}   runs (s)")
+    medians: dict[str, float] = {}
+    for k in ("bare", "app"):
+        good = [r.seconds for r in runs[k] if r.status == "ok" and r.seconds is not None]
+        stalls = [r.stall for r in runs[k] if r.stall == r.stall]
+        longs = [r.longtasks for r in runs[k] if r.longtasks == r.longtasks]
+        if good:
+            medians[k] = statistics.median(good)
+        print(f"{k:10s}{_report.summary(good).format('.2f') if good else 'none':>28s}"
+              f"{f'{len(good)}/{len(runs[k])}':>5s}"
+              f"{_fmt(max(stalls) if stalls else None):>13s}"
+              f"{_fmt(statistics.median(longs) if longs else None):>14s}"
+              f"{'/'.join(map(str, sorted({r.plots for r in runs[k]}))):>7s}   "
+              + " ".join(_fmt(r.seconds) if r.status == "ok" else r.status for r in runs[k]))
+    print(f"warm-up (discarded): bare {_fmt(warm.get('bare', Settled(None, '')).seconds)} s, "
+          f"app {_fmt(warm.get('app', Settled(None, '')).seconds)} s")
+    if len(medians) == 2:
+        print(f"first view: bare {medians['bare']:.2f} s, app {medians['app']:.2f} s, "
+              f"ratio app/bare {medians['app'] / medians['bare']:.2f}")
+    failed = [(k, r) for k in runs for r in runs[k] if r.status != "ok" or r.detail]
+    if failed:
+        print("\nruns that did not settle or showed an error alert:")
+        for k, r in failed:
+            print(f"  {k}: {r.status} {r.detail}")
+    if notes:
+        print("\nnotes: server errors, browser console errors, failed requests (deduplicated):")
+        for n in sorted(set(notes)):
+            print(f"  {n}")
+    _report.footer()
+
+
 # ------------------------------------------------------------------------------ output --------
 def _fmt(v: float | None, fmt: str = ".2f") -> str:
     return "–" if v is None or v != v else f"{v:{fmt}}"
@@ -226,6 +332,10 @@ def main() -> None:
                     help="seconds to watch the RSS after the last visit (default 45)")
     ap.add_argument("--quiet", type=float, default=0.3,
                     help="quiet window that ends a phase, s (default 0.3; not counted)")
+    ap.add_argument("--baseline", action="store_true",
+                    help="time only first views, alternating with a bare Panel page of the "
+                         "app's template (benchmarks/_bare_app.py); print both medians and "
+                         "the ratio")
     args = ap.parse_args()
     if args.big and args.session is not None:
         ap.error("--big and --session exclude each other")
@@ -239,10 +349,15 @@ def main() -> None:
         sys.exit(f"bench_app: {session} does not exist")
     port = args.port or _browser.free_port()
 
-    _report.header(Path(__file__).name, repeat=args.repeat, warmup=0,
-                   note=f"session: {session}; Chromium {_browser.CHROMIUM} headless, viewport "
-                        f"{VIEWPORT['width']}x{VIEWPORT['height']}; quiet window "
-                        f"{args.quiet:g} s; phase timeout {timeout:g} s")
+    _report.header(Path(__file__).name, repeat=args.repeat, warmup=1 if args.baseline else 0,
+                   note=("first view against a bare page (--baseline); " if args.baseline
+                         else "")
+                   + f"session: {session}; Chromium {_browser.CHROMIUM} headless, viewport "
+                     f"{VIEWPORT['width']}x{VIEWPORT['height']}; quiet window "
+                     f"{args.quiet:g} s; phase timeout {timeout:g} s")
+    if args.baseline:
+        baseline(args, session, timeout)
+        return
     from playwright.sync_api import sync_playwright
 
     phases: dict[str, list[Settled]] = {}

@@ -30,9 +30,12 @@ computation one session started is waited for by the others, never started twice
 from __future__ import annotations
 
 import asyncio
+import copy
 import logging
 import os
+import threading
 import traceback
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any, Callable, Iterable, Sequence
 
@@ -212,6 +215,59 @@ class Results(param.Parameterized):
         return self._part("correction_check")
 
 
+#: sessions opened in this process: resolved path -> (the files' signature, the session); each
+#: browser session gets its own copy (:func:`open_session_cached`)
+_OPENED: "OrderedDict[Path, tuple[tuple, Session]]" = OrderedDict()
+_OPENED_LOCK = threading.Lock()
+#: at most this many opened sessions are kept
+OPENED_MAX = 8
+
+
+def _stat(path: Path) -> tuple[str, int, int] | tuple[str]:
+    try:
+        st = path.stat()
+    except OSError:
+        return (str(path),)
+    return (str(path), st.st_mtime_ns, st.st_size)
+
+
+def session_signature(path: Path, session: Session) -> tuple:
+    """What opening ``path`` read, as (path, mtime, size) triples: the path itself, the
+    manifest, every frame and every folder under the session's root (a file added or removed
+    changes its folder's time)."""
+    paths = [path, session.root]
+    if session.manifest_path is not None:
+        paths.append(Path(session.manifest_path))
+    paths += [Path(rec.path) for rec in session.frames]
+    if session.root.is_dir():
+        for folder, dirs, _ in os.walk(session.root):
+            dirs.sort()
+            paths += [Path(folder) / d for d in dirs]
+    return tuple(_stat(p) for p in paths)
+
+
+def open_session_cached(path: Path) -> Session:
+    """:func:`ccdcore.session.open_session`, once per process while none of the files it read
+    changed: opening reads the header of every frame (0.07 s for the 96 frames of the demo,
+    on each first view of a served session); a copy of the opened session, checked against
+    :func:`session_signature`, takes a few milliseconds. Each caller gets its own copy."""
+    with _OPENED_LOCK:
+        hit = _OPENED.get(path)
+    if hit is not None:
+        signature, session = hit
+        if session_signature(path, session) == signature:
+            with _OPENED_LOCK:
+                _OPENED.move_to_end(path)
+            return copy.deepcopy(session)
+    session = open_session(path)
+    signature = session_signature(path, session)
+    with _OPENED_LOCK:
+        _OPENED[path] = (signature, copy.deepcopy(session))
+        while len(_OPENED) > OPENED_MAX:
+            _OPENED.popitem(last=False)
+    return session
+
+
 class AppState(param.Parameterized):
     """State shared by the pages of one browser session.
 
@@ -271,7 +327,7 @@ class AppState(param.Parameterized):
         """
         try:
             p = self.check_allowed(path)
-            return p, open_session(p), ""
+            return p, open_session_cached(p), ""
         except CcdError as err:
             return Path(str(path)), None, str(err)
         except Exception as err:  # a bug or an OS error must not reach the user as a traceback

@@ -13,6 +13,9 @@ SessionPage
     (:class:`ccdcore_app.product_panel.ProductPanel`).
 create_page(state)
     The registry entry point.
+InView, StaticTable
+    A marker telling the server when it first comes near the browser's viewport (the Frame
+    preview, below the fold of the first view, is built then); a read-only HTML table.
 groups_frame(session), frames_frame(session)
     The groups and frames tables of a session as DataFrames (display-ready): sizes width first
     (:func:`ccdcore.common.format_size`), ``mixed`` where a group's sizes or dtypes differ.
@@ -39,6 +42,7 @@ import numpy as np
 import pandas as pd
 import panel as pn
 import param
+from panel.custom import JSComponent
 
 from ccdcore.common import format_size
 from ccdcore.errors import CcdError
@@ -50,7 +54,7 @@ from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState, assets_dir, demo_sessions
 from ..batch import batched
 from ._choices import set_choices
-from ._styles import KEY_VALUE_CSS
+from ._styles import KEY_VALUE_CSS, TABLE_CSS
 
 if TYPE_CHECKING:
     from ..product_panel import ProductPanel
@@ -153,6 +157,60 @@ def inferred_summary(session: Session) -> list[tuple[str, int, str]]:
     return [(k, n, origins.get(k, "file headers")) for k, n in counts.items()]
 
 
+class StaticTable(pn.pane.DataFrame):
+    """A read-only table drawn as HTML; ``value`` is its DataFrame (as a Tabulator's)."""
+
+    @property
+    def value(self) -> pd.DataFrame:
+        return self.object
+
+    @value.setter
+    def value(self, df: pd.DataFrame) -> None:
+        self.object = df
+
+
+class InView(JSComponent):
+    """An invisible marker whose ``seen`` becomes True once it comes within 200 px of the
+    browser's viewport (an ``IntersectionObserver``): what lies below the fold of the first
+    view is built when the user scrolls to it.
+
+    The observer starts at the first scroll, or once the marker has stayed in place for a
+    second (while the page is being laid out every element may sit at the top, in view).
+    """
+
+    seen = param.Boolean(default=False, doc="The marker came near the viewport.")
+
+    _esm = """
+    export function render({ model, el }) {
+      if (model.seen) return;
+      let io = null, last = null, still = 0;
+      const start = () => {
+        if (io || model.seen) return;
+        clearInterval(timer);
+        removeEventListener("scroll", start, true);
+        io = new IntersectionObserver((entries) => {
+          if (entries.some((e) => e.isIntersecting)) {
+            io.disconnect();
+            model.seen = true;
+          }
+        }, { rootMargin: "200px" });
+        io.observe(el);
+      };
+      addEventListener("scroll", start, { capture: true, passive: true });
+      const timer = setInterval(() => {
+        const top = el.isConnected ? el.getBoundingClientRect().top : null;
+        if (top !== null && top === last) { if (++still >= 4) start(); }
+        else { still = 0; last = top; }
+      }, 250);
+      model.on("remove", () => {
+        clearInterval(timer);
+        removeEventListener("scroll", start, true);
+        if (io) io.disconnect();
+      });
+    }
+    """
+
+
 def _problem_alert(problem: Any) -> pn.pane.Alert:
     kind = "danger" if problem.severity == "error" else "warning"
     label = "Error" if problem.severity == "error" else "Warning"
@@ -189,6 +247,8 @@ class SessionPage(pn.viewable.Viewer):
         self._tiled: FramePyramid | None = None   # the previewed frame, when large (ccdcore_app.tiles)
         self._frame_request = 0                   # newest preview request (older ones drop)
         self._layout: pn.Column | None = None
+        self._preview_holder: pn.Column | None = None   # the preview card's body (deferred)
+        self._pending_draw: tuple | None = None   # what the figures show once built
         self._build_open_widgets()
         self._build_session_widgets()
         self._build_preview_widgets()
@@ -216,8 +276,10 @@ class SessionPage(pn.viewable.Viewer):
                                                   align="end", width=140)
         roots = {self._root_label(r): str(r) for r in self.state.allowed_roots if r.is_dir()}
         self.root_select = pn.widgets.Select(label="Browse in", options=roots, width=320)
-        self.file_selector = self._file_selector(self.root_select.value)
-        self.browse_holder = pn.Column(self.file_selector, sizing_mode="stretch_width")
+        # the file browser is built when its card is first expanded (it is collapsed on the
+        # first view, and a FileSelector is some twenty Bokeh models)
+        self._file_selector_widget: pn.widgets.FileSelector | None = None
+        self.browse_holder = pn.Column(sizing_mode="stretch_width", min_height=0)
         self.open_selected_button = pn.widgets.Button(label="Open selected", color="primary",
                                                       width=140)
         self.progress = pn.indicators.Progress(active=False, visible=False,
@@ -246,6 +308,18 @@ class SessionPage(pn.viewable.Viewer):
             return f"Working folder ({root})"
         return str(root)
 
+    @property
+    def file_selector(self) -> pn.widgets.FileSelector:
+        """The file browser over the chosen root (built on first use)."""
+        if self._file_selector_widget is None:
+            self._file_selector_widget = self._file_selector(self.root_select.value)
+        return self._file_selector_widget
+
+    def _show_browser(self, event: Any = None) -> None:
+        """Put the file browser into its card (on the card's first expansion)."""
+        if not self.browse_holder.objects:
+            self.browse_holder.objects = [self.file_selector]
+
     @staticmethod
     def _file_selector(root: str | None) -> pn.widgets.FileSelector:
         root = root or str(Path.cwd())
@@ -257,9 +331,10 @@ class SessionPage(pn.viewable.Viewer):
                                             stylesheets=[KEY_VALUE_CSS])
         self.problems_column = pn.Column(sizing_mode="stretch_width", max_height=420,
                                          scroll=True, css_classes=["ccd-problems"])
-        self.groups_table = pn.widgets.Tabulator(
-            pd.DataFrame(), disabled=True, show_index=False,
-            sizing_mode="stretch_width", layout="fit_data_stretch", selectable=False)
+        # a plain HTML table: read-only and a few rows (a Tabulator costs the browser some
+        # 0.3 s of layout on the first view)
+        self.groups_table = StaticTable(pd.DataFrame(), index=False, sizing_mode="stretch_width",
+                                        stylesheets=[TABLE_CSS], css_classes=["ccd-groups"])
         self.frames_table = pn.widgets.Tabulator(
             pd.DataFrame(), disabled=True, show_index=False, pagination="remote",
             page_size=PAGE_SIZE, selectable=1, sizing_mode="stretch_width",
@@ -276,6 +351,9 @@ class SessionPage(pn.viewable.Viewer):
                     sizing_mode="stretch_width"),
             title="Inferred metadata and manifest draft", visible=False,
             sizing_mode="stretch_width")
+        # the card goes into the page when a session first needs it (a manifest session with
+        # nothing inferred never does)
+        self._draft_holder = pn.Column(sizing_mode="stretch_width", margin=0)
 
     def _build_preview_widgets(self) -> None:
         self.frame_select = pn.widgets.Select.from_param(
@@ -297,24 +375,60 @@ class SessionPage(pn.viewable.Viewer):
         self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                            sizing_mode="stretch_width",
                                            css_classes=["ccd-preview-error"])
+        self.clim_slider.param.watch(self._on_clim, "value")
+        # the figures and the preview's layout: built when first needed (the first frame shown,
+        # after the first view's HTML went out), then kept
+        self._views: tuple[ImageView, HistogramView, pn.Column, pn.Column, pn.Column] | None = \
+            None
+
+    def _build_preview_views(self) -> tuple[ImageView, HistogramView, pn.Column, pn.Column,
+                                            pn.Column]:
+        if self._views is not None:
+            return self._views
         # built once (plain Bokeh): another frame or channel replaces their data
-        self.image_view = ImageView(frame_width=760, max_frame_height=640,
+        image_view = ImageView(frame_width=760, max_frame_height=640,
                                     css_classes=["ccd-image"])
-        self.image_view.on_pointer = lambda x, y: self._on_pointer(x=x, y=y)
-        self.hist_view = HistogramView(height=240, css_classes=["ccd-histogram"])
+        image_view.on_pointer = lambda x, y: self._on_pointer(x=x, y=y)
+        hist_view = HistogramView(height=240, css_classes=["ccd-histogram"])
         # (shown with a frame; visibility goes on a Column around a Bokeh pane: setting it on
         # the pane makes Panel copy the figure's stylesheets into the pane, which fails)
-        self.image_pane = pn.Column(pn.pane.Bokeh(self.image_view.figure), margin=0,
-                                    visible=False)
-        self.hist_pane = pn.Column(pn.pane.Bokeh(self.hist_view.figure, height=240,
-                                                 sizing_mode="stretch_width"),
-                                   sizing_mode="stretch_width", margin=0, visible=False)
-        self.clim_slider.param.watch(self._on_clim, "value")
-        self.preview_body = pn.Column(
+        image_pane = pn.Column(pn.pane.Bokeh(image_view.figure), margin=0, visible=False)
+        hist_pane = pn.Column(pn.pane.Bokeh(hist_view.figure, height=240,
+                                            sizing_mode="stretch_width"),
+                              sizing_mode="stretch_width", margin=0, visible=False)
+        body = pn.Column(
             self.frame_select, self.channel_select,
             pn.Row(self.clim_slider, self.auto_button, sizing_mode="stretch_width"),
-            self.preview_alert, self.frame_info, self.image_pane, self.readout, self.hist_pane,
+            self.preview_alert, self.frame_info, image_pane, self.readout, hist_pane,
             sizing_mode="stretch_width")
+        self._views = (image_view, hist_view, image_pane, hist_pane, body)
+        if self._pending_draw is not None:   # a frame chosen before the preview was shown
+            plane, _, title, hist, hist_title = self._pending_draw
+            self._draw(plane, tuple(self.clim_slider.value), title, hist, hist_title)
+        return self._views
+
+    @property
+    def image_view(self) -> ImageView:
+        """The previewed frame's figure (built on first use)."""
+        return self._build_preview_views()[0]
+
+    @property
+    def hist_view(self) -> HistogramView:
+        """The previewed frame's histogram (built on first use)."""
+        return self._build_preview_views()[1]
+
+    @property
+    def image_pane(self) -> pn.Column:
+        return self._build_preview_views()[2]
+
+    @property
+    def hist_pane(self) -> pn.Column:
+        return self._build_preview_views()[3]
+
+    @property
+    def preview_body(self) -> pn.Column:
+        """The Frame preview card's content (built on first use)."""
+        return self._build_preview_views()[4]
 
     # ================================================================== layout =============
     def __panel__(self) -> pn.viewable.Viewable:
@@ -324,11 +438,14 @@ class SessionPage(pn.viewable.Viewer):
         return self._layout
 
     def _build_layout(self) -> pn.Column:
+        browse_card = pn.Card(self.root_select, self.browse_holder, self.open_selected_button,
+                              title="Browse folders", collapsed=True,
+                              sizing_mode="stretch_width")
+        browse_card.param.watch(lambda event: event.new or self._show_browser(), "collapsed")
         open_card = pn.Card(
             pn.Row(self.demo_select, self.open_demo_button),
             pn.Row(self.path_input, self.open_path_button, sizing_mode="stretch_width"),
-            pn.Card(self.root_select, self.browse_holder, self.open_selected_button,
-                    title="Browse folders", collapsed=True, sizing_mode="stretch_width"),
+            browse_card,
             title="Open a session", sizing_mode="stretch_width", collapsible=False)
         # the Calibration product tab gets its panel on its first visit (the first page draws
         # nothing for it), then keeps it
@@ -352,11 +469,49 @@ class SessionPage(pn.viewable.Viewer):
                         collapsible=False),
                 sizing_mode="stretch_width"),
             pn.Card(self.problems_column, title="Validation", sizing_mode="stretch_width"),
-            pn.Card(self.frames_table, title="Frames (select a row to preview it)",
+            pn.Card(self._frames_holder(), title="Frames (select a row to preview it)",
                     sizing_mode="stretch_width"),
-            self.draft_card,
-            pn.Card(self.preview_body, title="Frame preview", sizing_mode="stretch_width"),
+            self._draft_holder,
+            self._preview_card(),
             sizing_mode="stretch_width", name="Session")
+
+    @staticmethod
+    def _deferred(text: str, css_class: str, show: Any) -> pn.Column:
+        """A holder showing ``text`` and an :class:`InView` marker; ``show()`` (which replaces
+        them) is called when the marker first comes near the browser's viewport."""
+        placeholder = pn.pane.Markdown(text, css_classes=[f"{css_class}-placeholder"],
+                                       sizing_mode="stretch_width")
+        sentinel = InView(height=1, sizing_mode="stretch_width", margin=0)
+        sentinel.param.watch(lambda event: event.new and show(), "seen")
+        return pn.Column(placeholder, sentinel, sizing_mode="stretch_width", margin=0,
+                         css_classes=[css_class])
+
+    def _frames_holder(self) -> pn.Column:
+        """The frames table's place. Below the groups table (one row per group), it is usually
+        below the fold of the first view, where a Tabulator cost about 0.4 s of the first view:
+        it goes into the page when scrolled near (:meth:`_deferred`)."""
+        def show() -> None:
+            if holder.objects and holder.objects[0] is not self.frames_table:
+                holder.objects = [self.frames_table]
+
+        holder = self._deferred("Scroll here to list the frames.", "ccd-frames", show)
+        return holder
+
+    def _preview_card(self) -> pn.Card:
+        """The Frame preview card. It sits below the fold of the first view: its body (two
+        Bokeh figures, the colour range, the channel buttons ...) goes into the page when the
+        card first comes near the browser's viewport (:class:`InView`), or when a frame is
+        chosen in the table; the frame itself is read and prepared meanwhile."""
+        self._preview_holder = self._deferred("Scroll here to preview the frame.",
+                                              "ccd-preview", self.show_preview)
+        return pn.Card(self._preview_holder, title="Frame preview",
+                       sizing_mode="stretch_width")
+
+    def show_preview(self) -> None:
+        """Put the preview's body into the page (once; it stays)."""
+        holder = self._preview_holder
+        if holder is not None and holder.objects and holder.objects[0] is not self.preview_body:
+            holder.objects = [self.preview_body]
 
     # ============================================================ opening sessions =========
     async def _open(self, path: str | Path) -> None:
@@ -382,8 +537,9 @@ class SessionPage(pn.viewable.Viewer):
         await self._open(chosen[0])
 
     def _on_root(self, event: Any) -> None:
-        self.file_selector = self._file_selector(event.new)
-        self.browse_holder.objects = [self.file_selector]
+        self._file_selector_widget = self._file_selector(event.new)
+        if self.browse_holder.objects:
+            self.browse_holder.objects = [self._file_selector_widget]
 
     def _on_state_message(self, *events: Any) -> None:
         st = self.state
@@ -451,6 +607,8 @@ class SessionPage(pn.viewable.Viewer):
         self.draft_card.visible = relevant
         if not relevant:
             return
+        if not self._draft_holder.objects:   # (a manifest session never draws the card)
+            self._draft_holder.objects = [self.draft_card]
         if summary:
             lines = [f"- **{key}** for {n} of {len(session.frames)} frames, from {origin}"
                      for key, n, origin in summary]
@@ -487,15 +645,18 @@ class SessionPage(pn.viewable.Viewer):
             return
         index = event.new[0]
         if 0 <= index < len(df):
+            self.show_preview()
             self.frame = str(df.iloc[index]["relpath"])
 
     # ============================================================ frame preview ============
     def _clear_preview(self, message: str = "") -> None:
         self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
-        self.image_view.show(None)
-        self.hist_view.show(None)
-        self.image_pane.visible = self.hist_pane.visible = False
+        self._pending_draw = None
+        if self._views is not None:
+            self.image_view.show(None)
+            self.hist_view.show(None)
+            self.image_pane.visible = self.hist_pane.visible = False
         self.frame_info.object = message
         self.channel_select.visible = False
 
@@ -522,11 +683,12 @@ class SessionPage(pn.viewable.Viewer):
             return
         self._frame_request += 1
         request = self._frame_request
-        self.preview_body.loading = True
+        if self._views is not None:
+            self.preview_body.loading = True
         try:
             array, error = await asyncio.to_thread(self._read, session, rec)
         finally:
-            if request == self._frame_request:
+            if request == self._frame_request and self._views is not None:
                 self.preview_body.loading = False
         if request != self._frame_request:  # a newer frame was chosen meanwhile
             return
@@ -597,10 +759,20 @@ class SessionPage(pn.viewable.Viewer):
             + f", {_size(array.shape)} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
         clim = self.clim_slider.value
-        self.image_view.show(plane, clim=clim, title=Path(rec.relpath).name, how="mean")
-        self.hist_view.show(plane, clim, title="Histogram")
-        self.image_pane.visible = self.hist_pane.visible = True
+        self._draw(plane, clim, Path(rec.relpath).name, plane, "Histogram")
         self.readout.object = "Move the cursor over the image to read pixel values."
+
+    def _draw(self, plane: Any, clim: Any, title: str, hist: Any, hist_title: str) -> None:
+        """Show ``plane`` and the histogram of ``hist`` in the figures; while the preview is not
+        in the page yet (the first view), only remember them: the figures are built and drawn
+        when it comes into view (:meth:`show_preview`)."""
+        if self._views is None and self._layout is not None:
+            self._pending_draw = (plane, clim, title, hist, hist_title)
+            return
+        self._pending_draw = None
+        self.image_view.show(plane, clim=clim, title=title, how="mean")
+        self.hist_view.show(hist, clim, title=hist_title)
+        self.image_pane.visible = self.hist_pane.visible = True
 
     def _show_tiled(self, rec: FrameRecord, pyramid: FramePyramid) -> None:
         """:meth:`_show_plane` for a large frame: the view reads its pyramid by the region; the
@@ -631,9 +803,8 @@ class SessionPage(pn.viewable.Viewer):
             f"each zoom reading only what it shows; histogram and automatic range of the "
             f"{f}×{f} px block means.")
         clim = self.clim_slider.value
-        self.image_view.show(plane, clim=clim, title=Path(rec.relpath).name, how="mean")
-        self.hist_view.show(coarse, clim, title=f"Histogram of {f}×{f} px block means")
-        self.image_pane.visible = self.hist_pane.visible = True
+        self._draw(plane, clim, Path(rec.relpath).name, coarse,
+                   f"Histogram of {f}×{f} px block means")
         self.readout.object = "Move the cursor over the image to read pixel values."
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
@@ -656,15 +827,18 @@ class SessionPage(pn.viewable.Viewer):
 
     def release(self) -> None:
         """The browser session ended: drop the frame shown (no redraw)."""
-        self.image_view.release()
+        if self._views is not None:
+            self.image_view.release()
+        self._pending_draw = None
         self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
         if self._product_panel is not None:
             self._product_panel.release()
 
     def _on_clim(self, event: Any) -> None:
-        self.image_view.set_clim(event.new)
-        self.hist_view.set_band(event.new)
+        if self._views is not None:   # (else the first show draws it with this range)
+            self.image_view.set_clim(event.new)
+            self.hist_view.set_band(event.new)
 
     def _set_clim(self, clim: tuple[float, float]) -> None:
         """Set the colour range in two steps, widening first.

@@ -13,6 +13,28 @@ def _outside(requests: list[str]) -> list[str]:
             and not u.startswith(("data:", "blob:", "about:"))]
 
 
+def _scroll_to(page: Page, placeholder_text: str) -> None:
+    """Scroll to a part of the Session page put into the page when it comes near the viewport
+    (ccdcore_app.pages.session.InView), and wait until it replaced its placeholder."""
+    from playwright.sync_api import Error
+
+    placeholder = page.get_by_text(placeholder_text)
+    for _ in range(20):
+        if placeholder.count() == 0:      # replaced (already in view, or the scroll did it)
+            break
+        try:
+            placeholder.first.scroll_into_view_if_needed(timeout=5_000)
+        except Error:                     # replaced or re-rendered meanwhile: look again
+            page.wait_for_timeout(250)
+    expect(placeholder).to_have_count(0, timeout=TIMEOUT)
+
+
+def _scroll_to_preview(page: Page) -> None:
+    """Scroll to the Frame preview card (its body is put into the page when in view)."""
+    _scroll_to(page, "Scroll here to preview the frame.")
+    expect(page.locator(".ccd-clim").first).to_be_visible(timeout=TIMEOUT)
+
+
 def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, serve_app, open_app,
                                                                   healey94, settled_box):
     requests: list[str] = []
@@ -21,14 +43,18 @@ def test_demo_session_tables_preview_histogram_and_pixel_readout(page: Page, ser
     page.set_viewport_size({"width": 1400, "height": 1000})
     open_app(url)
 
-    # the groups and per-frame metadata tables
+    # the groups and per-frame metadata tables (the frames table, below the fold, is put into
+    # the page when scrolled to)
     expect(page.get_by_text("Loaded healey94")).to_be_visible(timeout=TIMEOUT)
+    _scroll_to(page, "Scroll here to list the frames.")
     expect(page.get_by_role("gridcell", name="dark/dark_000.tif").first).to_be_visible(
         timeout=TIMEOUT)
     expect(page.get_by_text("XC-77-like simulated CCD")).to_be_visible()
     expect(page.get_by_text("No problems found: the session is valid.")).to_be_visible()
 
-    # the first frame is previewed once the session loads
+    # the first frame is previewed once the session loads; the preview sits below the fold and
+    # is drawn when scrolled to (a placeholder until then)
+    _scroll_to_preview(page)
     expect(page.get_by_text(re.compile(r"dark_000\.tif.*dark, exposure 0\.033 s"))).to_be_visible(
         timeout=TIMEOUT)
 
@@ -113,6 +139,7 @@ def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_a
     session = open_session(assets / "change")
     first = session.frames[0]
     red = plots.channel_data(session.read(first), "R")
+    _scroll_to_preview(page)
     red_button = page.locator(".ccd-channel").get_by_role("button", name="R", exact=True)
     expect(red_button).to_be_visible(timeout=TIMEOUT)
     red_button.click()
