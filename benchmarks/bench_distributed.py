@@ -1,4 +1,4 @@
-"""Dark-frame moments streamed in one process against a Dask LocalCluster (issue #14).
+"""Dark-frame moments streamed in one process against a Dask LocalCluster.
 
 Writes N frames of W x H uint16 TIFF (uncompressed, like camera output; strips, so a band
 decodes only its rows) plus a manifest into ``benchmarks/_data/distributed_NxWxH`` once, then

@@ -25,7 +25,7 @@ linearity_plot(lin, channel), linearity_frame(lin)
 study_heatmap(study, channel), study_frame(study, channel)
     Fig. 3 / Tables 3–5: SNUP after correction of every flat group with every candidate base.
 zero_dark_frame(zero), settings_frame(comparison), kmap_frame(comparison)
-    Table 2 (zero vs non-zero dark image) and the K̂-against-G comparison (issue 4, item 7).
+    Table 2 (zero vs non-zero dark image) and the K̂-against-G comparison.
 """
 from __future__ import annotations
 

@@ -30,7 +30,7 @@ import param
 from panel.theme import Bootstrap
 
 from . import plots
-from .pages import PAGES, PageSpec, build_page, is_available
+from .pages import PAGES, PageSpec, build_page
 from .batch import batched, frozen_models
 from .report_box import ReportBox
 from .state import AppState, default_roots
@@ -94,9 +94,6 @@ BOOTSTRAP_CSS = "bootstrap5/css/bootstrap.min.css"
 
 
 _CSS = """
-.ccd-badge { display: inline-block; padding: 1px 7px; border-radius: 9px; font-size: 0.72em;
-  font-weight: 600; letter-spacing: 0.02em; background: #e9ecef; color: #6c757d;
-  border: 1px solid #ced4da; vertical-align: middle; }
 .ccd-session { color: #e8eef5; font-size: 0.95em; white-space: nowrap; overflow: hidden;
   text-overflow: ellipsis; }
 .ccd-session code { color: #ffffff; background: rgba(255,255,255,0.12); padding: 1px 5px;
@@ -127,13 +124,7 @@ class AppShell(param.Parameterized):
                                        margin=(2, 4))
             button.on_click(partial(self._go, spec.slug))
             self.buttons[spec.slug] = button
-            if is_available(spec):
-                rows.append(button)
-            else:
-                badge = pn.pane.HTML("<span class='ccd-badge' title='planned, not built yet'>"
-                                     "coming</span>", width=70, height=24, margin=(8, 4),
-                                     stylesheets=[_CSS], sizing_mode="fixed")
-                rows.append(pn.Row(button, badge, sizing_mode="stretch_width", margin=0))
+            rows.append(button)
         self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
         #: slug -> the holder of each page (the template's main area shows each holder as its
         #: own Bokeh root): empty until the first visit, then the page, shown or hidden, never
@@ -269,11 +260,6 @@ def create_app(session_path: str | Path | None = None, *,
     template.sidebar.append(shell.nav)
     report_box = ReportBox(state)
     template.sidebar.append(report_box.panel())
-    if not all(is_available(spec) for spec in PAGES):
-        template.sidebar.append(pn.pane.Markdown(
-            "Pages marked <span class='ccd-badge'>coming</span> are planned and not built yet.",
-            stylesheets=[_CSS], margin=(12, 10),
-            styles={"font-size": "0.85em", "color": "#6c757d"}))
     for holder in shell.holders.values():   # one Bokeh root per page
         template.main.append(holder)
     template.config.raw_css.append(_CSS)
@@ -410,8 +396,7 @@ def warm_up() -> None:
 
         prepare_first_page()
         for spec in PAGES:
-            if is_available(spec):
-                importlib.import_module(spec.module)
+            importlib.import_module(spec.module)
         plots.load_kernels()
         import scipy.ndimage  # noqa: F401  (the estimators' imports, off the event loop)
         import scipy.stats  # noqa: F401

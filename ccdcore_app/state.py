@@ -373,9 +373,6 @@ class AppState(param.Parameterized):
         result = await asyncio.to_thread(self._open, path)
         return self._apply(*result)
 
-    def clear_error(self) -> None:
-        self.error = ""
-
     def close(self) -> None:
         """The browser session ended: drop the capture session and every result, so that their
         memory comes back even while Panel still holds the page objects.
@@ -658,15 +655,6 @@ class AppState(param.Parameterized):
             self.status = f"Stopped waiting for {label}."
             return None
         return waiting.result()
-
-    def compute_now(self, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any | None:
-        """:meth:`compute` in this thread (for scripts and tests)."""
-        kwargs.pop("label", None)
-        result, error = self._run_safely(func, args, kwargs)
-        if error:
-            self.error = error
-            return None
-        return result
 
     @staticmethod
     def summary(session: Session) -> str:

@@ -1,4 +1,4 @@
-"""The reductions over frames on a Dask cluster (ccdcore.distributed, issue #14).
+"""The reductions over frames on a Dask cluster (ccdcore.distributed).
 
 One real ``LocalCluster`` of two worker processes (one thread each) serves the module. On the
 bundled demos every wired reduction equals the streamed one: ``np.array_equal`` for the moment

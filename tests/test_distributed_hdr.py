@@ -1,4 +1,4 @@
-"""The HDR merge and change detection per row band on a Dask cluster (issue #14).
+"""The HDR merge and change detection per row band on a Dask cluster.
 
 One real ``LocalCluster`` of two worker processes (one thread each) serves the module.
 :func:`ccdcore.distributed.band_merge` reads each band of every bracket frame with a halo of

@@ -1,4 +1,4 @@
-"""K̂ band by band on a Dask cluster (ccdcore.distributed.fixed_pattern_bands, issue #14).
+"""K̂ band by band on a Dask cluster (ccdcore.distributed.fixed_pattern_bands).
 
 eqs. 45–50 run on the workers in bands of rows, so no process holds the n1 full-frame averages;
 the result must equal the streamed :class:`~ccdcore.fixedpattern.FixedPattern` exactly: every map

@@ -5,7 +5,7 @@ DL_c = O + G·DL (eqs. 1–4) from the dark image DL_0 and a base correction ima
 and SNUP = 100·σ/mean (eq. 5) before and after correction; the effect of averaging (Table 1), the
 linear response range (Fig. 2), the choice of the base image (Fig. 3, Tables 3–5), zero vs
 non-zero dark images (Table 2) and, on the simulator's data, the comparison with Healey &
-Kondepudy's K̂ against the true flat field (issue 4, item 7).
+Kondepudy's K̂ against the true flat field.
 
 Public objects
 --------------

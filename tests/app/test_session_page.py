@@ -14,7 +14,7 @@ import pytest
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from ccdcore_app import plots
 from ccdcore_app.main import AppShell, _session_header, create_app
-from ccdcore_app.pages import PAGES, build_page, get_page, is_available
+from ccdcore_app.pages import PAGES, build_page, get_page
 from ccdcore_app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
 from ccdcore_app.state import AppState, is_allowed
 from ccdcore.io import write_image
@@ -211,28 +211,25 @@ def test_file_browser_is_restricted_to_the_allowed_roots(state, healey94, tmp_pa
     assert is_allowed(healey94, state.allowed_roots) and not is_allowed("/etc", state.allowed_roots)
 
 
-def test_shell_navigation_and_coming_pages(state):
+def test_shell_navigation(state):
     shell = AppShell(state)
     page = shell.page_view("session")
     assert shell.page == "session" and isinstance(page, SessionPage)
     assert list(shell.holders) == [p.slug for p in PAGES]           # one holder per page
     assert shell.holders["session"].objects[0] is page.__panel__()
-    coming = [p for p in PAGES if not is_available(p)]
-    for spec in coming:
-        shell.page = spec.slug
-        view = shell.holders[spec.slug].objects[0]
-        text = " ".join(getattr(o, "object", "") or "" for o in view.objects)
-        assert "Not built yet" in text and spec.planned in text
-        assert shell.buttons[spec.slug].color == "primary"
-        # one page visible, the visited ones kept hidden
-        assert [h.visible for h in shell.holders.values()].count(True) == 1
-        assert shell.holders[spec.slug].visible and not shell.holders["session"].visible
+    assert not any(h.objects for slug, h in shell.holders.items()   # unvisited: empty
+                   if slug != "session")
+    shell.page = "flat_field"
+    assert shell.buttons["flat_field"].color == "primary"
+    assert shell.buttons["session"].color == "light"
+    # one page visible, the visited ones kept hidden
+    assert [h.visible for h in shell.holders.values()].count(True) == 1
+    assert shell.holders["flat_field"].visible and not shell.holders["session"].visible
     shell.page = "session"
     assert shell.page_view("session") is page                     # kept, not rebuilt
     assert shell.holders["session"].visible
     assert shell.holders["session"].objects[0] is page.__panel__()
-    assert not any(h.objects for slug, h in shell.holders.items()   # unvisited: empty
-                   if slug not in {"session", *(p.slug for p in coming)})
+    assert shell.holders["flat_field"].objects                    # visited: kept
     assert [p.slug for p in PAGES][:1] == ["session"] and len(PAGES) == 7
     with pytest.raises(KeyError, match="known"):
         get_page("nope")
