@@ -20,7 +20,6 @@ import html
 import logging
 import threading
 import time
-from functools import partial
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -102,7 +101,13 @@ _CSS = """
 
 _NAV_CSS = """
 :host { --ccd-nav: 1; }
-.bk-btn { text-align: left; font-size: 0.98em; }
+.bk-btn-group { gap: 4px; }
+.bk-btn-group .bk-btn { text-align: left; font-size: 0.98em; border-radius: 6px !important;
+  margin: 0 !important; background: #f8f9fa !important; border: 1px solid #f8f9fa !important;
+  color: #212529 !important; box-shadow: none !important; }
+.bk-btn-group .bk-btn:hover { background: #e2e6ea !important; }
+.bk-btn-group .bk-btn.bk-active { background: #0d6efd !important;
+  border-color: #0d6efd !important; color: #ffffff !important; }
 """
 
 
@@ -116,16 +121,14 @@ class AppShell(param.Parameterized):
         super().__init__(**params)
         self.state = state
         self._pages: dict[str, pn.viewable.Viewable] = {}
-        self.buttons: dict[str, pn.widgets.Button] = {}
-        rows = []
-        for spec in PAGES:
-            button = pn.widgets.Button(label=f"{spec.icon}  {spec.title}", color="light",
-                                       sizing_mode="stretch_width", stylesheets=[_NAV_CSS],
-                                       margin=(2, 4))
-            button.on_click(partial(self._go, spec.slug))
-            self.buttons[spec.slug] = button
-            rows.append(button)
-        self.nav = pn.Column(*rows, sizing_mode="stretch_width", css_classes=["ccd-nav"])
+        #: the sidebar's page buttons: one Bokeh model for all (eight buttons and their
+        #: column cost the first view some 40 ms on the server and in the browser)
+        self.nav = pn.widgets.RadioButtonGroup(
+            options={f"{spec.icon}  {spec.title}": spec.slug for spec in PAGES},
+            value=self.page, orientation="vertical", button_style="solid",
+            sizing_mode="stretch_width", margin=(2, 4), stylesheets=[_NAV_CSS],
+            css_classes=["ccd-nav"])
+        self.nav.param.watch(lambda event: self._go(event.new), "value")
         #: slug -> the holder of each page (the template's main area shows each holder as its
         #: own Bokeh root): empty until the first visit, then the page, shown or hidden, never
         #: rebuilt. A change in one page then never makes the browser lay out another.
@@ -168,8 +171,7 @@ class AppShell(param.Parameterized):
         """Show the chosen page and hide the others. A visited page stays in the document with
         its plots (hidden): a revisit draws nothing new. A page may define ``on_show()``
         (e.g. to compute on first show)."""
-        for slug, button in self.buttons.items():
-            button.color = "primary" if slug == self.page else "light"
+        self.nav.value = self.page
         shown = self.holder(self.page)
         for holder in self.holders.values():
             if holder is not shown:
@@ -461,6 +463,9 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
     from bokeh.settings import settings as bokeh_settings
 
     bokeh_settings.perform_document_validation.set_value(False)
+    # and it checks the signature of every property callback Panel registers (some 270 for
+    # the first view, 25-35 ms): Panel's own callbacks, always well-formed
+    bokeh_settings.perform_error_diagnostics.set_value(False)
     origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
 
     def app() -> pn.template.BaseTemplate:  # a plain function: Panel calls it per session

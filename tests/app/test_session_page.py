@@ -219,13 +219,14 @@ def test_shell_navigation(state):
     assert shell.holders["session"].objects[0] is page.__panel__()
     assert not any(h.objects for slug, h in shell.holders.items()   # unvisited: empty
                    if slug != "session")
+    shell.nav.value = "flat_field"                                # the sidebar's button
+    assert shell.page == "flat_field"
     shell.page = "flat_field"
-    assert shell.buttons["flat_field"].color == "primary"
-    assert shell.buttons["session"].color == "light"
     # one page visible, the visited ones kept hidden
     assert [h.visible for h in shell.holders.values()].count(True) == 1
     assert shell.holders["flat_field"].visible and not shell.holders["session"].visible
-    shell.page = "session"
+    shell.page = "session"                                        # e.g. from the address
+    assert shell.nav.value == "session"
     assert shell.page_view("session") is page                     # kept, not rebuilt
     assert shell.holders["session"].visible
     assert shell.holders["session"].objects[0] is page.__panel__()
