@@ -689,6 +689,232 @@ def _nan() -> float:
     return float("nan")
 
 
+def _points(plan: Any, bright_stats: Sequence, dark_stats: Sequence
+            ) -> tuple[list[DarkPoint], list[EmvaPoint]]:
+    """The dark points (one per exposure time) and the bright points (sec. 6.6, ``Data1288``),
+    each with the standard errors of its mean and variance (normal pixels)."""
+    dark_points = []
+    for i, (t, recs) in enumerate(plan.darks):
+        mu, s2, n = dark_stats[i]
+        dark_points.append(DarkPoint(
+            exposure=t, u_y_dark=mu, u_y_dark_err=math.sqrt(max(s2, 0.0) / (2.0 * n)),
+            s2_y_dark=s2, s2_y_dark_err=math.sqrt(2.0 * s2 * s2 / (n - 1)),
+            relpaths=(recs[0].relpath, recs[1].relpath)))
+    raw = []
+    for (lv, t, u_p, _), (mu, s2, n) in zip(plan.temporal, bright_stats):
+        d = _dark_at(dark_points, t)
+        raw.append(EmvaPoint(level=lv, exposure=t, u_p=u_p, u_y=mu,
+                             u_y_err=math.sqrt(max(s2, 0.0) / (2.0 * n)), s2_y=s2,
+                             s2_y_err=math.sqrt(2.0 * s2 * s2 / (n - 1)), u_y_dark=d.u_y_dark,
+                             s2_y_dark=d.s2_y_dark, s2_y_dark_err=d.s2_y_dark_err, n_pixels=n))
+    return dark_points, raw
+
+
+def _dark_at(dark_points: Sequence[DarkPoint], t: float | None) -> DarkPoint:
+    return next(d for d in dark_points if _same_exposure(d.exposure, t))
+
+
+@dataclass(frozen=True)
+class _Curves:
+    """The bright points as arrays: μ_p, Y = μ_y − μ_y.dark, S = σ²_y − σ²_y.dark, their
+    variances, and σ²_y."""
+
+    u_p: np.ndarray
+    Y: np.ndarray
+    var_Y: np.ndarray
+    S: np.ndarray
+    var_S: np.ndarray
+    s2_y: np.ndarray
+
+    @classmethod
+    def of(cls, raw: Sequence[EmvaPoint], dark_points: Sequence[DarkPoint]) -> "_Curves":
+        return cls(
+            u_p=np.array([p.u_p for p in raw]),
+            Y=np.array([p.u_y - p.u_y_dark for p in raw]),
+            var_Y=np.array([p.u_y_err ** 2 + _dark_at(dark_points, p.exposure).u_y_dark_err ** 2
+                            for p in raw]),
+            S=np.array([p.s2_y - p.s2_y_dark for p in raw]),
+            var_S=np.array([p.s2_y_err ** 2 + p.s2_y_dark_err ** 2 for p in raw]),
+            s2_y=np.array([p.s2_y for p in raw]))
+
+
+@dataclass(frozen=True)
+class _Sensitivity:
+    i_sat: int
+    i_fit: int
+    R: float
+    R_err: float
+    K: float
+    K_err: float
+    QE: float
+    QE_err: float
+
+
+def _sensitivity(c: _Curves, raw: Sequence[EmvaPoint], label: str, notes: list[str]
+                 ) -> _Sensitivity:
+    """The saturation point, the fit range and the fits of R and K (sec. 6.6), QE = R/K."""
+    Y = c.Y
+    i_sat = _saturation_index(c.s2_y)
+    i_peak = int(np.argmax(c.s2_y))
+    if c.s2_y[i_peak] > c.s2_y[i_sat]:
+        notes.append(f"the saturation point is taken as the package does (its backward search "
+                     f"stops at ptc level {raw[i_sat].level}, mu_y - mu_y.dark = "
+                     f"{Y[i_sat]:.4g} DN), but the largest variance is at ptc level "
+                     f"{raw[i_peak].level} ({Y[i_peak]:.4g} DN): the "
+                     "search stopped on the plateau after saturation, and the figures that "
+                     "use the saturation point (the fit range, mu_p.sat, mu_e.sat, SNR_max, "
+                     "DR, linearity) are those of that point")
+    below = np.flatnonzero(Y <= SENSITIVITY_FRACTION * Y[i_sat])
+    if Y[i_sat] <= 0 or below.size == 0:
+        raise CcdError(label, f"every bright point is saturated or dark: no point has a signal "
+                              f"mu_y - mu_y.dark below {100 * SENSITIVITY_FRACTION:g} % of the "
+                              f"saturation point's {Y[i_sat]:.4g} DN (ptc level "
+                              f"{raw[i_sat].level}); capture points from dark to saturation")
+    i_fit = int(below.max())
+    fit = slice(0, i_fit + 1)
+    if i_fit + 1 < 2:
+        raise CcdError(label, f"only {i_fit + 1} bright point below "
+                              f"{100 * SENSITIVITY_FRACTION:g} % of saturation (ptc level "
+                              f"{raw[i_sat].level} at {Y[i_sat]:.4g} DN): the fits of R and K need "
+                              "at least 2; capture more points below saturation")
+    R, R_err = _line_b0(c.u_p[fit], Y[fit], c.var_Y[fit])
+    K, K_err = _line_b0(Y[fit], c.S[fit], c.var_S[fit])
+    if not (K > 0 and R > 0):
+        raise CcdError(label, f"the fitted system gain K = {K:.4g} DN/e- or responsivity "
+                              f"R = {R:.4g} DN/p is not positive: check the dark subtraction "
+                              "and the photon counts")
+    QE = 100.0 * R / K
+    return _Sensitivity(i_sat, i_fit, R, R_err, K, K_err, QE,
+                        QE * math.hypot(R_err / R, K_err / K))
+
+
+@dataclass(frozen=True)
+class _DarkNoise:
+    sigma_y_dark: float
+    sigma_y_dark_err: float
+    sigma_y_dark_measured: float
+    u_dark: float
+    u_dark_err: float
+    sigma_d: float
+    sigma_d_err: float
+    quantisation_limited: bool
+
+
+def _dark_noise(dark_points: Sequence[DarkPoint], sens: _Sensitivity, notes: list[str]
+                ) -> _DarkNoise:
+    """σ_y.dark (floored as the package does), μ_y.dark and σ_d from the darks (sec. 2.2, 3)."""
+    K, K_err = sens.K, sens.K_err
+    (s2_dark, s2_dark_err), (u_dark, u_dark_err), dark_rule = _dark_level(dark_points)
+    sigma_y_dark_measured = math.sqrt(s2_dark) if s2_dark > 0 else 0.0
+    if s2_dark < SIGMA2_Y_DARK_FLOOR:
+        notes.append(f"sigma2_y.dark = {s2_dark:.4g} DN² ({dark_rule}) is below "
+                     f"{SIGMA2_Y_DARK_FLOOR:g} DN²: floored there as the package does, so "
+                     "sigma_y.dark, sigma_d and mu_p.min are upper bounds without an error")
+        s2_used, s2_used_err = SIGMA2_Y_DARK_FLOOR, _nan()
+    else:
+        s2_used, s2_used_err = s2_dark, s2_dark_err
+    sigma_y_dark = math.sqrt(s2_used)
+    excess = s2_used - QUANTISATION_VARIANCE
+    sigma_d = math.sqrt(excess) / K if excess > 0 else _nan()
+    if excess > 0:
+        sigma_d_err = math.hypot(s2_used_err / (2.0 * K * math.sqrt(excess)), sigma_d * K_err / K)
+    else:
+        sigma_d_err = _nan()
+    quantisation_limited = sigma_y_dark_measured < QUANTISATION_LIMIT_DN
+    if quantisation_limited:
+        notes.append(f"the temporal dark noise sigma_y.dark = {sigma_y_dark_measured:.3g} DN is "
+                     f"below {QUANTISATION_LIMIT_DN:g} DN: at this level the rounding of the "
+                     "ADC (quantisation noise, 1/12 DN²) dominates it, so the read noise sigma_d "
+                     "is poorly determined, and the value from the darks and the one from the "
+                     "photon-transfer intercept can differ by a factor of two; a higher gain "
+                     "setting would measure it")
+    return _DarkNoise(sigma_y_dark, s2_used_err / (2.0 * sigma_y_dark), sigma_y_dark_measured,
+                      u_dark, u_dark_err, sigma_d, sigma_d_err, quantisation_limited)
+
+
+@dataclass(frozen=True)
+class _PtcReadNoise:
+    sigma_d: float | None = None
+    sigma_d_err: float | None = None
+    K: float | None = None
+    K_err: float | None = None
+    consistent: bool | None = None
+
+
+def _ptc_read_noise(session: Session, noise: PhotonTransfer | None, with_ptc: bool,
+                    dark: _DarkNoise, notes: list[str]) -> _PtcReadNoise:
+    """σ_d from the intercept of our photon-transfer line (Healey & Kondepudy eq. 27), and
+    whether it agrees with σ_d from the darks within :data:`DISAGREEMENT_Z` standard errors."""
+    if noise is None and with_ptc:
+        from .noise import photon_transfer
+
+        try:
+            noise = photon_transfer(session)
+        except CcdError as exc:
+            notes.append(f"sigma_d from photon transfer is not available: {exc.problem}")
+    if noise is None:
+        return _PtcReadNoise()
+    K_ptc, K_ptc_err = float(noise.A), float(noise.A_err)
+    if not math.isfinite(noise.read_noise_e):
+        notes.append("sigma_d from photon transfer is not resolved (its intercept "
+                     "sigma_c2 is not above q²/12)")
+        return _PtcReadNoise(K=K_ptc, K_err=K_ptc_err)
+    s_ptc, s_ptc_err = float(noise.read_noise_e), float(noise.read_noise_e_err)
+    consistent: bool | None = None
+    both = math.hypot(dark.sigma_d_err, s_ptc_err)
+    if math.isfinite(dark.sigma_d) and math.isfinite(both) and both > 0:
+        z = abs(dark.sigma_d - s_ptc) / both
+        consistent = z <= DISAGREEMENT_Z
+        if not consistent:
+            notes.append(
+                f"sigma_d from the darks ({dark.sigma_d:.4g} ± {dark.sigma_d_err:.2g} e-) and "
+                f"from the photon-transfer intercept ({s_ptc:.4g} ± {s_ptc_err:.2g} e-) "
+                f"disagree by {z:.1f} standard errors"
+                + (" (quantisation dominates the dark noise)"
+                   if dark.quantisation_limited else ""))
+    return _PtcReadNoise(s_ptc, s_ptc_err, K_ptc, K_ptc_err, consistent)
+
+
+@dataclass(frozen=True)
+class _Range:
+    u_p_min: float
+    u_p_min_err: float
+    u_p_sat: float
+    u_p_sat_err: float
+    u_e_sat: float
+    u_e_sat_err: float
+    SNR_max: float
+    SNR_max_err: float
+    DR: float
+    DR_err: float
+    DR_dB: float
+    DR_dB_err: float
+
+
+def _threshold_and_range(u_p: np.ndarray, sens: _Sensitivity, dark: _DarkNoise) -> _Range:
+    """The absolute sensitivity threshold, the saturation capacity, SNR_max and the dynamic
+    range (sec. 2.4; eqs. 18, 33), with first-order errors."""
+    R, R_err, K, K_err, QE = sens.R, sens.R_err, sens.K, sens.K_err, sens.QE
+    eta = QE / 100.0
+    u_p_min = (100.0 / QE) * (dark.sigma_y_dark / K + 0.5)          # = (σ_y.dark + K/2)/R
+    u_p_min_err = math.sqrt((dark.sigma_y_dark_err / R) ** 2 + (K_err / (2.0 * R)) ** 2
+                            + (u_p_min * R_err / R) ** 2)
+    i_sat = sens.i_sat
+    u_p_sat = float(u_p[i_sat])
+    # the saturation point is one of the grid's points: the resolution of the series, the
+    # local spacing over √12 (a uniform spread between the neighbours' midpoints)
+    lo_i, hi_i = max(i_sat - 1, 0), min(i_sat + 1, len(u_p) - 1)
+    u_p_sat_err = abs(float(u_p[hi_i] - u_p[lo_i])) / max(hi_i - lo_i, 1) / math.sqrt(12.0)
+    u_e_sat = eta * u_p_sat
+    u_e_sat_err = math.hypot(u_p_sat * sens.QE_err / 100.0, eta * u_p_sat_err)
+    SNR_max = math.sqrt(u_e_sat)
+    DR = u_p_sat / u_p_min
+    DR_err = DR * math.hypot(u_p_min_err / u_p_min, u_p_sat_err / u_p_sat)
+    return _Range(u_p_min, u_p_min_err, u_p_sat, u_p_sat_err, u_e_sat, u_e_sat_err, SNR_max,
+                  u_e_sat_err / (2.0 * SNR_max), DR, DR_err, 20.0 * math.log10(DR),
+                  20.0 / math.log(10.0) * DR_err / DR)
+
+
 def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, with_ptc: bool = True) -> EmvaFigures:
     """The EMVA 1288 (release 3.1) figures of a session whose bright frames carry photon counts.
@@ -782,166 +1008,39 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
 
     report(*EMVA_STEPS[0])
     bright_stats, dark_stats, stacks = _read(session, plan)
-
-    # ---- points ---------------------------------------------------------------------------
-    dark_points = []
-    for i, (t, recs) in enumerate(plan.darks):
-        mu, s2, n = dark_stats[i]
-        dark_points.append(DarkPoint(
-            exposure=t, u_y_dark=mu, u_y_dark_err=math.sqrt(max(s2, 0.0) / (2.0 * n)),
-            s2_y_dark=s2, s2_y_dark_err=math.sqrt(2.0 * s2 * s2 / (n - 1)),
-            relpaths=(recs[0].relpath, recs[1].relpath)))
-
-    def dark_of(t: float | None) -> DarkPoint:
-        return next(d for d in dark_points if _same_exposure(d.exposure, t))
-
-    raw = []
-    for (lv, t, u_p, _), (mu, s2, n) in zip(plan.temporal, bright_stats):
-        d = dark_of(t)
-        raw.append(EmvaPoint(level=lv, exposure=t, u_p=u_p, u_y=mu,
-                             u_y_err=math.sqrt(max(s2, 0.0) / (2.0 * n)), s2_y=s2,
-                             s2_y_err=math.sqrt(2.0 * s2 * s2 / (n - 1)), u_y_dark=d.u_y_dark,
-                             s2_y_dark=d.s2_y_dark, s2_y_dark_err=d.s2_y_dark_err, n_pixels=n))
-    u_p = np.array([p.u_p for p in raw])
-    Y = np.array([p.u_y - p.u_y_dark for p in raw])                 # μ_y − μ_y.dark
-    var_Y = np.array([p.u_y_err ** 2 + dark_of(p.exposure).u_y_dark_err ** 2 for p in raw])
-    S = np.array([p.s2_y - p.s2_y_dark for p in raw])               # σ²_y − σ²_y.dark
-    var_S = np.array([p.s2_y_err ** 2 + p.s2_y_dark_err ** 2 for p in raw])
-    s2_y = np.array([p.s2_y for p in raw])
-
-    # ---- saturation and the sensitivity fits (sec. 6.6) ---------------------------------
-    i_sat = _saturation_index(s2_y)
-    i_peak = int(np.argmax(s2_y))
-    if s2_y[i_peak] > s2_y[i_sat]:
-        notes.append(f"the saturation point is taken as the package does (its backward search "
-                     f"stops at ptc level {raw[i_sat].level}, mu_y - mu_y.dark = "
-                     f"{Y[i_sat]:.4g} DN), but the largest variance is at ptc level "
-                     f"{raw[i_peak].level} ({Y[i_peak]:.4g} DN): the "
-                     "search stopped on the plateau after saturation, and the figures that "
-                     "use the saturation point (the fit range, mu_p.sat, mu_e.sat, SNR_max, "
-                     "DR, linearity) are those of that point")
-    below = np.flatnonzero(Y <= SENSITIVITY_FRACTION * Y[i_sat])
-    if Y[i_sat] <= 0 or below.size == 0:
-        raise CcdError(label, f"every bright point is saturated or dark: no point has a signal "
-                              f"mu_y - mu_y.dark below {100 * SENSITIVITY_FRACTION:g} % of the "
-                              f"saturation point's {Y[i_sat]:.4g} DN (ptc level "
-                              f"{raw[i_sat].level}); capture points from dark to saturation")
-    i_fit = int(below.max())
-    fit = slice(0, i_fit + 1)
-    if i_fit + 1 < 2:
-        raise CcdError(label, f"only {i_fit + 1} bright point below "
-                              f"{100 * SENSITIVITY_FRACTION:g} % of saturation (ptc level "
-                              f"{raw[i_sat].level} at {Y[i_sat]:.4g} DN): the fits of R and K need "
-                              "at least 2; capture more points below saturation")
-    R, R_err = _line_b0(u_p[fit], Y[fit], var_Y[fit])
-    K, K_err = _line_b0(Y[fit], S[fit], var_S[fit])
-    if not (K > 0 and R > 0):
-        raise CcdError(label, f"the fitted system gain K = {K:.4g} DN/e- or responsivity "
-                              f"R = {R:.4g} DN/p is not positive: check the dark subtraction "
-                              "and the photon counts")
-    QE = 100.0 * R / K
-    QE_err = QE * math.hypot(R_err / R, K_err / K)
-
-    # ---- dark noise (sec. 2.2, 3) ---------------------------------------------------------
-    (s2_dark, s2_dark_err), (u_dark, u_dark_err), dark_rule = _dark_level(dark_points)
-    sigma_y_dark_measured = math.sqrt(s2_dark) if s2_dark > 0 else 0.0
-    if s2_dark < SIGMA2_Y_DARK_FLOOR:
-        notes.append(f"sigma2_y.dark = {s2_dark:.4g} DN² ({dark_rule}) is below "
-                     f"{SIGMA2_Y_DARK_FLOOR:g} DN²: floored there as the package does, so "
-                     "sigma_y.dark, sigma_d and mu_p.min are upper bounds without an error")
-        s2_used, s2_used_err = SIGMA2_Y_DARK_FLOOR, _nan()
-    else:
-        s2_used, s2_used_err = s2_dark, s2_dark_err
-    sigma_y_dark = math.sqrt(s2_used)
-    sigma_y_dark_err = s2_used_err / (2.0 * sigma_y_dark)
-    excess = s2_used - QUANTISATION_VARIANCE
-    sigma_d = math.sqrt(excess) / K if excess > 0 else _nan()
-    if excess > 0:
-        sigma_d_err = math.hypot(s2_used_err / (2.0 * K * math.sqrt(excess)), sigma_d * K_err / K)
-    else:
-        sigma_d_err = _nan()
-    quantisation_limited = sigma_y_dark_measured < QUANTISATION_LIMIT_DN
-    if quantisation_limited:
-        notes.append(f"the temporal dark noise sigma_y.dark = {sigma_y_dark_measured:.3g} DN is "
-                     f"below {QUANTISATION_LIMIT_DN:g} DN: at this level the rounding of the "
-                     "ADC (quantisation noise, 1/12 DN²) dominates it, so the read noise sigma_d "
-                     "is poorly determined, and the value from the darks and the one from the "
-                     "photon-transfer intercept can differ by a factor of two; a higher gain "
-                     "setting would measure it")
-
-    # ---- sigma_d from photon transfer (Healey & Kondepudy eq. 27) ----------------------
+    dark_points, raw = _points(plan, bright_stats, dark_stats)
+    c = _Curves.of(raw, dark_points)
+    sens = _sensitivity(c, raw, label, notes)
+    dark = _dark_noise(dark_points, sens, notes)
     report(*EMVA_STEPS[1])
-    if noise is None and with_ptc:
-        from .noise import photon_transfer
-
-        try:
-            noise = photon_transfer(session)
-        except CcdError as exc:
-            notes.append(f"sigma_d from photon transfer is not available: {exc.problem}")
-    sigma_d_ptc = sigma_d_ptc_err = K_ptc = K_ptc_err = None
-    consistent: bool | None = None
-    if noise is not None:
-        K_ptc, K_ptc_err = float(noise.A), float(noise.A_err)
-        if math.isfinite(noise.read_noise_e):
-            sigma_d_ptc, sigma_d_ptc_err = float(noise.read_noise_e), float(noise.read_noise_e_err)
-            both = math.hypot(sigma_d_err, sigma_d_ptc_err)
-            if math.isfinite(sigma_d) and math.isfinite(both) and both > 0:
-                z = abs(sigma_d - sigma_d_ptc) / both
-                consistent = z <= DISAGREEMENT_Z
-                if not consistent:
-                    notes.append(
-                        f"sigma_d from the darks ({sigma_d:.4g} ± {sigma_d_err:.2g} e-) and from "
-                        f"the photon-transfer intercept ({sigma_d_ptc:.4g} ± "
-                        f"{sigma_d_ptc_err:.2g} e-) disagree by {z:.1f} standard errors"
-                        + (" (quantisation dominates the dark noise)"
-                           if quantisation_limited else ""))
-        else:
-            notes.append("sigma_d from photon transfer is not resolved (its intercept "
-                         "sigma_c2 is not above q²/12)")
-
-    # ---- sensitivity threshold, saturation, dynamic range (sec. 2.4) ------------------
-    eta = QE / 100.0
-    u_p_min = (100.0 / QE) * (sigma_y_dark / K + 0.5)                 # = (σ_y.dark + K/2)/R
-    u_p_min_err = math.sqrt((sigma_y_dark_err / R) ** 2 + (K_err / (2.0 * R)) ** 2
-                            + (u_p_min * R_err / R) ** 2)
-    u_p_sat = float(u_p[i_sat])
-    # the saturation point is one of the grid's points: the resolution of the series, the
-    # local spacing over √12 (a uniform spread between the neighbours' midpoints)
-    lo_i, hi_i = max(i_sat - 1, 0), min(i_sat + 1, len(u_p) - 1)
-    u_p_sat_err = abs(float(u_p[hi_i] - u_p[lo_i])) / max(hi_i - lo_i, 1) / math.sqrt(12.0)
-    u_e_sat = eta * u_p_sat
-    u_e_sat_err = math.hypot(u_p_sat * QE_err / 100.0, eta * u_p_sat_err)
-    SNR_max = math.sqrt(u_e_sat)
-    SNR_max_err = u_e_sat_err / (2.0 * SNR_max)
-    DR = u_p_sat / u_p_min
-    DR_err = DR * math.hypot(u_p_min_err / u_p_min, u_p_sat_err / u_p_sat)
-    DR_dB = 20.0 * math.log10(DR)
-    DR_dB_err = 20.0 / math.log(10.0) * DR_err / DR
-
-    # ---- linearity (sec. 6.7) and spatial nonuniformity (sec. 4.1, 8) -----------------
+    ptc = _ptc_read_noise(session, noise, with_ptc, dark, notes)
+    thr = _threshold_and_range(c.u_p, sens, dark)
     i_lin_min, i_lin_max, lin_a, lin_b, (le_min, le_min_err), (le_max, le_max_err) = \
-        _linearity(u_p, Y, var_Y, i_sat, label)
+        _linearity(c.u_p, c.Y, c.var_Y, sens.i_sat, label)
     dsnu = dsnu_err = prnu = prnu_err = None
     sp, spd = stacks.get("spatial"), stacks.get("spatial_dark")
     if sp is not None and spd is not None:
-        dsnu, dsnu_err, prnu, prnu_err = _nonuniformity(sp, spd, K, K_err, notes)
+        dsnu, dsnu_err, prnu, prnu_err = _nonuniformity(sp, spd, sens.K, sens.K_err, notes)
 
-    points = tuple(replace(p, in_sensitivity_fit=i <= i_fit,
-                           in_linearity_fit=i_lin_min <= i <= i_lin_max, saturation=i == i_sat)
+    points = tuple(replace(p, in_sensitivity_fit=i <= sens.i_fit,
+                           in_linearity_fit=i_lin_min <= i <= i_lin_max,
+                           saturation=i == sens.i_sat)
                    for i, p in enumerate(raw))
     report(*EMVA_STEPS[2])
     return EmvaFigures(
-        K=K, K_err=K_err, R=R, R_err=R_err, QE=QE, QE_err=QE_err, sigma_y_dark=sigma_y_dark,
-        sigma_y_dark_err=sigma_y_dark_err, sigma_y_dark_measured=sigma_y_dark_measured,
-        u_y_dark=u_dark, u_y_dark_err=u_dark_err, sigma_d=sigma_d, sigma_d_err=sigma_d_err,
-        sigma_d_ptc=sigma_d_ptc, sigma_d_ptc_err=sigma_d_ptc_err, K_ptc=K_ptc, K_ptc_err=K_ptc_err,
-        u_p_min=u_p_min, u_p_min_err=u_p_min_err, u_p_sat=u_p_sat, u_p_sat_err=u_p_sat_err,
-        u_e_sat=u_e_sat,
-        u_e_sat_err=u_e_sat_err, SNR_max=SNR_max, SNR_max_err=SNR_max_err, DR=DR, DR_err=DR_err,
-        DR_dB=DR_dB, DR_dB_err=DR_dB_err, LE_min=le_min, LE_min_err=le_min_err, LE_max=le_max,
-        LE_max_err=le_max_err, linearity_slope=lin_a, linearity_offset=lin_b,
+        K=sens.K, K_err=sens.K_err, R=sens.R, R_err=sens.R_err, QE=sens.QE, QE_err=sens.QE_err,
+        sigma_y_dark=dark.sigma_y_dark, sigma_y_dark_err=dark.sigma_y_dark_err,
+        sigma_y_dark_measured=dark.sigma_y_dark_measured, u_y_dark=dark.u_dark,
+        u_y_dark_err=dark.u_dark_err, sigma_d=dark.sigma_d, sigma_d_err=dark.sigma_d_err,
+        sigma_d_ptc=ptc.sigma_d, sigma_d_ptc_err=ptc.sigma_d_err, K_ptc=ptc.K, K_ptc_err=ptc.K_err,
+        u_p_min=thr.u_p_min, u_p_min_err=thr.u_p_min_err, u_p_sat=thr.u_p_sat,
+        u_p_sat_err=thr.u_p_sat_err, u_e_sat=thr.u_e_sat, u_e_sat_err=thr.u_e_sat_err,
+        SNR_max=thr.SNR_max, SNR_max_err=thr.SNR_max_err, DR=thr.DR, DR_err=thr.DR_err,
+        DR_dB=thr.DR_dB, DR_dB_err=thr.DR_dB_err, LE_min=le_min, LE_min_err=le_min_err,
+        LE_max=le_max, LE_max_err=le_max_err, linearity_slope=lin_a, linearity_offset=lin_b,
         DSNU1288=dsnu, DSNU1288_err=dsnu_err, PRNU1288=prnu, PRNU1288_err=prnu_err,
-        index_u_ysat=i_sat, index_sensitivity_max=i_fit, index_linearity_min=i_lin_min,
-        index_linearity_max=i_lin_max, points=points, dark_points=tuple(dark_points),
-        spatial=sp, spatial_dark=spd, sigma_d_consistent=consistent,
-        quantisation_limited=quantisation_limited, notes=tuple(notes), source=label)
+        index_u_ysat=sens.i_sat, index_sensitivity_max=sens.i_fit,
+        index_linearity_min=i_lin_min, index_linearity_max=i_lin_max, points=points,
+        dark_points=tuple(dark_points), spatial=sp, spatial_dark=spd,
+        sigma_d_consistent=ptc.consistent, quantisation_limited=dark.quantisation_limited,
+        notes=tuple(notes), source=label)
