@@ -1078,39 +1078,22 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     # the band, the noise terms and the pool's errors from the last pass
     after = _pick_pool(s, resid, gk, like=before)
     Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
-    Psi = JW.T @ Sg                                   # (K, G)
-    G = Sg.shape[1]
-    meat = (Psi @ Psi.T) * (G / (G - 1.0))
-    cov = np.zeros((K, K))
-    try:
-        Hi = np.linalg.inv(Hs[np.ix_(free, free)])
-        cov[np.ix_(free, free)] = Hi @ meat[np.ix_(free, free)] @ Hi
-    except np.linalg.LinAlgError:
-        cov[np.ix_(free, free)] = np.nan
-    # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
-    S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
-    cov = S @ cov @ S.T
-    err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    a_err = np.zeros(N)
-    b_err = np.zeros(N)
     if fit_a and J.shape[1] == K + 2 * N:
-        # g, the gains and the offsets together (their errors come mostly through g): the
-        # sandwich in the coordinates of the free knots and the gauge's free directions
         Tf, _ = _joint_frame(free, a, t)
         Hfull = JWfull.T @ Jm
         Hfull[:K, :K] += lam * P_s
-        A = Tf.T @ Hfull @ Tf
-        try:
-            Ai = np.linalg.inv(A)
-            Psi_f = Tf.T @ (JWfull.T @ Sg)
-            cov_f = Tf @ Ai @ ((Psi_f @ Psi_f.T) * (G / (G - 1.0))) @ Ai @ Tf.T
-        except np.linalg.LinAlgError:
-            cov_f = np.full((K + 2 * N, K + 2 * N), np.nan)
+        cov_f = _sandwich(Tf.T @ Hfull @ Tf, Tf.T @ (JWfull.T @ Sg), Tf)
         gk, b, D = _least_offsets(gk, a, b, k_rep)
         cov_f = D @ cov_f @ D.T
-        a_err = np.sqrt(np.maximum(np.diag(cov_f)[K:K + N], 0.0))
-        b_err = np.sqrt(np.maximum(np.diag(cov_f)[K + N:], 0.0))
-        err = np.sqrt(np.maximum(np.diag(cov_f)[:K], 0.0))
+        err, a_err, b_err = (np.sqrt(np.maximum(np.diag(cov_f)[part], 0.0))
+                             for part in (slice(0, K), slice(K, K + N), slice(K + N, None)))
+    else:
+        cov = np.zeros((K, K))
+        cov[np.ix_(free, free)] = _sandwich(Hs[np.ix_(free, free)], (JW.T @ Sg)[free])
+        # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
+        S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
+        err = np.sqrt(np.maximum(np.diag(S @ cov @ S.T), 0.0))
+        a_err, b_err = np.zeros(N), np.zeros(N)
     theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
     # the reported scale: g(z_hi) = z_hi / (L - 1); a, b follow
@@ -1118,6 +1101,44 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     ss, ss_e = _sqrt_err(theta_n[0] * sc, theta_e[0] * sc)
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
+    chi2_last = history[-1]["chi2"] if history else float("nan")
+    notes = _estimate_notes(opts, data, s, sampled=sampled, converged=converged, step=step,
+                            chi2=chi2_last, theta=theta_n)
+    pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
+                      n.astype(np.int64), tm * sc, sig * sc, se * sc)
+    return ChannelResponse(
+        channel=data.channel, method="tsin", g=g_rep,
+        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc if fit_a else a,
+        a_err=a_err * sc, b=b * sc + c0 if fit_a else b, b_err=b_err * sc, t=t, sigma_s=ss,
+        sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
+        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
+        white_balance=fit_a, pools=pools, history=tuple(history),
+        pool_errors={"pool_image": before["pool_image"], "code": before["code"],
+                     "predicted_image": before["predicted_image"], "before": before["values"],
+                     "after": after["values"]},
+        notes=tuple(notes))
+
+
+def _sandwich(bread: NDArray, scores: NDArray, frame: NDArray | None = None
+              ) -> NDArray[np.float64]:
+    """The sandwich covariance B⁻¹ (Ψ Ψᵀ G/(G − 1)) B⁻¹ from the blocks' scores Ψ (one column
+    per block of rows; one pixel's noise enters many pools' rows, and neighbours of an
+    interpolated colour frame are correlated), mapped by ``frame`` (T B⁻¹ … B⁻¹ Tᵀ) when
+    given; NaN where the bread is singular."""
+    G = scores.shape[1]
+    n = bread.shape[0] if frame is None else frame.shape[0]
+    try:
+        Bi = np.linalg.inv(bread)
+    except np.linalg.LinAlgError:
+        return np.full((n, n), np.nan)
+    cov = Bi @ ((scores @ scores.T) * (G / (G - 1.0))) @ Bi
+    return cov if frame is None else frame @ cov @ frame.T
+
+
+def _estimate_notes(opts: TsinOptions, data: BracketData, s: _Setup, *, sampled: int,
+                    converged: bool, step: float, chi2: float, theta: NDArray) -> list[str]:
+    """What a user of the curve should know: the sample, convergence, the pool threshold,
+    the white balance's gauge, exposures the fit could not explain, a noise term forced to 0."""
     notes = []
     if sampled:
         notes.append(f"estimated on an even sample of {data.n_pixels} of the bracket's "
@@ -1128,34 +1149,22 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     if s.min_pool < opts.min_pool:
         notes.append(f"pools of at least {s.min_pool} pixels counted (the bracket is small; "
                      f"sec. 4.1 used {opts.min_pool})")
-    chi2_last = history[-1]["chi2"] if history else float("nan")
-    if fit_a:
+    if opts.white_balance:
         notes.append("gains a_k and offsets b_k estimated (white balance, exposure errors), "
                      "with ln(a_k/t_k) of zero mean and zero trend in ln t_k and the offsets b_k "
                      "of smallest norm (the bracket cannot fix those: a common gain, sec. 3.2's "
                      "u-ambiguity, an offset of g and one of the radiance)")
-    if chi2_last > 3.0:
-        cause = ("the gains and offsets do not explain the exposures" if fit_a else
+    if chi2 > 3.0:
+        cause = ("the gains and offsets do not explain the exposures" if opts.white_balance else
                  "the exposures do not follow the nominal times (white balance or shutter "
                  "errors? estimate the gains)")
-        notes.append(f"the pools' errors are {math.sqrt(chi2_last):.1f} times their expected "
-                     f"size (chi²/dof {chi2_last:.0f}): {cause}, or the scene moved; g is "
+        notes.append(f"the pools' errors are {math.sqrt(chi2):.1f} times their expected "
+                     f"size (chi²/dof {chi2:.0f}): {cause}, or the scene moved; g is "
                      "distorted")
-    if theta_n[2] == 0 or theta_n[0] == 0:
+    if theta[2] == 0 or theta[0] == 0:
         notes.append("a noise term was forced to 0 by the non-negative fit (sec. 4.1: when g and "
                      "g'² look alike, shot and output noise cannot be told apart)")
-    pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
-                      n.astype(np.int64), tm * sc, sig * sc, se * sc)
-    return ChannelResponse(
-        channel=data.channel, method="tsin", g=g_rep,
-        g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc if fit_a else a,
-        a_err=a_err * sc, b=b * sc + c0 if fit_a else b, b_err=b_err * sc, t=t, sigma_s=ss, sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
-        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
-        white_balance=fit_a, pools=pools, history=tuple(history),
-        pool_errors={"pool_image": before["pool_image"], "code": before["code"],
-                     "predicted_image": before["predicted_image"], "before": before["values"],
-                     "after": after["values"]},
-        notes=tuple(notes))
+    return notes
 
 
 def _pick_pool(s: _Setup, resid: NDArray, gk: NDArray, like: dict | None = None
