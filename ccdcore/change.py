@@ -84,9 +84,9 @@ REFINE = 20_000
 Progress = Callable[[float, str], None]
 
 
-@dataclass
+@dataclass(frozen=True)
 class ChangeOptions:
-    """Settings of :func:`detect`.
+    """Settings of :func:`detect` (frozen: equal settings are one key of a cache of results).
 
     pfa
         Requested false-alarm probability per background pixel.
@@ -124,8 +124,8 @@ class ChangeOptions:
 
     def check(self) -> None:
         if not 0.0 < float(self.pfa) < 0.5:
-            raise CcdError("--pfa", f"the false-alarm probability must lie in (0, 0.5), got "
-                                    f"{self.pfa}")
+            raise CcdError("pfa", f"the false-alarm probability must lie in (0, 0.5), got "
+                                  f"{self.pfa}")
         if int(self.max_clusters) < 1:
             raise CcdError("max_clusters", "at least one cluster (the background)")
         if not 0.1 <= float(self.coverage) <= 0.9:

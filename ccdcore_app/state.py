@@ -173,7 +173,7 @@ class Results(param.Parameterized):
         "ccdcore.response.methods.ResponseResult, 'hdr': method -> "
         "ccdcore.response.hdr.HdrResult}."))
     change = param.Dict(default={}, doc=(
-        "The Change detection page's results: the detector's options (as a tuple) -> "
+        "The Change detection page's results: the detector's options (a frozen ChangeOptions) -> "
         "(ccdcore.change.ChangeResult, inputs: the radiance maps with their sigmas) of "
         "ccdcore.change.session_change."))
 

@@ -98,7 +98,7 @@ def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
     if size is not None:
         w, h = size
         if w < 8 or h < 8:
-            raise CcdError("--size", f"{w}x{h} is too small; use at least 8x8")
+            raise CcdError("size", f"{w}x{h} is too small; use at least 8x8")
         kwargs["size"] = (int(w), int(h))
     out = Path(out_dir)
     check_output(out, folder=True)

@@ -268,7 +268,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     width, height = int(size[0]), int(size[1])
     bayer = None if opts["bayer"] is None else channels.check_pattern(opts["bayer"])
     if bayer and (width % 2 or height % 2):
-        raise CcdError("--size", f"a Bayer camera needs even width and height, got "
+        raise CcdError("size", f"a Bayer camera needs even width and height, got "
                                  f"{width}x{height}")
     M = np.asarray(opts["M"], dtype=np.float64)
     M_shadows = [np.asarray(m, dtype=np.float64) for m in opts["M_shadows"]]

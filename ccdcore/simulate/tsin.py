@@ -446,7 +446,7 @@ def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
         opts["bayer"] = channels.check_pattern(opts["bayer"])
         opts["layout"] = "rgb"
         if size[0] % 2 or size[1] % 2:
-            raise CcdError("--size", f"a Bayer camera needs even width and height, got "
+            raise CcdError("size", f"a Bayer camera needs even width and height, got "
                                      f"{size[0]}x{size[1]}")
     if int(opts["n_stacks"]) < 1:
         raise CcdError("n_stacks", f"need at least one stack, got {opts['n_stacks']}")

@@ -32,7 +32,6 @@ Computing runs off the UI thread (:meth:`ccdcore_app.state.AppState.compute`); t
 """
 from __future__ import annotations
 
-import dataclasses
 import html
 from typing import Any, Callable
 
@@ -310,8 +309,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
             return
         self.content.visible = True
         options = ChangeOptions(pfa=DEFAULT_PFA)
-        key = dataclasses.astuple(options)
-        entry = self._cache.get(key)
+        entry = self._cache.get(options)
         if entry is None:
             self._computing = True
             self.progress_text.object = "Computing the radiance of both brackets and the " \
@@ -336,7 +334,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
                 self._set_error(self.state.error or "change detection was cancelled.")
                 self.retry_button.visible = True
                 return
-            self._cache[key] = entry
+            self._cache[options] = entry
         self.result, self.inputs = entry
         in_document(self._doc, self._render_result)
 

@@ -3,7 +3,6 @@ demo, that the false-alarm slider re-thresholds the same result in place, and wh
 a session without reference/target brackets or with brackets it cannot use."""
 from __future__ import annotations
 
-import dataclasses
 import shutil
 
 import numpy as np
@@ -56,8 +55,7 @@ def test_result_is_computed_cached_and_shown(shown):
     state, page, _ = shown
     assert page.error == "" and state.error == "" and not page.error_alert.visible
     assert page.content.visible
-    key = dataclasses.astuple(ChangeOptions(pfa=DEFAULT_PFA))
-    res, inputs = state.results.change[key]
+    res, inputs = state.results.change[ChangeOptions(pfa=DEFAULT_PFA)]
     assert page.result is res and page.inputs is inputs
     np.testing.assert_array_equal(page.labels, res.labels)
     assert page.count_number.value == np.count_nonzero(res.labels == LABEL_CHANGE) > 0
