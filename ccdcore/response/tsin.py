@@ -945,12 +945,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         H = JW.T @ Jm[:, :K]
         dg = np.diag(H)
         lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
-        # the smoothness of g relative to its slope, Σ (g''/g')² (scale-free; see the module
-        # notes): each second difference weighted by (median slope / slope)², from this pass
-        gpk = np.gradient(gk)[1:-1]
-        gmed = float(np.median(gpk[gpk > 0])) if np.any(gpk > 0) else 1.0
-        gpk = np.maximum(gpk, SLOPE_FLOOR * gmed)       # a flat run does not stiffen without bound
-        P_s = D2.T @ (((gmed / gpk) ** 2)[:, None] * D2)
+        P_s = _smoothness(gk, D2)
         Hs = H + lam * P_s
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
         if restore:
@@ -1015,35 +1010,14 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             except np.linalg.LinAlgError:
                 delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
         else:
-            # g, the gains and the offsets in one step, within the gauge (_joint_frame)
-            Tf, off = _joint_frame(free, a, t)
             Hfull = JWfull.T @ Jm
             Hfull[:K, :K] += lam * P_s
             grad = -(Jm.T @ (W * tm))
             grad[:K] -= lam * (P_s @ gk)
-            if opts.gain_prior:
-                # the a-priori bound on a_k (sec. 3.2): ln(a_k / t_k) ~ N(0, gain_prior²); it
-                # only holds directions the data leave loose (a nearly saturated image)
-                ia = np.arange(K, K + N)
-                Hfull[ia, ia] += 1.0 / (a * opts.gain_prior) ** 2
-                grad[K:K + N] -= np.log(a / t) / (a * opts.gain_prior ** 2)
-            y = np.linalg.lstsq(Tf.T @ Hfull @ Tf, Tf.T @ (grad - Hfull @ off), rcond=None)[0]
-            d = Tf @ y + off
-            # a trust region: no gain moves by more than MAX_GAIN_STEP in one step (far from
-            # the solution the linearised step overshoots along the loosely held directions)
-            rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
-            if rel > MAX_GAIN_STEP * radius:
-                d = d * (MAX_GAIN_STEP * radius / rel)
-            radius = min(MAX_RADIUS, 2.0 * radius)
-            delta = d[:K]
-            a_new = a + opts.eta * d[K:K + N]
-            if np.any(a_new <= 0):
-                raise CcdError(data.files[0] if data.files else "bracket",
-                               "an image's gain went non-positive: the bracket does not "
-                               "constrain it")
-            a_new = _in_gauge(a_new, t)              # exactly, whatever the step's length
+            delta, a_new, b, radius = _joint_step(Hfull, grad, free, a, b, t, opts, radius,
+                                                  data.files[0] if data.files else "bracket")
             a_step = float(np.max(np.abs(a_new / a - 1.0)))
-            a, b = a_new, b + opts.eta * d[K + N:]
+            a = a_new
         if phase == 1:
             last = (obj, gk, delta, float(np.mean(np.abs(delta))))
             gk_new = advance(gk, delta, eta)
@@ -1117,6 +1091,48 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                      "predicted_image": before["predicted_image"], "before": before["values"],
                      "after": after["values"]},
         notes=tuple(notes))
+
+
+def _smoothness(gk: NDArray, D2: NDArray) -> NDArray[np.float64]:
+    """The smoothness of g relative to its slope, Σ (g''/g')² (scale-free; see the module
+    notes), as a quadratic form: each second difference weighted by (median slope / slope)²
+    at the current g; a flat run does not stiffen it without bound (:data:`SLOPE_FLOOR`)."""
+    gpk = np.gradient(gk)[1:-1]
+    gmed = float(np.median(gpk[gpk > 0])) if np.any(gpk > 0) else 1.0
+    gpk = np.maximum(gpk, SLOPE_FLOOR * gmed)
+    return D2.T @ (((gmed / gpk) ** 2)[:, None] * D2)
+
+
+def _joint_step(Hfull: NDArray, grad: NDArray, free: NDArray, a: NDArray, b: NDArray,
+                t: NDArray, opts: TsinOptions, radius: float, where: str
+                ) -> tuple[NDArray, NDArray, NDArray, float]:
+    """One Gauss-Newton step of g, the gains and the offsets together, within the gauge
+    (:func:`_joint_frame`), with sec. 3.2's a-priori bound on the gains and a trust region:
+    ``(Δg, a, b, radius)`` after the step.
+
+    The bound: ln(a_k / t_k) ~ N(0, gain_prior²); it only holds directions the data leave
+    loose (a nearly saturated image). The trust region: no gain moves by more than
+    :data:`MAX_GAIN_STEP` × ``radius`` in one step (far from the solution the linearised step
+    overshoots along the loosely held directions); the radius then doubles, up to
+    :data:`MAX_RADIUS`."""
+    K, N = free.size, a.size
+    Tf, off = _joint_frame(free, a, t)
+    Hfull, grad = Hfull.copy(), grad.copy()
+    if opts.gain_prior:
+        ia = np.arange(K, K + N)
+        Hfull[ia, ia] += 1.0 / (a * opts.gain_prior) ** 2
+        grad[K:K + N] -= np.log(a / t) / (a * opts.gain_prior ** 2)
+    y = np.linalg.lstsq(Tf.T @ Hfull @ Tf, Tf.T @ (grad - Hfull @ off), rcond=None)[0]
+    d = Tf @ y + off
+    rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
+    if rel > MAX_GAIN_STEP * radius:
+        d = d * (MAX_GAIN_STEP * radius / rel)
+    a_new = a + opts.eta * d[K:K + N]
+    if np.any(a_new <= 0):
+        raise CcdError(where, "an image's gain went non-positive: the bracket does not "
+                              "constrain it")
+    a_new = _in_gauge(a_new, t)                  # exactly, whatever the step's length
+    return d[:K], a_new, b + opts.eta * d[K + N:], min(MAX_RADIUS, 2.0 * radius)
 
 
 def _sandwich(bread: NDArray, scores: NDArray, frame: NDArray | None = None
