@@ -23,6 +23,8 @@ Public objects
 --------------
 LAYOUTS
     The camera layouts of the manifest: ``mono``, ``rgb`` and the four ``bayer-<pattern>``.
+is_bayer(layout)
+    Whether a layout is a Bayer mosaic (the one test of it: never match the name's spelling).
 CHANNEL_NAMES, channel_names(layout)
     Channel names per layout family.
 check_layout(shape, layout, where), channel_slices(shape, layout), split_channels(image, layout)
@@ -55,9 +57,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import CcdError
 
-__all__ = ["LAYOUTS", "CHANNEL_NAMES", "channel_names", "check_layout", "channel_slices",
-           "split_channels", "PATTERNS", "PLANES", "check_pattern", "plane_offsets", "plane_masks", "channel_masks",
-           "mosaic", "planes", "demosaic_bilinear"]
+__all__ = ["LAYOUTS", "is_bayer", "CHANNEL_NAMES", "channel_names", "check_layout",
+           "channel_slices", "split_channels", "PATTERNS", "PLANES", "check_pattern",
+           "plane_offsets", "plane_masks", "channel_masks", "mosaic", "planes",
+           "demosaic_bilinear"]
 
 #: the four Bayer patterns, named by the top-left 2x2 cell read row by row
 PATTERNS: tuple[str, ...] = ("rggb", "bggr", "grbg", "gbrg")
@@ -65,8 +68,11 @@ PATTERNS: tuple[str, ...] = ("rggb", "bggr", "grbg", "gbrg")
 #: names of the four CFA planes; G1 is the green on the red row, G2 the green on the blue row
 PLANES: tuple[str, ...] = ("R", "G1", "G2", "B")
 
+#: the Bayer mosaic layouts, one per pattern
+_BAYER_LAYOUTS: tuple[str, ...] = tuple(f"bayer-{p}" for p in PATTERNS)
+
 #: the colour layouts of a camera (manifest key ``[camera] layout``)
-LAYOUTS: tuple[str, ...] = ("mono", "rgb") + tuple(f"bayer-{p}" for p in PATTERNS)
+LAYOUTS: tuple[str, ...] = ("mono", "rgb") + _BAYER_LAYOUTS
 
 #: channel names per layout family
 CHANNEL_NAMES: dict[str, tuple[str, ...]] = {"mono": ("L",), "rgb": ("R", "G", "B"),
@@ -249,10 +255,31 @@ def _normal_layout(layout: str) -> str:
     return "bayer-" + check_pattern(name)
 
 
+def is_bayer(layout: str) -> bool:
+    """True when ``layout`` is a Bayer mosaic, False for ``mono`` and ``rgb``.
+
+    Every Bayer layout of :data:`LAYOUTS` (``"bayer-rggb"``, ``"bayer-bggr"``, ``"bayer-grbg"``,
+    ``"bayer-gbrg"``) is one, in any case, with surrounding spaces, or as the bare pattern
+    (``"rggb"``), as :func:`channel_names` and :func:`check_layout` read them.  The one test of
+    it: code never matches the spelling of a layout name.
+
+    Raises
+    ------
+    CcdError
+        ``layout`` is not a layout name (not a string, or none of :data:`LAYOUTS`).
+
+    Examples
+    --------
+    >>> is_bayer("bayer-rggb"), is_bayer("mono"), is_bayer("rgb")
+    (True, False, False)
+    """
+    return _normal_layout(layout) in _BAYER_LAYOUTS
+
+
 def channel_names(layout: str) -> tuple[str, ...]:
     """``("L",)`` for mono, ``("R", "G", "B")`` for rgb, ``("R", "G1", "G2", "B")`` for Bayer."""
     name = _normal_layout(layout)
-    return CHANNEL_NAMES["bayer" if name.startswith("bayer") else name]
+    return CHANNEL_NAMES["bayer" if is_bayer(name) else name]
 
 
 def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image") -> str:
@@ -279,7 +306,7 @@ def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image
     elif len(shape) != 2:
         raise CcdError(where, f"layout '{name}' needs 2-D frames, got shape {shape}"
                               + (" (a colour image: use layout='rgb')" if len(shape) == 3 else ""))
-    elif name.startswith("bayer") and (shape[0] % 2 or shape[1] % 2):
+    elif is_bayer(name) and (shape[0] % 2 or shape[1] % 2):
         raise CcdError(where, f"Bayer frames need even height and width, got {shape}")
     return name
 

@@ -589,17 +589,17 @@ def zero_counts(client: Any, frames: Sequence[Any], *, shape: tuple[int, ...], l
                 band_rows: int | None = None) -> dict[str, tuple[int, int]]:
     """Per channel ``(zero pixel values, pixel values)`` over ``frames`` (the flat field's
     zero-dark fraction), counted band by band on the cluster (exact)."""
+    from .channels import is_bayer, split_channels
+
     fr = frames_of(frames)
     if fr:
         check_pixels(fr[0].path, shape)
     h, w = shape[0], shape[1]
     chans = shape[2] if len(shape) == 3 else 1
-    cut = bands(h, w, channels=chans, band_rows=band_rows, even=layout.startswith("bayer"))
+    cut = bands(h, w, channels=chans, band_rows=band_rows, even=is_bayer(layout))
     futures = _submit(client, _zeros_task, [(fr, 0, y0, w, rows, layout) for y0, rows in cut])
     with contextlib.closing(_gather_in_order(client, [futures], [0], len(futures))) as done:
         results = next(done)
-    from .channels import split_channels
-
     sizes = {c: v.size for c, v in split_channels(
         np.broadcast_to(np.zeros((), np.uint8), shape), layout).items()}
     out: dict[str, tuple[int, int]] = {}
@@ -723,8 +723,10 @@ def merge_halo(layout: str, bloom_radius: int) -> int:
     halo is even then, so the band read still starts on the CFA's first row.  Every other step
     (g, σ, the weights, the fallbacks and their bounds) is per pixel.
     """
+    from .channels import is_bayer
+
     r = max(0, int(bloom_radius))
-    return 2 * r if str(layout).startswith("bayer") else r
+    return 2 * r if is_bayer(layout) else r
 
 
 def check_bracket(records: Sequence[Any], session: Any = None, layout: str | None = None
@@ -792,7 +794,7 @@ def band_merge(client: Any, paths_or_records: Sequence[Any], models: Any, *, lay
     gives the streamed reader's error (the first in the bracket's order); an error of the merge
     itself (codes outside the response, a model per channel missing) its own message.
     """
-    from .channels import check_layout
+    from .channels import check_layout, is_bayer
     from .response.hdr import HdrResult, ResponseModel
 
     fr = frames_of(paths_or_records)
@@ -806,7 +808,7 @@ def band_merge(client: Any, paths_or_records: Sequence[Any], models: Any, *, lay
         portable = ResponseModel.of(models)
     h, w = int(shape[0]), int(shape[1])
     chans = shape[2] if len(shape) == 3 else 1
-    bayer = lay.startswith("bayer")
+    bayer = is_bayer(lay)
     step = 2 if bayer else 1
     halo = merge_halo(lay, bloom_radius)
     # the merge holds about six float64 (or int64) arrays of N frames per pixel and channel

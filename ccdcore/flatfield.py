@@ -86,7 +86,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter
 
-from .channels import channel_names, channel_slices, check_layout, split_channels
+from .channels import channel_names, channel_slices, check_layout, is_bayer, split_channels
 from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
@@ -353,7 +353,7 @@ def _cluster_moments(client: Any, src: Any, what: str, counts: dict | None,
         if counts is not None:
             lay = check_layout(hdr.shape, lay, frame.name)
     try:
-        even = check_layout(first, lay, frames[0].name).startswith("bayer")
+        even = is_bayer(check_layout(first, lay, frames[0].name))
     except CcdError:  # reported by the streamed path's own check, after the averages
         even = False
     res = band_moments(client, recs, shape=first, even=even)

@@ -13,7 +13,7 @@ Steps (:data:`STEPS`)
 
 Gate rules (each also in the gate's own reasons, in words)
     * session: an error fails; warnings pass with a warning; each problem gets the fix of its
-      code (:data:`FIXES`);
+      code (:attr:`ProblemCode.fix <ccdcore.session.records.ProblemCode>`, :data:`FIXES`);
     * dark: more than 0.5 % hot or dead pixels, or more than 1 % of the dark frames' values at
       exactly zero (the offset clips the dark signal: de Lasarte's ZDI case) warn; the level per exposure and its
       drift (DN/s, least squares over the exposures) are reported;
@@ -27,7 +27,7 @@ Gate rules (each also in the gate's own reasons, in words)
 
 Public objects
 --------------
-STEPS, StepInfo, Gate, FIXES
+STEPS, StepInfo, GateStatus, Gate, FIXES
 session_gate(session), dark_step(session), ptc_gate(noise), pattern_step(session, ...),
 response_gate(response), held_out_frames(session, product), verify(session, product, ...)
 """
@@ -35,12 +35,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["STEPS", "StepInfo", "Gate", "FIXES", "session_gate", "DarkStep", "dark_step",
-           "ptc_gate", "PatternStep", "pattern_step", "response_gate", "VerifyRow",
+from .session.records import ProblemCode
+
+__all__ = ["STEPS", "StepInfo", "GateStatus", "Gate", "FIXES", "session_gate", "DarkStep",
+           "dark_step", "ptc_gate", "PatternStep", "pattern_step", "response_gate", "VerifyRow",
            "Verification", "held_out_frames", "verify", "HOT_DEAD_LIMIT", "ZERO_DARK_LIMIT"]
 
 #: fraction of hot + dead pixels above which the dark step warns
@@ -110,53 +113,39 @@ STEPS: tuple[StepInfo, ...] = (
 )
 
 
+class GateStatus(StrEnum):
+    """A gate's verdict.  A ``str``: each member equals, hashes, formats and serialises (JSON)
+    as its value, so code comparing a status to ``"pass"`` keeps working."""
+
+    PASS = "pass"    # the step's checks hold
+    WARN = "warn"    # done, with warnings (the reasons say which)
+    FAIL = "fail"    # a check fails: fix what ``next`` says before relying on the step
+    SKIP = "skip"    # not run: the session lacks the frames (``next`` says which to capture)
+
+
 @dataclass(frozen=True)
 class Gate:
-    """A step's verdict: ``status`` is ``"pass"``, ``"warn"``, ``"fail"`` or ``"skip"``;
-    ``summary`` one line; ``reasons`` why; ``next`` what to capture or change."""
+    """A step's verdict: ``status`` a :class:`GateStatus` (``"pass"``, ``"warn"``, ``"fail"``
+    or ``"skip"``; a bare string of these is taken as its member, any other is refused with
+    ``ValueError``); ``summary`` one line; ``reasons`` why; ``next`` what to capture or
+    change."""
 
-    status: str
+    status: GateStatus
     summary: str
     reasons: tuple[str, ...] = ()
     next: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "status", GateStatus(self.status))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"status": self.status, "summary": self.summary, "reasons": list(self.reasons),
-                "next": list(self.next)}
+        return {"status": self.status.value, "summary": self.summary,
+                "reasons": list(self.reasons), "next": list(self.next)}
 
 
-#: the fix of each validation problem code (docs/session.md)
-FIXES: dict[str, str] = {
-    "schema": "write `schema = 1` at the top of session.toml",
-    "no-schema": "add `schema = 1` at the top of session.toml",
-    "no-camera": "add a [camera] table with bits, layout and black_level",
-    "unknown-key": "remove or rename the key (docs/session.md lists the keys)",
-    "bad-value": "correct the value's type or range as the message says",
-    "missing-role": "give the entry a role (dark, ptc, fixed_pattern, flat, bracket, scene, "
-                    "reference, target)",
-    "unknown-role": "use one of the roles dark, ptc, fixed_pattern, flat, bracket, scene, "
-                    "reference, target",
-    "missing-path": "give the entry a path",
-    "empty-glob": "correct the pattern, or capture the frames it should match",
-    "path-outside": "move the frame inside the session folder and give a relative path",
-    "file-not-found": "capture or copy the frame, or remove its entry",
-    "not-a-file": "point the entry at an image, not a folder",
-    "duplicate": "list each frame once",
-    "unreadable": "re-export or re-capture the file (it is truncated or corrupt)",
-    "missing-level": "give each ptc frame its light level (`level = 1, 2, …`)",
-    "missing-config": "give each fixed_pattern frame its configuration (`config = 1, 2, …`)",
-    "missing-exposure": "give each bracket frame its exposure time in seconds",
-    "roi-outside": "shrink the roi to fit inside the frame",
-    "mismatch": "capture every frame of a role with the same size, bit depth and sample type",
-    "bit-depth": "set [camera] bits to the depth the data use",
-    "ptc-single-frame": "capture a second frame at that light level (pairs are differenced)",
-    "no-frames": "list the frames in session.toml (the capture plan writes a template)",
-    "deprecated-note": "write the key the warning names instead of `note`",
-    "folder-inferred": "review session.toml.draft (`ccdcore session --draft`) and save it as "
-                       "session.toml",
-    "descriptor-line": "correct the descriptor line the message names",
-    "descriptor-size": "re-export the image at the size of the `n` line",
-}
+#: the fix of each validation problem code, ``{code: fix}`` (:class:`ProblemCode`, whose members
+#: carry their fix as ``.fix``; docs/session.md)
+FIXES: dict[str, str] = {code.value: code.fix for code in ProblemCode}
 
 
 def _pct(x: float) -> str:
@@ -170,13 +159,13 @@ def session_gate(session: Any) -> Gate:
                     for p in session.problems)
     roles = ", ".join(f"{n} {r}" for r, n in session.roles().items()) or "no frames"
     if session.errors:
-        return Gate("fail", f"{len(session.errors)} error(s) in {session.label}: the estimates "
-                            "that use those frames cannot run", reasons,
+        return Gate(GateStatus.FAIL, f"{len(session.errors)} error(s) in {session.label}: the "
+                                     "estimates that use those frames cannot run", reasons,
                     ("fix the errors listed, then reopen the session",))
     if session.warnings:
-        return Gate("warn", f"{len(session.frames)} frames ({roles}), {len(session.warnings)} "
-                            "warning(s)", reasons)
-    return Gate("pass", f"{len(session.frames)} frames ({roles}), no problems")
+        return Gate(GateStatus.WARN, f"{len(session.frames)} frames ({roles}), "
+                                     f"{len(session.warnings)} warning(s)", reasons)
+    return Gate(GateStatus.PASS, f"{len(session.frames)} frames ({roles}), no problems")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -203,13 +192,13 @@ def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
     recs = session.dark_frames()
     if not recs:
         return DarkStep(None, (), None, Gate(
-            "skip", "no dark frames: the dark reference is skipped",
+            GateStatus.SKIP, "no dark frames: the dark reference is skipped",
             next=("capture 16 or more lens-capped frames at the exposure of the other "
                   "frames (role = dark)",)))
     if session.camera.layout != "mono":
         return DarkStep(None, (), None, Gate(
-            "skip", f"{session.camera.layout} camera: D̂_D of sec. V-A is made for mono "
-                    "frames; the flat field's dark image DL_0 serves instead"))
+            GateStatus.SKIP, f"{session.camera.layout} camera: D̂_D of sec. V-A is made for "
+                             "mono frames; the flat field's dark image DL_0 serves instead"))
     groups: dict[Any, list[float]] = {}
     zeros = total = 0
     for rec, frame in session.iter_frames(recs):
@@ -241,25 +230,25 @@ def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
                f"{dark.spatial_std:.3g} DN; {hot} hot and {dead} dead pixels "
                f"({_pct((hot + dead) / n)})"]
     nxt: list[str] = []
-    status = "pass"
+    status = GateStatus.PASS
     if (hot + dead) / n > HOT_DEAD_LIMIT:
-        status = "warn"
+        status = GateStatus.WARN
         reasons.append(f"more than {_pct(HOT_DEAD_LIMIT)} of the pixels are flagged")
         nxt.append("check for light leaks and the sensor temperature; flagged pixels are "
                    "masked in every map")
     if zero > ZERO_DARK_LIMIT:
-        status = "warn"
+        status = GateStatus.WARN
         reasons.append(f"{_pct(zero)} of the dark frames' pixel values are exactly 0: the "
                        "offset clips the dark signal, so D̂_D is biased upwards there")
         nxt.append("raise the camera's offset (black level) so the dark frames sit above zero")
     if drift is not None:
         reasons.append(f"dark level over {len(known)} exposures: drift {drift:.4g} DN/s")
     if dark.s < 16:
-        status = "warn" if status == "pass" else status
+        status = GateStatus.WARN if status == GateStatus.PASS else status
         reasons.append(f"only {dark.s} dark frames: D̂_D's own noise σ_N/√s is large")
         nxt.append("capture at least 16 dark frames (the capture plan says how many)")
-    summary = {"pass": "dark reference made, flags within limits",
-               "warn": "dark reference made, with warnings"}[status]
+    summary = {GateStatus.PASS: "dark reference made, flags within limits",
+               GateStatus.WARN: "dark reference made, with warnings"}[status]
     return DarkStep(dark, tuple(levels), drift, Gate(status, summary, tuple(reasons), tuple(nxt)))
 
 
@@ -273,25 +262,28 @@ def ptc_gate(noise: Any) -> Gate:
                f"with {noise.dof} degrees of freedom, Q = {q:.3g}"]
     nxt: list[str] = []
     if used < 3:
-        return Gate("fail", "fewer than 3 levels in the fit: Q cannot judge the line",
+        return Gate(GateStatus.FAIL, "fewer than 3 levels in the fit: Q cannot judge the line",
                     tuple(reasons), ("capture pairs at more light levels (8 spread over the "
                                      "range; the capture plan lists them)",))
     worst = max((p for p in noise.points if p.used), key=lambda p: abs(_resid(noise, p)))
     r = _resid(noise, worst)
     if q >= 0.01:
-        status, summary = "pass", "the points agree with the line within their errors"
+        status = GateStatus.PASS
+        summary = "the points agree with the line within their errors"
     elif q >= 0.001:
-        status, summary = "warn", "the points scatter a little more than their errors allow"
+        status = GateStatus.WARN
+        summary = "the points scatter a little more than their errors allow"
     else:
-        status, summary = "fail", "the points scatter far more than their errors allow"
-    if status != "pass":
+        status = GateStatus.FAIL
+        summary = "the points scatter far more than their errors allow"
+    if status != GateStatus.PASS:
         reasons.append(f"Q = {q:.3g}: a line this far from its points happens by chance "
                        f"{'in fewer than 1 in 1000 sessions' if q < 0.001 else 'rarely'}; the "
                        f"worst level is {worst.level} ({r:+.1f} σ)")
         nxt.append(f"exclude level {worst.level} or switch on robust mode (drops levels beyond "
                    "3 σ one at a time); if levels near full scale misbehave, they are clipped")
     if noise.A_err / noise.A > 0.05:
-        status = "warn" if status == "pass" else status
+        status = GateStatus.WARN if status == GateStatus.PASS else status
         reasons.append(f"σ(A)/A = {_pct(noise.A_err / noise.A)} is above 5 %")
         nxt.append("use a larger ROI or more levels")
     return Gate(status, summary, tuple(reasons), tuple(nxt))
@@ -331,20 +323,20 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
 
     reasons: list[str] = []
     nxt: list[str] = []
-    status = "skip"
+    status = GateStatus.SKIP
     fp = plan = check = flat = None
     warnings: tuple[str, ...] = ()
     rows: list[dict[str, Any]] = []
     if session.fixed_pattern_configs() and dark is not None:
         fp = fixed_pattern_map(session, dark, window=window, p=p)
-        status = "pass"
+        status = GateStatus.PASS
         reasons.append(f"K̂ from {fp.n1} configurations: spatial σ_K = {fp.spatial_std:.3g}, "
                        f"slope spread σ̂ = {fp.sigma_hat:.3g}")
         if noise is not None and session.camera.bits:
             plan = plan_acquisition(noise, bits=session.camera.bits, fixed_pattern=fp)
             warnings = tuple(check_session_plan(session, plan))
             if warnings:
-                status = "warn"
+                status = GateStatus.WARN
                 reasons += list(warnings)
                 nxt.append(f"capture n1 = {plan.n1_required} configurations × n2 = "
                            f"{plan.n2_required} frames for K̂ to meet sec. V-B")
@@ -359,7 +351,7 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
         nxt.append("capture dark frames at the fixed-pattern exposure")
     if session.flat_groups():
         flat = flat_field_from_session(session, base="auto")
-        status = "pass" if status == "skip" else status
+        status = GateStatus.PASS if status == GateStatus.SKIP else status
         reasons.append(f"flat field from base group {flat.base_key} (level, exposure)")
         full = 2.0 ** session.camera.bits - 1 if session.camera.bits else None
         held = [(key, recs) for key, recs in session.flat_groups().items()
@@ -384,9 +376,9 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
             reasons.append("no flat frame outside the base group lies within 10–90 % of full "
                            "scale: the correction is not checked on held-out frames")
             nxt.append("capture flats at two or more exposures inside the linear range")
-            status = "warn" if status == "pass" else status
+            status = GateStatus.WARN if status == GateStatus.PASS else status
         elif worse:
-            status = "fail"
+            status = GateStatus.FAIL
             reasons.append(f"{worse} of {len(rows)} held-out channel(s) are less uniform after "
                            "the correction")
             nxt.append("choose another base exposure inside the linear range, or average more "
@@ -394,15 +386,17 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
         else:
             reasons.append(f"every held-out frame is more uniform after the correction "
                            f"({len(picked)} frames)")
-    if status == "skip":
+    if status == GateStatus.SKIP:
         return PatternStep(None, None, (), None, None, (), Gate(
-            "skip", "no fixed-pattern or flat frames: K̂ and the flat field are skipped",
+            GateStatus.SKIP,
+            "no fixed-pattern or flat frames: K̂ and the flat field are skipped",
             tuple(reasons) or ("the session has neither fixed_pattern nor flat frames",),
             tuple(nxt) or ("capture n1 × n2 frames of a uniform card (role = fixed_pattern) "
                            "or flats of a uniform source (role = flat); the capture plan "
                            "sizes them",)))
-    summary = {"pass": "maps made and checked", "warn": "maps made, with warnings",
-               "fail": "the correction does not help on held-out frames"}[status]
+    summary = {GateStatus.PASS: "maps made and checked",
+               GateStatus.WARN: "maps made, with warnings",
+               GateStatus.FAIL: "the correction does not help on held-out frames"}[status]
     return PatternStep(fp, plan, warnings, check, flat, tuple(rows),
                        Gate(status, summary, tuple(reasons), tuple(nxt)))
 
@@ -431,10 +425,10 @@ def response_gate(response: Any, hdr: Any = None) -> Gate:
         if not c.converged:
             bad.append(name)
     if bad:
-        return Gate("warn", f"the fit did not converge in {', '.join(bad)}", tuple(reasons),
-                    ("capture a bracket with more exposures, a factor 1.4 apart, and a scene "
-                     "with a wide range of radiance",))
-    return Gate("pass", "the response curve converged in every channel", tuple(reasons))
+        return Gate(GateStatus.WARN, f"the fit did not converge in {', '.join(bad)}",
+                    tuple(reasons), ("capture a bracket with more exposures, a factor 1.4 "
+                                     "apart, and a scene with a wide range of radiance",))
+    return Gate(GateStatus.PASS, "the response curve converged in every channel", tuple(reasons))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -566,7 +560,7 @@ def verify(session: Any, product: Any, *, records: Sequence[Any] | None = None,
                 floor, changed, int(plane.size)))
     if not rows:
         return Verification((), tuple(left_out), Gate(
-            "skip", "no held-out frame to verify on", tuple(left_out),
+            GateStatus.SKIP, "no held-out frame to verify on", tuple(left_out),
             ("capture a frame of a uniform card at about half of full scale that the "
              "calibration does not use (role = scene, flags = [\"max-intensity\"])",)))
     # the measure each correction is made to lower: SNUP for the flat field (de Lasarte et
@@ -582,17 +576,18 @@ def verify(session: Any, product: Any, *, records: Sequence[Any] | None = None,
     reasons += [f"left out: {why}" for why in left_out]
     if worse:
         return Verification(tuple(rows), tuple(left_out), Gate(
-            "fail", f"{len(worse)} held-out frame(s) are less uniform after the correction",
+            GateStatus.FAIL,
+            f"{len(worse)} held-out frame(s) are less uniform after the correction",
             tuple(reasons), ("recalibrate with frames taken under the same settings as these "
                              "frames (gain, offset, temperature)",)))
     if above:
         return Verification(tuple(rows), tuple(left_out), Gate(
-            "warn", f"the correction helps, but {len(above)} frame(s) stay above "
-                    f"{FLOOR_FACTOR}× the noise floor", tuple(reasons),
+            GateStatus.WARN, f"the correction helps, but {len(above)} frame(s) stay above "
+                             f"{FLOOR_FACTOR}× the noise floor", tuple(reasons),
             ("more configurations or frames for the maps lower their own noise (sec. V-B)",)))
     return Verification(tuple(rows), tuple(left_out), Gate(
-        "pass", "every held-out frame is more uniform after the correction"
-                + (", within 1.5× the noise floor" if any(r.floor for r in rows) else ""),
+        GateStatus.PASS, "every held-out frame is more uniform after the correction"
+                         + (", within 1.5× the noise floor" if any(r.floor for r in rows) else ""),
         tuple(reasons)))
 
 

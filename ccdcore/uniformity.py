@@ -71,7 +71,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .channels import channel_names, channel_slices, check_layout, split_channels
+from .channels import channel_names, channel_slices, check_layout, is_bayer, split_channels
 from .common import check_roi, crop, named_frames, sort_key
 from .errors import CcdError
 from .stats import PixelMoments
@@ -197,7 +197,7 @@ def snup(image: ArrayLike, *, roi: Sequence[int] | None = None, layout: str | No
     """
     arr = np.asarray(image)
     name = check_layout(arr.shape, layout, where)
-    box = check_roi(roi, arr.shape, where, even=name.startswith("bayer"))
+    box = check_roi(roi, arr.shape, where, even=is_bayer(name))
     arr = crop(arr, box)
     m = None
     if mask is not None:
@@ -302,7 +302,7 @@ def snup_vs_averaging(frames: Frames, Ns: Sequence[int] | None = None, *,
             arr = correct(arr)
         if name is None:
             name = check_layout(arr.shape, layout, fname)
-            box = check_roi(roi, arr.shape, fname, even=name.startswith("bayer"))
+            box = check_roi(roi, arr.shape, fname, even=is_bayer(name))
         arr = crop(arr, box)
         acc.add(arr, name=fname)
         total = arr.astype(np.float64) if total is None else total + arr

@@ -30,6 +30,8 @@ ROLES, LAYOUTS, FLAGS, MAX_INTENSITY, ROLE_SYNONYMS
     Frame roles, camera colour layouts, frame flags, folder names recognised as roles.
 Camera, FrameRecord, Problem, Session
     The records (see :mod:`~ccdcore.session.records`).
+ProblemCode
+    The codes of validation problems (a ``str`` enum), each with its fix (``.fix``).
 open_session(path)
     Open a session folder, a ``session.toml``, a plain folder of images or an EMVA1288 descriptor.
 draft_manifest(session, path=None)
@@ -45,11 +47,11 @@ from .emva import open_emva_descriptor
 from .folder import ROLE_SYNONYMS, open_folder
 from .manifest import open_manifest
 from .records import (DRAFT_NAME, FLAGS, LAYOUTS, MANIFEST_NAME, MAX_INTENSITY, ROLES, SCHEMA,
-                      Camera, FrameRecord, Problem, Session)
+                      Camera, FrameRecord, Problem, ProblemCode, Session)
 
 __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "ROLE_SYNONYMS", "Camera", "FrameRecord",
-           "Problem", "Session", "open_session", "open_emva_descriptor", "draft_manifest",
-           "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA"]
+           "Problem", "ProblemCode", "Session", "open_session", "open_emva_descriptor",
+           "draft_manifest", "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA"]
 
 
 def _is_emva_descriptor(path: Path) -> bool:

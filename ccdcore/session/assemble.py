@@ -17,7 +17,7 @@ from ..common import format_size, group_by
 from ..errors import ImageReadError
 from ..io import ImageHeader, check_pixel_limit, pixel_limit, read_header
 from .records import (EXPOSURE_ROLES, MAX_EXPOSURE, MIN_EXPOSURE, ROLES, UNIFORM_ROLES, Camera,
-                      FrameRecord, Problem, Session)
+                      FrameRecord, Problem, ProblemCode, Session)
 
 __all__ = ["Candidate", "path_problem", "assemble"]
 
@@ -25,7 +25,7 @@ _HEADER_KEYS = ("exposure", "gain", "temperature")  # metadata a file header can
 #: :func:`path_problem`'s answers that are not about leaving the folder, with their codes
 _NUL_PATH = "path holds a NUL character (\\0): no file can have that name"
 _LINK_LOOP = "symbolic link loop (the link leads back to itself): no file to read"
-_PATH_CODES = {_NUL_PATH: "bad-value", _LINK_LOOP: "not-a-file"}
+_PATH_CODES = {_NUL_PATH: ProblemCode.BAD_VALUE, _LINK_LOOP: ProblemCode.NOT_A_FILE}
 
 
 @dataclass
@@ -80,7 +80,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
     seen: dict[Path, str] = {}
     reported: set[tuple[str, str]] = set()
 
-    def once(where: str, message: str, code: str, role: str) -> None:
+    def once(where: str, message: str, code: ProblemCode, role: str) -> None:
         if (where, message) not in reported:  # a group reports its entry problem once
             reported.add((where, message))
             problems.append(Problem(where, message, code=code, roles=(role,)))
@@ -92,43 +92,45 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
         why = path_problem(root, cand.relpath)
         if why is not None:
             problems.append(Problem(cand.relpath.replace("\0", "\\0"), why + origin,
-                                    code=_PATH_CODES.get(why, "path-outside"), roles=roles))
+                                    code=_PATH_CODES.get(why, ProblemCode.PATH_OUTSIDE),
+                                    roles=roles))
             continue
         path = (root / posixpath.normpath(cand.relpath)).resolve()
         if not path.exists():
-            problems.append(Problem(cand.relpath, "file not found", code="file-not-found",
+            problems.append(Problem(cand.relpath, "file not found", code=ProblemCode.FILE_NOT_FOUND,
                                     roles=roles))
             continue
         if not path.is_file():
             what = "a folder" if path.is_dir() else "a FIFO/special file"
             problems.append(Problem(cand.relpath, f"is {what}, not an image file",
-                                    code="not-a-file", roles=roles))
+                                    code=ProblemCode.NOT_A_FILE, roles=roles))
             continue
         if path in seen:
             problems.append(Problem(cand.relpath, f"frame listed twice: {seen[path]} and "
-                                                  f"{cand.entry}", code="duplicate", roles=roles))
+                                                  f"{cand.entry}", code=ProblemCode.DUPLICATE,
+                                    roles=roles))
             continue
         seen[path] = cand.entry
         if cand.role == "ptc" and cand.meta.get("level") is None:
             once(cand.entry, "ptc frame without 'level' (frames of one light level form pairs)",
-                 "missing-level", "ptc")
+                 ProblemCode.MISSING_LEVEL, "ptc")
         if cand.role == "fixed_pattern" and cand.meta.get("config") is None:
             once(cand.entry, "fixed_pattern frame without 'config' (configuration id)",
-                 "missing-config", "fixed_pattern")
+                 ProblemCode.MISSING_CONFIG, "fixed_pattern")
 
         meta, inferred = dict(cand.meta), list(cand.inferred)
         try:
             hdr = headers[path] = read(path)
         except ImageReadError as exc:
-            problems.append(Problem(cand.relpath, exc.problem + origin, code="unreadable",
+            problems.append(Problem(cand.relpath, exc.problem + origin, code=ProblemCode.UNREADABLE,
                                     roles=roles))
             hdr = None
         if hdr is not None:
             try:  # a tiny file declaring a huge image (a decompression bomb) is not "valid"
                 check_pixel_limit(path, hdr.width, hdr.height, hdr.channels, limit)
             except ImageReadError as exc:
-                problems.append(Problem(cand.relpath, exc.problem + origin, code="unreadable",
-                                        roles=roles))
+                problems.append(Problem(cand.relpath, exc.problem + origin,
+                                        code=ProblemCode.UNREADABLE, roles=roles))
             for key in _HEADER_KEYS:
                 value = getattr(hdr, key)
                 if meta.get(key) is None and value is not None:
@@ -136,7 +138,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                     inferred.append(key)
         if cand.role in EXPOSURE_ROLES and meta.get("exposure") is None and hdr is not None:
             problems.append(Problem(cand.relpath, _missing_exposure(cand, source),
-                                    code="missing-exposure", roles=roles))
+                                    code=ProblemCode.MISSING_EXPOSURE, roles=roles))
         exposure = meta.get("exposure")
         if cand.role in EXPOSURE_ROLES and exposure is not None and not (
                 MIN_EXPOSURE <= exposure <= MAX_EXPOSURE):
@@ -145,14 +147,14 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                 f"exposure is 0 s: a {cand.role} frame needs a positive exposure time"
                 if exposure == 0 else
                 f"exposure {exposure:g} s is outside {MIN_EXPOSURE:g} to {MAX_EXPOSURE:g} s"),
-                code="bad-value", roles=roles))
+                code=ProblemCode.BAD_VALUE, roles=roles))
         roi = meta.get("roi")
         if roi is not None and hdr is not None:
             x, y, w, h = roi
             if x + w > hdr.width or y + h > hdr.height:
                 problems.append(Problem(cand.relpath, f"roi {list(roi)} extends past the "
-                                        f"{hdr.width}x{hdr.height} frame", code="roi-outside",
-                                        roles=roles))
+                                        f"{hdr.width}x{hdr.height} frame",
+                                        code=ProblemCode.ROI_OUTSIDE, roles=roles))
         records.append(FrameRecord(path=path, relpath=posixpath.normpath(cand.relpath),
                                    role=cand.role, inferred=tuple(dict.fromkeys(inferred)),
                                    **meta))
@@ -197,7 +199,7 @@ def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageH
                          if a != b]
                 out.append(Problem(r.relpath, f"{'; '.join(diffs)} of the other {role} frames "
                                               f"({n_common} frame{'s' if n_common > 1 else ''})",
-                                   code="mismatch", roles=(role,)))
+                                   code=ProblemCode.MISMATCH, roles=(role,)))
     if camera.bits is not None:
         for r in records:
             hdr = headers.get(r.path)
@@ -206,11 +208,12 @@ def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageH
             if (hdr is not None and hdr.dtype.kind in "ui" and hdr.bits > camera.bits
                     and hdr.bits < hdr.dtype.itemsize * 8):
                 out.append(Problem(r.relpath, f"{hdr.bits}-bit data but camera.bits = "
-                                              f"{camera.bits}", code="bit-depth", roles=(r.role,)))
+                                              f"{camera.bits}", code=ProblemCode.BIT_DEPTH,
+                                   roles=(r.role,)))
     for level, recs in group_by((r for r in records if r.role == "ptc" and r.level is not None),
                                 lambda r: r.level).items():
         if len(recs) < 2:
             out.append(Problem(f"ptc level {level}", f"only one frame ({recs[0].relpath}); a "
                                                      "photon-transfer level needs at least two",
-                               code="ptc-single-frame", roles=("ptc",)))
+                               code=ProblemCode.PTC_SINGLE_FRAME, roles=("ptc",)))
     return out

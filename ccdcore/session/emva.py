@@ -35,7 +35,7 @@ from pathlib import Path
 
 from ..errors import CcdError, ImageReadError
 from .assemble import Candidate, assemble
-from .records import Camera, Problem, Session
+from .records import Camera, Problem, ProblemCode, Session
 
 __all__ = ["open_emva_descriptor"]
 
@@ -108,7 +108,7 @@ def open_emva_descriptor(path: str | Path) -> Session:
     def close_point() -> None:
         if point is not None and n_images < 1:
             problems.append(Problem(point[0], "point has no 'i' image lines",
-                                    code="descriptor-line"))
+                                    code=ProblemCode.DESCRIPTOR_LINE))
 
     for lineno, raw in enumerate(lines, start=1):
         line = raw.strip()
@@ -155,17 +155,17 @@ def open_emva_descriptor(path: str | Path) -> Session:
             else:
                 raise _LineError(f"unknown line type '{tag}' (expected v, n, b, d or i)")
         except _LineError as exc:
-            problems.append(Problem(where, str(exc), code="descriptor-line"))
+            problems.append(Problem(where, str(exc), code=ProblemCode.DESCRIPTOR_LINE))
     close_point()
 
     if fmt is None:
         problems.append(Problem(desc.name, "no 'n <bits> <width> <height>' line",
-                                code="descriptor-line"))
+                                code=ProblemCode.DESCRIPTOR_LINE))
     if not candidates and not any(p.severity == "error" for p in problems):
         # a session of 0 frames is nothing to calibrate: never "valid" (as an empty manifest)
         problems.append(Problem(desc.name, "the descriptor lists no images: add 'b' or 'd' "
                                            "points, each followed by its 'i' image lines",
-                                code="no-frames"))
+                                code=ProblemCode.NO_FRAMES))
     camera = Camera(name=f"EMVA1288 {desc.stem}", bits=fmt[0] if fmt else None, layout="mono")
     session = assemble(desc.parent.resolve(), desc, "emva1288", camera, candidates, problems)
     if fmt is None:
@@ -180,5 +180,5 @@ def open_emva_descriptor(path: str | Path) -> Session:
         if (hdr.width, hdr.height) != fmt[1:]:
             size_problems.append(Problem(rec.relpath, f"image is {hdr.width}x{hdr.height} but "
                                          f"the descriptor's n line says {fmt[1]}x{fmt[2]}",
-                                         code="descriptor-size", roles=(rec.role,)))
+                                         code=ProblemCode.DESCRIPTOR_SIZE, roles=(rec.role,)))
     return dataclasses.replace(session, problems=session.problems + tuple(size_problems))

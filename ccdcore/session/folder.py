@@ -29,7 +29,7 @@ from ..channels import LAYOUTS
 from ..errors import ImageReadError
 from ..io import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
 from .assemble import Candidate, assemble, path_problem
-from .records import MANIFEST_NAME, ROLES, Camera, Problem, Session
+from .records import MANIFEST_NAME, ROLES, Camera, Problem, ProblemCode, Session
 
 __all__ = ["ROLE_SYNONYMS", "FILE_ROLE_WORDS", "file_name_role", "open_folder"]
 
@@ -312,7 +312,7 @@ def _duplicate_problems(rels: list[str], hdrs: dict[str, ImageHeader | None]) ->
                               "bracket has one frame per exposure time: remove the extra "
                               "frames, or put each bracket in its own sub-folder (bracket/1/, "
                               "bracket/2/ ...) or give them different 'stack' values in the "
-                              "manifest", code="duplicate-exposure", roles=("bracket",))
+                              "manifest", code=ProblemCode.DUPLICATE_EXPOSURE, roles=("bracket",))
             for key, files in by_key.items() if len(files) > 1]
 
 
@@ -356,7 +356,7 @@ def _find_brackets(relpaths: list[str], named: dict[str, str | None], headers: _
                     "(ccdcore session FOLDER --draft) giving each frame role = \"bracket\" and "
                     "its exposure (in a bracket only the exposure time changes)",
                     severity="warning",
-                    code="not-a-bracket", roles=("bracket", "scene")))
+                    code=ProblemCode.NOT_A_BRACKET, roles=("bracket", "scene")))
             if not take:
                 continue
             out.from_exif = True
@@ -366,7 +366,7 @@ def _find_brackets(relpaths: list[str], named: dict[str, str | None], headers: _
                     unit + "/", f"the bracket's {diff}: in an exposure bracket only the exposure "
                                 "time may change; remove the other frames, or give each frame "
                                 "its effective exposure in a manifest",
-                    code="bracket-settings", roles=("bracket",)))
+                    code=ProblemCode.BRACKET_SETTINGS, roles=("bracket",)))
         sequences = _sequences(rels, hdrs)
         if len(sequences) == 1:
             out.problems.extend(_duplicate_problems(rels, hdrs))
@@ -494,10 +494,11 @@ def open_folder(folder: Path) -> Session:
                 f"from file headers for {n_exp} of {len(relpaths)} frames, camera "
                 f"'{name}', bits = {bits}, layout = {layout}; check them, write a manifest "
                 f"draft with `ccdcore session FOLDER --draft` and save it as {MANIFEST_NAME}")
-        extra = [Problem(str(root), note, "warning", code="folder-inferred")]
+        extra = [Problem(str(root), note, "warning", code=ProblemCode.FOLDER_INFERRED)]
     else:
         extra = [Problem(str(root), f"no image files found (looked for "
-                                    f"{', '.join(sorted(IMAGE_EXTENSIONS))})", code="no-frames")]
+                                    f"{', '.join(sorted(IMAGE_EXTENSIONS))})",
+                         code=ProblemCode.NO_FRAMES)]
     return dataclasses.replace(session, camera=camera,
                                problems=tuple(extra) + tuple(brackets.problems)
                                + session.problems)

@@ -19,7 +19,7 @@ from ..errors import CcdError
 from ..io import IMAGE_EXTENSIONS
 from .assemble import Candidate, assemble
 from .records import (FLAGS, MAX_EXPOSURE, MAX_INTENSITY, META_KEYS, MIN_EXPOSURE, ROLES, SCHEMA,
-                      Camera, Problem, Session)
+                      Camera, Problem, ProblemCode, Session)
 
 __all__ = ["open_manifest", "parse_legacy_note"]
 
@@ -93,22 +93,22 @@ def _parse_entry(entry: dict, where: str, allowed: frozenset[str],
     role = entry.get("role")
     if role is None:
         problems.append(Problem(where, f"no 'role'; choose one of {', '.join(ROLES)}",
-                                code="missing-role"))
+                                code=ProblemCode.MISSING_ROLE))
     elif role not in ROLES:
         problems.append(Problem(where, f"unknown role {role!r}; choose one of "
-                                       f"{', '.join(ROLES)}", code="unknown-role"))
+                                       f"{', '.join(ROLES)}", code=ProblemCode.UNKNOWN_ROLE))
         role = None
     roles = (role,) if role else ()
     for key in entry:
         if key not in allowed:
             problems.append(Problem(where, f"unknown key '{key}' (ignored)", "warning",
-                                    code="unknown-key", roles=roles))
+                                    code=ProblemCode.UNKNOWN_KEY, roles=roles))
     meta: dict[str, Any] = {}
     for key in META_KEYS:
         if key in entry:
             value, why = _check_value(key, entry[key])
             if why:
-                problems.append(Problem(where, why, code="bad-value", roles=roles))
+                problems.append(Problem(where, why, code=ProblemCode.BAD_VALUE, roles=roles))
             else:
                 meta[key] = value
     legacy = {k: v for k, v in parse_legacy_note(meta.get("note", "")).items() if k not in meta}
@@ -117,7 +117,7 @@ def _parse_entry(entry: dict, where: str, allowed: frozenset[str],
                          for k, v in legacy.items())
         problems.append(Problem(where, f"metadata in 'note' is deprecated and will not be read "
                                        f"in the next release; write {keys}", "warning",
-                                code="deprecated-note", roles=roles))
+                                code=ProblemCode.DEPRECATED_NOTE, roles=roles))
         meta.update(legacy)
     return role, meta, tuple(legacy)
 
@@ -134,26 +134,27 @@ def _parse_camera(doc: dict, problems: list[Problem]) -> Camera:
     cam = doc.get("camera")
     if cam is None:
         problems.append(Problem("camera", "no [camera] table; assuming a mono camera of unknown "
-                                          "bit depth", "warning", code="no-camera"))
+                                          "bit depth", "warning", code=ProblemCode.NO_CAMERA))
         return Camera()
     if not isinstance(cam, dict):
-        problems.append(Problem("camera", "must be a table: [camera]", code="bad-value"))
+        problems.append(Problem("camera", "must be a table: [camera]", code=ProblemCode.BAD_VALUE))
         return Camera()
     for key in cam:
         if key not in _CAMERA_KEYS:
             problems.append(Problem(f"camera.{key}", "unknown key (ignored)", "warning",
-                                    code="unknown-key"))
+                                    code=ProblemCode.UNKNOWN_KEY))
     name, bits, layout = cam.get("name", ""), cam.get("bits"), cam.get("layout", "mono")
     if not isinstance(name, str):
-        problems.append(Problem("camera.name", "must be a string", code="bad-value"))
+        problems.append(Problem("camera.name", "must be a string", code=ProblemCode.BAD_VALUE))
         name = ""
     if bits is not None and not (_is_int(bits) and 1 <= bits <= 32):
         problems.append(Problem("camera.bits", f"must be an integer from 1 to 32, got {bits!r}",
-                                code="bad-value"))
+                                code=ProblemCode.BAD_VALUE))
         bits = None
     if layout not in LAYOUTS:
         problems.append(Problem("camera.layout", f"unknown layout {layout!r}; choose one of "
-                                                 f"{', '.join(LAYOUTS)}", code="bad-value"))
+                                                 f"{', '.join(LAYOUTS)}",
+                                code=ProblemCode.BAD_VALUE))
         layout = "mono"
     black_level = cam.get("black_level")
     if black_level is not None:
@@ -161,7 +162,8 @@ def _parse_camera(doc: dict, problems: list[Problem]) -> Camera:
             black_level = float(black_level)
         else:
             problems.append(Problem("camera.black_level", f"must be a number >= 0 (DN), got "
-                                                          f"{black_level!r}", code="bad-value"))
+                                                          f"{black_level!r}",
+                                    code=ProblemCode.BAD_VALUE))
             black_level = None
     return Camera(name=name, bits=bits, layout=layout, black_level=black_level)
 
@@ -231,14 +233,14 @@ def open_manifest(manifest_path: Path) -> Session:
     schema = doc.get("schema")
     if schema is None:
         problems.append(Problem("schema", f"missing; assuming schema = {SCHEMA}", "warning",
-                                code="no-schema"))
+                                code=ProblemCode.NO_SCHEMA))
     elif schema != SCHEMA or not _is_int(schema):
         problems.append(Problem("schema", f"unsupported schema {schema!r}; this version reads "
-                                          f"schema = {SCHEMA}", code="schema"))
+                                          f"schema = {SCHEMA}", code=ProblemCode.SCHEMA))
     for key in doc:
         if key not in ("schema", "camera", "frames", "groups"):
             problems.append(Problem(key, "unknown top-level key (ignored)", "warning",
-                                    code="unknown-key"))
+                                    code=ProblemCode.UNKNOWN_KEY))
     camera = _parse_camera(doc, problems)
 
     candidates: list[Candidate] = []
@@ -247,7 +249,7 @@ def open_manifest(manifest_path: Path) -> Session:
         entries = doc.get(kind, [])
         if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
             problems.append(Problem(kind, f"must be an array of tables: [[{kind}]]",
-                                    code="bad-value"))
+                                    code=ProblemCode.BAD_VALUE))
             continue
         for i, entry in enumerate(entries):
             where = _entry_label(kind, i, entry, path_key)
@@ -256,7 +258,7 @@ def open_manifest(manifest_path: Path) -> Session:
             target = entry.get(path_key)
             if not isinstance(target, str) or not target:
                 problems.append(Problem(where, f"no '{path_key}' (a path relative to the "
-                                               "session folder)", code="missing-path",
+                                               "session folder)", code=ProblemCode.MISSING_PATH,
                                         roles=roles))
                 continue
             if kind == "frames":
@@ -264,16 +266,16 @@ def open_manifest(manifest_path: Path) -> Session:
             else:
                 why = _glob_problem(target)
                 if why is not None:
-                    problems.append(Problem(where, why, code="path-outside", roles=roles))
+                    problems.append(Problem(where, why, code=ProblemCode.PATH_OUTSIDE, roles=roles))
                     continue
                 relpaths, others = _glob(root, target)
                 if not relpaths:
                     problems.append(Problem(where, "glob matches no image file" + (
                         f" ({others} non-image file{'s' if others > 1 else ''})" if others
-                        else ""), code="empty-glob", roles=roles))
+                        else ""), code=ProblemCode.EMPTY_GLOB, roles=roles))
             if role is not None:
                 candidates.extend(Candidate(where, rel, role, meta, legacy) for rel in relpaths)
     if not candidates and not any(p.severity == "error" for p in problems):
         problems.append(Problem(manifest_path.name, "the manifest lists no frames",
-                                code="no-frames"))
+                                code=ProblemCode.NO_FRAMES))
     return assemble(root, manifest_path, "manifest", camera, candidates, problems)

@@ -10,6 +10,8 @@ Estimators never group frames themselves (``docs/session.md`` gives the manifest
 Validation problems carry a machine-readable ``code`` and the ``roles`` whose frames they touch,
 so a verb refuses exactly the sessions whose errors concern the frames it uses
 (:meth:`Session.raise_if_invalid` with ``roles=``) and no caller matches the text of a message.
+The codes are the members of :class:`ProblemCode`, each with its fix in plain words; a
+:class:`Problem` accepts no other code.
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ import threading
 from collections import Counter, OrderedDict, deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Sized
 
@@ -37,7 +40,7 @@ from ..progress import checkpoint
 __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "META_KEYS", "EXPOSURE_ROLES",
            "MIN_EXPOSURE", "MAX_EXPOSURE",
            "UNIFORM_ROLES", "MANIFEST_NAME", "DRAFT_NAME", "SCHEMA", "Camera", "FrameRecord",
-           "Problem", "Session"]
+           "ProblemCode", "Problem", "Session"]
 
 ROLES = ("dark", "ptc", "fixed_pattern", "flat", "bracket", "scene", "reference", "target")
 MANIFEST_NAME = "session.toml"
@@ -133,6 +136,70 @@ class FrameRecord:
         return d
 
 
+class ProblemCode(StrEnum):
+    """The code of a validation problem, for programs, and its fix in plain words (``.fix``).
+
+    A ``str``: each member equals, hashes, formats and serialises (JSON) as its value
+    (``ProblemCode.FILE_NOT_FOUND == "file-not-found"``), so code comparing a problem's code
+    to a string keeps working.  ``docs/session.md`` tables every code, its severity, meaning
+    and fix; the two lists are the same (tests/test_vocabularies.py).
+    """
+
+    fix: str
+
+    def __new__(cls, value: str, fix: str) -> ProblemCode:
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.fix = fix
+        return member
+
+    SCHEMA = "schema", "write `schema = 1` at the top of session.toml"
+    NO_SCHEMA = "no-schema", "add `schema = 1` at the top of session.toml"
+    NO_CAMERA = "no-camera", "add a [camera] table with bits, layout and black_level"
+    UNKNOWN_KEY = "unknown-key", "remove or rename the key (docs/session.md lists the keys)"
+    BAD_VALUE = "bad-value", "correct the value's type or range as the message says"
+    MISSING_ROLE = ("missing-role", "give the entry a role (dark, ptc, fixed_pattern, flat, "
+                                    "bracket, scene, reference, target)")
+    UNKNOWN_ROLE = ("unknown-role", "use one of the roles dark, ptc, fixed_pattern, flat, "
+                                    "bracket, scene, reference, target")
+    MISSING_PATH = "missing-path", "give the entry a path"
+    EMPTY_GLOB = "empty-glob", "correct the pattern, or capture the frames it should match"
+    PATH_OUTSIDE = ("path-outside", "move the frame inside the session folder and give a "
+                                    "relative path")
+    FILE_NOT_FOUND = "file-not-found", "capture or copy the frame, or remove its entry"
+    NOT_A_FILE = "not-a-file", "point the entry at an image, not a folder"
+    DUPLICATE = "duplicate", "list each frame once"
+    UNREADABLE = ("unreadable", "re-export or re-capture the file (it is truncated or "
+                                "corrupt)")
+    MISSING_LEVEL = ("missing-level", "give each ptc frame its light level "
+                                      "(`level = 1, 2, …`)")
+    MISSING_CONFIG = ("missing-config", "give each fixed_pattern frame its configuration "
+                                        "(`config = 1, 2, …`)")
+    MISSING_EXPOSURE = "missing-exposure", "give each bracket frame its exposure time in seconds"
+    ROI_OUTSIDE = "roi-outside", "shrink the roi to fit inside the frame"
+    MISMATCH = ("mismatch", "capture every frame of a role with the same size, bit depth and "
+                            "sample type")
+    BIT_DEPTH = "bit-depth", "set [camera] bits to the depth the data use"
+    PTC_SINGLE_FRAME = ("ptc-single-frame", "capture a second frame at that light level (pairs "
+                                            "are differenced)")
+    NO_FRAMES = ("no-frames", "list the frames in session.toml (the capture plan writes a "
+                              "template)")
+    DEPRECATED_NOTE = "deprecated-note", "write the key the warning names instead of `note`"
+    FOLDER_INFERRED = ("folder-inferred", "review session.toml.draft (`ccdcore session "
+                                          "--draft`) and save it as session.toml")
+    NOT_A_BRACKET = ("not-a-bracket", "if the images are a bracket, write a manifest "
+                                      "(`ccdcore session --draft`) giving each frame "
+                                      "role = \"bracket\" and its exposure")
+    DUPLICATE_EXPOSURE = ("duplicate-exposure", "remove the extra frames, put each bracket in "
+                                                "its own sub-folder, or give each bracket its "
+                                                "own `stack` in a manifest")
+    BRACKET_SETTINGS = ("bracket-settings", "remove the frames taken at another camera, ISO, "
+                                            "aperture or gain, or give each frame its effective "
+                                            "exposure in a manifest")
+    DESCRIPTOR_LINE = "descriptor-line", "correct the descriptor line the message names"
+    DESCRIPTOR_SIZE = "descriptor-size", "re-export the image at the size of the `n` line"
+
+
 @dataclass(frozen=True)
 class Problem:
     """One validation problem.
@@ -146,8 +213,12 @@ class Problem:
     severity
         ``"error"`` or ``"warning"``.
     code
-        What kind of problem, for programs (``"file-not-found"``, ``"unknown-key"`` ...; the list
-        is in ``docs/session.md``).  Never match the message.
+        What kind of problem, for programs: a :class:`ProblemCode` (a ``str``,
+        ``"file-not-found"``, ``"unknown-key"`` ...; the list is in ``docs/session.md``), its
+        fix ``code.fix``.  Keyword only and required.  The string of a member is taken as that
+        member (a problem rebuilt from :meth:`to_dict`); any other string is refused
+        (``ValueError``), as is any other type (``TypeError``).  ccdcore itself always passes a
+        member.  Never match the message.
     roles
         The roles whose frames it touches; empty for a problem of the whole session (schema,
         camera), which touches every role.
@@ -156,8 +227,20 @@ class Problem:
     where: str
     message: str
     severity: str = "error"  # "error" | "warning"
-    code: str = "invalid"
+    code: ProblemCode = field(kw_only=True)
     roles: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if isinstance(self.code, ProblemCode):
+            return
+        if not isinstance(self.code, str):
+            raise TypeError(f"a Problem's code must be a ProblemCode, got {self.code!r}")
+        try:  # the string of a member (a problem read back from its dict or JSON) is that member
+            code = ProblemCode(self.code)
+        except ValueError:
+            raise ValueError(f"unknown problem code {self.code!r}: a Problem's code must be a "
+                             "ProblemCode (docs/session.md lists them)") from None
+        object.__setattr__(self, "code", code)
 
     def __str__(self) -> str:
         return f"{self.where}: {self.message}"
@@ -168,7 +251,7 @@ class Problem:
 
     def to_dict(self) -> dict[str, Any]:
         return {"where": self.where, "message": self.message, "severity": self.severity,
-                "code": self.code, "roles": list(self.roles)}
+                "code": self.code.value, "roles": list(self.roles)}
 
 
 #: bytes read at a time by :meth:`Session.content_hash`
@@ -545,10 +628,10 @@ class Session:
             try:
                 self.read(rec)
             except ImageReadError as exc:
-                extra.append(Problem(rec.relpath, exc.problem, code="unreadable",
+                extra.append(Problem(rec.relpath, exc.problem, code=ProblemCode.UNREADABLE,
                                      roles=(rec.role,)))
             except CcdError as exc:  # values beyond camera.bits (check_codes)
-                extra.append(Problem(rec.relpath, exc.problem, code="bit-depth",
+                extra.append(Problem(rec.relpath, exc.problem, code=ProblemCode.BIT_DEPTH,
                                      roles=(rec.role,)))
         return dataclasses.replace(self, problems=self.problems + tuple(extra))
 
