@@ -270,71 +270,136 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
     CcdError
         Non-physical inputs, naming the one at fault.
     """
-    if not isinstance(bits, (int, np.integer)) or not 1 <= int(bits) <= 32:
-        raise CcdError("bits", f"the bit depth must be 1..32, got {bits!r}")
-    bits = int(bits)
-    full = float(2 ** bits - 1)
-    if not (math.isfinite(gain) and gain > 0):
-        raise CcdError("gain", f"the gain A (DN per electron) must be positive, got {gain!r}")
-    if sigma_c2 is None:
-        if read_noise_e is None or not (read_noise_e >= 0):
-            raise CcdError("read noise", "give the read noise in electrons (≥ 0) or σ²_C in DN²")
-        sigma_c2 = (gain * read_noise_e) ** 2 + 1.0 / 12.0
-    if not (math.isfinite(sigma_c2) and sigma_c2 > 0):
-        raise CcdError("sigma_c2", f"σ²_C must be positive, got {sigma_c2!r}")
-    b0 = float(black_level)
-    if not 0 <= b0 < 0.5 * full:
-        raise CcdError("black_level", f"the black level must lie in [0, {0.5 * full:g}) DN, "
-                                      f"got {black_level!r}")
+    sensor = _Sensor.checked(bits, gain, read_noise_e, sigma_c2, black_level, exposure_half,
+                             ext)
     if ptc_levels < 3:
         raise CcdError("ptc_levels", f"the photon-transfer fit needs at least 3 levels, got "
                                      f"{ptc_levels}")
-    if not exposure_half > 0 or not scene_range > 1 or not bracket_ratio > 1 or \
-            not flat_noise_snup > 0 or pixels < 2:
+    if not scene_range > 1 or not bracket_ratio > 1 or not flat_noise_snup > 0 or pixels < 2:
         raise CcdError("plan", "exposure, flat-field noise and pixel count must be positive, "
                                "scene range and bracket ratio above 1")
     if layout not in LAYOUTS:
         raise CcdError("layout", f"unknown layout {layout!r}")
 
-    def noise(mu: float) -> float:            # eq. 41 with the black level removed
-        return gain * max(mu - b0, 0.0) + sigma_c2
-
     notes: list[str] = []
-    pad = len(str(max(ptc_levels, 99)))
-    groups: list[CaptureGroup] = []
+    dark, s = _dark_group(sensor)
+    ptc, a_err = _ptc_group(sensor, ptc_levels, pixels)
+    fp, fp_plan, sigma_hat = _fixed_pattern_group(sensor, s, p, fixed_pattern, notes)
+    flats = _flat_groups(sensor, flat_noise_snup)
+    bracket = _bracket_group(sensor, scene_range, bracket_ratio)
+    notes.append(f"exposures assume {_fmt_s(exposure_half)} gives about half of full scale "
+                 "under your lamp (and that the bracket's brightest point is as bright as the "
+                 "card); scale them all if it does not")
+    if layout != "mono":
+        notes.append(f"{layout} camera: the dark reference and K̂ of Healey & Kondepudy are made "
+                     "for mono frames; the flat field's DL_0 serves instead")
 
-    # dark frames -----------------------------------------------------------------------------
-    s_rule = noise(b0) / 0.1
+    camera = {"name": name, "bits": sensor.bits, "layout": layout, "black_level": sensor.b0}
+    inputs = {"A": sensor.gain, "sigma_c2": sensor.sigma_c2, "read_noise_e":
+              None if read_noise_e is None else float(read_noise_e), "bits": sensor.bits,
+              "black_level": sensor.b0, "pixels": int(pixels),
+              "exposure_half": float(exposure_half), "ptc_levels": int(ptc_levels),
+              "p": float(p), "flat_noise_snup": float(flat_noise_snup),
+              "scene_range": float(scene_range), "bracket_ratio": float(bracket_ratio)}
+    return CapturePlan(camera=camera, inputs=inputs, groups=(dark, ptc, fp, *flats, bracket),
+                       fixed_pattern=fp_plan, gain_rel_err=a_err / sensor.gain,
+                       sigma_hat=sigma_hat, notes=tuple(notes))
+
+
+@dataclass(frozen=True)
+class _Sensor:
+    """What every group's rule needs of the camera and the lamp: bit depth, full scale, black
+    level b0, gain A, σ²_C, the exposure giving half of full scale, the frames' extension."""
+
+    bits: int
+    full: float
+    b0: float
+    gain: float
+    sigma_c2: float
+    exposure_half: float
+    ext: str
+
+    @classmethod
+    def checked(cls, bits: Any, gain: float, read_noise_e: float | None,
+                sigma_c2: float | None, black_level: float, exposure_half: float, ext: str
+                ) -> "_Sensor":
+        """The sensor of :func:`plan_captures`'s arguments (:class:`CcdError` naming the one
+        at fault)."""
+        if not isinstance(bits, (int, np.integer)) or not 1 <= int(bits) <= 32:
+            raise CcdError("bits", f"the bit depth must be 1..32, got {bits!r}")
+        full = float(2 ** int(bits) - 1)
+        if not (math.isfinite(gain) and gain > 0):
+            raise CcdError("gain", f"the gain A (DN per electron) must be positive, got {gain!r}")
+        if sigma_c2 is None:
+            if read_noise_e is None or not (read_noise_e >= 0):
+                raise CcdError("read noise", "give the read noise in electrons (≥ 0) or σ²_C in "
+                                             "DN²")
+            sigma_c2 = (gain * read_noise_e) ** 2 + 1.0 / 12.0
+        if not (math.isfinite(sigma_c2) and sigma_c2 > 0):
+            raise CcdError("sigma_c2", f"σ²_C must be positive, got {sigma_c2!r}")
+        b0 = float(black_level)
+        if not 0 <= b0 < 0.5 * full:
+            raise CcdError("black_level", f"the black level must lie in [0, {0.5 * full:g}) DN, "
+                                          f"got {black_level!r}")
+        if not exposure_half > 0:
+            raise CcdError("plan", "exposure, flat-field noise and pixel count must be positive, "
+                                   "scene range and bracket ratio above 1")
+        return cls(int(bits), full, b0, float(gain), float(sigma_c2), float(exposure_half), ext)
+
+    def noise(self, mu: float) -> float:
+        """σ²_N at mean μ: eq. 41 with the black level removed."""
+        return self.gain * max(mu - self.b0, 0.0) + self.sigma_c2
+
+    def level(self, fraction: float) -> float:
+        """The mean (DN) at ``fraction`` of the range above the black level."""
+        return self.b0 + fraction * (self.full - self.b0)
+
+    def exposure(self, level_dn: float) -> float:
+        return _exposure(level_dn, self.full, self.b0, self.exposure_half)
+
+
+def _dark_group(sensor: _Sensor) -> tuple[CaptureGroup, int]:
+    """The dark frames of the dark reference (sec. V-A) and their count s."""
+    s_rule = sensor.noise(sensor.b0) / 0.1
     s = max(MIN_DARKS, _ceil(s_rule))
-    t_fp = _exposure(b0 + FP_LEVEL * (full - b0), full, b0, exposure_half)
-    groups.append(CaptureGroup(
+    t_fp = sensor.exposure(sensor.level(FP_LEVEL))
+    return CaptureGroup(
         "dark", "Dark frames",
         "Lens capped, at the fixed-pattern exposure: the dark reference D̂_D and its hot and "
         "dead pixels (sec. V-A).",
-        tuple((f"dark/dark_{i:03d}.{ext}", {"exposure": t_fp}) for i in range(s)),
-        f"σ²_N(dark)/s ≤ q²/10 with σ²_N(dark) = σ²_C = {sigma_c2:.4g} DN² gives "
-        f"s ≥ {s_rule:.3g}; at least {MIN_DARKS}"))
+        tuple((f"dark/dark_{i:03d}.{sensor.ext}", {"exposure": t_fp}) for i in range(s)),
+        f"σ²_N(dark)/s ≤ q²/10 with σ²_N(dark) = σ²_C = {sensor.sigma_c2:.4g} DN² gives "
+        f"s ≥ {s_rule:.3g}; at least {MIN_DARKS}"), s
 
-    # photon-transfer ladder ------------------------------------------------------------------
+
+def _ptc_group(sensor: _Sensor, ptc_levels: int, pixels: int) -> tuple[CaptureGroup, float]:
+    """The photon-transfer ladder (eqs. 37–42) and the predicted error of A (eq. 66)."""
+    pad = len(str(max(ptc_levels, 99)))
     fr = np.linspace(PTC_SPAN[0], PTC_SPAN[1], ptc_levels)
-    mus = b0 + fr * (full - b0)
-    a_err = predicted_gain_error(mus, gain, sigma_c2, pixels, b0)
+    mus = sensor.b0 + fr * (sensor.full - sensor.b0)
+    a_err = predicted_gain_error(mus, sensor.gain, sensor.sigma_c2, pixels, sensor.b0)
     ptc = []
     for k, mu in enumerate(mus, start=1):
-        t = _exposure(mu, full, b0, exposure_half)
+        t = sensor.exposure(mu)
         for side in "ab":
-            ptc.append((f"ptc/L{k:0{pad}d}_{side}.{ext}", {"level": k, "exposure": t}))
-    groups.append(CaptureGroup(
+            ptc.append((f"ptc/L{k:0{pad}d}_{side}.{sensor.ext}", {"level": k, "exposure": t}))
+    return CaptureGroup(
         "ptc", "Photon transfer pairs",
         f"Two frames per level at {ptc_levels} levels from {fr[0]:.0%} to {fr[-1]:.0%} of the "
         "range above the black level: the noise model A, σ²_C (eqs. 37–42). Same lamp, change "
         "only the exposure (or a neutral filter).",
         tuple(ptc),
-        f"predicted σ(A)/A = {a_err / gain:.2%} over {pixels:,} pixels (eq. 66 with "
-        "var σ²_N = 2σ⁴_N/(M − 1))"))
+        f"predicted σ(A)/A = {a_err / sensor.gain:.2%} over {pixels:,} pixels (eq. 66 with "
+        "var σ²_N = 2σ⁴_N/(M − 1))"), a_err
 
-    # fixed pattern: n2 first, then n1 from σ̂ (sec. V-B) --------------------------------------
-    mu_k = b0 + FP_LEVEL * (full - b0)
+
+def _fixed_pattern_group(sensor: _Sensor, s: int, p: float, fixed_pattern: Any,
+                         notes: list[str]) -> tuple[CaptureGroup, Any, float]:
+    """The fixed-pattern configurations (eqs. 45–50): n2 first, then n1 from σ̂ (sec. V-B);
+    the plan of :func:`plan_acquisition` and σ̂ (measured by a pilot, else predicted)."""
+    b0, gain, sigma_c2, bits = sensor.b0, sensor.gain, sensor.sigma_c2, sensor.bits
+    mu_k = sensor.level(FP_LEVEL)
+    t_fp = sensor.exposure(mu_k)
     n2_plan = plan_acquisition(gain, sigma_c2, bits, sigma_hat=0.0, black_level=b0, s=s,
                                dark_level=b0)
     n2 = n2_plan.n2_required
@@ -342,7 +407,7 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
         sigma_hat = float(fixed_pattern.sigma_hat)
         notes.append(f"σ̂ = {sigma_hat:.4g} measured by the pilot fixed-pattern capture")
     else:
-        sigma_hat = math.sqrt(noise(mu_k) / n2 + noise(b0) / s) / (mu_k - b0)
+        sigma_hat = math.sqrt(sensor.noise(mu_k) / n2 + sensor.noise(b0) / s) / (mu_k - b0)
         notes.append(f"σ̂ = {sigma_hat:.4g} predicted from the sensor noise alone (card level "
                      f"{mu_k:.0f} DN, n2 = {n2}, s = {s}); card texture and lamp drift add to "
                      "it: capture 3 configurations first and plan again from them")
@@ -351,24 +416,29 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
     n1 = fp_plan.n1_required
     cpad = len(str(max(n1, 9)))
     fpad = len(str(max(n2 - 1, 9)))
-    groups.append(CaptureGroup(
+    group = CaptureGroup(
         "fixed_pattern", "Fixed-pattern configurations",
         f"A uniform card at about {FP_LEVEL:.0%} of full scale: {n1} configurations (move card "
         f"and lamp between them) × {n2} frames each: the fixed-pattern map K̂ (eqs. 45–50).",
-        tuple((f"fixed_pattern/c{c:0{cpad}d}_{j:0{fpad}d}.{ext}",
+        tuple((f"fixed_pattern/c{c:0{cpad}d}_{j:0{fpad}d}.{sensor.ext}",
                {"config": c, "exposure": t_fp})
               for c in range(1, n1 + 1) for j in range(n2)),
-        f"{fp_plan.n1_formula}; {fp_plan.n2_formula}"))
+        f"{fp_plan.n1_formula}; {fp_plan.n2_formula}")
+    return group, fp_plan, sigma_hat
 
-    # flat fields (de Lasarte et al. 2007) -----------------------------------------------------
-    t_lo = _exposure(b0 + 0.05 * (full - b0), full, b0, exposure_half)
+
+def _flat_groups(sensor: _Sensor, flat_noise_snup: float) -> tuple[CaptureGroup, CaptureGroup]:
+    """The flat fields of de Lasarte et al. (2007) at exposures a factor 2 apart up to the knee,
+    the base one averaged to ``flat_noise_snup``, and their dark frames (DL_0)."""
+    b0, full, ext = sensor.b0, sensor.full, sensor.ext
+    t_lo = sensor.exposure(sensor.level(0.05))
     flat_t = [t_lo * 2 ** k for k in range(12)]
     flat_t = [float(f"{t:.4g}") for t in flat_t
               if b0 + (full - b0) * 0.05 * (t / t_lo) <= b0 + 0.95 * (full - b0) * 1.0001]
     levels = [b0 + 0.05 * (full - b0) * t / t_lo for t in flat_t]
-    base = int(np.argmin([abs(m - (b0 + 0.5 * (full - b0))) for m in levels]))
+    base = int(np.argmin([abs(m - sensor.level(0.5)) for m in levels]))
     mu_b = levels[base]
-    snup_one = 100.0 * math.sqrt(noise(mu_b)) / (mu_b - b0)
+    snup_one = 100.0 * math.sqrt(sensor.noise(mu_b)) / (mu_b - b0)
     n_base = max(2, _ceil((snup_one / flat_noise_snup) ** 2))
     flats: list[tuple[str, dict[str, Any]]] = []
     flat_darks: list[tuple[str, dict[str, Any]]] = []
@@ -377,7 +447,7 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
         flats += [(f"flat/flat_E{e:02d}_{j:02d}.{ext}", {"level": 1, "exposure": t})
                   for j in range(n)]
         flat_darks += [(f"flat_dark/dark_E{e:02d}_{j}.{ext}", {"exposure": t}) for j in range(4)]
-    groups.append(CaptureGroup(
+    return CaptureGroup(
         "flat", "Flat fields",
         f"A uniform source (integrating sphere or diffuser) at {len(flat_t)} exposures a factor "
         f"2 apart, up to the knee: the linear range and the G/O correction maps. The base "
@@ -385,41 +455,26 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
         tuple(flats),
         f"100·σ_N/μ = {snup_one:.3g} % per frame at the base; N = ceil(({snup_one:.3g}/"
         f"{flat_noise_snup:g})²) = {n_base} keeps the average's noise ≤ {flat_noise_snup:g} % "
-        "SNUP"))
-    groups.append(CaptureGroup(
+        "SNUP"), CaptureGroup(
         "dark", "Flat-field dark frames",
         "Lens capped, 4 at each flat exposure: DL_0 of the correction (de Lasarte et al.).",
-        tuple(flat_darks)))
+        tuple(flat_darks))
 
-    # exposure bracket (Tsin et al. 2001) -----------------------------------------------------
+
+def _bracket_group(sensor: _Sensor, scene_range: float, bracket_ratio: float) -> CaptureGroup:
+    """The exposure bracket of Tsin et al. (2001): the brightest point at 90 % in the first
+    frame, a point ``scene_range`` times darker at 25 % in the last."""
     span = 0.25 * scene_range / 0.9
     n_br = max(MIN_BRACKET, _ceil(math.log(span) / math.log(bracket_ratio)) + 1)
-    t0 = exposure_half * 0.9 / 0.5        # the brightest point taken as bright as the card
-    bracket = [(f"bracket/b_{k:02d}.{ext}",
+    t0 = sensor.exposure_half * 0.9 / 0.5     # the brightest point taken as bright as the card
+    bracket = [(f"bracket/b_{k:02d}.{sensor.ext}",
                 {"exposure": float(f"{t0 * bracket_ratio ** k:.6g}"), "stack": 0})
                for k in range(n_br)]
-    groups.append(CaptureGroup(
+    return CaptureGroup(
         "bracket", "Exposure bracket",
         f"A static scene on a tripod, {n_br} exposures a factor {bracket_ratio:.3g} apart: the "
         "inverse response g, its noise terms and HDR radiance (Tsin et al. sec. 3.2). Fix "
         "white balance, gain and aperture; change only the exposure time.",
         tuple(bracket),
         f"the brightest point at 90 % in the first frame, a point {scene_range:g}× darker at "
-        f"25 % in the last: {span:.3g}× in exposure, at least {MIN_BRACKET} frames"))
-    notes.append(f"exposures assume {_fmt_s(exposure_half)} gives about half of full scale "
-                 "under your lamp (and that the bracket's brightest point is as bright as the "
-                 "card); scale them all if it does not")
-    if layout != "mono":
-        notes.append(f"{layout} camera: the dark reference and K̂ of Healey & Kondepudy are made "
-                     "for mono frames; the flat field's DL_0 serves instead")
-
-    camera = {"name": name, "bits": bits, "layout": layout, "black_level": b0}
-    inputs = {"A": float(gain), "sigma_c2": float(sigma_c2), "read_noise_e":
-              None if read_noise_e is None else float(read_noise_e), "bits": bits,
-              "black_level": b0, "pixels": int(pixels), "exposure_half": float(exposure_half),
-              "ptc_levels": int(ptc_levels), "p": float(p), "flat_noise_snup":
-              float(flat_noise_snup), "scene_range": float(scene_range),
-              "bracket_ratio": float(bracket_ratio)}
-    return CapturePlan(camera=camera, inputs=inputs, groups=tuple(groups),
-                       fixed_pattern=fp_plan, gain_rel_err=a_err / gain, sigma_hat=sigma_hat,
-                       notes=tuple(notes))
+        f"25 % in the last: {span:.3g}× in exposure, at least {MIN_BRACKET} frames")
