@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 from . import __version__
 import numpy as np
 
-from .channels import LAYOUTS
+from .channels import LAYOUTS, is_bayer
 from .common import Roi, format_pm, format_size
 from .errors import CcdError
 
@@ -470,7 +470,7 @@ def _cmd_snup(args: argparse.Namespace) -> int:
         if args.roi is None:
             data = read_image(path)
         else:  # decode only the region: a huge frame need not fit the pixel limit
-            roi = check_roi(args.roi, header.shape, path, even=layout.startswith("bayer"))
+            roi = check_roi(args.roi, header.shape, path, even=is_bayer(layout))
             data = read_region(path, *roi)
         res = snup(data, layout=layout, where=str(path))
         images.append({"path": str(path), "layout": layout,
@@ -749,7 +749,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from ccdcore_app.report import write_report  # here: Bokeh loads for this verb only (not Panel)
+    from ccdcore_report import write_report  # here: Bokeh loads for this verb only (not Panel)
 
     last = [""]
 

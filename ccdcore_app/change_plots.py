@@ -27,6 +27,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.change import LABEL_CHANGE, LABEL_UNDETERMINED
+from ccdcore_report.figures import (BACKGROUND_COLOUR, CHANGE_COLOUR, UNDETERMINED_COLOUR,
+                                     label_colour)
 
 from . import plots
 from .batch import batched
@@ -36,24 +38,11 @@ __all__ = ["RgbView", "D2Histogram", "log_colours", "tone_map_rgb", "white_point
            "label_name", "label_colour", "histogram_columns", "chi2_columns", "LABEL_COLOURS",
            "BACKGROUND_COLOUR"]
 
-#: label -> colour (Okabe-Ito, colour-blind safe); shadows 1..n take the blues in turn
-LABEL_COLOURS = {LABEL_CHANGE: "#D55E00", LABEL_UNDETERMINED: "#F0E442"}
-SHADOW_COLOURS = ("#0072B2", "#56B4E9", "#CC79A7", "#009E73", "#E69F00")
-#: the unchanged background when the labels are drawn alone
-BACKGROUND_COLOUR = "#d9d9d9"
+#: label -> colour: the report's (one home, :mod:`ccdcore_report.figures`)
+LABEL_COLOURS = {LABEL_CHANGE: CHANGE_COLOUR, LABEL_UNDETERMINED: UNDETERMINED_COLOUR}
 #: colour of the above-threshold bars and the threshold line
-ABOVE_COLOUR = "#D55E00"
+ABOVE_COLOUR = CHANGE_COLOUR
 BELOW_COLOUR = "#4a6fa5"
-
-
-def label_colour(label: int) -> str:
-    """The colour label ``label`` is drawn in (0, the background: light grey)."""
-    label = int(label)
-    if label in LABEL_COLOURS:
-        return LABEL_COLOURS[label]
-    if label == 0:
-        return BACKGROUND_COLOUR
-    return SHADOW_COLOURS[(label - 1) % len(SHADOW_COLOURS)]
 
 
 def label_name(label: int) -> str:

@@ -18,9 +18,11 @@ channel_planes(array, layout=None)
 channel_data(array, channel=None, layout=None)
     One 2-D plane of a frame: a channel, the luminance, or the frame itself when mono.
 auto_clim(values, lower=0.5, upper=99.5)
-    Colour range from percentiles of the finite values.
+    Colour range from percentiles of the finite values (:mod:`ccdcore_report.scales`, shared
+    with the report).
 subsample(values)
-    A regular subsample of at most a million values (for percentiles and medians).
+    A regular subsample of at most a million values (for percentiles and medians; from
+    :mod:`ccdcore_report.scales`).
 histogram_edges(values, bins=256)
     Bin edges for a frame's histogram (one bin per DN for small integer ranges).
 histogram_counts(values, bins=256)
@@ -47,6 +49,7 @@ from numpy.typing import NDArray
 
 from ccdcore.channels import check_layout, split_channels
 from ccdcore.errors import CcdError
+from ccdcore_report.scales import auto_clim, subsample
 
 __all__ = ["LUMINANCE", "LUMINANCE_WEIGHTS", "frame_layout", "channel_planes", "channel_data",
            "auto_clim", "histogram_edges", "histogram_counts", "OVERVIEWS", "overview",
@@ -57,9 +60,6 @@ LUMINANCE = "L"
 
 #: Rec. 709 luminance weights applied to linear R, G, B digital numbers
 LUMINANCE_WEIGHTS: tuple[float, float, float] = (0.2126, 0.7152, 0.0722)
-
-#: most pixels used for percentiles (a regular subsample keeps auto-range fast on big frames)
-_PERCENTILE_SAMPLES = 1_000_000
 
 
 def frame_layout(shape: tuple[int, ...], layout: str | None = None) -> str:
@@ -136,33 +136,6 @@ def channel_data(array: NDArray, channel: str | None = None,
     if channel not in planes:
         raise ValueError(f"channel: expected one of {', '.join(planes)}, got {channel!r}")
     return planes[channel]
-
-
-def subsample(values: NDArray) -> NDArray:
-    """A regular subsample of at most ``_PERCENTILE_SAMPLES`` values (all of them if fewer)."""
-    flat = np.ravel(values)
-    step = max(1, flat.size // _PERCENTILE_SAMPLES)
-    return flat[::step]
-
-
-def auto_clim(values: NDArray, lower: float = 0.5, upper: float = 99.5) -> tuple[float, float]:
-    """Colour range ``(lo, hi)`` from the ``lower`` and ``upper`` percentiles of the finite values.
-
-    A flat (or empty) plane gives a range of width 1 around its value so the colour map stays
-    defined.
-    """
-    if not 0 <= lower < upper <= 100:
-        raise ValueError(f"lower, upper: need 0 <= lower < upper <= 100, got {lower}, {upper}")
-    sample = subsample(values)
-    if sample.dtype.kind == "f":
-        sample = sample[np.isfinite(sample)]
-    if sample.size == 0:
-        return (0.0, 1.0)
-    lo, hi = np.percentile(sample, [lower, upper])
-    lo, hi = float(lo), float(hi)
-    if not hi > lo:
-        lo, hi = lo - 0.5, lo + 0.5
-    return (lo, hi)
 
 
 #: how a zoomed-out map view reduces the map pixels under one screen pixel (name -> what the

@@ -1,6 +1,6 @@
 """The sidebar's report download, on every page: the calibration report of the loaded session.
 
-The report (:mod:`ccdcore_app.report`) runs every estimate the session allows, so it is prepared off the
+The report (:mod:`ccdcore_report`) runs every estimate the session allows, so it is prepared off the
 UI thread with the header's progress bar (:meth:`ccdcore_app.state.AppState.compute`), then offered as a
 download; a new session withdraws it.
 
@@ -23,8 +23,8 @@ __all__ = ["ReportBox", "make_report"]
 
 
 def make_report(session: Any, progress: Callable[[str, float], None] | None = None) -> str:
-    """The report of ``session`` as HTML text (:func:`ccdcore_app.report.build_report`)."""
-    from .report import build_report
+    """The report of ``session`` as HTML text (:func:`ccdcore_report.build_report`)."""
+    from ccdcore_report import build_report
 
     return build_report(session, progress=progress)
 

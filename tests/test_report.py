@@ -1,4 +1,4 @@
-"""The HTML calibration report (ccdcore_app.report, ``ccdcore report``): the numbers as the product has
+"""The HTML calibration report (ccdcore_report, ``ccdcore report``): the numbers as the product has
 them, the sections and plots of each demo, the skipped estimates, bad input (exit 2, nothing
 written) and a file that loads nothing from anywhere."""
 from __future__ import annotations
@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore_app.report import MAX_MAP_SIDE, build_report, write_report
 from ccdcore.cli import main
 from ccdcore.common import format_pm
 from ccdcore.flatfield import correct
 from ccdcore.product import CalibrationProduct, calibrate, load_product
 from ccdcore.session import Camera, open_session
 from ccdcore.uniformity import snup
+from ccdcore_report import MAX_MAP_SIDE, build_report, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets"
@@ -401,14 +401,14 @@ def test_emva1288_with_missing_keys_still_reports(h94):
 
 # ------------------------------------------------------------------------------ properties -----
 def test_building_from_a_product_computes_nothing(h94, monkeypatch):
-    import ccdcore_app.report
     import ccdcore.change
+    import ccdcore_report.build
 
     def refuse(*a, **k):
         raise AssertionError("recomputed")
 
-    monkeypatch.setattr(ccdcore_app.report, "calibrate", refuse)
-    monkeypatch.setattr(ccdcore_app.report, "estimate_all", refuse)
+    monkeypatch.setattr(ccdcore_report.build, "calibrate", refuse)
+    monkeypatch.setattr(ccdcore_report.build, "estimate_all", refuse)
     monkeypatch.setattr(ccdcore.change, "session_change", refuse)
     session = open_session(ASSETS / "healey94")
     text = build_report(session, product=h94["product"])

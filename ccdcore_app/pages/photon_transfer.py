@@ -26,7 +26,7 @@ for a fit it still shows the levels measured by ``ptc_points``. The fit and the 
 through ``state.results.ptc`` and ``state.results.ptc_points``; the measured levels at an ROI
 are kept on disk (``AppState.cached_compute``, keyed by the session's content and the ROI), so a
 session opened again shows them without reading its frames. The plots come from
-:mod:`ccdcore_app.ptc_plots` and :mod:`ccdcore_app.plots`.
+:mod:`ccdcore_report.ptc` (shared with the report) and :mod:`ccdcore_app.plots`.
 """
 from __future__ import annotations
 
@@ -48,7 +48,9 @@ from ccdcore.noise import (ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint, ph
                            ptc_points)
 from ccdcore.session import FrameRecord, Session
 
-from .. import plots, ptc_plots, tiles
+from ccdcore_report import ptc as ptc_plots
+
+from .. import plots, tiles
 from ..cache import photon_transfer_entry
 from ..image_view import ImageView
 from ..tiles import FramePyramid, TiledPlane

@@ -37,13 +37,13 @@ import param
 from ccdcore import guide
 from ccdcore.capture import CapturePlan, plan_captures
 from ccdcore.errors import CcdError
-from ccdcore.guide import STEPS, Gate
+from ccdcore.guide import STEPS, Gate, GateStatus
 from ccdcore.product import missing_frames, requirement
 from ccdcore.session import Session
 
 from ..batch import batched, in_document
 from ..image_view import ImageView, view_pane
-from ..ptc_plots import PtcFigures
+from ccdcore_report.ptc import PtcFigures
 from ..response_plots import hdr_views
 from ..state import AppState
 from ._messages import PageMessages
@@ -53,12 +53,12 @@ __all__ = ["WalkthroughPage", "create_page", "STATUS_ICONS", "DOWNSTREAM"]
 
 SLUGS = [s.slug for s in STEPS]
 #: the mark of each gate status in the step list (and the alert type of its gate)
-STATUS_ICONS = {"pass": "\u2714", "warn": "\u26a0", "fail": "\u2716", "skip": "\u2013",
-                None: "\u25cb"}
-_ALERTS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "secondary",
-           None: "light"}
-_BUTTONS = {"pass": "success", "warn": "warning", "fail": "danger", "skip": "light",
-            None: "light"}
+STATUS_ICONS = {GateStatus.PASS: "\u2714", GateStatus.WARN: "\u26a0",
+                GateStatus.FAIL: "\u2716", GateStatus.SKIP: "\u2013", None: "\u25cb"}
+_ALERTS = {GateStatus.PASS: "success", GateStatus.WARN: "warning", GateStatus.FAIL: "danger",
+           GateStatus.SKIP: "secondary", None: "light"}
+_BUTTONS = {GateStatus.PASS: "success", GateStatus.WARN: "warning", GateStatus.FAIL: "danger",
+            GateStatus.SKIP: "light", None: "light"}
 #: the steps whose results a change in a step makes stale (they recompute when shown)
 DOWNSTREAM: dict[str, tuple[str, ...]] = {
     "plan": (),
@@ -118,8 +118,8 @@ def gate_markdown(gate: Gate | None) -> str:
     """A gate as Markdown: its summary, why, and what to do next."""
     if gate is None:
         return "Not run yet."
-    label = {"pass": "Passed", "warn": "Passed with warnings", "fail": "Failed",
-             "skip": "Skipped"}[gate.status]
+    label = {GateStatus.PASS: "Passed", GateStatus.WARN: "Passed with warnings",
+             GateStatus.FAIL: "Failed", GateStatus.SKIP: "Skipped"}[gate.status]
     lines = [f"**{label}:** {gate.summary}"]
     if gate.reasons:
         lines += [""] + [f"- {r}" for r in gate.reasons]
@@ -134,7 +134,7 @@ def _skip_missing(session: Session, estimate: str) -> Gate | None:
     if not lacking:
         return None
     req, roles = lacking[0]
-    return Gate("skip", f"no {', '.join(roles)} frames: {req.purpose} is skipped",
+    return Gate(GateStatus.SKIP, f"no {', '.join(roles)} frames: {req.purpose} is skipped",
                 next=(f"capture {req.capture}",))
 
 
@@ -211,9 +211,9 @@ def compute_response(session: Session, progress: Callable | None = None) -> tupl
 
 
 def compute_report(session: Session, product: Any) -> str:
-    """The report of the walkthrough's product (:func:`ccdcore_app.report.build_report`; nothing is
+    """The report of the walkthrough's product (:func:`ccdcore_report.build_report`; nothing is
     estimated again)."""
-    from ..report import build_report
+    from ccdcore_report import build_report
 
     return build_report(session, product=product)
 
@@ -534,7 +534,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     def _needs_session(self, slug: str) -> Session | None:
         session = self.state.session
         if session is None:
-            self._set_gate(slug, Gate("skip", "no session loaded",
+            self._set_gate(slug, Gate(GateStatus.SKIP, "no session loaded",
                                       next=("open a session on the Session page",)))
         return session
 
@@ -548,7 +548,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             return None
         if result is None:
             why = self.state.error or "the computation was cancelled"
-            self._set_gate(slug, Gate("fail", why, next=(
+            self._set_gate(slug, Gate(GateStatus.FAIL, why, next=(
                 "correct the frames or the choices of this step, then revisit it",)))
         return result
 
@@ -565,7 +565,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
                 name=session.camera.name if session is not None else "")
         except CcdError as err:
             self.plan = None
-            self._set_gate("plan", Gate("fail", str(err), next=("correct the input named",)))
+            self._set_gate("plan", Gate(GateStatus.FAIL, str(err),
+                                        next=("correct the input named",)))
             return
         p = self.plan
         rows = []
@@ -577,9 +578,10 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self._plan_rows = pd.DataFrame(rows)
         in_document(self._doc, self._draw_plan)
         self._set_gate("plan", Gate(
-            "pass", f"{p.n_frames} frames to capture; predicted σ(A)/A = {p.gain_rel_err:.2%}, "
-                    f"K̂ from n1 = {p.fixed_pattern.n1_required} × n2 = "
-                    f"{p.fixed_pattern.n2_required} frames", tuple(p.notes)))
+            GateStatus.PASS, f"{p.n_frames} frames to capture; predicted σ(A)/A = "
+                             f"{p.gain_rel_err:.2%}, K̂ from n1 = "
+                             f"{p.fixed_pattern.n1_required} × n2 = "
+                             f"{p.fixed_pattern.n2_required} frames", tuple(p.notes)))
 
     @batched
     def _draw_plan(self) -> None:
@@ -607,7 +609,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             return
         gate = guide.session_gate(session)
         rows = [{"severity": p.severity, "where": p.where, "problem": p.message,
-                 "fix": guide.FIXES.get(p.code, "see docs/session.md")}
+                 "fix": p.code.fix}
                 for p in session.problems]
         self._problems = pd.DataFrame(rows or [{"severity": "", "where": "",
                                                 "problem": "no problems", "fix": ""}])
@@ -766,7 +768,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             if not session.bracket_stacks("bracket"):
                 self.results["response"] = None
                 self._set_gate("response", Gate(
-                    "skip", "no exposure bracket: the response curve and HDR are skipped",
+                    GateStatus.SKIP, "no exposure bracket: the response curve and HDR are skipped",
                     next=(f"capture {requirement('response').capture}",)))
                 return
             res = await self._compute("response", compute_response, session,
@@ -860,7 +862,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         in_document(self._doc, enable)
         if "export" not in self.results:
             self._set_gate("export", Gate(
-                "warn" if not product.maps else "pass",
+                GateStatus.WARN if not product.maps else GateStatus.PASS,
                 "the product is ready to save: choose a folder and save it",
                 tuple(f"skipped {s.estimate}: {s.reason}" for s in product.skipped)))
 
@@ -875,7 +877,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         try:
             folder = self.state.check_allowed(self.export_folder)
         except CcdError as err:
-            self._set_gate("export", Gate("fail", str(err), next=(
+            self._set_gate("export", Gate(GateStatus.FAIL, str(err), next=(
                 "choose a folder inside your home, the working folder or the session's",)))
             return
         saved = await self._compute("export", save_export, *ready, folder,
@@ -884,8 +886,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
             return
         out, report = saved
         self.results["export"] = saved
-        self._set_gate("export", Gate("pass", f"saved the product to {out} and the report to "
-                                              f"{report}", (
+        self._set_gate("export", Gate(GateStatus.PASS, f"saved the product to {out} and the "
+                                                       f"report to {report}", (
             "apply it: ccdcore apply " + str(out) + " IMAGES -o OUT",)))
         in_document(self._doc, lambda: setattr(self.export_note, "object",
                                                 f"Saved: `{out}` and `{report}`."))

@@ -10,7 +10,7 @@ import pytest
 from bokeh.document import Document
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from ccdcore_app import ptc_plots
+from ccdcore_report import ptc as ptc_plots
 from ccdcore_app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPage, parameter_frame,
                                        verdict_message)
 from ccdcore_app.state import AppState

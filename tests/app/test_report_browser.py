@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-from ccdcore_app.report import write_report
+from ccdcore_report import write_report
 
 DEMOS = ("healey94", "delasarte07", "tsin01", "change")
 

@@ -1,4 +1,7 @@
-"""The plots of the Photon transfer page: pure data functions and the figures built once.
+"""The photon-transfer plots: pure data functions and the figures built once.
+
+The app's Photon transfer page and the report's noise section draw the same figures from here
+(the app's Photon transfer page and Walkthrough import it); Bokeh and pandas only.
 
 Every number drawn comes from ccdcore's photon-transfer results (:class:`~ccdcore.noise.PtcPoint`,
 :class:`~ccdcore.noise.PhotonTransfer`): the points (eqs. 37, 38, 40 of Healey & Kondepudy 1994),
@@ -279,7 +282,7 @@ def _point_renderers(fig: Any, sources: Mapping[str, Any], y: str, ylabel: str,
 
 
 class PtcFigures:
-    """The three photon-transfer plots of the page, built once as Bokeh figures; :meth:`update`
+    """The three photon-transfer plots, built once as Bokeh figures; :meth:`update`
     gives them new points and fit by replacing their sources' data (no new figure: the browser
     only redraws).
 
