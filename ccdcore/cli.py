@@ -19,7 +19,7 @@ import numpy as np
 
 from .channels import LAYOUTS, is_bayer
 from .common import Roi, format_pm, format_size
-from .errors import CcdError
+from .errors import CcdError, require_extra
 
 __all__ = ["main", "build_parser"]
 
@@ -749,6 +749,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
+    require_extra("bokeh", "report", "the report")
     from ccdcore_report import write_report  # here: Bokeh loads for this verb only (not Panel)
 
     last = [""]
@@ -764,6 +765,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 
 def _cmd_app(args: argparse.Namespace) -> int:
+    require_extra("panel", "app", "the app")
     from ccdcore_app.main import check_port, serve
 
     if args.session is not None and not Path(args.session).exists():

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from os import PathLike
 
-__all__ = ["CcdError", "ImageReadError", "ImageWriteError", "SessionError", "MethodNotAvailable"]
+__all__ = ["CcdError", "ImageReadError", "ImageWriteError", "SessionError", "MethodNotAvailable",
+           "MissingExtra", "require_extra"]
 
 
 class CcdError(ValueError):
@@ -46,3 +47,21 @@ class SessionError(CcdError):
 
 class MethodNotAvailable(CcdError):
     """A requested method or verb is not built yet, or needs an optional extra."""
+
+
+class MissingExtra(CcdError):
+    """A part of ccdcore needs a package of an optional extra that is not installed."""
+
+
+def require_extra(module: str, extra: str, purpose: str) -> None:
+    """Raise :class:`MissingExtra` unless ``module`` can be imported: one line saying that
+    ``purpose`` (e.g. "the report") needs it and the ``pip install`` that brings it. The
+    library itself (``pip install ccdcore``) needs no extra; the app, the report and a Dask
+    cluster do (``pyproject.toml``)."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        raise MissingExtra(None, f"{purpose} needs {module}, which is not installed: "
+                                 f"pip install 'ccdcore[{extra}]'") from None
