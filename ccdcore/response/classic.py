@@ -698,140 +698,193 @@ def mitsunaga_nayar(data: BracketData, *, max_degree: int = MN_MAX_DEGREE,
         raise CcdError("max_degree", f"must be >= 1, got {max_degree}")
     if int(max_iter) < 0:
         raise CcdError("max_iter", f"must be >= 0, got {max_iter}")
-    levels = chk.levels
-    N = chk.t.size
-    # eps and the refined ratios are sums over pixels of functions of the pair of codes
-    # (z_q, z_q+1): computed once on the joint histogram of every pair of images (the distinct
-    # code pairs and their counts), every refinement then costs O(distinct pairs)
-    pairs = [_code_pairs(chk.z[q], chk.z[q + 1], chk.valid[q] & chk.valid[q + 1], levels)
-             for q in range(N - 1)]
-    n_pairs = np.array([int(p[2].sum()) for p in pairs])
-    live = np.flatnonzero(n_pairs > 0)
-    used = np.zeros(levels, bool)
-    for q in live:
-        used[pairs[q][0]] = True
-        used[pairs[q][1]] = True
-    n_used = int(np.count_nonzero(used))
-    if n_used < 2:
-        raise CcdError(chk.where, f"{method}: the pixels usable in two consecutive exposures "
-                                  "show a single code; a response needs at least two")
-    Dmax = min(int(max_degree), n_used - 1)
-    M = np.arange(levels) / float(levels - 1)
-    basis = npleg.legvander(2.0 * M - 1.0, Dmax)                   # shifted Legendre, P(1) = 1
-    # every pair's Gram matrices (eps = a^T [S0 - R S01 + R^2 S1] a), stacked over the pairs
-    S0 = np.zeros((N - 1, Dmax + 1, Dmax + 1))
-    S01 = np.zeros_like(S0)
-    S1 = np.zeros_like(S0)
-    for q in live:
-        # summed over the codes, not the pixel pairs: B^T diag(h) B with the histograms h of
-        # z_q and of z_q+1, and sum_p n_p B(z_q) B(z_q+1)^T = B^T Bm, Bm[z] = sum over the pairs
-        # with z_q = z of n_p B(z_q+1) (bincounts; small products: a multi-threaded BLAS on a
-        # busy 2-core machine took ten times longer on the pixel-pair products)
-        z0, z1, n = pairs[q]
-        h0 = np.bincount(z0, n, minlength=levels)
-        h1 = np.bincount(z1, n, minlength=levels)
-        Bm = np.stack([np.bincount(z0, n * basis[z1, i], minlength=levels)
-                       for i in range(Dmax + 1)], axis=1)
-        X = basis.T @ Bm
-        S0[q], S01[q], S1[q] = basis.T @ (h0[:, None] * basis), X + X.T, \
-            basis.T @ (h1[:, None] * basis)
-    S0_sum = S0.sum(axis=0)
-    nominal = chk.t[:-1] / chk.t[1:]
-    # only ratios of pairs with MN_MIN_PAIRS pixels are refined (a handful of pixels next to
-    # saturation gives a ratio of noise, and the common power would spread it over the others)
-    free = live[n_pairs[live] >= MN_MIN_PAIRS]
-    log_nominal_free = float(np.sum(np.log(nominal[free])))
-    n_total = int(n_pairs.sum())
-    # the free pairs' distinct code pairs in one array, for the ratios of all pairs at once
-    q_of = np.repeat(free, [pairs[q][0].size for q in free])
-    z0_free, z1_free, n_free = (np.concatenate([pairs[q][i] for q in free] + [empty])
-                                for i, empty in enumerate((q_of[:0], q_of[:0], np.zeros(0))))
+    system = _MnSystem.of(chk, int(max_degree), method)
+    results = [r for D in range(1, system.Dmax + 1)
+               if (r := system.refined(D, int(max_iter), tol)) is not None]
+    if not results:
+        raise CcdError(chk.where, f"{method}: no polynomial fits the bracket (too few distinct "
+                                  "codes)")
+    errors = {r.degree: r.err for r in results}
+    best = min(results, key=lambda r: r.err)
+    mono = _shift_poly(npleg.leg2poly(best.a))                    # Legendre in 2M - 1 -> M^n
+    notes = system.notes(best, int(max_iter))
+    known = np.zeros(chk.levels, bool)
+    uc = np.flatnonzero(system.used)
+    known[uc[0]:uc[-1] + 1] = True
+    g = _finish(best.gz, known, chk.counts, chk.levels, notes, chk.where, method)
+    ratios = np.where(system.n_pairs > 0, best.R, np.nan)
+    extra: dict[str, Any] = {"degree": int(best.degree), "coefficients": [float(x) for x in mono],
+                             "ratios": [float(x) for x in ratios],
+                             "nominal_ratios": [float(x) for x in system.nominal],
+                             "errors": {int(k): float(e) for k, e in errors.items()},
+                             "history": [float(x) for x in best.history],
+                             "pairs": system.n_total}
+    return ClassicFit(g, int(best.iterations), bool(best.converged), tuple(notes), extra)
 
-    def fit(R: NDArray, D: int) -> tuple[NDArray, float] | None:
+
+@dataclass(frozen=True)
+class _MnDegree:
+    """One degree's fit: its final error, Legendre coefficients, ratios, g at every code,
+    refinements, convergence and the error after each refinement."""
+
+    err: float
+    degree: int
+    a: NDArray
+    R: NDArray
+    gz: NDArray
+    iterations: int
+    converged: bool
+    history: list[float]
+
+
+@dataclass(frozen=True)
+class _MnSystem:
+    """Mitsunaga & Nayar's error eps and ratio refinement as sums over the distinct code pairs
+    of consecutive images.
+
+    eps and the refined ratios are sums over pixels of functions of the pair of codes
+    (z_q, z_q+1): computed once on the joint histogram of every pair of images (the distinct
+    code pairs and their counts), every refinement then costs O(distinct pairs). Every pair's
+    Gram matrices (eps = a^T [S0 - R S01 + R^2 S1] a) are stacked over the pairs."""
+
+    basis: NDArray            # shifted Legendre polynomials at every code, P(1) = 1
+    S0: NDArray
+    S01: NDArray
+    S1: NDArray
+    S0_sum: NDArray           # S0 summed over the pairs
+    nominal: NDArray          # the nominal ratios t_q / t_q+1
+    n_pairs: NDArray          # pixel pairs of each consecutive pair of images
+    live: NDArray             # the pairs with pixels
+    free: NDArray             # the pairs whose ratio is refined
+    used: NDArray             # the codes with data
+    Dmax: int
+    q_of: NDArray             # the free pairs' distinct code pairs, in one array
+    z0: NDArray
+    z1: NDArray
+    n: NDArray
+
+    @property
+    def n_total(self) -> int:
+        return int(self.n_pairs.sum())
+
+    @classmethod
+    def of(cls, chk: Any, max_degree: int, method: str) -> "_MnSystem":
+        levels, N = chk.levels, chk.t.size
+        pairs = [_code_pairs(chk.z[q], chk.z[q + 1], chk.valid[q] & chk.valid[q + 1], levels)
+                 for q in range(N - 1)]
+        n_pairs = np.array([int(p[2].sum()) for p in pairs])
+        live = np.flatnonzero(n_pairs > 0)
+        used = np.zeros(levels, bool)
+        for q in live:
+            used[pairs[q][0]] = True
+            used[pairs[q][1]] = True
+        n_used = int(np.count_nonzero(used))
+        if n_used < 2:
+            raise CcdError(chk.where, f"{method}: the pixels usable in two consecutive exposures "
+                                      "show a single code; a response needs at least two")
+        Dmax = min(max_degree, n_used - 1)
+        M = np.arange(levels) / float(levels - 1)
+        basis = npleg.legvander(2.0 * M - 1.0, Dmax)
+        S0 = np.zeros((N - 1, Dmax + 1, Dmax + 1))
+        S01 = np.zeros_like(S0)
+        S1 = np.zeros_like(S0)
+        for q in live:
+            # summed over the codes, not the pixel pairs: B^T diag(h) B with the histograms h
+            # of z_q and of z_q+1, and sum_p n_p B(z_q) B(z_q+1)^T = B^T Bm, Bm[z] = sum over
+            # the pairs with z_q = z of n_p B(z_q+1) (bincounts; small products: a
+            # multi-threaded BLAS on a busy 2-core machine took ten times longer on the
+            # pixel-pair products)
+            z0, z1, n = pairs[q]
+            h0 = np.bincount(z0, n, minlength=levels)
+            h1 = np.bincount(z1, n, minlength=levels)
+            Bm = np.stack([np.bincount(z0, n * basis[z1, i], minlength=levels)
+                           for i in range(Dmax + 1)], axis=1)
+            X = basis.T @ Bm
+            S0[q], S01[q], S1[q] = basis.T @ (h0[:, None] * basis), X + X.T, \
+                basis.T @ (h1[:, None] * basis)
+        # only ratios of pairs with MN_MIN_PAIRS pixels are refined (a handful of pixels next
+        # to saturation gives a ratio of noise, and the common power would spread it over the
+        # others)
+        free = live[n_pairs[live] >= MN_MIN_PAIRS]
+        q_of = np.repeat(free, [pairs[q][0].size for q in free])
+        z0f, z1f, nf = (np.concatenate([pairs[q][i] for q in free] + [empty])
+                        for i, empty in enumerate((q_of[:0], q_of[:0], np.zeros(0))))
+        return cls(basis, S0, S01, S1, S0.sum(axis=0), chk.t[:-1] / chk.t[1:], n_pairs, live,
+                   free, used, Dmax, q_of, z0f, z1f, nf)
+
+    def fit(self, R: NDArray, D: int) -> tuple[NDArray, float] | None:
+        """The degree-``D`` coefficients minimising eps at the ratios ``R``, and eps."""
         k = D + 1
-        R2 = R * R
-        S1R = np.einsum("q,qij->ij", R2, S1[:, :k, :k])
-        H = S0_sum[:k, :k] - np.einsum("q,qij->ij", R, S01[:, :k, :k]) + S1R      # eps
-        Nm = S0_sum[:k, :k] + S1R
-        return _mn_solve(H, Nm)
+        S1R = np.einsum("q,qij->ij", R * R, self.S1[:, :k, :k])
+        S0 = self.S0_sum[:k, :k]
+        H = S0 - np.einsum("q,qij->ij", R, self.S01[:, :k, :k]) + S1R          # eps
+        return _mn_solve(H, S0 + S1R)
 
-    def refine(gz: NDArray, R: NDArray) -> NDArray:
-        # every free pair's mean of g(M_q) / g(M_q+1) over its pixels (g(M_q+1) >=
-        # MN_RATIO_FLOOR, g(M_q) > 0), from its distinct code pairs
-        g0, g1 = gz[z0_free], gz[z1_free]
+    def refine(self, gz: NDArray, R: NDArray) -> NDArray:
+        """Every free pair's mean of g(M_q) / g(M_q+1) over its pixels (g(M_q+1) >=
+        MN_RATIO_FLOOR, g(M_q) > 0), raised to the common power that keeps the nominal product
+        of the ratios (the u-ambiguity); the last ratios where none is usable."""
+        free, N1 = self.free, self.nominal.size
+        g0, g1 = gz[self.z0], gz[self.z1]
         ok = (g1 >= MN_RATIO_FLOOR) & (g0 > 0)
-        num = np.bincount(q_of[ok], n_free[ok] * (g0[ok] / g1[ok]), minlength=N - 1)
-        cnt = np.bincount(q_of[ok], n_free[ok], minlength=N - 1)
-        if np.any(cnt[free] <= 0):            # a pair without a usable ratio: keep the last
+        num = np.bincount(self.q_of[ok], self.n[ok] * (g0[ok] / g1[ok]), minlength=N1)
+        cnt = np.bincount(self.q_of[ok], self.n[ok], minlength=N1)
+        if np.any(cnt[free] <= 0):
             return R.copy()
         new = R.copy()
         new[free] = num[free] / cnt[free]
         lr = np.log(np.clip(new[free], 1e-300, None))
         total = float(lr.sum())
-        if not total < 0:                     # no usable ratio: keep the last ones
+        if not total < 0:
             return R.copy()
-        # the common power that keeps the nominal product of the refined ratios (u-ambiguity)
-        new[free] = np.exp(lr * (log_nominal_free / total))
+        new[free] = np.exp(lr * (float(np.sum(np.log(self.nominal[free]))) / total))
         return new
 
-    results = []
-    for D in range(1, Dmax + 1):
-        R = nominal.copy()
-        first = fit(R, D)
+    def refined(self, D: int, max_iter: int, tol: float) -> _MnDegree | None:
+        """Degree ``D`` from the nominal ratios, the ratios refined until the error stops
+        decreasing or g changes by less than ``tol`` at every code with data."""
+        R = self.nominal.copy()
+        first = self.fit(R, D)
         if first is None:
-            continue
+            return None
         a, err = first
-        gz = basis[:, :D + 1] @ a
+        gz = self.basis[:, :D + 1] @ a
         it, converged = 0, True
         hist = [err]
         if max_iter > 0:
             converged = False
-            for step in range(1, int(max_iter) + 1):
-                R_new = refine(gz, R)
-                nxt = fit(R_new, D)
+            for step in range(1, max_iter + 1):
+                R_new = self.refine(gz, R)
+                nxt = self.fit(R_new, D)
                 if nxt is None or not nxt[1] < err:     # the error stops decreasing: keep the last
                     converged = True
                     break
                 a, err = nxt
-                g_new = basis[:, :D + 1] @ a
-                change = float(np.max(np.abs(g_new[used] - gz[used])))
+                g_new = self.basis[:, :D + 1] @ a
+                change = float(np.max(np.abs(g_new[self.used] - gz[self.used])))
                 R, gz, it = R_new, g_new, step
                 hist.append(err)
                 if change < tol:
                     converged = True
                     break
-        results.append((err, D, a, R, gz, it, converged, hist))
-    if not results:
-        raise CcdError(chk.where, f"{method}: no polynomial fits the bracket (too few distinct "
-                                  "codes)")
-    errors = {D: e for e, D, *_ in results}
-    err, D, a, R, gz, it, converged, hist = min(results, key=lambda r: r[0])
-    mono = _shift_poly(npleg.leg2poly(a))                         # Legendre in 2M - 1 -> M^n
-    notes = [f"degree {D} chosen among 1..{Dmax} (smallest error)",
-             f"{n_total} pixel pairs in {live.size} consecutive image pairs"]
-    if max_iter == 0:
-        notes.append("nominal exposure ratios kept (no refinement asked)")
-    elif it == 0:
-        notes.append("nominal exposure ratios kept: refining them did not lower the error")
-    elif not converged:
-        notes.append(f"ratio refinement not converged after {it} iterations")
-    else:
-        notes.append(f"exposure ratios refined in {it} iteration(s)")
-    dropped = np.setdiff1d(np.arange(N - 1), live)
-    if dropped.size:
-        notes.append("no pixel usable in both images of pair(s) "
-                     + ", ".join(f"{q}-{q + 1}" for q in dropped.tolist()))
-    ratios = np.where(n_pairs > 0, R, np.nan)
-    known = np.zeros(levels, bool)
-    uc = np.flatnonzero(used)
-    known[uc[0]:uc[-1] + 1] = True
-    g = _finish(gz, known, chk.counts, levels, notes, chk.where, method)
-    extra: dict[str, Any] = {"degree": int(D), "coefficients": [float(x) for x in mono],
-                             "ratios": [float(x) for x in ratios],
-                             "nominal_ratios": [float(x) for x in nominal],
-                             "errors": {int(k): float(e) for k, e in errors.items()},
-                             "history": [float(x) for x in hist], "pairs": n_total}
-    return ClassicFit(g, int(it), bool(converged), tuple(notes), extra)
+        return _MnDegree(err, D, a, R, gz, it, converged, hist)
+
+    def notes(self, best: _MnDegree, max_iter: int) -> list[str]:
+        notes = [f"degree {best.degree} chosen among 1..{self.Dmax} (smallest error)",
+                 f"{self.n_total} pixel pairs in {self.live.size} consecutive image pairs"]
+        if max_iter == 0:
+            notes.append("nominal exposure ratios kept (no refinement asked)")
+        elif best.iterations == 0:
+            notes.append("nominal exposure ratios kept: refining them did not lower the error")
+        elif not best.converged:
+            notes.append(f"ratio refinement not converged after {best.iterations} iterations")
+        else:
+            notes.append(f"exposure ratios refined in {best.iterations} iteration(s)")
+        dropped = np.setdiff1d(np.arange(self.nominal.size), self.live)
+        if dropped.size:
+            notes.append("no pixel usable in both images of pair(s) "
+                         + ", ".join(f"{q}-{q + 1}" for q in dropped.tolist()))
+        return notes
 
 
 def _shift_poly(c: NDArray) -> NDArray[np.float64]:
