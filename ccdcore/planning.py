@@ -171,6 +171,32 @@ def plan_acquisition(A: Any, sigma_c2: float | None = None, bits: int | None = N
         Missing or non-physical inputs (A ≤ 0, σ²_C < 0, no σ̂, bits out of 1..32 ...).
     """
     notes: list[str] = []
+    A, sigma_c2, b0 = _noise_model(A, sigma_c2, black_level)
+    if bits is None or not (1 <= int(bits) <= 32):
+        raise CcdError("bits", f"give the ADC bit depth (1..32), got {bits!r}")
+    bits = int(bits)
+    if not (q > 0) or not (p > 0) or not (n2_var_limit > 0):
+        raise CcdError("q/p/n2_var_limit", "q, p and the variance limit must be positive")
+    if n2_reading not in N2_READINGS:
+        raise CcdError("n2_reading", f"unknown reading {n2_reading!r}; choose one of "
+                                     f"{', '.join(N2_READINGS)}")
+    n1 = _n1(bits, p, sigma_hat, worst_ratio, fixed_pattern, notes)
+    n2 = _n2(A, sigma_c2, b0, bits, mu_max, n2_var_limit, q, s, dark_level, n2_reading, notes)
+    inputs = {"A": A, "sigma_c2": sigma_c2, "bits": bits, "sigma_hat": n1.sigma_hat,
+              "p": float(p), "mu_max": n2.mu, "n2_var_limit": float(n2_var_limit),
+              "black_level": b0, "q": float(q), "s": s, "sigma2_n_dark": n2.sig2_dark}
+    return AcquisitionPlan(n1_required=n1.required, n2_required=n2.required, n1_hat=n1.hat,
+                           n1_hat_exact=n1.hat_exact, worst_ratio=n1.worst_ratio,
+                           sigma2_n_max=n2.sig2, n2_exact=n2.exact, n1_formula=n1.formula,
+                           n2_formula=n2.formula, n2_reading=n2_reading,
+                           n2_alternatives={k: max(_ceil(v), 1) for k, v in n2.alts.items()},
+                           inputs=inputs, notes=tuple(notes))
+
+
+def _noise_model(A: Any, sigma_c2: float | None, black_level: float | None
+                 ) -> tuple[float, float, float]:
+    """(A, σ²_C, b0) of eq. 41, from numbers or from a PhotonTransfer-like object (``.A``,
+    ``.sigma_c2``, optionally ``.black_level_dn``); b0 defaults to 0 (the paper's model)."""
     if hasattr(A, "A") and hasattr(A, "sigma_c2"):
         model = A
         A = float(model.A)
@@ -183,17 +209,23 @@ def plan_acquisition(A: Any, sigma_c2: float | None = None, bits: int | None = N
     A, sigma_c2 = float(A), float(sigma_c2)
     if not (A > 0) or not (sigma_c2 >= 0):
         raise CcdError("A/sigma_c2", f"need A > 0 and σ²_C ≥ 0, got A = {A}, σ²_C = {sigma_c2}")
-    if bits is None or not (1 <= int(bits) <= 32):
-        raise CcdError("bits", f"give the ADC bit depth (1..32), got {bits!r}")
-    bits = int(bits)
-    if not (q > 0) or not (p > 0) or not (n2_var_limit > 0):
-        raise CcdError("q/p/n2_var_limit", "q, p and the variance limit must be positive")
-    if n2_reading not in N2_READINGS:
-        raise CcdError("n2_reading", f"unknown reading {n2_reading!r}; choose one of "
-                                     f"{', '.join(N2_READINGS)}")
-    b0 = float(black_level) if black_level is not None else 0.0
+    return A, sigma_c2, float(black_level) if black_level is not None else 0.0
 
-    # ---- n1 ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _N1:
+    required: int
+    hat: int
+    hat_exact: float
+    worst_ratio: float
+    sigma_hat: float
+    formula: str
+
+
+def _n1(bits: int, p: float, sigma_hat: float | None, worst_ratio: float | None,
+        fixed_pattern: Any, notes: list[str]) -> _N1:
+    """n1: n̂_1 = 10·2^(2b)·(p σ̂)², times the worst-case ratio n1/n̂_1 (measured by a pilot
+    fixed-pattern result, else :data:`DEFAULT_WORST_RATIO`), at least 3."""
     if sigma_hat is None and fixed_pattern is not None:
         sigma_hat = float(fixed_pattern.sigma_hat)
     if sigma_hat is None or not (sigma_hat >= 0):
@@ -222,10 +254,28 @@ def plan_acquisition(A: Any, sigma_c2: float | None = None, bits: int | None = N
         notes.append(f"n1 = {max(n1_req, 1)} from the formula raised to 3: outlier rejection "
                      "needs at least three slopes")
         n1_req = 3
-    n1_formula = (f"n̂_1 = 10·2^(2·{bits})·({p:g}·{sigma_hat:.4g})² = {n1_hat_exact:.4g} -> "
-                  f"{n1_hat}; n1 = ceil(n̂_1·{worst_ratio:.4g}) = {n1_req}")
+    formula = (f"n̂_1 = 10·2^(2·{bits})·({p:g}·{sigma_hat:.4g})² = {n1_hat_exact:.4g} -> "
+               f"{n1_hat}; n1 = ceil(n̂_1·{worst_ratio:.4g}) = {n1_req}")
+    return _N1(n1_req, n1_hat, n1_hat_exact, float(worst_ratio), sigma_hat, formula)
 
-    # ---- n2 ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class _N2:
+    required: int
+    exact: float
+    mu: float
+    sig2: float
+    sig2_dark: float | None
+    alts: dict[str, float]
+    formula: str
+
+
+def _n2(A: float, sigma_c2: float, b0: float, bits: int, mu_max: float | None,
+        n2_var_limit: float, q: float, s: int | None, dark_level: float | None,
+        n2_reading: str, notes: list[str]) -> _N2:
+    """n2 from σ²_N(μ_max)/n2 ≤ the variance limit, in the reading asked (and every reading
+    these inputs allow, as alternatives)."""
+    full = 2.0 ** bits
     mu = float(full - 1.0) if mu_max is None else float(mu_max)
     if mu_max is None:
         notes.append(f"μ_max = 2^{bits} − 1 = {mu:g} DN (full scale)")
@@ -256,17 +306,9 @@ def plan_acquisition(A: Any, sigma_c2: float | None = None, bits: int | None = N
         "difference": f"2·σ²_N(μ_max)/n2 ≤ {limit:g}",
         "requantised": f"σ²_N(μ_max)/n2 + q²/12 ≤ {limit:g}",
     }
-    n2_formula = (f"{formulas[n2_reading]}, σ²_N(μ_max) = {A:.4g}·({mu:g} − {b0:g}) + "
-                  f"{sigma_c2:.4g} = {sig2:.4g} -> n2 = ceil({n2_exact:.4g}) = {n2_req}")
-    inputs = {"A": A, "sigma_c2": sigma_c2, "bits": bits, "sigma_hat": sigma_hat, "p": float(p),
-              "mu_max": mu, "n2_var_limit": float(n2_var_limit), "black_level": b0,
-              "q": float(q), "s": s, "sigma2_n_dark": sig2_dark}
-    return AcquisitionPlan(n1_required=n1_req, n2_required=n2_req, n1_hat=n1_hat,
-                           n1_hat_exact=n1_hat_exact, worst_ratio=float(worst_ratio),
-                           sigma2_n_max=sig2, n2_exact=n2_exact, n1_formula=n1_formula,
-                           n2_formula=n2_formula, n2_reading=n2_reading,
-                           n2_alternatives={k: max(_ceil(v), 1) for k, v in alts.items()},
-                           inputs=inputs, notes=tuple(notes))
+    formula = (f"{formulas[n2_reading]}, σ²_N(μ_max) = {A:.4g}·({mu:g} − {b0:g}) + "
+               f"{sigma_c2:.4g} = {sig2:.4g} -> n2 = ceil({n2_exact:.4g}) = {n2_req}")
+    return _N2(n2_req, n2_exact, mu, sig2, sig2_dark, alts, formula)
 
 
 def check_session_plan(session: Any, plan: AcquisitionPlan) -> list[str]:
