@@ -531,6 +531,46 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
     """
     if not 0 < tolerance < 1:
         raise CcdError("tolerance", f"must be a fraction in (0, 1), got {tolerance}")
+    src = _linearity_sources(session_or_groups, darks, setting, gain, layout, bits)
+    notes = src.notes
+    full_scale = None if src.bits is None else float(2 ** int(src.bits) - 1)
+    points, names = _linearity_points(src, full_scale, notes)
+    points, fits = _linearity_fits(points, tolerance, abs_tolerance, saturated_fraction, notes)
+    ranges: dict[str, tuple[float, float] | None] = {}
+    upper: dict[str, float] = {}
+    saturation: dict[str, float | None] = {}
+    for c in names:
+        pc = [p for p in points if p.channel == c]
+        bad = [p.mean_dn for p in pc if p.linear is False]
+        top = min(bad) if bad else math.inf
+        good = [p.mean_dn for p in pc if p.linear and p.mean_dn < top]
+        ranges[c] = (min(good), max(good)) if good else None
+        upper[c] = top if bad else (full_scale if full_scale is not None else math.inf)
+        sat = [p.mean_dn for p in pc if p.saturated_fraction > saturated_fraction]
+        saturation[c] = min(sat) if sat else None
+    return Linearity(tolerance=float(tolerance), abs_tolerance=float(abs_tolerance),
+                     channels=names, points=tuple(points), fits=tuple(fits), ranges=ranges,
+                     saturation_dn=saturation, full_scale=full_scale, upper=upper,
+                     setting=src.setting,
+                     notes=tuple(dict.fromkeys(notes)))
+
+
+@dataclass
+class _LinearitySources:
+    """What :func:`linearity` reads: the flat groups (gain, level, exposure, frames), the dark
+    frames by (gain, exposure), the layout, bit depth and setting, and notes so far."""
+
+    groups: list[tuple[float | None, Any, float | None, Frames]]
+    darks: dict[tuple[float | None, Any], Frames]
+    layout: str | None
+    bits: int | None
+    setting: str | None
+    notes: list[str]
+
+
+def _linearity_sources(session_or_groups: Any, darks: Any, setting: str | None,
+                       gain: float | None, layout: str | None, bits: int | None
+                       ) -> _LinearitySources:
     notes: list[str] = []
     groups: list[tuple[float | None, Any, float | None, Frames]] = []
     dark_src: dict[tuple[float | None, Any], Frames] = {}
@@ -559,8 +599,16 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
             dark_src = {(gain, None): darks}
     if not groups:
         raise CcdError("flats", "no flat groups to analyse")
+    return _LinearitySources(groups, dark_src, layout, bits, setting, list(notes))
+
+
+def _linearity_points(src: _LinearitySources, full_scale: float | None, notes: list[str]
+                      ) -> tuple[list[LinearityPoint], tuple[str, ...]]:
+    """Every group's per-channel mean, percentiles and saturated fraction, less the dark of its
+    gain at its exposure (else the nearest exposure's, with a note); the channels' names."""
+    layout = src.layout
     dark_means: dict[tuple, dict[str, float]] = {}
-    for key, frames in dark_src.items():
+    for key, frames in src.darks.items():
         dark_means[key] = _channel_means(frames, layout, "dark")[0]
 
     def dark_for(g, t) -> dict[str, float]:
@@ -575,12 +623,11 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
         notes.append(f"no dark frames at exposure {t}: used those at {near[1]}")
         return same_gain[near]
 
-    full_scale = None if bits is None else float(2 ** int(bits) - 1)
     points: list[LinearityPoint] = []
     names: tuple[str, ...] = ()
-    for g, lv, t, frames in groups:
-        fs = full_scale
-        stats, name, n = _group_stats(frames, layout, fs, f"flat level {lv} exposure {t}")
+    for g, lv, t, frames in src.groups:
+        stats, name, n = _group_stats(frames, layout, full_scale,
+                                      f"flat level {lv} exposure {t}")
         layout = name
         names = channel_names(name)
         dk = dark_for(g, t)
@@ -589,7 +636,14 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
             points.append(LinearityPoint(gain=g, level=lv, exposure=t, channel=c, n_frames=n,
                                          mean_dn=m, dark_dn=d, signal_dn=m - d, p_low_dn=lo,
                                          p_high_dn=hi, saturated_fraction=sat))
-    # fits per (gain, level, channel), grown from the shortest exposure
+    return points, names
+
+
+def _linearity_fits(points: list[LinearityPoint], tolerance: float, abs_tolerance: float,
+                    saturated_fraction: float, notes: list[str]
+                    ) -> tuple[list[LinearityPoint], list[LinearityFit]]:
+    """The line of each (gain, level, channel), grown from the shortest exposure while the
+    points stay within the tolerance; the points with their fit, deviation and linearity."""
     fits: list[LinearityFit] = []
     final: dict[int, LinearityPoint] = {}
     series: dict[tuple, list[int]] = {}
@@ -614,21 +668,4 @@ def linearity(session_or_groups: Any, *, darks: Any = None, setting: str | None 
             final[i] = replace(points[i], fit_dn=float(fit),
                                 deviation=float((y[j] - fit) / fit) if fit else None,
                                 linear=j < used)
-    points = [final.get(i, p) for i, p in enumerate(points)]
-    ranges: dict[str, tuple[float, float] | None] = {}
-    upper: dict[str, float] = {}
-    saturation: dict[str, float | None] = {}
-    for c in names:
-        pc = [p for p in points if p.channel == c]
-        bad = [p.mean_dn for p in pc if p.linear is False]
-        top = min(bad) if bad else math.inf
-        good = [p.mean_dn for p in pc if p.linear and p.mean_dn < top]
-        ranges[c] = (min(good), max(good)) if good else None
-        upper[c] = top if bad else (full_scale if full_scale is not None else math.inf)
-        sat = [p.mean_dn for p in pc if p.saturated_fraction > saturated_fraction]
-        saturation[c] = min(sat) if sat else None
-    return Linearity(tolerance=float(tolerance), abs_tolerance=float(abs_tolerance),
-                     channels=names, points=tuple(points), fits=tuple(fits), ranges=ranges,
-                     saturation_dn=saturation, full_scale=full_scale, upper=upper,
-                     setting=setting,
-                     notes=tuple(dict.fromkeys(notes)))
+    return [final.get(i, p) for i, p in enumerate(points)], fits
