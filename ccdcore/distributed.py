@@ -32,6 +32,15 @@ again whole with :func:`ccdcore.io.read_image` (the streamed reader) on the work
 in the streamed order is reported.  Shapes, dtypes and layouts are checked on the client from the
 session's cached headers before anything is submitted, with the streamed path's messages.
 
+Imports: the estimators (:mod:`ccdcore.darkframe`, :mod:`ccdcore.noise`,
+:mod:`ccdcore.fixedpattern`, :mod:`ccdcore.flatfield`, :mod:`ccdcore.response.hdr`) import this
+module, inside the functions that take a ``client``; this module imports none of them, only
+modules below them: :mod:`ccdcore.io`, :mod:`ccdcore.errors`, :mod:`ccdcore.progress`,
+:mod:`ccdcore.stats`, :mod:`ccdcore.channels`, and the pieces it shares with the streamed paths,
+:mod:`ccdcore.kmap_kernels` (K̂'s kernels and :class:`~ccdcore.fixedpattern.FixedPattern`),
+:mod:`ccdcore.darkmap` (D̂_D as a map) and :mod:`ccdcore.response.hdr_merge` (the HDR merge).
+``tests/test_imports.py`` checks there is no import cycle, imports inside functions included.
+
 Public objects
 --------------
 Frame
@@ -757,7 +766,7 @@ def _merge_task(frames: tuple[Frame, ...], y0: int, rows: int, top: int, bottom:
     frame; the rows of the band itself (``step`` frame rows per output row): ("ok", radiance,
     sigma, flags, used, channels) or ("error", position, CcdError), a read error at the
     frame's position, an error of the merge after every frame (position ``len(frames)``)."""
-    from .response.hdr import merge
+    from .response.hdr_merge import merge
 
     y, h = y0 - top, top + rows + bottom
     arrays = []
@@ -795,7 +804,7 @@ def band_merge(client: Any, paths_or_records: Sequence[Any], models: Any, *, lay
     itself (codes outside the response, a model per channel missing) its own message.
     """
     from .channels import check_layout, is_bayer
-    from .response.hdr import HdrResult, ResponseModel
+    from .response.hdr_merge import HdrResult, ResponseModel
 
     fr = frames_of(paths_or_records)
     if not fr:
@@ -853,7 +862,7 @@ def _kmap_average_task(configs: tuple[tuple[Frame, ...], ...], dark: np.ndarray,
     configuration, :class:`~ccdcore.stats.PixelMoments` of its frames in order (eq. 45) minus
     the dark band, e_i (eq. 46), kept here as ``"e"`` (n1, rows + top + bottom, width); per
     configuration ``(n2, pieces of Σ e_i, pieces of Σ var)`` over the band's own rows
-    (:func:`ccdcore.fixedpattern.pw_pieces`, numpy's pairwise sum of the whole frame cut at
+    (:func:`ccdcore.kmap_kernels.pw_pieces`, numpy's pairwise sum of the whole frame cut at
     the band); a read error stops the task: ``"error"`` = (configuration, position, error)."""
     from .kmap_kernels import pw_pieces
 
@@ -880,7 +889,7 @@ def _kmap_slopes_task(p1: dict, tmp: tuple | None, y0: int, rows: int, top: int,
                       height: int, window: int, single: bool) -> dict:
     """The slopes of one band (eqs. 47, 48), after the band above (``tmp``: the column running
     sums of ē_i after row ``y0 − 1``, per configuration): ē_i by the whole frame's running sums
-    (:func:`ccdcore.fixedpattern.box_mean_band`, or ``local_mean`` for a single band),
+    (:func:`ccdcore.kmap_kernels.box_mean_band`, or ``local_mean`` for a single band),
     m_i = e_i/ē_i (float32), m̄ and the per-pixel sample std; keeps the slopes and m̄, gives
     ``"tmp"`` for the band below and ``"summary"`` = (pieces of Σ sd with NaN as 0, the
     non-NaN count, any finite sd) for σ̂.  After a failed band: empty."""
@@ -912,7 +921,7 @@ def _kmap_slopes_task(p1: dict, tmp: tuple | None, y0: int, rows: int, top: int,
 
 def _kmap_reject_task(s: dict, half: float, center: str) -> tuple:
     """Pass 2 of :func:`fixed_pattern_bands`: eq. 49 over one band's slopes
-    (:func:`ccdcore.fixedpattern.eq49_reject`): ("ok", K̂, n'_1, rejected, K_var, m̄, pixels that kept
+    (:func:`ccdcore.kmap_kernels.eq49_reject`): ("ok", K̂, n'_1, rejected, K_var, m̄, pixels that kept
     no slope)."""
     from .kmap_kernels import eq49_reject
 
@@ -952,9 +961,8 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
     on their worker until the band's slope task (released then), the slopes until σ̂, which
     needs every band, is known, so a worker holds its share of the n1 slope maps in between.
     """
-    from .darkframe import as_dark_map
-    from .fixedpattern import fixed_pattern_of
-    from .kmap_kernels import NO_SIGMA, NOT_LIT, pw_total
+    from .darkmap import as_dark_map
+    from .kmap_kernels import NO_SIGMA, NOT_LIT, fixed_pattern_of, pw_total
 
     configs = list(configs.items()) if isinstance(configs, Mapping) else list(configs)
     notes = [] if notes is None else notes

@@ -14,10 +14,16 @@ pw_pieces, pw_total, PW_BLOCK
     Pairwise sums in fixed blocks, so a sum over bands equals the sum over the whole frame.
 NOT_LIT, NO_SIGMA
     The messages of a configuration not above the dark level and of no usable slopes.
+FixedPattern, fixed_pattern_of(K, used, rejected, m_bar, K_var, ...)
+    The result K̂ and its diagnostics, and its assembly from the maps of eqs. 48–49 (notes,
+    n̂_1, the bound of eq. 50, the summary statistics); both are re-exported by
+    :mod:`ccdcore.fixedpattern`, their usual address.
 """
 from __future__ import annotations
 
-from typing import Iterable
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable
 
 import numba
 import numpy as np
@@ -383,3 +389,116 @@ def reject_and_average(slopes, centre, half, half2, rejected, K, used,
         K[j] = k
         used[j] = n
         K_var[j] = ss / ((n - 1.0) * n) if n >= 2 else half2 / max(n, 1)
+
+
+# --------------------------------------------------------------------------------------------
+# the result: what the streamed and the cluster paths assemble from the same maps
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class FixedPattern:
+    """The fixed-pattern map K̂(a, b) of eq. 49 and its diagnostics.
+
+    Attributes
+    ----------
+    K
+        K̂(a, b), float64 (H, W) (eq. 49).
+    n1_used
+        n'_1(a, b): slopes kept per pixel (int16 map).
+    rejected
+        (n1, H, W) boolean: ``rejected[i, a, b]`` is True when configuration i's slope at (a, b)
+        was removed as an outlier (chosen over a count map because it shows *which*
+        configuration had the spot; the count is ``n1 − n1_used``).
+    m_bar
+        m̄(a, b), the mean of the n1 slopes (eq. 48).
+    sigma_hat
+        σ̂, the per-pixel sample std of the slopes averaged over locations.
+    p, window, n1, n2
+        Rejection width (in σ̂), local window m, configurations, frames per configuration (the
+        smallest n2 when configurations differ).
+    var_bound
+        (p·σ̂)²/n̂_1 with n̂_1 = min n'_1 (eq. 50).
+    mean, spatial_std
+        Mean and std (ddof = 0) of K̂ over the array (paper: 0.99998, 3.72e-3).
+    config_ids, config_levels
+        Configuration ids and the mean of e_i (DN above dark) per configuration.
+    noise_var_e
+        Mean over configurations and pixels of the temporal variance of e_i from the n2 frames,
+        σ²_N/n2 (NaN when n2 = 1).
+    notes
+        Warnings (few configurations, fallbacks ...).
+    K_var
+        Per-pixel variance of K̂ (the squared standard error of the mean of eq. 49): the sample
+        variance of the n'_1 kept slopes divided by n'_1; where fewer than two slopes are kept,
+        the eq. 50 bound (p·σ̂)²/max(n'_1, 1).  Measured, so usually well below the bound.
+    """
+
+    K: np.ndarray
+    n1_used: np.ndarray
+    rejected: np.ndarray
+    m_bar: np.ndarray
+    sigma_hat: float
+    p: float
+    window: int
+    n1: int
+    n2: int
+    var_bound: float
+    mean: float
+    spatial_std: float
+    config_ids: tuple = ()
+    config_levels: tuple[float, ...] = ()
+    noise_var_e: float = float("nan")
+    notes: tuple[str, ...] = ()
+    K_var: np.ndarray | None = None
+
+    @property
+    def n1_hat(self) -> int:
+        """n̂_1: the smallest n'_1 over the image (eq. 50)."""
+        return int(self.n1_used.min())
+
+    @property
+    def worst_ratio(self) -> float:
+        """n1/n̂_1, configurations captured per configuration kept at the worst pixel (sec. V-B);
+        used by :func:`ccdcore.planning.plan_acquisition`."""
+        return self.n1 / self.n1_hat if self.n1_hat > 0 else float("inf")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary statistics only (no maps), JSON-friendly."""
+        return {
+            "n1": self.n1, "n2": self.n2, "window": self.window, "p": self.p,
+            "shape": list(self.K.shape), "mean": self.mean, "spatial_std": self.spatial_std,
+            "sigma_hat": self.sigma_hat, "n1_hat": self.n1_hat,
+            # None when some pixel kept no slope (n̂_1 = 0): the bound of eq. 50 is then infinite
+            "var_bound": self.var_bound if math.isfinite(self.var_bound) else None,
+            "sd_bound": math.sqrt(self.var_bound) if math.isfinite(self.var_bound) else None,
+            "worst_ratio": self.worst_ratio if math.isfinite(self.worst_ratio) else None,
+            "fraction_pixels_with_rejection": float(np.mean(self.n1_used < self.n1)),
+            "n_rejected": int(self.rejected.sum()),
+            "config_ids": list(self.config_ids), "config_levels": list(self.config_levels),
+            "noise_var_e": None if math.isnan(self.noise_var_e) else self.noise_var_e,
+            "K_var_mean": float(np.mean(self.K_var)) if self.K_var is not None else None,
+            "notes": list(self.notes),
+        }
+
+
+def fixed_pattern_of(K: np.ndarray, used: np.ndarray, rejected: np.ndarray, m_bar: np.ndarray,
+            K_var: np.ndarray, *, sigma_hat: float, p: float, window: int, center: str,
+            none: int, ids: list, levels: list, noises: list, n2s: list,
+            notes: list[str]) -> FixedPattern:
+    """The :class:`FixedPattern` of the maps of eqs. 48–49: notes, n̂_1 and the bound of eq. 50,
+    and the summary statistics over the whole maps."""
+    if len(set(n2s)) > 1:
+        notes.append(f"configurations have different frame counts ({min(n2s)}..{max(n2s)})")
+    if none:
+        notes.append(f"{none} pixel(s) kept no slope inside the centre ± p·σ̂ "
+                     f"(centre = {center}); K̂ there is the median slope and n'_1 = 0")
+    half = p * sigma_hat
+    n1_hat = int(used.min())
+    var_bound = half ** 2 / n1_hat if n1_hat > 0 else float("inf")   # eq. 50
+    n2_min = min(n2s)
+    noise_e = float(np.nanmean(noises)) if n2_min > 1 else float("nan")
+    return FixedPattern(K=K, n1_used=used, rejected=rejected, m_bar=m_bar,
+                        sigma_hat=sigma_hat, p=float(p), window=window, n1=len(ids), n2=n2_min,
+                        var_bound=var_bound, mean=float(np.nanmean(K)),
+                        spatial_std=float(np.nanstd(K)), config_ids=tuple(ids),
+                        config_levels=tuple(levels), noise_var_e=noise_e, notes=tuple(notes),
+                        K_var=K_var)

@@ -21,18 +21,21 @@ def test_importing_ccdcore_imports_no_ui_package():
     assert out.stdout.strip() == "", f"ccdcore imported UI packages: {out.stdout.strip()}"
 
 
-def _module_imports(root: Path) -> dict[str, list[tuple[str, str]]]:
-    """Module name -> (imported module, imported name) of its module-level ``from`` imports
-    inside ccdcore (relative imports resolved)."""
+def _module_imports(root: Path) -> dict[str, list[tuple[str, str | None]]]:
+    """Module name -> (imported module, imported name) of every import of a ccdcore module it
+    makes: at module level and inside functions, methods and ``if`` blocks alike (the whole
+    AST is walked, since a lazy import inside a function still runs and still makes an arrow).
+    ``from m import n`` gives (m, n), relative imports resolved against the module's package;
+    ``import m`` gives (m, None)."""
     import ast
 
-    out: dict[str, list[tuple[str, str]]] = {}
+    out: dict[str, list[tuple[str, str | None]]] = {}
     for path in sorted(root.rglob("*.py")):
         parts = path.relative_to(root.parent).with_suffix("").parts
         name = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
         package = name if parts[-1] == "__init__" else name.rsplit(".", 1)[0]
-        found = []
-        for node in ast.parse(path.read_text()).body:   # module level only: lazy imports allowed
+        found: list[tuple[str, str | None]] = []
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.ImportFrom):
                 base = package
                 for _ in range(node.level - 1):
@@ -40,39 +43,92 @@ def _module_imports(root: Path) -> dict[str, list[tuple[str, str]]]:
                 mod = (f"{base}.{node.module}" if node.module else base) if node.level else (
                     node.module or "")
                 found += [(mod, a.name) for a in node.names]
-        out[name] = found
+            elif isinstance(node, ast.Import):
+                found += [(a.name, None) for a in node.names]
+        out[name] = [(mod, n) for mod, n in found if mod.split(".")[0] == root.name]
     return out
 
 
 ROOT = Path(__file__).resolve().parents[1] / "ccdcore"
 
 
+def _private_imports(modules: dict[str, list[tuple[str, str | None]]]) -> list[str]:
+    """``<module> imports <name> from <source>`` for every name starting with ``_`` that one
+    ccdcore module imports from another, wherever the import is (module level or inside a
+    function); allowed: a private module of a package (``from . import _det``), the names of a
+    private module (``from ._common import round_sig``) and ``__version__``."""
+    bad = []
+    for mod, imports in modules.items():
+        for src, name in imports:
+            if name is None:                     # ``import a.b.c`` names modules only
+                continue
+            if (name.startswith("_") and name != "__version__"
+                    and f"{src}.{name}" not in modules      # a package's private module is fine
+                    and not src.rsplit(".", 1)[-1].startswith("_")   # so are its own names
+                    and src != mod):
+                bad.append(f"{mod} imports {name} from {src}")
+    return bad
+
+
 def test_no_private_name_is_imported_across_modules():
     modules = _module_imports(ROOT)
-    bad = [f"{mod} imports {name} from {src}" for mod, imports in modules.items()
-           for src, name in imports
-           if src.startswith("ccdcore") and name.startswith("_") and name != "__version__"
-           and f"{src}.{name}" not in modules      # a package's private module is fine
-           and not src.rsplit(".", 1)[-1].startswith("_")]
-    assert bad == []
+    bad = _private_imports(modules)
+    assert bad == [], "private names imported across modules:\n" + "\n".join(bad)
 
 
-def test_ccdcore_has_no_import_cycle():
-    imports = _module_imports(ROOT)
-    graph = {m: {src if src in imports else f"{src}.{name}" for src, name in deps}
-             & set(imports) - {m} for m, deps in imports.items()}
-    state: dict[str, int] = {}
+def _import_graph(imports: dict[str, list[tuple[str, str | None]]]) -> dict[str, set[str]]:
+    """Module -> the ccdcore modules it imports: ``from p import m`` of a submodule ``m`` is an
+    arrow to ``p.m``, any other name an arrow to ``p``; a package importing its own submodules
+    is how packages work, not an arrow."""
+    graph = {}
+    for m, deps in imports.items():
+        targets = {src if name is None or f"{src}.{name}" not in imports else f"{src}.{name}"
+                   for src, name in deps}
+        graph[m] = {n for n in targets & set(imports) - {m} if not n.startswith(m + ".")}
+    return graph
 
-    def visit(m: str, path: list[str]) -> None:
+
+def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of ``graph`` as ``[a, b, ..., a]``, or None."""
+    state: dict[str, int] = {}            # 1: on the current path, 2: done
+
+    def visit(m: str, path: list[str]) -> list[str] | None:
         state[m] = 1
         for n in sorted(graph[m]):
-            if n.startswith(m + "."):
-                continue   # a package importing its own submodules is how packages work
-            assert state.get(n) != 1, "import cycle: " + " -> ".join(path + [n])
+            if state.get(n) == 1:
+                return path[path.index(n):] + [n]
             if n not in state:
-                visit(n, path + [n])
+                found = visit(n, path + [n])
+                if found:
+                    return found
         state[m] = 2
+        return None
 
     for m in sorted(graph):
         if m not in state:
-            visit(m, [m])
+            found = visit(m, [m])
+            if found:
+                return found
+    return None
+
+
+def test_ccdcore_has_no_import_cycle():
+    cycle = _find_cycle(_import_graph(_module_imports(ROOT)))
+    assert cycle is None, "import cycle (imports inside functions count): " + " -> ".join(cycle)
+
+
+def test_the_checks_see_imports_inside_functions(tmp_path):
+    """The two checks read function bodies and ``import`` statements: a lazy import closing a
+    cycle and a private name imported inside a method are both found."""
+    pkg = tmp_path / "ccdcore"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("from . import a\n")
+    (pkg / "a.py").write_text("def f():\n    from .b import g\n    return g\n")
+    (pkg / "b.py").write_text("import ccdcore.sub.c\n\ndef g():\n    pass\n")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "sub" / "c.py").write_text("class C:\n    def m(self):\n"
+                                      "        from ..a import _hidden, f\n")
+    imports = _module_imports(pkg)
+    assert _find_cycle(_import_graph(imports)) == ["ccdcore.a", "ccdcore.b", "ccdcore.sub.c",
+                                                   "ccdcore.a"]
+    assert _private_imports(imports) == ["ccdcore.sub.c imports _hidden from ccdcore.a"]

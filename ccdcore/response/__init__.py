@@ -16,7 +16,10 @@ Modules
     The registry of methods (``METHODS``) and the response of a session's bracket.
 :mod:`ccdcore.response.hdr`
     HDR radiance with per-pixel sigma from a calibrated camera (eqs. 9, 18, 19), with bounds and
-    flags where no code is usable.
+    flags where no code is usable, of a bracket's files (streamed or on a Dask cluster).
+:mod:`ccdcore.response.hdr_merge`
+    The merge itself on frames in memory, the kernel both paths run (its names are re-exported by
+    :mod:`ccdcore.response.hdr`).
 
 See docs/response.md.
 """

@@ -15,7 +15,8 @@ Presets (each a module with ``simulate(out_dir, *, seed, size, **options) -> dic
     curve with toe and knee, structured scene, vignetting, exposure errors, JPEG), see
     :mod:`ccdcore.simulate.camera`.
 ``tsin01-camera``
-    ``tsin01`` with the option bundle ``camera="real"``: an 8-bit JPEG camera's bracket.
+    ``tsin01`` with the option bundle ``camera="real"``: an 8-bit JPEG camera's bracket
+    (:mod:`ccdcore.simulate.tsin_camera`).
 ``change``
     Tsin et al. (2001) sec. 5 change scene: planar textured background, 3x3 colour transforms for
     the illumination change and shadows, inserted objects, truth masks.
@@ -48,7 +49,7 @@ PRESETS: dict[str, str] = {
     "healey94": "healey",
     "delasarte07": "delasarte",
     "tsin01": "tsin",
-    "tsin01-camera": "camera",
+    "tsin01-camera": "tsin_camera",
     "change": "change",
 }
 

@@ -25,8 +25,10 @@ in their DCT and colour-conversion rounding, while this one is plain IEEE arithm
 basis is built from nested square roots (``cos(pi/16)`` = ``sqrt(2 + sqrt(2 + sqrt 2)) / 2`` ...),
 not from the C library's ``cos``; sums over the 8 taps run in a fixed order (no BLAS).
 
-The preset ``tsin01-camera`` (:func:`simulate`) is ``tsin01`` with the bundle :data:`CAMERAS`
-``["real"]``: ``simulate("tsin01", out, camera="real")`` gives the same bytes.
+The preset ``tsin01-camera`` (:func:`ccdcore.simulate.tsin_camera.simulate`) is ``tsin01`` with
+the bundle :data:`CAMERAS` ``["real"]``: ``simulate("tsin01", out, camera="real")`` gives the same
+bytes.  This module holds the building blocks only: :mod:`ccdcore.simulate.tsin` imports it, and
+it imports neither that pipeline nor the preset.
 
 Public objects
 --------------
@@ -44,13 +46,10 @@ sharpen(y, amount, sigma)
     Unsharp mask ``y + amount (y - G_sigma * y)`` per channel.
 dct_matrix(), quant_table(quality, chroma), jpeg_roundtrip(z, quality)
     The deterministic baseline-JPEG model.
-simulate(out_dir, *, seed, size, **options)
-    The ``tsin01-camera`` preset.
 """
 from __future__ import annotations
 
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,7 +60,7 @@ from . import _det
 
 __all__ = ["CAMERAS", "DEFAULT_SIZE", "GammaTone", "SrgbKneeTone", "make_tone", "structured_scene",
            "vignetting_map", "exposure_factors", "sharpen", "dct_matrix", "quant_table",
-           "jpeg_roundtrip", "simulate", "SHARPEN_SIGMA", "JPEG_NOTE"]
+           "jpeg_roundtrip", "SHARPEN_SIGMA", "JPEG_NOTE"]
 
 #: option bundles of ``tsin01``: ``simulate("tsin01", out, camera=name)``; explicit options win.
 #: ``"real"``: an 8-bit JPEG camera bracket -- 10 frames one stop apart, Bayer RGGB with bilinear
@@ -520,18 +519,3 @@ def jpeg_roundtrip(z: ArrayLike, quality: int) -> NDArray[np.uint8]:
                     (Y2 - 0.344136 * Cb2) - 0.714136 * Cr2,
                     Y2 + 1.772 * Cb2], axis=2)
     return np.clip(np.rint(out[:h, :w]), 0.0, 255.0).astype(np.uint8)
-
-
-# =============================================================================================
-# the preset
-# =============================================================================================
-def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None = None,
-             **options: Any) -> dict[str, Any]:
-    """The ``tsin01-camera`` preset: ``tsin01`` with ``camera="real"`` (:data:`CAMERAS`).
-
-    ``size`` defaults to :data:`DEFAULT_SIZE`; ``options`` override the bundle's.
-    """
-    from .tsin import simulate as tsin_simulate
-
-    options.setdefault("camera", "real")
-    return tsin_simulate(out_dir, seed=seed, size=size, **options)

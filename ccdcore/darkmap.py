@@ -1,0 +1,113 @@
+"""The dark reference D̂_D(a, b) as a result and as a map (sec. V-A of Healey & Kondepudy 1994).
+
+The type the dark estimate returns and the one conversion every user of D̂_D makes, below both
+:mod:`ccdcore.darkframe` (which estimates it from dark frames) and the modules that subtract it,
+streamed (:mod:`ccdcore.fixedpattern`, :mod:`ccdcore.flatfield`) or on a Dask cluster
+(:mod:`ccdcore.distributed`).  Nothing here reads files or estimates anything; both names are
+re-exported by :mod:`ccdcore.darkframe`, their usual address.
+
+Public objects
+--------------
+DarkReference
+    Frozen result: mean map D̂_D, variance map, s, mean, spatial std, hot/dead masks and rules.
+as_dark_map(dark, where="dark")
+    D̂_D as a float64 array from a :class:`DarkReference`, an array or a scalar.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import CcdError
+
+__all__ = ["DarkReference", "as_dark_map"]
+
+
+@dataclass(frozen=True, eq=False)
+class DarkReference:
+    """The dark reference image D̂_D(a, b) of sec. V-A (Healey & Kondepudy 1994).
+
+    Attributes
+    ----------
+    mean_map
+        D̂_D(a, b): per-pixel mean of the ``s`` dark frames, float64 (H, W), DN.
+    var_map
+        Per-pixel temporal sample variance (ddof = 1), an estimate of σ²_N(a, b) (eq. 43).
+    s
+        Number of dark frames averaged.
+    mean, spatial_std
+        Mean and standard deviation (ddof = 0) of D̂_D over the array (paper, sec. VII-A: 10.74
+        and 0.555).  The spatial std includes the noise of the average, σ²_N/s; see
+        :attr:`spatial_std_signal` for the part that is dark-signal nonuniformity.
+    hot_mask, dead_mask
+        Boolean (H, W) flags; the rules in ``hot_rule`` / ``dead_rule`` (see
+        :mod:`ccdcore.darkframe`).
+    exposure
+        Exposure time of the dark frames (seconds) when known and common, else ``None``.
+    notes
+        Diagnostics (rules skipped, frames of several exposures ...).
+    """
+
+    mean_map: np.ndarray
+    var_map: np.ndarray
+    s: int
+    mean: float
+    spatial_std: float
+    hot_mask: np.ndarray
+    dead_mask: np.ndarray
+    hot_rule: str
+    dead_rule: str
+    exposure: float | None = None
+    notes: tuple[str, ...] = ()
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.mean_map.shape
+
+    @property
+    def sem_map(self) -> np.ndarray:
+        """Standard error of D̂_D per pixel, ``sqrt(var_map / s)`` (σ_N/√s, sec. V-A)."""
+        return np.sqrt(self.var_map / self.s)
+
+    @property
+    def noise_var(self) -> float:
+        """Mean temporal variance of a dark pixel, σ²_N at the dark level (DN²)."""
+        return float(np.nanmean(self.var_map))
+
+    @property
+    def spatial_std_signal(self) -> float:
+        """Spatial std of the dark signal with the noise of the average removed:
+        ``sqrt(max(spatial_std² − mean(var_map)/s, 0))``."""
+        if self.s < 2:
+            return float("nan")
+        return math.sqrt(max(self.spatial_std ** 2 - self.noise_var / self.s, 0.0))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary statistics only (no maps), JSON-friendly."""
+        good = ~(self.hot_mask | self.dead_mask)
+        return {
+            "s": int(self.s), "shape": list(self.mean_map.shape),
+            "mean": float(self.mean), "spatial_std": float(self.spatial_std),
+            "spatial_std_signal": self.spatial_std_signal,
+            "mean_sem": float(np.sqrt(self.noise_var / self.s / self.mean_map.size))
+            if self.s > 1 else None,
+            "noise_var": self.noise_var if self.s > 1 else None,
+            "mean_good": float(self.mean_map[good].mean()) if good.any() else None,
+            "spatial_std_good": float(self.mean_map[good].std()) if good.any() else None,
+            "n_hot": int(self.hot_mask.sum()), "n_dead": int(self.dead_mask.sum()),
+            "hot_rule": self.hot_rule, "dead_rule": self.dead_rule,
+            "exposure": self.exposure, "notes": list(self.notes),
+        }
+
+
+def as_dark_map(dark: DarkReference | np.ndarray | float, where: str = "dark") -> np.ndarray:
+    """D̂_D as a float64 array from a :class:`DarkReference`, an array, or a scalar."""
+    if isinstance(dark, DarkReference):
+        return dark.mean_map
+    if dark is None:
+        raise CcdError(where, "no dark reference D̂_D given (sec. V-A): compute one with "
+                              "dark_reference() from dark frames")
+    return np.asarray(dark, dtype=np.float64)
