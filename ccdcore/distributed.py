@@ -85,7 +85,7 @@ from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
-from .errors import CcdError, ImageReadError
+from .errors import CcdError, ImageReadError, require_extra
 from .io import read_image, read_region
 from .progress import Cancelled, checkpoint
 from .stats import MomentsResult, PixelMoments
@@ -234,6 +234,7 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
     if scheduler is None and workers is None:
         yield None
         return
+    require_extra("distributed", "distributed", "a Dask cluster")
     from distributed import Client, LocalCluster
 
     if workers is not None:

@@ -48,6 +48,7 @@ def test_importing_every_ccdcore_module_imports_no_extra_package():
 @pytest.mark.parametrize("argv, missing, extra", [
     (["report", "assets/healey94", "-o", "{tmp}/r.html"], "bokeh", "report"),
     (["app", "assets/healey94", "--port", "5999"], "panel", "app"),
+    (["ptc", "assets/healey94", "--workers", "1"], "distributed", "distributed"),
 ])
 def test_a_verb_without_its_extra_says_what_to_install(tmp_path, argv, missing, extra):
     """The extra's package made unimportable (``sys.modules[name] = None``), as on a machine
