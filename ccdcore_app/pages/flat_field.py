@@ -57,6 +57,7 @@ from ccdcore.uniformity import SnupResult, snup, snup_vs_averaging
 
 from .. import flat_plots, plots
 from ..image_view import ImageView
+from ..latest import Latest
 from ..state import AppState
 from ..batch import batched, in_document as _in_document
 from ._choices import set_choices
@@ -204,8 +205,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         #: the browser session's document (callbacks after a worker thread may not know it)
         self._doc = pn.state.curdoc
         self._session: Session | None = None
-        self._generation = 0          # bumped by every setting request (newest wins)
-        self._base_generation = 0     # bumped by every base request
+        self._settings = Latest()     # setting requests (newest wins)
+        self._bases = Latest()        # base requests
         self._records: dict[str, FrameRecord] = {}
         #: what is shown (None until computed)
         self.setting: str | None = None
@@ -426,9 +427,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
     def _current(self, session: Session, generation: int | None = None,
                  base_generation: int | None = None) -> bool:
         """True while ``session`` is shown and no newer setting (base) request was made."""
-        return self.state.session is session and self._session is session and (
-            generation is None or generation == self._generation) and (
-            base_generation is None or base_generation == self._base_generation)
+        return self.state.session is session and self._session is session and \
+            self._settings.is_current(generation) and self._bases.is_current(base_generation)
 
     async def refresh(self) -> None:
         """Show the current session: its settings, then :meth:`show_setting`."""
@@ -457,8 +457,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         session = self._session
         if session is None or not self._current(session):
             return
-        self._generation += 1
-        generation = self._generation
+        generation = self._settings.next()
         setting = self.offset or None
         self.setting = setting
         self._set_error("")
@@ -531,8 +530,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         key = self.base
         if session is None or key is None or not self._current(session):
             return
-        self._base_generation += 1
-        generation = self._base_generation
+        generation = self._bases.next()
         setting = self.setting
         self.content.loading = True
         try:
@@ -568,7 +566,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         rec = self._records.get(self.frame)
         if session is None or flat is None or rec is None or not self._current(session):
             return
-        generation = self._generation
+        generation = self._settings.ticket
         self.pair_pane.loading = True
         try:
             # the page's own (always recomputed: it is cheap)

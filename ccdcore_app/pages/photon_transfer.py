@@ -53,6 +53,7 @@ from ccdcore_report import ptc as ptc_plots
 from .. import plots, tiles
 from ..cache import photon_transfer_entry
 from ..image_view import ImageView
+from ..latest import Latest
 from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState
 from ..batch import batched
@@ -190,7 +191,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.error = ""          # the page's current problem ('' when none)
         self._session: Session | None = None   # the session the page shows
         self._fit_error = ""     # why the measured points have no fit (shown by the next fit)
-        self._preview_request = 0
+        self._previews = Latest()               # frame preview requests (newest wins)
         self._records: dict[str, FrameRecord] = {}
         self._build_widgets()
         self.state.param.watch(self._on_session, "session")
@@ -583,15 +584,14 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         if session is None or rec is None:
             self._clear_preview()
             return
-        self._preview_request += 1
-        request = self._preview_request
+        request = self._previews.next()
         self.preview_pane.loading = True
         try:
             array, error = await asyncio.to_thread(self._read, session, rec)
         finally:
-            if request == self._preview_request:
+            if self._previews.is_current(request):
                 self.preview_pane.loading = False
-        if request != self._preview_request or session is not self.state.session:
+        if not self._previews.is_current(request) or session is not self.state.session:
             return
         if array is None:
             self._clear_preview()
