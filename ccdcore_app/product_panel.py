@@ -59,6 +59,7 @@ from ccdcore.uniformity import SnupResult, snup
 from . import plots
 from .batch import batched, in_document
 from .image_view import ImageView, view_pane
+from .latest import Latest
 from .state import AppState
 from .pages._choices import set_choices
 from .pages._styles import KEY_VALUE_CSS, MUTED, TABLE_CSS
@@ -527,8 +528,8 @@ class ProductPanel(param.Parameterized):
         self.shown_snup: SnupPair | None = None
         self.written: list[Path] = []
         self.error = ""
-        self._apply_request = 0
-        self._snup_request = 0
+        self._applies = Latest()        # apply requests (newest wins)
+        self._snups = Latest()          # SNUP-in-view requests
         self._layout: Any = None
         self._build_widgets()
         self.state.param.watch(self._on_session, "session")
@@ -863,16 +864,15 @@ class ProductPanel(param.Parameterized):
         rec = self._records.get(self.frame) if self.frame is not None else None
         if product is None or session is None or rec is None:
             return
-        self._apply_request += 1
-        request, mode = self._apply_request, self.mode
+        request, mode = self._applies.next(), self.mode
         self.pair_pane.loading = True
         try:
             applied, error = await self._compute(apply_frame, product, session, rec, mode,
                                                  label=f"{rec.relpath} with the product")
         finally:
-            if request == self._apply_request:
+            if self._applies.is_current(request):
                 self.pair_pane.loading = False
-        if request != self._apply_request or product is not self.product \
+        if not self._applies.is_current(request) or product is not self.product \
                 or session is not self.state.session:
             return
         if applied is None:
@@ -986,11 +986,10 @@ class ProductPanel(param.Parameterized):
         if roi is None:
             pair = applied.snup
         else:
-            self._snup_request += 1
-            request = self._snup_request
+            request = self._snups.next()
             pair = await asyncio.to_thread(snup_pair, applied.raw, applied.corrected,
                                            applied.layout, roi, applied.relpath)
-            if request != self._snup_request or applied is not self.applied:
+            if not self._snups.is_current(request) or applied is not self.applied:
                 return
         self.shown_snup = pair
         self._render(self._render_snup)

@@ -49,6 +49,7 @@ from ccdcore.errors import CcdError
 from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
 from .. import plots, tiles
+from ..latest import Latest
 from ..image_view import HistogramView, ImageView
 from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState, assets_dir, demo_sessions
@@ -245,7 +246,7 @@ class SessionPage(pn.viewable.Viewer):
         self._planes: dict[str, np.ndarray] = {}  # its channel choices (none when mono)
         self._plane: np.ndarray | TiledPlane | None = None   # its shown channel (2-D)
         self._tiled: FramePyramid | None = None   # the previewed frame, when large (ccdcore_app.tiles)
-        self._frame_request = 0                   # newest preview request (older ones drop)
+        self._frames = Latest()                   # preview requests (older ones drop)
         self._layout: pn.Column | None = None
         self._preview_holder: pn.Column | None = None   # the preview card's body (deferred)
         self._pending_draw: tuple | None = None   # what the figures show once built
@@ -681,16 +682,15 @@ class SessionPage(pn.viewable.Viewer):
         if session is None or rec is None:
             self._clear_preview()
             return
-        self._frame_request += 1
-        request = self._frame_request
+        request = self._frames.next()
         if self._views is not None:
             self.preview_body.loading = True
         try:
             array, error = await asyncio.to_thread(self._read, session, rec)
         finally:
-            if request == self._frame_request and self._views is not None:
+            if self._frames.is_current(request) and self._views is not None:
                 self.preview_body.loading = False
-        if request != self._frame_request:  # a newer frame was chosen meanwhile
+        if not self._frames.is_current(request):  # a newer frame was chosen meanwhile
             return
         if array is None:
             self._clear_preview()
