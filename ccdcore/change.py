@@ -60,7 +60,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -68,6 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
 from .errors import CcdError
+from .progress import Progress, within
 
 __all__ = ["ChangeOptions", "Cluster", "ChangeResult", "detect", "prediction_d2",
            "session_change", "LABEL_CHANGE", "LABEL_UNDETERMINED"]
@@ -80,8 +81,6 @@ GATE_P = 1e-6
 LTS_REFINED = 5
 #: pixels the M-estimator refines each transform on (an even sample of the candidates)
 REFINE = 20_000
-
-Progress = Callable[[float, str], None]
 
 
 @dataclass(frozen=True)
@@ -766,6 +765,8 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     estimated from the reference bracket (sec. 3.2); both brackets are merged with it at their
     nominal times (eqs. 9, 18, 19). Returns the result and the inputs: ``E_ref``, ``sigma_ref``,
     ``E_tgt``, ``sigma_tgt``, ``channels``, ``files`` (both brackets'), ``source``.
+    ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
+    half (without ``calib``), :func:`detect` the rest.
 
     With a Dask ``client`` both merges run on the cluster, band by band, the workers reading
     the frames (:func:`ccdcore.response.hdr.merge_bracket`; ``band_rows`` sets the band height):
@@ -807,11 +808,6 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
                                           f"bracket's first frame {shape0} {dtype0}")
     layout = session.camera.layout
 
-    def part(lo: float, hi: float) -> Progress | None:
-        if progress is None:
-            return None
-        return lambda f, m: progress(lo + (hi - lo) * f, m)
-
     if calib is not None:
         from .product import load_product
 
@@ -824,7 +820,8 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
         brackets = load_bracket(session, None, role="reference", bloom_radius=radius,
                                 frames=ref_frames)
         del ref_frames
-        res = response_of(brackets, "tsin", bloom_radius=radius, progress=part(0.0, 0.5))
+        res = response_of(brackets, "tsin", bloom_radius=radius,
+                          progress=within(progress, 0.0, 0.5))
         models = res.models()
         source = "response estimated from the reference bracket (sec. 3.2)"
     levels = {m.levels for m in models.values()}
@@ -848,5 +845,5 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
               "files": [r.relpath for role in recs for r in recs[role]]}
     result = detect(inputs["E_ref"], inputs["sigma_ref"], inputs["E_tgt"], inputs["sigma_tgt"],
                     options, names=(first["reference"], first["target"]),
-                    progress=part(0.5 if calib is None else 0.1, 1.0))
+                    progress=within(progress, 0.5 if calib is None else 0.1, 1.0))
     return result, inputs

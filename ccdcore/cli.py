@@ -754,10 +754,10 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
     last = [""]
 
-    def progress(step: str, fraction: float) -> None:
-        if step != last[0]:
-            last[0] = step
-            print(f"report: {100 * fraction:3.0f} % {step}", file=sys.stderr, flush=True)
+    def progress(fraction: float, message: str) -> None:   # a ccdcore.progress.Progress
+        if message != last[0]:
+            last[0] = message
+            print(f"report: {100 * fraction:3.0f} % {message}", file=sys.stderr, flush=True)
 
     path = write_report(args.source, args.out, progress=progress)
     print(f"report written to {path} ({path.stat().st_size / 1e6:.1f} MB, opens offline)")

@@ -32,7 +32,8 @@ emva_figures(session, noise=None, progress=None)
 EmvaFigures, EmvaPoint, DarkPoint, SpatialSet
     Frozen results (``to_dict()`` gives the JSON-safe dict under emva1288's names).
 EMVA_STEPS
-    The steps :func:`emva_figures` reports to its ``progress`` callback.
+    The steps :func:`emva_figures` reports to its ``progress`` (a
+    :class:`ccdcore.progress.Progress`).
 QUANTISATION_VARIANCE, SIGMA2_Y_DARK_FLOOR, SENSITIVITY_FRACTION, LINEARITY_RANGE
     The constants of the package's definitions (1/12 DN², 0.24 DN², 70 %, 5–95 %).
 
@@ -49,13 +50,14 @@ import math
 from contextlib import closing
 from dataclasses import dataclass, replace
 from os import PathLike
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from .common import json_safe
 from .errors import CcdError
 from .noise import READ_AHEAD, PhotonTransfer
+from .progress import Progress, Steps
 from .session import FrameRecord, Session, open_session
 
 __all__ = ["EmvaFigures", "EmvaPoint", "DarkPoint", "SpatialSet", "emva_figures", "EMVA_STEPS",
@@ -77,8 +79,6 @@ QUANTISATION_LIMIT_DN = 0.5
 #: the steps :func:`emva_figures` reports (name, overall fraction at which it starts)
 EMVA_STEPS: tuple[tuple[str, float], ...] = (
     ("EMVA 1288 points", 0.0), ("photon transfer", 0.8), ("done", 1.0))
-
-Progress = Callable[[str, float], None]
 
 _MISSING_PHOTONS = ("no photon counts: the EMVA 1288 figures need the photons per pixel of each "
                     "bright frame (EMVA1288 descriptors carry them)")
@@ -929,7 +929,8 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
         Our photon-transfer result for the same session (:func:`ccdcore.noise.photon_transfer`),
         for ``sigma_d_ptc``; computed here when not given.
     progress
-        ``progress(step, fraction)`` at each of :data:`EMVA_STEPS`.
+        A :class:`ccdcore.progress.Progress`: ``progress(start, name)`` as each of
+        :data:`EMVA_STEPS` starts.
     with_ptc
         When ``noise`` is not given: compute it (``True``), or leave ``sigma_d_ptc`` out
         (``False``: a caller whose photon transfer already failed).
@@ -998,7 +999,7 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
       image, σ²_n = σ²_stack/L per pixel: var(s²) ≈ 4s²σ²_n/N + 2σ⁴_n/N; with K's error.  NaN
       (``None``) when a variance is negative, as the package does.
     """
-    report = progress or (lambda step, fraction: None)
+    report = Steps(progress, EMVA_STEPS)
     if not isinstance(session, Session):
         session = open_session(session)
     session.raise_if_invalid(roles=("ptc", "dark"))
@@ -1006,13 +1007,13 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
     label = session.label
     notes = list(plan.notes)
 
-    report(*EMVA_STEPS[0])
+    report("EMVA 1288 points")
     bright_stats, dark_stats, stacks = _read(session, plan)
     dark_points, raw = _points(plan, bright_stats, dark_stats)
     c = _Curves.of(raw, dark_points)
     sens = _sensitivity(c, raw, label, notes)
     dark = _dark_noise(dark_points, sens, notes)
-    report(*EMVA_STEPS[1])
+    report("photon transfer")
     ptc = _ptc_read_noise(session, noise, with_ptc, dark, notes)
     thr = _threshold_and_range(c.u_p, sens, dark)
     i_lin_min, i_lin_max, lin_a, lin_b, (le_min, le_min_err), (le_max, le_max_err) = \
@@ -1026,7 +1027,7 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
                            in_linearity_fit=i_lin_min <= i <= i_lin_max,
                            saturation=i == sens.i_sat)
                    for i, p in enumerate(raw))
-    report(*EMVA_STEPS[2])
+    report("done")
     return EmvaFigures(
         K=sens.K, K_err=sens.K_err, R=sens.R, R_err=sens.R_err, QE=sens.QE, QE_err=sens.QE_err,
         sigma_y_dark=dark.sigma_y_dark, sigma_y_dark_err=dark.sigma_y_dark_err,

@@ -43,6 +43,7 @@ from .io import (FITS_EXTENSIONS, atomic_write_text, check_outputs, output_set,
                  write_map)
 from .noise import PhotonTransfer
 from .planning import AcquisitionPlan
+from .progress import Progress, Steps
 from .scene import SceneVariation
 from .session import MAX_INTENSITY, Camera, Session, open_session
 
@@ -57,7 +58,6 @@ PRODUCT_SCHEMA = 1
 #: a value of ``calibration.json`` (strict JSON: no NaN)
 JsonValue = Union[None, bool, int, float, str, list["JsonValue"], dict[str, "JsonValue"]]
 JsonDict = dict[str, JsonValue]
-Progress = Callable[[str, float], None]
 
 #: maps whose values must be finite and > 0 (they divide)
 _POSITIVE_MAPS = ("K",)
@@ -65,12 +65,9 @@ _POSITIVE_MAPS = ("K",)
 _FINITE_MAPS = ("dark", "dark_var", "K_var", "flat_G", "flat_O")
 
 
-def _no_progress(step: str, fraction: float) -> None:
-    return None
-
-
 #: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
-#: (what its ``progress`` callback receives; :class:`ccdcore.progress.Tracker` takes them)
+#: (its ``progress`` receives ``progress(start, name)`` at each, :class:`ccdcore.progress.Steps`;
+#: :class:`ccdcore.progress.Tracker` takes them)
 ESTIMATE_STEPS: tuple[tuple[str, float], ...] = (
     ("photon transfer", 0.0), ("EMVA 1288 figures", 0.08), ("dark reference", 0.15),
     ("fixed pattern", 0.3), ("planning", 0.55), ("correction check", 0.6),
@@ -662,6 +659,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty).
     The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
     as ``not-applicable``.
+    ``progress`` (a :class:`ccdcore.progress.Progress`) gets ``progress(start, name)`` as each
+    of :data:`ESTIMATE_STEPS` starts.
 
     ``client`` (a Dask :class:`distributed.Client`) runs the reductions over frames of the
     photon transfer, the dark reference, K̂ and the flat field on the cluster
@@ -676,8 +675,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     from .response.methods import session_response
     from .scene import scene_variations
 
-    report = progress or _no_progress
-    start = dict(ESTIMATE_STEPS)
+    report = Steps(progress, ESTIMATE_STEPS)
     made: dict[str, Any] = {}
     skipped: list[Skipped] = []
     lacking = dict((req.estimate, roles) for req, roles in missing_frames(session))
@@ -725,12 +723,12 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
         assert rec is not None  # missing_frames checked the flag
         return correction_check(session.read(rec), made["dark"], made["fixed_pattern"])
 
-    report("photon transfer", start["photon transfer"])
+    report("photon transfer")
     if noise is not None:
         made["noise"] = noise
     else:
         attempt("noise", (), lambda: photon_transfer(session, roi=roi, client=client))
-    report("EMVA 1288 figures", start["EMVA 1288 figures"])
+    report("EMVA 1288 figures")
     no_photons = all(r.photons is None for r in session.by_role("ptc"))
     if emva1288 and "emva1288" not in lacking and no_photons:
         skipped.append(Skipped("emva1288", "not-applicable", "the ptc frames have no photon "
@@ -740,7 +738,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     elif emva1288:
         attempt("emva1288", (), lambda: emva_figures(session, noise=made.get("noise"),
                                                      with_ptc=False))
-    report("dark reference", start["dark reference"])
+    report("dark reference")
     roles = session.roles()
     if roles.get("dark") and session.camera.layout != "mono":
         skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: the "
@@ -748,27 +746,27 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                                "flat-field DL_0 serves instead"))
     else:
         attempt("dark", (), dark_run)
-    report("fixed pattern", start["fixed pattern"])
+    report("fixed pattern")
     attempt("fixed_pattern", ("dark",),
             lambda: fixed_pattern_map(session, made["dark"], window=window, p=p,
                                       client=client))
-    report("planning", start["planning"])
+    report("planning")
     attempt("plan", ("noise", "fixed_pattern"), plan_run)
-    report("correction check", start["correction check"])
+    report("correction check")
     attempt("correction_check", ("dark", "fixed_pattern"), check_run)
-    report("scene variation", start["scene variation"])
+    report("scene variation")
     attempt("scene", ("noise", "dark", "fixed_pattern"),
             lambda: scene_variations(session, made["dark"], made["fixed_pattern"], made["noise"],
                                      **scene_error_terms(made["dark"], made["fixed_pattern"])))
-    report("flat field", start["flat field"])
+    report("flat field")
     attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto",
                                                               client=client))
-    report("response", start["response"])
+    report("response")
     if response:
         attempt("response", (), lambda: session_response(session))
     plan = made.get("plan")
     warnings = tuple(check_session_plan(session, plan)) if plan is not None else ()
-    report("done", start["done"])
+    report("done")
     return Estimates(noise=made.get("noise"), dark=made.get("dark"),
                      fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
                      scene=made.get("scene"), correction_check=made.get("correction_check"),

@@ -125,7 +125,7 @@ class AppShell(param.Parameterized):
         #: column cost the first view some 40 ms on the server and in the browser)
         self.nav = pn.widgets.RadioButtonGroup(
             options={f"{spec.icon}  {spec.title}": spec.slug for spec in PAGES},
-            value=self.page, orientation="vertical", button_style="solid",
+            value=self.page, orientation="vertical",
             sizing_mode="stretch_width", margin=(2, 4), stylesheets=[_NAV_CSS],
             css_classes=["ccd-nav"])
         self.nav.param.watch(lambda event: self._go(event.new), "value")

@@ -12,17 +12,19 @@ ReportBox
 from __future__ import annotations
 
 import io
-from typing import Any, Callable
+from typing import Any
 
 import panel as pn
 import param
+
+from ccdcore.progress import Progress
 
 from .state import AppState
 
 __all__ = ["ReportBox", "make_report"]
 
 
-def make_report(session: Any, progress: Callable[[str, float], None] | None = None) -> str:
+def make_report(session: Any, progress: Progress | None = None) -> str:
     """The report of ``session`` as HTML text (:func:`ccdcore_report.build_report`)."""
     from ccdcore_report import build_report
 

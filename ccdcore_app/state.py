@@ -422,7 +422,7 @@ class AppState(param.Parameterized):
         ``status`` say what is computed (``label``), which step and how many of its frames are
         read (:mod:`ccdcore.progress`: every frame reader reports; ``steps`` names the steps
         and where each starts, ``pass_progress`` hands the tracker to ``func`` as its
-        ``progress`` callback). :meth:`cancel` stops it at the next frame: ``None`` is
+        ``progress``, a :class:`ccdcore.progress.Progress`, with no adapter). :meth:`cancel` stops it at the next frame: ``None`` is
         returned and ``status`` says it was cancelled. A :class:`CcdError` (bad input: too few
         levels, missing frames ...) becomes ``error`` and ``None`` is returned, as it is when
         another session was opened meanwhile. The caller stores the result in :attr:`results`.

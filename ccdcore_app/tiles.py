@@ -37,13 +37,14 @@ import shutil
 import tempfile
 import threading
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.distributed import check_pixels
 from ccdcore.io import ImageHeader, read_header, read_region
+from ccdcore.progress import Progress
 
 from . import plots
 from .cache import cache_folder, max_bytes
@@ -233,11 +234,11 @@ class FramePyramid:
     def open(cls, path: str | os.PathLike, layout: str | None = None, *,
              root: str | os.PathLike | None = None, coarsest: int = COARSEST,
              band_pixels: int = BAND_PIXELS, bound: int | None = None,
-             progress: Callable[[float], None] | None = None) -> FramePyramid:
+             progress: Progress | None = None) -> FramePyramid:
         """The pyramid of the frame at ``path``: reused from ``root`` (default: the cache's
         ``tiles`` folder) when built for the same path, size and modification time, else built
-        (the file read once, in bands of about ``band_pixels`` pixels; ``progress(fraction)``
-        after each band). The least recently used other pyramids under ``root`` are then
+        (the file read once, in bands of about ``band_pixels`` pixels; ``progress(fraction,
+        message)`` after each band). The least recently used other pyramids under ``root`` are then
         deleted until they all take at most ``bound`` bytes (default
         :func:`ccdcore_app.cache.max_bytes`).
 
@@ -295,7 +296,7 @@ class FramePyramid:
 
     @staticmethod
     def _build(path: Path, layout: str | None, folder: Path, coarsest: int, band_pixels: int,
-               progress: Callable[[float], None] | None) -> dict[str, Any]:
+               progress: Progress | None) -> dict[str, Any]:
         header = read_header(path)
         # the whole image against the readers' pixel limit (width x height x channels), from
         # the header: each band is within the limit on its own, so without this a small file
@@ -339,7 +340,7 @@ class FramePyramid:
                             levels[(c, k)])
                 del band
                 if progress is not None:
-                    progress(min((y + rows) / h, 1.0))
+                    progress(min((y + rows) / h, 1.0), f"preview tiles: row {y + rows} of {h}")
         out_stats = {c: ([s[0], s[1], s[2] / s[3]] if s[3] else [np.nan, np.nan, np.nan])
                      for c, s in stats.items()}
         meta = {"format": FORMAT, "shape": [h, w], "factors": list(factors),

@@ -17,12 +17,13 @@ import datetime
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 from ccdcore import __version__
 from ccdcore.errors import CcdError
 from ccdcore.product import (PRODUCT_FILE, REQUIREMENTS, CalibrationProduct, calibrate,
                              estimate_all, load_product, missing_frames)
+from ccdcore.progress import Progress, silent, within
 from ccdcore.session import Session, open_session
 
 from . import sections
@@ -30,10 +31,8 @@ from .figures import MAX_MAP_SIDE
 from .html import Doc, esc, page
 from .sections import MAX_HELD_OUT
 
-__all__ = ["build_report", "write_report", "MAX_MAP_SIDE", "MAX_HELD_OUT", "Progress"]
+__all__ = ["build_report", "write_report", "MAX_MAP_SIDE", "MAX_HELD_OUT"]
 
-#: ``progress(step, fraction)``: what is being done and the fraction of the whole done
-Progress = Callable[[str, float], None]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -47,10 +46,6 @@ def _is_product(path: Path) -> bool:
 def _has_change(session: Session) -> bool:
     roles = session.roles()
     return bool(roles.get("reference")) and bool(roles.get("target"))
-
-
-def _no_progress(step: str, fraction: float) -> None:
-    return None
 
 
 def _skipped_product(session: Session) -> CalibrationProduct:
@@ -77,16 +72,15 @@ def _calibrate(session: Session, progress: Progress) -> tuple[CalibrationProduct
     if with_change and len(missing_frames(session)) == len(REQUIREMENTS):
         product = _skipped_product(session)   # only brackets: every estimate skipped
     else:
-        product = calibrate(session, progress=lambda step, f: progress(f"calibrate: {step}",
-                                                                       share * f))
+        product = calibrate(session, progress=within(progress, 0.0, share,
+                                                     prefix="calibrate: "))
     change = None
     if with_change:
         from ccdcore.change import session_change
 
-        progress("change detection", share)
-        change = session_change(
-            session, progress=lambda f, msg: progress(f"change detection: {msg}",
-                                                      share + (0.95 - share) * f))
+        progress(share, "change detection")
+        change = session_change(session, progress=within(progress, share, 0.95,
+                                                          prefix="change detection: "))
     return product, change
 
 
@@ -201,8 +195,8 @@ def build_report(source: Any, *, product: CalibrationProduct | None = None, chan
         A :class:`ccdcore.change.ChangeResult`, or the ``(result, inputs)`` pair
         :func:`~ccdcore.change.session_change` returns.
     progress
-        ``progress(step, fraction)`` called as the computation goes (fraction of the whole,
-        0 to 1).
+        A :class:`ccdcore.progress.Progress`, ``progress(fraction, message)``, called as the
+        computation goes (fraction of the whole, 0 to 1).
 
     Returns
     -------
@@ -216,14 +210,14 @@ def build_report(source: Any, *, product: CalibrationProduct | None = None, chan
         The source cannot be opened, the session has errors, or nothing could be calibrated
         (the message names the file and the problem).
     """
-    report = progress or _no_progress
+    report = progress or silent
     src = _inputs(source, product, change, report)
-    report("writing the report", 0.95)
+    report(0.95, "writing the report")
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     cam = src.product.camera
     title = "Calibration report" + (f": {cam.name}" if cam.name else "")
     out = page(_document(src, title, now), title)
-    report("done", 1.0)
+    report(1.0, "done")
     return out
 
 

@@ -245,10 +245,10 @@ def test_derived_errors_propagate_their_parts(clean):
 
 def test_progress_reports_each_step(clean):
     gen, *_ = clean
-    seen: list[tuple[str, float]] = []
-    emva_figures(gen.descriptor_path, progress=lambda step, f: seen.append((step, f)),
+    seen: list[tuple[float, str]] = []
+    emva_figures(gen.descriptor_path, progress=lambda f, message: seen.append((f, message)),
                  with_ptc=False)
-    assert seen == list(EMVA_STEPS)
+    assert seen == [(start, name) for name, start in EMVA_STEPS]
 
 
 def test_to_dict_is_json_safe_under_the_packages_names(clean):

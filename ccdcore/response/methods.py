@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from ..errors import CcdError
+from ..progress import Progress
 from .agreement import Agreement, agreement, code_range
 from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
 from .classic import debevec, mitsunaga_nayar, robertson
@@ -48,8 +49,6 @@ __all__ = ["METHODS", "Method", "ResponseResult", "response_of", "session_respon
 
 #: blocks of pixels of the classic methods' jackknife band
 JACKKNIFE_BLOCKS = 8
-
-Progress = Callable[[float, str], None]
 
 
 @dataclass(frozen=True)
@@ -237,7 +236,9 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
                 progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
                 white_balance: bool = False) -> ResponseResult:
     """Every channel of a bracket by ``method`` (a key of :data:`METHODS`); ``white_balance``
-    estimates the gains a_k too (``tsin`` only)."""
+    estimates the gains a_k too (``tsin`` only). ``progress`` (a
+    :class:`ccdcore.progress.Progress`) follows the channels, estimated side by side: its
+    fraction is their mean."""
     if method not in METHODS:
         raise CcdError("response", f"unknown method {method!r}; choose one of "
                                    f"{', '.join(METHODS)}")

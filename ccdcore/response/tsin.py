@@ -95,7 +95,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numba
 import numpy as np
@@ -103,6 +103,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import isotonic_regression, nnls
 
 from ..errors import CcdError
+from ..progress import Progress
 from .brackets import BracketData
 from .scale import Knots, normalize, reference_codes
 
@@ -864,14 +865,15 @@ def _sqrt_err(v: float, e: float) -> tuple[float, float]:
 
 # ------------------------------------------------------------------------------ estimate ------
 def estimate(data: BracketData, options: TsinOptions | None = None, *,
-             progress: Callable[[float, str], None] | None = None) -> ChannelResponse:
+             progress: Progress | None = None) -> ChannelResponse:
     """The iterative calibration of sec. 3.2 on one channel of a bracket.
 
     Returns the response and noise on the reported scale, with the 1-sigma band of g (a
     sandwich estimate over blocks of pixels: one pixel's noise enters many pools' rows, and
     neighbours of an interpolated colour frame are correlated) and the noise terms' errors.
-    ``progress(fraction, message)`` is called after every iteration. Raises
-    :class:`CcdError` naming the bracket's first file when it cannot calibrate.
+    ``progress(fraction, message)`` (a :class:`ccdcore.progress.Progress`) is called after
+    every iteration. Raises :class:`CcdError` naming the bracket's first file when it cannot
+    calibrate.
     """
     opts = options or TsinOptions()
     opts.check(data.files[0] if data.files else "bracket")

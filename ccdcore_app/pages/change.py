@@ -33,7 +33,7 @@ Computing runs off the UI thread (:meth:`ccdcore_app.state.AppState.compute`); t
 from __future__ import annotations
 
 import html
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -43,6 +43,7 @@ import param
 from ccdcore.change import (LABEL_CHANGE, LABEL_UNDETERMINED, ChangeOptions, ChangeResult,
                             session_change)
 from ccdcore.common import format_pm
+from ccdcore.progress import Progress
 from ccdcore.session import Session
 
 from ..batch import batched, in_document
@@ -83,15 +84,10 @@ def no_brackets_message(missing: list[str]) -> str:
 
 
 def compute_change(session: Session, options: ChangeOptions | None = None,
-                   progress: Callable[[str, float], None] | None = None
-                   ) -> tuple[ChangeResult, dict[str, Any]]:
-    """:func:`ccdcore.change.session_change` reporting to ``progress(step, fraction)`` (the
-    app's :class:`ccdcore.progress.Tracker`, which also stops it when cancelled)."""
-    def report(fraction: float, message: str) -> None:
-        if progress is not None:
-            progress(message, fraction)
-
-    return session_change(session, options or ChangeOptions(pfa=DEFAULT_PFA), progress=report)
+                   progress: Progress | None = None) -> tuple[ChangeResult, dict[str, Any]]:
+    """:func:`ccdcore.change.session_change` reporting to ``progress`` (the app's
+    :class:`ccdcore.progress.Tracker`, which also stops it when cancelled)."""
+    return session_change(session, options or ChangeOptions(pfa=DEFAULT_PFA), progress=progress)
 
 
 def _table(css_class: str) -> pn.pane.DataFrame:

@@ -37,7 +37,7 @@ changes feed the figures' sources in place (:mod:`ccdcore_app.response_plots`,
 """
 from __future__ import annotations
 
-from typing import Any, Callable, Iterable, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 import pandas as pd
@@ -46,6 +46,7 @@ import param
 
 from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
+from ccdcore.progress import Progress, within
 from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
 from ccdcore.response.hdr import FLAG_OK, HdrResult, merge
 from ccdcore.response.methods import METHODS, ResponseResult, response_of
@@ -123,17 +124,17 @@ def untrusted_reason(result: ResponseResult,
 
 # ----------------------------------------------------------------------------- computing ------
 def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-                      progress: Callable[[str, float], None] | None = None,
+                      progress: Progress | None = None,
                       white_balance: bool = False) -> dict[str, ResponseResult]:
     """Every method of the registry on the session's first bracket (the methods that can,
-    with the white-balance gains when ``white_balance``)."""
+    with the white-balance gains when ``white_balance``); each method takes an equal part of
+    ``progress``."""
     brackets = load_bracket(session, bloom_radius=bloom_radius)
     out: dict[str, ResponseResult] = {}
     names = list(METHODS)
     for i, name in enumerate(names):
-        def sub(frac: float, msg: str, i: int = i, name: str = name) -> None:
-            if progress is not None:
-                progress(f"{LABELS[name]}: {msg}", (i + min(frac, 1.0)) / len(names))
+        sub = within(progress, i / len(names), (i + 1) / len(names),
+                     prefix=f"{LABELS[name]}: ")
         out[name] = response_of(brackets, name, progress=sub, bloom_radius=bloom_radius,
                                 white_balance=white_balance and METHODS[name].white_balance)
     return out

@@ -39,6 +39,7 @@ from ccdcore.capture import CapturePlan, plan_captures
 from ccdcore.errors import CcdError
 from ccdcore.guide import STEPS, Gate, GateStatus
 from ccdcore.product import missing_frames, requirement
+from ccdcore.progress import Progress, within
 from ccdcore.session import Session
 
 from ..batch import batched, in_document
@@ -178,32 +179,28 @@ def compute_pattern(session: Session, dark: Any, noise: Any) -> Any:
     return guide.pattern_step(session, dark=dark, noise=noise)
 
 
-def compute_product(session: Session, noise: Any, progress: Callable | None = None) -> Any:
+def compute_product(session: Session, noise: Any, progress: Progress | None = None) -> Any:
     """The calibration product with the walkthrough's photon-transfer choices."""
     from ccdcore.product import calibrate
 
     return calibrate(session, noise=noise, progress=progress)
 
 
-def compute_verify(session: Session, noise: Any, progress: Callable | None = None) -> tuple:
+def compute_verify(session: Session, noise: Any, progress: Progress | None = None) -> tuple:
     product = compute_product(session, noise, progress)
     return product, guide.verify(session, product, noise=noise)
 
 
-def compute_response(session: Session, progress: Callable | None = None) -> tuple[Any, Any]:
+def compute_response(session: Session, progress: Progress | None = None) -> tuple[Any, Any]:
     """The response of the session's first bracket (Tsin et al. sec. 3.2) and the bracket's HDR
     radiance with its sigma (eqs. 9, 18, 19)."""
     from ccdcore.response.brackets import bracket_records
     from ccdcore.response.hdr import merge
     from ccdcore.response.methods import session_response
 
-    def sub(fraction: float, message: str) -> None:   # the estimator's (fraction, message)
-        if progress is not None:
-            progress(message, 0.9 * fraction)
-
-    res = session_response(session, progress=sub)
+    res = session_response(session, progress=within(progress, 0.0, 0.9))
     if progress is not None:
-        progress("HDR radiance", 0.9)
+        progress(0.9, "HDR radiance")
     frames = [session.read(r) for r in bracket_records(session)]
     hdr = merge(frames, res.models(), layout=session.camera.layout,
                 bloom_radius=res.bloom_radius)

@@ -202,16 +202,22 @@ def test_pointer_reads_radiance_d2_and_label(at_default):
     assert page.readout.object == text
 
 
-def test_compute_change_reports_progress_as_the_tracker_expects(monkeypatch):
+def test_compute_change_passes_the_tracker_straight_through(monkeypatch):
+    """One progress convention, ``progress(fraction, message)``: the app's tracker goes to
+    ccdcore as it is, no adapter between them."""
+    from ccdcore.progress import Tracker
+
     seen = []
 
     def fake(session, options, progress=None):
+        seen.append(progress)
         progress(0.25, "fitting")
         return "result", {"options": options}
 
     monkeypatch.setattr(change_page, "session_change", fake)
-    out = compute_change(object(), progress=lambda step, fraction: seen.append((step, fraction)))
-    assert seen == [("fitting", 0.25)]
+    tracker = Tracker()
+    out = compute_change(object(), progress=tracker)
+    assert seen == [tracker] and tracker.step == "fitting" and tracker.fraction == 0.25
     assert out[1]["options"].pfa == DEFAULT_PFA
 
 
@@ -260,7 +266,7 @@ def test_cancelled_detection_can_be_started_again(shown, assets, monkeypatch):
 
     def cancelled(session, options, progress=None):
         calls.append("cancelled")
-        progress("fitting", 0.5)
+        progress(0.5, "fitting")
         raise Cancelled("cancelled during fitting")
 
     def finished(session, options, progress=None):

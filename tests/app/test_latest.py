@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import asyncio
+import threading
 
 from ccdcore_app.latest import Latest
 
@@ -29,5 +30,8 @@ def test_overlapping_requests_draw_once_and_the_newest():
     async def main() -> None:
         await asyncio.gather(request(1, 0.03), request(2, 0.02), request(3, 0.01))
 
-    asyncio.run(main())
+    # a loop of its own in a thread of its own: the browser tests leave one running here
+    worker = threading.Thread(target=asyncio.run, args=(main(),))
+    worker.start()
+    worker.join(timeout=10)
     assert drawn == [3]

@@ -372,7 +372,7 @@ def test_browser_sessions_share_one_computation(rgb_root, rgb_shown, monkeypatch
 
 def _slow(progress=None, fail: bool = False, steps: int = 60):
     for i in range(steps):
-        progress("working", i / steps)        # raises Cancelled once cancelled
+        progress(i / steps, "working")        # raises Cancelled once cancelled
         time.sleep(0.02)
     if fail:
         raise CcdError("bracket", "every frame saturated")
