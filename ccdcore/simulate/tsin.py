@@ -637,7 +637,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
     note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
             "Truth in truth.json.")
     if camera_model:
-        note = (f"tsin01 simulation with a camera model"
+        note = ("tsin01 simulation with a camera model"
                 + (f" (camera={opts['camera']!r})" if opts["camera"] else "")
                 + f", seed {int(seed)}.\nTruth in truth.json (camera_model, tone, scene ...).")
     return writer.finish(truth, note=note, exact=("g",))
