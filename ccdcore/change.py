@@ -68,7 +68,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
 from .errors import CcdError
-from .progress import Progress, within
+from .progress import Progress, silent, within
 
 __all__ = ["ChangeOptions", "Cluster", "ChangeResult", "detect", "prediction_d2",
            "session_change", "LABEL_CHANGE", "LABEL_UNDETERMINED"]
@@ -649,18 +649,53 @@ def _background_scale(d2: NDArray, dof: int) -> tuple[float, NDArray]:
     return s, np.sort(d2[d2 <= s * q_gate])
 
 
-def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: ArrayLike,
-           options: ChangeOptions | None = None, *, names: tuple[str, str] = ("reference",
-                                                                             "target"),
-           progress: Progress | None = None) -> ChangeResult:
-    """Sec. 5 on two radiance maps (H, W, C) or (H, W) with their per-pixel sigmas.
+@dataclass(frozen=True, eq=False)
+class _Rows:
+    """The pixels with a radiance in both maps, as rows (n, C): the radiances ``E``, ``Et`` and
+    their variances ``var``, ``var_t``."""
 
-    Pixels whose sigma is not finite in either map (the merge's bounds) are undetermined.
-    ``names`` name the two inputs in messages. Raises :class:`CcdError` on mismatched shapes,
-    NaN radiance, or too few pixels with a radiance in both maps.
-    """
-    opts = options or ChangeOptions()
-    opts.check()
+    E: NDArray[np.float64]
+    Et: NDArray[np.float64]
+    var: NDArray[np.float64]
+    var_t: NDArray[np.float64]
+
+    def take(self, idx: NDArray[np.int64]) -> _Rows:
+        return _Rows(self.E[idx], self.Et[idx], self.var[idx], self.var_t[idx])
+
+    def fit(self, coverage: float, options: ChangeOptions, rng: np.random.Generator,
+            c2: float) -> tuple[NDArray, NDArray]:
+        """:func:`fit_cluster` on these rows."""
+        return fit_cluster(self.E, self.Et, self.var, self.var_t, coverage, options, rng, c2)
+
+    def d2(self, M: NDArray, M_cov: NDArray) -> NDArray:
+        """d² of every row under the transform M (with its covariance)."""
+        return _d2(self.E, self.Et, self.var, self.var_t, M, M_cov, want_p=False)[0]
+
+
+@dataclass(frozen=True, eq=False)
+class _Fit:
+    """One cluster's transform M, its covariance and the d² of every row under it."""
+
+    M: NDArray[np.float64]
+    M_cov: NDArray[np.float64]
+    d2: NDArray[np.float64]
+
+
+@dataclass(frozen=True, eq=False)
+class _Background:
+    """The dominant cluster (step 1) and the threshold calibrated on it (step 3): the scale s,
+    the sorted sample, the threshold for the requested P and the sample's median d²."""
+
+    fit: _Fit
+    scale: float
+    sample: NDArray[np.float64]
+    threshold: float
+    median: float
+
+
+def _checked_maps(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike,
+                  sigma_tgt: ArrayLike, names: tuple[str, str]) -> tuple[NDArray, ...]:
+    """The four maps as (H, W, C) float64, of one shape, the radiances without NaN."""
     E, s, Et, st = (_as_rows(x, n) for x, n in ((E_ref, names[0]), (sigma_ref, names[0]),
                                                 (E_tgt, names[1]), (sigma_tgt, names[1])))
     if E.shape != s.shape:
@@ -673,84 +708,133 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
     for arr, nm in ((E, names[0]), (Et, names[1])):
         if np.any(np.isnan(arr)):
             raise CcdError(nm, "the radiance holds NaN values")
-    H, W, C = E.shape
+    return E, s, Et, st
+
+
+def _valid_pixels(s: NDArray, st: NDArray, opts: ChangeOptions, name: str
+                  ) -> tuple[NDArray[np.bool_], int, list[str]]:
+    """The pixels with a radiance in both maps (finite sigma > 0), the smallest cluster in
+    pixels, and the note on the undetermined ones; too few valid pixels is an error."""
+    H, W, C = s.shape
     valid = np.all(np.isfinite(s) & np.isfinite(st) & (s > 0) & (st > 0), axis=-1)
     n_valid = int(np.count_nonzero(valid))
     min_px = int(opts.min_pixels) if opts.min_pixels >= 1 else int(
         math.ceil(opts.min_pixels * max(n_valid, 1)))
     min_px = max(min_px, 10 * C * C)
     if n_valid < max(10 * C * C, 2 * min_px):
-        raise CcdError(names[0], f"only {n_valid} of {H * W} pixels have a radiance in both "
-                                 "brackets (the rest is saturated or dark in every exposure): "
-                                 "nothing to compare")
+        raise CcdError(name, f"only {n_valid} of {H * W} pixels have a radiance in both "
+                             "brackets (the rest is saturated or dark in every exposure): "
+                             "nothing to compare")
     notes: list[str] = []
     if n_valid < 0.95 * H * W:
         notes.append(f"{H * W - n_valid} pixels are saturated or dark in every exposure of a "
                      "bracket: undetermined (label 254)")
+    return valid, min_px, notes
+
+
+def _pixel_rows(E: NDArray, s: NDArray, Et: NDArray, st: NDArray,
+                valid: NDArray[np.bool_]) -> _Rows:
+    """The valid pixels of both maps as rows, sigmas squared into variances."""
+    C = E.shape[-1]
     rows = valid.ravel()
-    Er = E.reshape(-1, C)[rows]
-    Etr = Et.reshape(-1, C)[rows]
-    var = s.reshape(-1, C)[rows] ** 2
-    var_t = st.reshape(-1, C)[rows] ** 2
-    rng = np.random.default_rng(int(opts.seed))
-    dof = C
-    # the M-estimator's cut-off: a generous χ² quantile (Tukey's biweight weights 0 beyond)
-    c2 = float(stats.chi2.isf(1e-4, dof))
+    return _Rows(E.reshape(-1, C)[rows], Et.reshape(-1, C)[rows],
+                 s.reshape(-1, C)[rows] ** 2, st.reshape(-1, C)[rows] ** 2)
 
-    def report(f: float, msg: str) -> None:
-        if progress is not None:
-            progress(f, msg)
 
-    report(0.05, "fitting the background's transform (LTS)")
-    M, M_cov = fit_cluster(Er, Etr, var, var_t, opts.coverage, opts, rng, c2)
-    d2_bg, _ = _d2(Er, Etr, var, var_t, M, M_cov, want_p=False)
-    scale, background = _background_scale(d2_bg, dof)
-    clusters_rows = [d2_bg]
-    fits = [(M, M_cov)]
-    thr = _threshold(background, scale, dof, opts.pfa)
-    bg_med = float(np.median(background)) if background.size else float("nan")
-    open_ = d2_bg > thr
+def _background(rows: _Rows, opts: ChangeOptions, rng: np.random.Generator, c2: float,
+                dof: int) -> _Background:
+    """Steps 1 and 3: the dominant cluster's M over every row, and the threshold calibrated
+    on its d²."""
+    M, M_cov = rows.fit(opts.coverage, opts, rng, c2)
+    d2 = rows.d2(M, M_cov)
+    scale, sample = _background_scale(d2, dof)
+    thr = _threshold(sample, scale, dof, opts.pfa)
+    median = float(np.median(sample)) if sample.size else float("nan")
+    return _Background(_Fit(M, M_cov, d2), scale, sample, thr, median)
+
+
+def _further_clusters(rows: _Rows, bg: _Background, min_px: int, opts: ChangeOptions,
+                      rng: np.random.Generator, c2: float, report: Progress) -> list[_Fit]:
+    """Step 4: the clusters (shadows) of the rows the clusters so far leave above the
+    threshold, while one has ``min_px`` members, a median d² of the noise (``consistency``)
+    and a well-conditioned M."""
+    fits: list[_Fit] = []
+    open_ = bg.fit.d2 > bg.threshold
     for k in range(1, int(opts.max_clusters)):
         n_open = int(np.count_nonzero(open_))
         if n_open < 2 * min_px:
             break
         report(0.1 + 0.6 * k / opts.max_clusters, f"searching the remaining {n_open} pixels for "
                                                    f"cluster {k + 1}")
-        idx = np.flatnonzero(open_)
         cov_k = max(0.5 * opts.coverage, min_px / n_open)
         try:
-            Mk, Mk_cov = fit_cluster(Er[idx], Etr[idx], var[idx], var_t[idx], min(cov_k, 0.9),
-                                     opts, rng, c2 * scale)
+            Mk, Mk_cov = rows.take(np.flatnonzero(open_)).fit(min(cov_k, 0.9), opts, rng,
+                                                              c2 * bg.scale)
         except (CcdError, np.linalg.LinAlgError):
             break
-        d2k, _ = _d2(Er, Etr, var, var_t, Mk, Mk_cov, want_p=False)
-        members = open_ & (d2k <= thr)
-        n_mem = int(np.count_nonzero(members))
-        if n_mem < min_px:
+        d2k = rows.d2(Mk, Mk_cov)
+        members = open_ & (d2k <= bg.threshold)
+        if int(np.count_nonzero(members)) < min_px:
             break
-        med_k = float(np.median(d2k[members]))
-        if not med_k <= opts.consistency * bg_med:
+        if not float(np.median(d2k[members])) <= opts.consistency * bg.median:
             break
         if not np.linalg.cond(Mk) <= opts.max_condition:
             break
-        clusters_rows.append(d2k)
-        fits.append((Mk, Mk_cov))
+        fits.append(_Fit(Mk, Mk_cov, d2k))
         open_ &= ~members
-    report(0.9, "labels and the predicted target")
+    return fits
+
+
+def _change_result(E: NDArray, valid: NDArray[np.bool_], fits: list[_Fit], bg: _Background,
+                   dof: int, opts: ChangeOptions, notes: list[str]) -> ChangeResult:
+    """Step 5: every cluster's d² as maps, the clusters with their medians, the predicted
+    target, and the labels (made by :class:`ChangeResult`)."""
+    H, W, C = E.shape
     d2 = np.full((H * W, len(fits)), np.inf)
-    d2[rows] = np.stack(clusters_rows, axis=1)
-    d2 = d2.reshape(H, W, len(fits))
-    predicted = E.reshape(-1, C) @ fits[0][0]
+    d2[valid.ravel()] = np.stack([f.d2 for f in fits], axis=1)
+    predicted = E.reshape(-1, C) @ fits[0].M
     clusters = []
-    for k, ((Mk, Mk_cov), dk) in enumerate(zip(fits, clusters_rows)):
-        inside = dk[dk <= thr]
-        clusters.append(Cluster(k, Mk, Mk_cov, 0, float(np.median(inside)) if inside.size
+    for k, f in enumerate(fits):
+        inside = f.d2[f.d2 <= bg.threshold]
+        clusters.append(Cluster(k, f.M, f.M_cov, 0, float(np.median(inside)) if inside.size
                                 else float("nan")))
-    if abs(scale - 1.0) > 0.25:
-        notes.append(f"the background's d² is {scale:.2f} times χ²'s ({dof} degrees of freedom): "
-                     "the threshold is calibrated on the background, not taken from χ²")
-    res = ChangeResult(clusters, d2, valid, background, scale, dof, float(opts.pfa),
-                       predicted.reshape(H, W, C), tuple(notes))
+    if abs(bg.scale - 1.0) > 0.25:
+        notes.append(f"the background's d² is {bg.scale:.2f} times χ²'s ({dof} degrees of "
+                     "freedom): the threshold is calibrated on the background, not taken from χ²")
+    return ChangeResult(clusters, d2.reshape(H, W, len(fits)), valid, bg.sample, bg.scale, dof,
+                        float(opts.pfa), predicted.reshape(H, W, C), tuple(notes))
+
+
+def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: ArrayLike,
+           options: ChangeOptions | None = None, *, names: tuple[str, str] = ("reference",
+                                                                             "target"),
+           progress: Progress | None = None) -> ChangeResult:
+    """Sec. 5 on two radiance maps (H, W, C) or (H, W) with their per-pixel sigmas.
+
+    Pixels whose sigma is not finite in either map (the merge's bounds) are undetermined.
+    ``names`` name the two inputs in messages. Raises :class:`CcdError` on mismatched shapes,
+    NaN radiance, or too few pixels with a radiance in both maps.
+
+    The steps of the module docstring, each a function: the inputs checked
+    (:func:`_checked_maps`, :func:`_valid_pixels`), the dominant cluster and the calibrated
+    threshold (steps 1-3, :func:`_background`), the further clusters (step 4,
+    :func:`_further_clusters`) and the result with its labels (step 5, :func:`_change_result`).
+    """
+    opts = options or ChangeOptions()
+    opts.check()
+    report = progress if progress is not None else silent
+    E, s, Et, st = _checked_maps(E_ref, sigma_ref, E_tgt, sigma_tgt, names)
+    valid, min_px, notes = _valid_pixels(s, st, opts, names[0])
+    rows = _pixel_rows(E, s, Et, st, valid)
+    rng = np.random.default_rng(int(opts.seed))
+    dof = E.shape[-1]
+    # the M-estimator's cut-off: a generous χ² quantile (Tukey's biweight weights 0 beyond)
+    c2 = float(stats.chi2.isf(1e-4, dof))
+    report(0.05, "fitting the background's transform (LTS)")
+    bg = _background(rows, opts, rng, c2, dof)
+    fits = [bg.fit] + _further_clusters(rows, bg, min_px, opts, rng, c2, report)
+    report(0.9, "labels and the predicted target")
+    res = _change_result(E, valid, fits, bg, dof, opts, notes)
     report(1.0, "done")
     return res
 

@@ -501,7 +501,7 @@ def _applied_text(calib: Any, *, linearise: bool, n: int) -> str:
     """What ``apply`` did to each image, from the product's maps (read from its description,
     not its maps): dark subtracted, fixed pattern divided, flat-field gain/offset, or the
     response; the product named."""
-    from .product import PRODUCT_FILE
+    from .product import PRODUCT_FILE, MapName
 
     try:
         doc = json.loads((Path(calib) / PRODUCT_FILE).read_text())
@@ -515,14 +515,14 @@ def _applied_text(calib: Any, *, linearise: bool, n: int) -> str:
                 + (f" of channel{'s' if len(channels) != 1 else ''} "
                    f"{', '.join(_channel(c) for c in channels)}" if channels else "")
                 + " (values linear in exposure, g's scale)")
-    elif "flat_G" in maps:
+    elif MapName.FLAT_G in maps:
         what = ("flat-field corrected with the gain and offset maps flat_G, flat_O: "
                 "corrected = O + G·raw (dark image, PRNU and vignetting removed; de Lasarte et "
                 "al. 2007)")
-    elif "K" in maps:
+    elif MapName.K in maps:
         what = ("dark reference subtracted and the fixed pattern divided out with the maps "
                 "dark, K: corrected = (raw − D̂_D)/K̂ (eq. 51)")
-    elif "dark" in maps:
+    elif MapName.DARK in maps:
         what = ("dark reference subtracted with the map dark: corrected = raw − D̂_D (no "
                 "fixed-pattern map K in the product)")
     else:

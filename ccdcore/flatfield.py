@@ -90,6 +90,7 @@ from .channels import channel_names, channel_slices, check_layout, is_bayer, spl
 from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
+from .map_names import MapName
 from .stats import MomentsResult, PixelMoments
 from .uniformity import Linearity, linearity, snup
 
@@ -196,9 +197,10 @@ class FlatField:
     def maps(self) -> dict[str, NDArray[np.float32]]:
         """float32 maps for a calibration product: ``flat_G``, ``flat_O``, ``flat_flags`` (0/1),
         ``flat_dark`` (DL_0), ``flat_base`` (DL_B)."""
-        return {"flat_G": self.G, "flat_O": self.O, "flat_flags": self.flags.astype(np.float32),
-                "flat_dark": self.dark.mean.astype(np.float32),
-                "flat_base": self.base.mean.astype(np.float32)}
+        return {MapName.FLAT_G: self.G, MapName.FLAT_O: self.O,
+                MapName.FLAT_FLAGS: self.flags.astype(np.float32),
+                MapName.FLAT_DARK: self.dark.mean.astype(np.float32),
+                MapName.FLAT_BASE: self.base.mean.astype(np.float32)}
 
     def to_dict(self) -> dict[str, Any]:
         """Summary (no maps), JSON-friendly."""

@@ -40,6 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .map_names import MapName
 from .session.records import ProblemCode
 
 __all__ = ["STEPS", "StepInfo", "GateStatus", "Gate", "FIXES", "session_gate", "DarkStep",
@@ -522,9 +523,9 @@ def verify(session: Any, product: Any, *, records: Sequence[Any] | None = None,
     bits = session.camera.bits
     top = 2 ** bits - 1 if bits else None
     recs = list(records) if records is not None else held_out_frames(session, product)
-    flat_product = "flat_G" in product.maps
-    offset = float(np.mean(product.maps["dark"])) if not flat_product and \
-        "dark" in product.maps else 0.0
+    flat_product = MapName.FLAT_G in product.maps
+    offset = float(np.mean(product.maps[MapName.DARK])) if not flat_product and \
+        MapName.DARK in product.maps else 0.0
     b0 = getattr(noise, "black_level_dn", None) if noise is not None else None
     b0 = float(b0) if b0 is not None and math.isfinite(b0) else 0.0
     picked, left_out = [], []

@@ -9,8 +9,11 @@ Public objects
     (which step, which parameters, which session: its content hash, and when).
 :func:`calibrate`
     Runs every estimate the session's frames allow and returns the product.
+:class:`MapName`
+    The names of the maps (a ``str`` enum; its home is :mod:`ccdcore.map_names`).
 :func:`load_product`, :meth:`CalibrationProduct.save`
-    The folder format: ``calibration.json`` + ``maps/<name>.exr`` (float32, bit-exact round trip).
+    The folder format: ``calibration.json`` + ``maps/<name>.exr`` (float32, bit-exact round trip;
+    a map whose name is not a :class:`MapName` is refused).
 :func:`apply_product`
     Corrects images: D_C = (D − D̂_D)/K̂ (eq. 51 of Healey & Kondepudy 1994), or D − D̂_D when the
     product has no K̂.
@@ -41,6 +44,7 @@ from .flatfield import FlatField
 from .io import (FITS_EXTENSIONS, atomic_write_text, check_outputs, output_set,
                  read_frame, read_header, read_image, remove_stale_temporaries, write_image,
                  write_map)
+from .map_names import MapName
 from .noise import PhotonTransfer
 from .planning import AcquisitionPlan
 from .progress import Progress, Steps
@@ -50,7 +54,7 @@ from .session import MAX_INTENSITY, Camera, Session, open_session
 __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
            "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE",
-           "ESTIMATE_STEPS", "session_inputs", "map_problem"]
+           "ESTIMATE_STEPS", "session_inputs", "map_problem", "MapName"]
 
 PRODUCT_FILE = "calibration.json"
 PRODUCT_SCHEMA = 1
@@ -60,9 +64,10 @@ JsonValue = Union[None, bool, int, float, str, list["JsonValue"], dict[str, "Jso
 JsonDict = dict[str, JsonValue]
 
 #: maps whose values must be finite and > 0 (they divide)
-_POSITIVE_MAPS = ("K",)
+_POSITIVE_MAPS = (MapName.K,)
 #: maps that must be finite everywhere
-_FINITE_MAPS = ("dark", "dark_var", "K_var", "flat_G", "flat_O")
+_FINITE_MAPS = (MapName.DARK, MapName.DARK_VAR, MapName.K_VAR, MapName.FLAT_G,
+                MapName.FLAT_O)
 
 
 #: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
@@ -81,7 +86,8 @@ class CalibrationProduct:
     Attributes
     ----------
     maps
-        Name -> float32 map. Names in use: ``dark`` (D̂_D), ``dark_var`` (its per-pixel
+        Name -> float32 map; the names are the members of :class:`MapName` (a plain string
+        of a member's value reads a map too): ``dark`` (D̂_D), ``dark_var`` (its per-pixel
         temporal variance), ``hot``, ``dead`` (0/1 flags), ``K`` (K̂, eq. 49), ``K_var`` (its
         per-pixel error variance), ``n1_used`` (n'_1); flat field (frame-shaped, colour or
         mosaic): ``flat_G``, ``flat_O``, ``flat_flags``, ``flat_dark`` (DL_0), ``flat_base`` (DL_B).
@@ -164,7 +170,7 @@ class CalibrationProduct:
     @property
     def shape(self) -> tuple[int, ...] | None:
         """Shape of the frames the product corrects."""
-        for name in ("flat_G", "dark"):
+        for name in (MapName.FLAT_G, MapName.DARK):
             if name in self.maps:
                 return self.maps[name].shape
         return None
@@ -172,9 +178,9 @@ class CalibrationProduct:
     @property
     def method(self) -> str:
         """How :meth:`correct` corrects: ``"flat_field"``, ``"fixed_pattern"`` or ``"dark"``."""
-        if "flat_G" in self.maps:
+        if MapName.FLAT_G in self.maps:
             return "flat_field"
-        return "fixed_pattern" if "K" in self.maps else "dark"
+        return "fixed_pattern" if MapName.K in self.maps else "dark"
 
     def response_models(self, where: Any = PRODUCT_FILE) -> dict[str, Any]:
         """Channel -> :class:`ccdcore.response.hdr.ResponseModel` from the ``response``
@@ -234,20 +240,22 @@ class CalibrationProduct:
         image, the PRNU and the vignetting. Otherwise (D − D̂_D)/K̂ (eq. 51 of Healey & Kondepudy
         1994), or D − D̂_D without ``K``; without any of them a :class:`CcdError` says so.
         """
-        if "flat_G" in self.maps:
+        if MapName.FLAT_G in self.maps:
             from .flatfield import correct as flat_correct
 
-            return flat_correct(frame, self.maps["flat_G"], self.maps["flat_O"], where=name)
-        if "dark" not in self.maps:
+            return flat_correct(frame, self.maps[MapName.FLAT_G], self.maps[MapName.FLAT_O],
+                                where=name)
+        if MapName.DARK not in self.maps:
             raise CcdError(name, "the calibration product has no dark reference or flat field "
                                  "to correct with")
         d = np.asarray(frame)
-        if d.shape != self.maps["dark"].shape:
+        dark = self.maps[MapName.DARK]
+        if d.shape != dark.shape:
             raise CcdError(name, f"image shape {d.shape} differs from the calibration maps' "
-                                 f"{self.maps['dark'].shape}")
-        out = d.astype(np.float64) - self.maps["dark"]
-        if "K" in self.maps:
-            out /= self.maps["K"]
+                                 f"{dark.shape}")
+        out = d.astype(np.float64) - dark
+        if MapName.K in self.maps:
+            out /= self.maps[MapName.K]
         return out.astype(np.float32)
 
 
@@ -273,8 +281,21 @@ def map_problem(name: str, m: np.ndarray) -> str | None:
     return None
 
 
+def _map_name(name: Any, manifest: Path) -> MapName:
+    """``name`` as its :class:`MapName`; a clear error naming ``manifest`` when it is none."""
+    try:
+        return MapName(name)
+    except ValueError:
+        known = ", ".join(m.value for m in MapName)
+        raise CcdError(manifest, f"unknown map {name!r} (the maps of a product are {known}); "
+                                 "the product is damaged or from another program") from None
+
+
 def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
-    """Every map has the frame shape of its family; K is finite and > 0; others finite."""
+    """Every map has a :class:`MapName` and the frame shape of its family; K is finite and
+    > 0; others finite."""
+    for name in maps:
+        _map_name(name, manifest)
     frame_maps = {n: m for n, m in maps.items() if not n.startswith("flat_")}
     flat_maps = {n: m for n, m in maps.items() if n.startswith("flat_")}
     for family in (frame_maps, flat_maps):
@@ -455,7 +476,8 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     except (KeyError, TypeError, AttributeError):
         raise CcdError(manifest, "'skipped' entries need 'estimate' and 'reason'") from None
     maps: dict[str, np.ndarray] = {}
-    for name, rel in doc.get("maps", {}).items():
+    for raw_name, rel in doc.get("maps", {}).items():
+        name = _map_name(raw_name, manifest)
         if not isinstance(rel, str):
             raise CcdError(manifest, f"map '{name}' must be a relative path, got {rel!r}")
         path = (root / rel).resolve()
@@ -645,6 +667,187 @@ def budget_inputs(dark: DarkReference, fp: FixedPattern, noise: PhotonTransfer,
             "black_level": b0, "dark_mean": dbar}
 
 
+@dataclass(eq=False)
+class _Run:
+    """One :func:`estimate_all` run: the session, its options, the estimates made so far and
+    those skipped; each step :meth:`attempt`\\ s its estimate."""
+
+    session: Session
+    roi: tuple[int, int, int, int] | None
+    window: int
+    p: float
+    noise: PhotonTransfer | None
+    response: bool
+    emva1288: bool
+    client: Any
+    made: dict[str, Any] = field(default_factory=dict)
+    skipped: list[Skipped] = field(default_factory=list)
+    lacking: dict[str, tuple[str, ...]] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.lacking = dict((req.estimate, roles) for req, roles in missing_frames(self.session))
+
+    def attempt(self, name: str, needs: tuple[str, ...], run: Callable[[], Any]) -> None:
+        """Make estimate ``name`` with ``run``, or skip it: its frames missing, an estimate
+        of ``needs`` not made, its frames refused (:class:`CcdError`) or its maps damaged."""
+        if name in self.lacking:
+            roles = self.lacking[name]
+            what = " and no ".join(r if " " in r else f"{r} frames" for r in roles)
+            req = requirement(name)
+            self.skipped.append(Skipped(name, "missing-frames", f"no {what}: for {req.purpose}, "
+                                                                f"capture {req.capture}", roles))
+            return
+        absent = [n for n in needs if self.made.get(n) is None]
+        if absent:
+            self.skipped.append(Skipped(name, "needs", f"needs the {', '.join(absent)} estimate"
+                                        f"{'s' if len(absent) > 1 else ''}, which was not made"))
+            return
+        try:
+            result = run()
+        except CcdError as err:
+            self.skipped.append(Skipped(name, "failed", str(err)))
+            return
+        problem = _damaged_maps(name, result)
+        if problem is not None:  # a product holding it would not load: skip it, say why
+            self.skipped.append(Skipped(name, "failed", f"{problem}; the estimate was left out "
+                                                        "(a product holding it would be damaged)"))
+            return
+        self.made[name] = result
+
+    def estimates(self) -> Estimates:
+        """What was made, with the plan's warnings against the session."""
+        from .planning import check_session_plan
+
+        made = self.made
+        plan = made.get("plan")
+        warnings = tuple(check_session_plan(self.session, plan)) if plan is not None else ()
+        return Estimates(noise=made.get("noise"), dark=made.get("dark"),
+                         fixed_pattern=made.get("fixed_pattern"), plan=plan,
+                         plan_warnings=warnings, scene=made.get("scene"),
+                         correction_check=made.get("correction_check"),
+                         flat=made.get("flat_field"), response=made.get("response"),
+                         skipped=tuple(self.skipped), emva1288=made.get("emva1288"))
+
+
+def _photon_transfer(run: _Run) -> None:
+    """``ptc`` levels: the noise model A, σ²_C (or the one given)."""
+    from .noise import photon_transfer
+
+    if run.noise is not None:
+        run.made["noise"] = run.noise
+    else:
+        run.attempt("noise", (), lambda: photon_transfer(run.session, roi=run.roi,
+                                                         client=run.client))
+
+
+def _emva_figures(run: _Run) -> None:
+    """``ptc`` frames with photon counts and darks: the EMVA 1288 figures (not applicable
+    without photon counts)."""
+    from .datasheet import emva_figures
+
+    if not run.emva1288:
+        return
+    no_photons = all(r.photons is None for r in run.session.by_role("ptc"))
+    if "emva1288" not in run.lacking and no_photons:
+        run.skipped.append(Skipped("emva1288", "not-applicable", "the ptc frames have no photon "
+                                   "counts: the EMVA 1288 figures need the photons per pixel of "
+                                   "each bright frame (open an EMVA1288 descriptor, or give "
+                                   "photons = N in the manifest)", ("ptc",)))
+    else:
+        run.attempt("emva1288", (), lambda: emva_figures(run.session, noise=run.made.get("noise"),
+                                                         with_ptc=False))
+
+
+def _dark_reference(run: _Run) -> None:
+    """``dark`` frames of a mono camera: D̂_D with hot/dead flags, at the fixed-pattern frames'
+    exposure when the darks have several."""
+    from .darkframe import dark_reference
+
+    session = run.session
+    if session.roles().get("dark") and session.camera.layout != "mono":
+        run.skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: "
+                                   "the dark reference D̂_D of sec. V-A is made for mono frames; "
+                                   "the flat-field DL_0 serves instead"))
+        return
+
+    def make() -> DarkReference:
+        fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
+        dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
+        dark_exposures = {r.exposure for r in session.dark_frames()}
+        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None,
+                              client=run.client)
+    run.attempt("dark", (), make)
+
+
+def _fixed_pattern(run: _Run) -> None:
+    """``fixed_pattern`` configurations and D̂_D: K̂."""
+    from .fixedpattern import fixed_pattern_map
+
+    run.attempt("fixed_pattern", ("dark",),
+                lambda: fixed_pattern_map(run.session, run.made["dark"], window=run.window,
+                                          p=run.p, client=run.client))
+
+
+def _plan(run: _Run) -> None:
+    """The noise model and K̂: the acquisition plan n1, n2 (needs the camera's bit depth)."""
+    from .planning import plan_acquisition
+
+    def make() -> AcquisitionPlan:
+        if not run.session.camera.bits:
+            raise CcdError("camera.bits", "the plan needs the camera bit depth")
+        return plan_acquisition(run.made["noise"], bits=run.session.camera.bits,
+                                fixed_pattern=run.made["fixed_pattern"])
+    run.attempt("plan", ("noise", "fixed_pattern"), make)
+
+
+def _correction_check(run: _Run) -> None:
+    """A ``max-intensity`` scene frame, D̂_D and K̂: the check of eq. 51."""
+    from .fixedpattern import correction_check
+
+    def make() -> CorrectionCheck:
+        rec = run.session.max_intensity_frame()
+        assert rec is not None  # missing_frames checked the flag
+        return correction_check(run.session.read(rec), run.made["dark"],
+                                run.made["fixed_pattern"])
+    run.attempt("correction_check", ("dark", "fixed_pattern"), make)
+
+
+def _scene_variation(run: _Run) -> None:
+    """``scene`` patches, the noise model, D̂_D and K̂: V_S with the maps' own errors."""
+    from .scene import scene_variations
+
+    made = run.made
+    run.attempt("scene", ("noise", "dark", "fixed_pattern"),
+                lambda: scene_variations(run.session, made["dark"], made["fixed_pattern"],
+                                         made["noise"], **scene_error_terms(
+                                             made["dark"], made["fixed_pattern"])))
+
+
+def _flat_field(run: _Run) -> None:
+    """``flat`` frames and darks: the G/O maps."""
+    from .flatfield import flat_field_from_session
+
+    run.attempt("flat_field", (), lambda: flat_field_from_session(run.session, base="auto",
+                                                                  client=run.client))
+
+
+def _response(run: _Run) -> None:
+    """A ``bracket``: the inverse response g and the noise terms."""
+    from .response.methods import session_response
+
+    if run.response:
+        run.attempt("response", (), lambda: session_response(run.session))
+
+
+#: the function of each step of :data:`ESTIMATE_STEPS` (but ``done``), in that order
+_STEPS: tuple[tuple[str, Callable[[_Run], None]], ...] = (
+    ("photon transfer", _photon_transfer), ("EMVA 1288 figures", _emva_figures),
+    ("dark reference", _dark_reference), ("fixed pattern", _fixed_pattern),
+    ("planning", _plan), ("correction check", _correction_check),
+    ("scene variation", _scene_variation), ("flat field", _flat_field),
+    ("response", _response))
+
+
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, response: bool = True,
@@ -660,127 +863,30 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
     as ``not-applicable``.
     ``progress`` (a :class:`ccdcore.progress.Progress`) gets ``progress(start, name)`` as each
-    of :data:`ESTIMATE_STEPS` starts.
+    of :data:`ESTIMATE_STEPS` starts; each step is one function (``_STEPS``).
 
     ``client`` (a Dask :class:`distributed.Client`) runs the reductions over frames of the
     photon transfer, the dark reference, K̂ and the flat field on the cluster
     (:mod:`ccdcore.distributed`; ``docs/distributed.md`` says what is not distributed yet).
     """
-    from .darkframe import dark_reference
-    from .datasheet import emva_figures
-    from .fixedpattern import correction_check, fixed_pattern_map
-    from .flatfield import flat_field_from_session
-    from .noise import photon_transfer
-    from .planning import check_session_plan, plan_acquisition
-    from .response.methods import session_response
-    from .scene import scene_variations
-
+    run = _Run(session, roi=roi, window=window, p=p, noise=noise, response=response,
+               emva1288=emva1288, client=client)
     report = Steps(progress, ESTIMATE_STEPS)
-    made: dict[str, Any] = {}
-    skipped: list[Skipped] = []
-    lacking = dict((req.estimate, roles) for req, roles in missing_frames(session))
-
-    def attempt(name: str, needs: tuple[str, ...], run: Callable[[], Any]) -> None:
-        if name in lacking:
-            roles = lacking[name]
-            what = " and no ".join(r if " " in r else f"{r} frames" for r in roles)
-            req = requirement(name)
-            skipped.append(Skipped(name, "missing-frames", f"no {what}: for {req.purpose}, capture "
-                                                           f"{req.capture}", roles))
-            return
-        absent = [n for n in needs if made.get(n) is None]
-        if absent:
-            skipped.append(Skipped(name, "needs", f"needs the {', '.join(absent)} estimate"
-                                   f"{'s' if len(absent) > 1 else ''}, which was not made"))
-            return
-        try:
-            result = run()
-        except CcdError as err:
-            skipped.append(Skipped(name, "failed", str(err)))
-            return
-        problem = _damaged_maps(name, result)
-        if problem is not None:  # a product holding it would not load: skip it, say why
-            skipped.append(Skipped(name, "failed", f"{problem}; the estimate was left out "
-                                                   "(a product holding it would be damaged)"))
-            return
-        made[name] = result
-
-    def dark_run() -> DarkReference:
-        fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
-        dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
-        dark_exposures = {r.exposure for r in session.dark_frames()}
-        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None,
-                              client=client)
-
-    def plan_run() -> AcquisitionPlan:
-        if not session.camera.bits:
-            raise CcdError("camera.bits", "the plan needs the camera bit depth")
-        return plan_acquisition(made["noise"], bits=session.camera.bits,
-                                fixed_pattern=made["fixed_pattern"])
-
-    def check_run() -> CorrectionCheck:
-        rec = session.max_intensity_frame()
-        assert rec is not None  # missing_frames checked the flag
-        return correction_check(session.read(rec), made["dark"], made["fixed_pattern"])
-
-    report("photon transfer")
-    if noise is not None:
-        made["noise"] = noise
-    else:
-        attempt("noise", (), lambda: photon_transfer(session, roi=roi, client=client))
-    report("EMVA 1288 figures")
-    no_photons = all(r.photons is None for r in session.by_role("ptc"))
-    if emva1288 and "emva1288" not in lacking and no_photons:
-        skipped.append(Skipped("emva1288", "not-applicable", "the ptc frames have no photon "
-                               "counts: the EMVA 1288 figures need the photons per pixel of "
-                               "each bright frame (open an EMVA1288 descriptor, or give "
-                               "photons = N in the manifest)", ("ptc",)))
-    elif emva1288:
-        attempt("emva1288", (), lambda: emva_figures(session, noise=made.get("noise"),
-                                                     with_ptc=False))
-    report("dark reference")
-    roles = session.roles()
-    if roles.get("dark") and session.camera.layout != "mono":
-        skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: the "
-                               "dark reference D̂_D of sec. V-A is made for mono frames; the "
-                               "flat-field DL_0 serves instead"))
-    else:
-        attempt("dark", (), dark_run)
-    report("fixed pattern")
-    attempt("fixed_pattern", ("dark",),
-            lambda: fixed_pattern_map(session, made["dark"], window=window, p=p,
-                                      client=client))
-    report("planning")
-    attempt("plan", ("noise", "fixed_pattern"), plan_run)
-    report("correction check")
-    attempt("correction_check", ("dark", "fixed_pattern"), check_run)
-    report("scene variation")
-    attempt("scene", ("noise", "dark", "fixed_pattern"),
-            lambda: scene_variations(session, made["dark"], made["fixed_pattern"], made["noise"],
-                                     **scene_error_terms(made["dark"], made["fixed_pattern"])))
-    report("flat field")
-    attempt("flat_field", (), lambda: flat_field_from_session(session, base="auto",
-                                                              client=client))
-    report("response")
-    if response:
-        attempt("response", (), lambda: session_response(session))
-    plan = made.get("plan")
-    warnings = tuple(check_session_plan(session, plan)) if plan is not None else ()
+    for step, make in _STEPS:
+        report(step)
+        make(run)
+    result = run.estimates()
     report("done")
-    return Estimates(noise=made.get("noise"), dark=made.get("dark"),
-                     fixed_pattern=made.get("fixed_pattern"), plan=plan, plan_warnings=warnings,
-                     scene=made.get("scene"), correction_check=made.get("correction_check"),
-                     flat=made.get("flat_field"), response=made.get("response"),
-                     skipped=tuple(skipped), emva1288=made.get("emva1288"))
+    return result
 
 
 def _damaged_maps(name: str, result: Any) -> str | None:
     """What makes the maps of estimate ``name`` unusable in a product (:func:`map_problem`),
     e.g. all-NaN darks (a non-finite K̂ everywhere) or a single dark frame (no variance)."""
     if name == "dark":
-        maps = {"dark": result.mean_map, "dark_var": result.var_map}
+        maps = {MapName.DARK: result.mean_map, MapName.DARK_VAR: result.var_map}
     elif name == "fixed_pattern":
-        maps = {"K": result.K, "K_var": result.K_var}
+        maps = {MapName.K: result.K, MapName.K_VAR: result.K_var}
     elif name == "flat_field":
         maps = result.maps()
     else:
@@ -847,18 +953,18 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
                           "roi": list(roi) if roi else None}
     if e.dark is not None:
         dark = e.dark
-        maps["dark"] = dark.mean_map.astype(np.float32)
-        maps["dark_var"] = dark.var_map.astype(np.float32)
-        maps["hot"] = dark.hot_mask.astype(np.float32)
-        maps["dead"] = dark.dead_mask.astype(np.float32)
+        maps[MapName.DARK] = dark.mean_map.astype(np.float32)
+        maps[MapName.DARK_VAR] = dark.var_map.astype(np.float32)
+        maps[MapName.HOT] = dark.hot_mask.astype(np.float32)
+        maps[MapName.DEAD] = dark.dead_mask.astype(np.float32)
         est["dark"] = dark.to_dict()
         steps["dark"] = {"method": "streamed average, sec. V-A", "s": dark.s,
                          "hot_rule": dark.hot_rule, "dead_rule": dark.dead_rule}
     if e.fixed_pattern is not None:
         fp = e.fixed_pattern
-        maps["K"] = fp.K.astype(np.float32)
-        maps["K_var"] = fp.K_var.astype(np.float32)
-        maps["n1_used"] = fp.n1_used.astype(np.float32)
+        maps[MapName.K] = fp.K.astype(np.float32)
+        maps[MapName.K_VAR] = fp.K_var.astype(np.float32)
+        maps[MapName.N1_USED] = fp.n1_used.astype(np.float32)
         est["fixed_pattern"] = fp.to_dict()
         steps["fixed_pattern"] = {"method": "eqs. 45-50, sec. V-B", "window": window, "p": p}
     if e.plan is not None:

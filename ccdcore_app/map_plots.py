@@ -47,6 +47,8 @@ import holoviews as hv
 import numpy as np
 from numpy.typing import NDArray
 
+from ccdcore.product import MapName
+
 from . import plots
 from .image_view import ImageView
 
@@ -55,13 +57,13 @@ __all__ = ["overview_how", "overview_centre", "MapLayer",
            "layer_view", "show_layer", "histogram_input", "profile_columns", "ProfileFigures",
            "pixel_values", "scaled_uint16", "scene_fit_plot", "budget_plot", "BUDGET_COLORS"]
 
-#: map key -> title, in display order
+#: map key -> title, in display order (a product's map by its :class:`ccdcore.product.MapName`)
 MAP_TITLES: dict[str, str] = {
-    "dark": "Dark reference D\u0302_D",
-    "dark_var": "Dark temporal variance \u03c3\u00b2_N",
-    "K": "Fixed pattern K\u0302",
+    MapName.DARK: "Dark reference D\u0302_D",
+    MapName.DARK_VAR: "Dark temporal variance \u03c3\u00b2_N",
+    MapName.K: "Fixed pattern K\u0302",
     "K_err": "K\u0302 error \u221avar[K\u0302]",
-    "n1_used": "Slopes kept n'_1",
+    MapName.N1_USED: "Slopes kept n'_1",
     "n_rejected": "Rejected configurations n1 \u2212 n'_1",
     "flags": "Hot / dead pixels",
 }
@@ -139,25 +141,27 @@ def map_layers(dark: Any = None, fixed_pattern: Any = None) -> dict[str, MapLaye
     """
     out: dict[str, MapLayer] = {}
     if dark is not None:
-        out["dark"] = MapLayer("dark", MAP_TITLES["dark"], "D\u0302_D", "DN", dark.mean_map,
-                               "gray", note=f"mean of s = {dark.s} dark frames (sec. V-A)")
-        out["dark_var"] = MapLayer("dark_var", MAP_TITLES["dark_var"], "\u03c3\u00b2_N", "DN\u00b2",
-                                   dark.var_map, "viridis",
-                                   note="per-pixel temporal sample variance (eq. 43), ddof = 1")
+        out[MapName.DARK] = MapLayer(MapName.DARK, MAP_TITLES[MapName.DARK], "D\u0302_D", "DN",
+                                     dark.mean_map, "gray",
+                                     note=f"mean of s = {dark.s} dark frames (sec. V-A)")
+        out[MapName.DARK_VAR] = MapLayer(MapName.DARK_VAR, MAP_TITLES[MapName.DARK_VAR],
+                                         "\u03c3\u00b2_N", "DN\u00b2", dark.var_map, "viridis",
+                                         note="per-pixel temporal sample variance (eq. 43), "
+                                              "ddof = 1")
     if fixed_pattern is not None:
         fp = fixed_pattern
-        out["K"] = MapLayer("K", MAP_TITLES["K"], "K\u0302", "", fp.K, "RdBu_r",
-                            kind="diverging", centre=1.0,
-                            note="eq. 49: mean of the slopes kept inside "
-                                 "centre \u00b1 p\u00b7\u03c3\u0302")
+        out[MapName.K] = MapLayer(MapName.K, MAP_TITLES[MapName.K], "K\u0302", "", fp.K,
+                                  "RdBu_r", kind="diverging", centre=1.0,
+                                  note="eq. 49: mean of the slopes kept inside "
+                                       "centre \u00b1 p\u00b7\u03c3\u0302")
         if fp.K_var is not None:
             out["K_err"] = MapLayer("K_err", MAP_TITLES["K_err"], "\u03c3(K\u0302)", "",
                                     np.sqrt(fp.K_var), "viridis",
                                     note="std error of the mean of the kept slopes "
                                          "(FixedPattern.K_var)")
-        out["n1_used"] = MapLayer("n1_used", MAP_TITLES["n1_used"], "n'_1", "",
-                                  fp.n1_used.astype(np.float32), "viridis", kind="count",
-                                  note=f"of n1 = {fp.n1} configurations (eq. 49)")
+        out[MapName.N1_USED] = MapLayer(MapName.N1_USED, MAP_TITLES[MapName.N1_USED], "n'_1", "",
+                                        fp.n1_used.astype(np.float32), "viridis", kind="count",
+                                        note=f"of n1 = {fp.n1} configurations (eq. 49)")
         out["n_rejected"] = MapLayer("n_rejected", MAP_TITLES["n_rejected"], "rejected", "",
                                      (fp.n1 - fp.n1_used).astype(np.float32), "inferno",
                                      kind="count",

@@ -50,8 +50,8 @@ import param
 from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
 from ccdcore.io import read_header
-from ccdcore.product import (ESTIMATE_STEPS, CalibrationProduct, apply_product, calibrate,
-                             load_product, requirement)
+from ccdcore.product import (ESTIMATE_STEPS, CalibrationProduct, MapName, apply_product,
+                             calibrate, load_product, requirement)
 from ccdcore.progress import checkpoint
 from ccdcore.session import FrameRecord, Session
 from ccdcore.uniformity import SnupResult, snup
@@ -84,13 +84,15 @@ IMAGE_WIDTH = 360
 _ROLE_ORDER = ("scene", "flat", "bracket", "fixed_pattern", "ptc", "dark")
 
 #: what each map of a product is (CalibrationProduct.maps)
-MAP_MEANINGS = {
-    "dark": "dark reference D\u0302_D (DN)", "dark_var": "temporal variance of the dark frames "
-    "(DN\u00b2)", "hot": "hot pixels (1 = flagged)", "dead": "dead pixels (1 = flagged)",
-    "K": "fixed-pattern map K\u0302 (eq. 49)", "K_var": "error variance of K\u0302",
-    "n1_used": "configurations used per pixel n'_1", "flat_G": "flat-field gain G",
-    "flat_O": "flat-field offset O (DN)", "flat_flags": "flagged pixels of the flat field",
-    "flat_dark": "dark image DL_0 (DN)", "flat_base": "base image DL_B (DN)"}
+MAP_MEANINGS: dict[str, str] = {
+    MapName.DARK: "dark reference D\u0302_D (DN)",
+    MapName.DARK_VAR: "temporal variance of the dark frames (DN\u00b2)",
+    MapName.HOT: "hot pixels (1 = flagged)", MapName.DEAD: "dead pixels (1 = flagged)",
+    MapName.K: "fixed-pattern map K\u0302 (eq. 49)", MapName.K_VAR: "error variance of K\u0302",
+    MapName.N1_USED: "configurations used per pixel n'_1", MapName.FLAT_G: "flat-field gain G",
+    MapName.FLAT_O: "flat-field offset O (DN)",
+    MapName.FLAT_FLAGS: "flagged pixels of the flat field",
+    MapName.FLAT_DARK: "dark image DL_0 (DN)", MapName.FLAT_BASE: "base image DL_B (DN)"}
 
 _METHODS = {"flat_field": "the flat field: DL_c = O + G\u00b7DL (de Lasarte et al. 2007)",
             "fixed_pattern": "D_C = (D \u2212 D\u0302_D)/K\u0302 (eq. 51)",

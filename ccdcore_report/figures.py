@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.common import format_size
+from ccdcore.map_names import MapName
 
 from .html import json_float
 from .scales import auto_clim
@@ -108,30 +109,33 @@ class MapSpec:
     note: str = ""
 
 
+#: the product's maps (:class:`ccdcore.product.MapName`, hot and dead drawn as one ``hot_dead``,
+#: K_var as its square root ``K_err``)
 MAP_SPECS: dict[str, MapSpec] = {
-    "dark": MapSpec("Dark reference D\u0302_D", "DN", palette="Greys256",
-                    note="mean of the dark frames (Healey & Kondepudy sec. V-A)"),
-    "dark_var": MapSpec("Dark temporal variance \u03c3\u00b2_N", "DN\u00b2",
-                        note="per-pixel temporal variance of the dark frames (eq. 43)"),
+    MapName.DARK: MapSpec("Dark reference D\u0302_D", "DN", palette="Greys256",
+                          note="mean of the dark frames (Healey & Kondepudy sec. V-A)"),
+    MapName.DARK_VAR: MapSpec("Dark temporal variance \u03c3\u00b2_N", "DN\u00b2",
+                              note="per-pixel temporal variance of the dark frames (eq. 43)"),
     "hot_dead": MapSpec("Hot and dead pixels", kind="flags",
                         note="the rules are in the dark reference's table"),
-    "K": MapSpec("Fixed pattern K\u0302", kind="diverging",
-                 note="eq. 49; the colour scale is symmetric about 1"),
+    MapName.K: MapSpec("Fixed pattern K\u0302", kind="diverging",
+                       note="eq. 49; the colour scale is symmetric about 1"),
     "K_err": MapSpec("Error of K\u0302, \u221avar[K\u0302]",
                      note="standard error of the mean of the kept slopes"),
-    "n1_used": MapSpec("Slopes kept n'_1", kind="count",
-                       note="configurations whose slope eq. 48 kept, per pixel"),
-    "flat_G": MapSpec("Flat-field gain G", note="eq. 3 of de Lasarte et al. 2007"),
-    "flat_O": MapSpec("Flat-field offset O", "DN", note="eq. 4 of de Lasarte et al. 2007"),
-    "flat_flags": MapSpec("Flagged pixels of G", kind="flags",
-                          note="DL_B \u2212 DL_0 not positive or noise dominated; G from the "
-                               "neighbours there"),
-    "flat_dark": MapSpec("Dark image DL_0", "DN", palette="Greys256"),
-    "flat_base": MapSpec("Base image DL_B", "DN", palette="Greys256"),
+    MapName.N1_USED: MapSpec("Slopes kept n'_1", kind="count",
+                             note="configurations whose slope eq. 48 kept, per pixel"),
+    MapName.FLAT_G: MapSpec("Flat-field gain G", note="eq. 3 of de Lasarte et al. 2007"),
+    MapName.FLAT_O: MapSpec("Flat-field offset O", "DN", note="eq. 4 of de Lasarte et al. 2007"),
+    MapName.FLAT_FLAGS: MapSpec("Flagged pixels of G", kind="flags",
+                                note="DL_B \u2212 DL_0 not positive or noise dominated; G "
+                                     "from the neighbours there"),
+    MapName.FLAT_DARK: MapSpec("Dark image DL_0", "DN", palette="Greys256"),
+    MapName.FLAT_BASE: MapSpec("Base image DL_B", "DN", palette="Greys256"),
 }
 #: the order maps are drawn in (others follow, alphabetically)
-MAP_ORDER = ("dark", "dark_var", "hot_dead", "K", "K_err", "n1_used", "flat_G", "flat_O",
-             "flat_flags", "flat_dark", "flat_base")
+MAP_ORDER = (MapName.DARK, MapName.DARK_VAR, "hot_dead", MapName.K, "K_err", MapName.N1_USED,
+             MapName.FLAT_G, MapName.FLAT_O, MapName.FLAT_FLAGS, MapName.FLAT_DARK,
+             MapName.FLAT_BASE)
 
 #: the width of the report's text column and what a map adds to its frame (axis, colour bar)
 CONTENT_WIDTH = 1050

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from ccdcore import __version__
 from ccdcore.common import format_pm, format_size, sort_key
 from ccdcore.errors import CcdError
-from ccdcore.product import CalibrationProduct
+from ccdcore.product import CalibrationProduct, MapName
 from ccdcore.session import Session
 
 from . import figures
@@ -367,11 +367,11 @@ def _base_snup(doc: Doc, product: CalibrationProduct, layout: str) -> None:
     """SNUP of the base image DL_B and of DL_B − DL_0 per channel, from the maps."""
     from ccdcore.uniformity import snup
 
-    if "flat_base" not in product.maps or "flat_dark" not in product.maps:
+    if MapName.FLAT_BASE not in product.maps or MapName.FLAT_DARK not in product.maps:
         return
-    dlb, dl0 = product.maps["flat_base"], product.maps["flat_dark"]
+    dlb, dl0 = product.maps[MapName.FLAT_BASE], product.maps[MapName.FLAT_DARK]
     try:
-        raw = _snup_rows(snup(dlb, layout=layout, where="flat_base"))
+        raw = _snup_rows(snup(dlb, layout=layout, where=MapName.FLAT_BASE))
         sub = _snup_rows(snup(dlb.astype(np.float64) - dl0, layout=layout,
                               where="flat_base - flat_dark"))
     except CcdError as err:
@@ -440,7 +440,7 @@ def _held_out(doc: Doc, product: CalibrationProduct, session: Session | None,
     from ccdcore.uniformity import snup
 
     doc.add("<h3>SNUP of held-out flat frames, before and after correction</h3>")
-    if session is None or "flat_G" not in product.maps:
+    if session is None or MapName.FLAT_G not in product.maps:
         doc.add(para("Not measured: the report was made from the calibration product alone. "
                      "Make it from the session (ccdcore report SESSION) to correct one frame of "
                      "each flat group that G was not made from.", "note"))
@@ -449,7 +449,7 @@ def _held_out(doc: Doc, product: CalibrationProduct, session: Session | None,
     if not keys:
         doc.add(para("None: every flat frame belongs to the base group.", "note"))
         return
-    G, O = product.maps["flat_G"], product.maps["flat_O"]
+    G, O = product.maps[MapName.FLAT_G], product.maps[MapName.FLAT_O]
     body, problems = [], []
     for key in keys[:MAX_HELD_OUT]:
         rec = groups[key][0]
@@ -581,13 +581,13 @@ def _product_maps(product: CalibrationProduct) -> dict[str, NDArray]:
     standard deviation."""
     maps = dict(product.maps)
     out: dict[str, NDArray] = {}
-    if "hot" in maps or "dead" in maps:
-        shape = (maps.get("hot") if "hot" in maps else maps["dead"]).shape
-        hot = maps.pop("hot", np.zeros(shape, np.float32)) > 0
-        dead = maps.pop("dead", np.zeros(shape, np.float32)) > 0
+    if MapName.HOT in maps or MapName.DEAD in maps:
+        shape = (maps[MapName.HOT] if MapName.HOT in maps else maps[MapName.DEAD]).shape
+        hot = maps.pop(MapName.HOT, np.zeros(shape, np.float32)) > 0
+        dead = maps.pop(MapName.DEAD, np.zeros(shape, np.float32)) > 0
         out["hot_dead"] = np.where(dead, 2, np.where(hot, 1, 0)).astype(np.float32)
-    if "K_var" in maps:
-        out["K_err"] = np.sqrt(np.maximum(maps.pop("K_var"), 0.0)).astype(np.float32)
+    if MapName.K_VAR in maps:
+        out["K_err"] = np.sqrt(np.maximum(maps.pop(MapName.K_VAR), 0.0)).astype(np.float32)
     out.update(maps)
     order = {k: i for i, k in enumerate(figures.MAP_ORDER)}
     return dict(sorted(out.items(), key=lambda kv: (order.get(kv[0], len(order)), kv[0])))
@@ -645,7 +645,7 @@ def _map_plots(doc: Doc, name: str, planes: Mapping[str, NDArray]) -> list[str]:
     """One figure per channel plane of the map ``name``, each with its caption; flag maps
     without a flagged pixel are not drawn: their notes are returned instead."""
     spec = MAP_SPECS.get(name, MapSpec(name))
-    labels = figures.FLAT_FLAG_LABELS if name == "flat_flags" else None
+    labels = figures.FLAT_FLAG_LABELS if name == MapName.FLAT_FLAGS else None
     how = "maximum" if spec.kind in ("flags", "count") else "mean"
     n = len(planes)
     side = min(380, (figures.CONTENT_WIDTH - (n - 1) * figures.MAP_GAP) // n

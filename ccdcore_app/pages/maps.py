@@ -65,8 +65,8 @@ from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image, write_map
 from ccdcore.planning import DEFAULT_WORST_RATIO, plan_acquisition
-from ccdcore.product import (ESTIMATE_STEPS, budget_inputs, estimate_all, missing_frames,
-                              requirement)
+from ccdcore.product import (ESTIMATE_STEPS, MapName, budget_inputs, estimate_all,
+                              missing_frames, requirement)
 from ccdcore.scene import variance_budget
 from ccdcore.session import ROLES, Session
 
@@ -92,7 +92,7 @@ PAPER_PLAN_INPUTS: dict[str, Any] = {"A": 0.003384, "sigma_c2": 1.1196, "bits": 
                                      "worst_ratio": DEFAULT_WORST_RATIO, "black_level": 0.0,
                                      "n2_reading": "paper"}
 #: maps shown in the grid when they exist
-DEFAULT_SHOWN = ("K", "dark")
+DEFAULT_SHOWN = (MapName.K, MapName.DARK)
 #: the inputs of :func:`ccdcore.planning.plan_acquisition` the Planning tab asks for
 PLAN_INPUTS = ("A", "sigma_c2", "bits", "sigma_hat", "p", "worst_ratio", "black_level",
                "n2_reading")

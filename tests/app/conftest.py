@@ -30,6 +30,17 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic"
                  "--disable-component-update", "--disable-sync"]
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _no_result_cache_in_shared_fixtures():
+    """The same for module- and session-scoped fixtures, which run before any function-scoped
+    one: a page computed once per module must not be read from (or written to) the user's
+    cache either (it was: a module's count of computations then depended on what an earlier
+    run had left there)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("CCDCORE_CACHE", "off")
+        yield
+
+
 @pytest.fixture(autouse=True)
 def _no_result_cache(monkeypatch: pytest.MonkeyPatch) -> None:
     """No test reads or fills the user's result cache (app/cache.py), and no test sees another

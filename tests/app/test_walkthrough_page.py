@@ -38,11 +38,12 @@ def test_healey94_steps_follow_the_guide(assets: Path) -> None:
     assert status["session"] == guide.session_gate(s).status == "pass"
     assert status["dark"] == d.gate.status
     assert status["ptc"] == guide.ptc_gate(noise).status
-    assert page.results["ptc"].A == noise.A
+    assert page.results.ptc.noise.A == noise.A
     assert status["pattern"] == guide.pattern_step(s, dark=d.dark, noise=noise).gate.status
     assert status["response"] == "skip"
     assert "bracket" in page.gates["response"].summary
-    product, verification = page.results["verify"]
+    verified = page.results.verify                  # a VerifyResult(product, check)
+    product, verification = verified.product, verified.check
     assert status["verify"] == verification.gate.status == "pass"
     assert set(product.maps) >= {"dark", "K"}
     # the plan is made from the session's bit depth
@@ -59,7 +60,7 @@ def test_a_session_without_flats_or_brackets_skips_with_a_message(assets: Path) 
     status = _walk(page)
     assert status["dark"] == status["ptc"] == status["pattern"] == "skip"
     assert status["response"] == "pass"
-    res, hdr = page.results["response"]
+    hdr = page.results.response.hdr
     assert hdr.radiance.shape[:2] == open_session(assets / "tsin01").header(
         open_session(assets / "tsin01").frames[0]).shape[:2]
     assert any(r.startswith("HDR radiance") for r in page.gates["response"].reasons)
@@ -73,18 +74,18 @@ def test_a_session_without_flats_or_brackets_skips_with_a_message(assets: Path) 
 def test_leaving_out_a_level_recomputes_the_later_steps(assets: Path) -> None:
     page = _page(assets / "healey94")
     _walk(page)
-    before = page.results["ptc"]
+    before = page.results.ptc.noise
     page.exclude = [3]
     assert not (set(DOWNSTREAM["ptc"]) | {"ptc"}) & set(page.gates)
-    assert "report" not in page.results and page.report_download.disabled
+    assert page.results.report is None and page.steps["export"].report_download.disabled
     assert "dark" in page.gates and "session" in page.gates      # earlier steps are kept
     _walk(page)
-    after = page.results["ptc"]
+    after = page.results.ptc.noise
     assert after.A != before.A
     assert not next(p for p in after.points if p.level == 3).used
     ref = photon_transfer(open_session(assets / "healey94"), exclude_levels=[3])
     assert after.A == ref.A
-    product = page.results["verify"][0]
+    product = page.results.verify.product
     assert product.estimates["noise"]["A"] == pytest.approx(ref.A, rel=1e-12)
 
 
@@ -103,15 +104,16 @@ def test_plan_inputs_replan(assets: Path) -> None:
 def test_export_writes_the_product_and_the_report(assets: Path, tmp_path: Path) -> None:
     page = _page(assets / "healey94", roots=[tmp_path])
     _walk(page)
-    assert not page.report_download.disabled
-    assert page._report_bytes().getvalue().decode() == page.results["report"]
+    export = page.steps["export"]
+    assert not export.report_download.disabled
+    assert export.report_bytes().getvalue().decode() == page.results.report
     page.export_folder = str(tmp_path / "calib")
     _run(page.save())
     assert page.gates["export"].status == "pass", page.gates["export"]
     product = load_product(tmp_path / "calib")
     assert set(product.maps) >= {"dark", "K"}
     html = (tmp_path / "calib" / "report.html").read_text()
-    assert html == page.results["report"]                # built once, saved as built
+    assert html == page.results.report                # built once, saved as built
     assert "<html" in html.lower() and "photon transfer" in html.lower()
     # a folder outside the allowed roots is refused, nothing written
     page.export_folder = "/proc/not-allowed"
@@ -134,15 +136,15 @@ def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
     descriptor = Path(gen.descriptor_path)
     page = _page(descriptor)
     _run(page.run_step("ptc"))
-    figures = page.results["emva"]
+    figures = page.results.emva
     s = open_session(descriptor)
     want = emva_figures(s, noise=photon_transfer(s)).to_dict()
     assert figures["K"] == want["K"] and figures["QE"] == want["QE"]
     table = emva_table(figures)
     assert list(table["figure"])[:2] == ["K", "QE"] and "±" in table["value"][0]
-    assert page.emva_holder.visible
+    assert page.steps["ptc"].emva_holder.visible
     page.exclude = [1]                       # a new photon transfer drops the figures too
-    assert "emva" not in page.results
+    assert page.results.emva is None
 
 
 def test_dark_step_plots_a_dark_series_and_lists_few_exposures(assets: Path, tmp_path) -> None:
@@ -161,25 +163,48 @@ def test_dark_step_plots_a_dark_series_and_lists_few_exposures(assets: Path, tmp
                         np.full((8, 8), 100 + 50 * i + k, np.uint16), exposure=t)
     page = _page(root)
     _run(page.run_step("dark"))
-    step = page.results["dark"]
+    step = page.results.dark
     assert len(step.levels) == 12 > DARK_TABLE_MAX
-    assert page.dark_level_plot.visible and not page.dark_levels.visible
-    data = page.dark_level_source.data
+    dark = page.steps["dark"]
+    assert dark.level_plot.visible and not dark.levels_table.visible
+    data = dark.level_source.data
     np.testing.assert_allclose(data["exposure"], times)
     np.testing.assert_allclose(data["mean"], [100.5 + 50 * i for i in range(12)])
     assert list(data["n"]) == [2] * 12
-    assert page.dark_level_fig.xaxis[0].axis_label == "exposure (s)"
-    assert page.dark_level_fig.yaxis[0].axis_label == "mean dark level (DN)"
+    assert dark.level_fig.xaxis[0].axis_label == "exposure (s)"
+    assert dark.level_fig.yaxis[0].axis_label == "mean dark level (DN)"
     # the map has a title of its own: no stray "·" before "mean of 2×2 px"
-    assert page.dark_view.title == "Dark reference D̂_D (DN)"
+    assert dark.view.title == "Dark reference D̂_D (DN)"
     # few exposures: the table, no plot
     few = _page(assets / "healey94")
     _run(few.run_step("dark"))
-    assert few.dark_levels.visible and not few.dark_level_plot.visible
-    assert list(few.dark_levels.object["exposure (s)"]) == ["0.033"]
+    few_dark = few.steps["dark"]
+    assert few_dark.levels_table.visible and not few_dark.level_plot.visible
+    assert list(few_dark.levels_table.object["exposure (s)"]) == ["0.033"]
     # the pure part: unknown exposures left out, sorted, a missing error drawn as none
     cols = dark_level_columns([{"exposure": 0.2, "n": 3, "mean": 5.0, "sem": 0.1},
                                {"exposure": None, "n": 1, "mean": 9.0, "sem": float("nan")},
                                {"exposure": 0.1, "n": 1, "mean": 4.0, "sem": float("nan")}])
     assert list(cols["exposure"]) == [0.1, 0.2] and list(cols["sem"]) == [0.0, 0.1]
     assert list(cols["hi"]) == [4.0, 5.1]
+
+
+def test_one_step_object_per_guide_step_and_typed_results(assets: Path) -> None:
+    """The page's registry follows ccdcore.guide.STEPS; the results are typed, and a change
+    drops exactly the results DOWNSTREAM names."""
+    from ccdcore_app.pages.walkthrough import STEP_TYPES, Results
+    from ccdcore_app.pages.walkthrough.verify import VerifyResult
+
+    page = _page(assets / "healey94")
+    assert list(page.steps) == list(STEP_TYPES) == [s.slug for s in guide.STEPS]
+    assert all(step.slug == slug and step.page is page for slug, step in page.steps.items())
+    assert not any(name.startswith("_run_") for name in dir(page))
+    _walk(page)
+    assert isinstance(page.results, Results) and isinstance(page.results.verify, VerifyResult)
+    assert page.results.verify.check.gate == page.gates["verify"]
+    page.robust = True
+    for name in DOWNSTREAM["ptc"] + ("ptc",):
+        assert getattr(page.results, name) is None, name
+    assert page.results.dark is not None and page.results.plan is not None
+    with pytest.raises(KeyError):
+        Results().drop(["nothing"])
