@@ -232,16 +232,11 @@ def test_estimate_all_and_calibrate_report_fraction_then_message():
 
 
 def _emva_descriptor(root: Path) -> Path:
-    """A small EMVA 1288 data set by the reference package's generator (as test_datasheet)."""
-    pytest.importorskip("emva1288")
-    # emva1288 1.0.2 calls np.asfarray, removed in NumPy 2 (see docs/notes.md)
-    if not hasattr(np, "asfarray"):
-        np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)
-    from emva1288.camera.dataset_generator import DatasetGenerator
+    """A small EMVA 1288 data set by the reference package's generator (test_datasheet's)."""
+    from test_datasheet import generate
 
-    gen = DatasetGenerator(steps=8, L=4, image_format="tif", outdir=str(root), width=32,
-                           height=24, bit_depth=12, seed=5, u_esat=60000.0,
-                           dark_signal_0=50.0)
+    gen = generate(root, steps=8, L=4, width=32, height=24, u_esat=60000.0,
+                   dark_signal_0=50.0)
     return Path(gen.descriptor_path)
 
 
