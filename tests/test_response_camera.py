@@ -69,10 +69,11 @@ def test_channels_in_threads_match_each_channel_alone(camera):
 
 
 def test_the_guarded_step_stops_at_the_curves_resolution(camera):
-    """A step the objective rejects is halved at most three times (MIN_ETA = 1/8: four
-    rejected passes at most, from η = 1) before the last accepted curve is taken as converged: on real brackets the objective of the trimmed
-    means wobbles by 1e-4 of itself near the minimum, and six more halvings (as first built)
-    cost six passes for the same curve."""
+    """A step the objective rejects is shortened (to at most half, :func:`_shorter_step`)
+    until it falls below MIN_ETA = 1/8 -- four rejected passes at most, from η = 1 -- before
+    the last accepted curve is taken as converged: on real brackets the objective of the
+    trimmed means wobbles by 1e-4 of itself near the minimum, and six more halvings (as first
+    built) cost six passes for the same curve."""
     _, _, tsin, _ = camera
     for r in tsin.responses:
         run = longest = 0
@@ -81,3 +82,21 @@ def test_the_guarded_step_stops_at_the_curves_resolution(camera):
             longest = max(longest, run)
         assert longest <= 4, (r.channel, longest)
         assert r.iterations <= 15, (r.channel, r.iterations)
+
+
+def test_a_rejected_step_is_shortened_to_the_parabolas_minimum():
+    """On an objective that is exactly a parabola along the update, obj0 - 2 q η + c η² (eq.
+    15's model with the wrong curvature c instead of q), the next step is its minimum q / c,
+    kept within [0.1, 0.5] of the rejected step; without a usable curvature, half the step."""
+    from ccdcore.response.tsin import _shorter_step
+
+    def obj(eta, q, c):
+        return 10.0 - 2.0 * q * eta + c * eta * eta
+
+    assert _shorter_step(10.0, obj(1.0, 1.0, 4.0), 1.0, 1.0) == pytest.approx(0.25, rel=1e-12)
+    assert _shorter_step(10.0, obj(0.5, 1.0, 6.0), 1.0, 0.5) == pytest.approx(1 / 6, rel=1e-12)
+    assert _shorter_step(10.0, obj(1.0, 1.0, 40.0), 1.0, 1.0) == pytest.approx(0.1)
+    assert _shorter_step(10.0, obj(1.0, 1.0, 2.5), 1.0, 1.0) == pytest.approx(0.4, rel=1e-12)
+    assert _shorter_step(10.0, obj(1.0, 1.0, 3.0) + 5.0, 1.0, 1.0) < 0.5 + 1e-12
+    assert _shorter_step(10.0, 11.0, 0.0, 1.0) == 0.5
+    assert _shorter_step(10.0, float("nan"), 1.0, 1.0) == 0.5
