@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import textwrap
@@ -100,6 +101,17 @@ def _positive(text: str) -> int:
     if n < 1:
         raise argparse.ArgumentTypeError(f"'{text}' must be at least 1")
     return n
+
+
+def _seconds(text: str) -> float:
+    """A positive exposure time in seconds."""
+    try:
+        t = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds") from None
+    if not (math.isfinite(t) and t > 0):
+        raise argparse.ArgumentTypeError(f"'{text}' must be a positive number of seconds")
+    return t
 
 
 def _roi(text: str) -> Roi:
@@ -338,6 +350,8 @@ def _print_product(product: Any, folder: Path) -> None:
         print(f"  dark D̂_D       {d['s']} frames, mean {format_pm(_get(d, 'mean'), _get(d, 'mean_sem'), unit='DN')}, "
               f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels "
               "(D̂_D: the mean dark frame)")
+        for note in d.get("notes") or ():
+            _say("dark note", note, indent="    ")
     if "fixed_pattern" in est:
         k = est["fixed_pattern"]
         bound = "infinite" if k["var_bound"] is None else format(k["var_bound"], ".3g")
@@ -440,7 +454,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     try:
         _workers_note_for(args.workers, session, session.frames)
         with get_client(args.scheduler, args.workers) as client:
-            product = calibrate(session, roi=args.roi, client=client)
+            product = calibrate(session, roi=args.roi, client=client,
+                                dark_exposure=args.dark_exposure)
         folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
     except KeyboardInterrupt:
         print("ccdcore calibrate: interrupted: nothing was written" + (
@@ -852,6 +867,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "dark frames (flat field); what cannot be made is listed")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
+    p.add_argument("--dark-exposure", type=_seconds, metavar="SECONDS", default=None,
+                   help="with dark frames at several exposures, make the dark reference and "
+                        "its hot and dead pixel maps from those at this exposure (default: the "
+                        "one nearest the fixed-pattern, flat or ptc frames' median exposure)")
     p.add_argument("-o", "--out", type=Path, required=True,
                    help="product folder to write (new, empty, or an earlier product, which "
                         "is replaced whole: its calibration.json and maps/, so maps this "

@@ -33,7 +33,7 @@ as_dark_map(dark, where="dark")
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 from scipy import special
@@ -43,7 +43,7 @@ from .errors import CcdError
 from .noise import READ_AHEAD
 from .stats import MomentsResult, PixelMoments
 
-__all__ = ["DarkReference", "dark_reference", "as_dark_map"]
+__all__ = ["DarkReference", "dark_reference", "as_dark_map", "exposures_text", "nearest_exposure"]
 
 #: false-alarm probability per pixel of the "noisy" (temporal variance) rule
 NOISY_ALPHA = 1e-6
@@ -73,13 +73,35 @@ def _session_darks(session: Any, exposure: float | None) -> tuple[list, float | 
         recs = [r for r in recs if r.exposure is not None and math.isclose(r.exposure, exposure,
                                                                            rel_tol=1e-6)]
         if not recs:
-            raise CcdError(where, f"no dark frames at exposure {exposure} s (have "
-                                  f"{', '.join(map(str, exposures)) or 'none'})")
+            raise CcdError(where, f"no dark frames at exposure {exposure:g} s (the dark frames "
+                                  f"are at {exposures_text(exposures)})")
         return recs, float(exposure), notes
     if len(exposures) > 1:
-        raise CcdError(where, f"dark frames at {len(exposures)} exposures "
-                              f"({', '.join(map(str, exposures))} s): choose one with exposure=")
+        raise CcdError(where, f"dark frames at {exposures_text(exposures)}: choose one with "
+                              "exposure=")
     return recs, (exposures[0] if exposures else None), notes
+
+
+def exposures_text(exposures: Sequence[float]) -> str:
+    """A set of exposure times in a few words: all of them up to four ("0.1, 0.2 and 0.4 s"),
+    else their number and range ("51 exposures, 4e-05 to 0.05 s")."""
+    xs = sorted(exposures)
+    if not xs:
+        return "no known exposure"
+    if len(xs) == 1:
+        return f"{xs[0]:g} s"
+    if len(xs) <= 4:
+        return ", ".join(f"{x:g}" for x in xs[:-1]) + f" and {xs[-1]:g} s"
+    return f"{len(xs)} exposures, {xs[0]:g} to {xs[-1]:g} s"
+
+
+def nearest_exposure(exposures: Sequence[float], target: float) -> float:
+    """The exposure of ``exposures`` nearest ``target`` in ratio (|log t − log target|; ties:
+    the longer)."""
+    xs = sorted(x for x in exposures if x > 0)
+    if not xs or not target > 0:
+        raise ValueError("positive exposures and target needed")
+    return min(xs, key=lambda x: (abs(math.log(x / target)), -x))
 
 
 def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,

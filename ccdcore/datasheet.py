@@ -48,13 +48,16 @@ from __future__ import annotations
 
 import math
 from contextlib import closing
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from os import PathLike
 from typing import Any, Sequence
 
 import numpy as np
 
 from .common import json_safe
+from .emva_dark import DarkCurrent, dark_current
+from .emva_spatial import (NonuniformitySplit, SpatialPlots, nonuniformity_split, spatial_plots,
+                           variance_split)
 from .errors import CcdError
 from .noise import READ_AHEAD, PhotonTransfer
 from .progress import Progress, Steps
@@ -174,6 +177,9 @@ class SpatialSet:
     s2: float
     s2_err: float
     n_pixels: int
+    #: the average image ⟨y⟩ (DN; not written by ``to_dict``): the release 4.0 split and the
+    #: plots of sec. 8 are made from it
+    image: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {k: json_safe(getattr(self, k)) for k in (
@@ -242,6 +248,9 @@ class EmvaFigures:
     quantisation_limited: bool
     notes: tuple[str, ...]
     source: str | None = None
+    dark_current: DarkCurrent | None = None
+    split: NonuniformitySplit | None = None
+    spatial_plots: SpatialPlots | None = None
 
     # ---- curves for the report ----------------------------------------------------------
     def snr_curve(self) -> dict[str, list[float | None]]:
@@ -291,6 +300,19 @@ class EmvaFigures:
         out["spatial_dark"] = None if self.spatial_dark is None else self.spatial_dark.to_dict()
         out["notes"] = list(self.notes)
         out["source"] = self.source
+        dc = self.dark_current
+        out.update({k: json_safe(v) for k, v in (
+            dc.figures() if dc is not None else dict.fromkeys(
+                ("u_I_mean", "u_I_mean_err", "u_I_var", "u_I_var_err"))).items()})
+        out["dark_current"] = None if dc is None else dc.to_dict()
+        split = self.split
+        out.update({k: json_safe(v) for k, v in (
+            split.figures() if split is not None else dict.fromkeys(
+                f"{w}_{p}{e}" for w in ("DSNU1288", "PRNU1288") for p in ("row", "col", "pixel")
+                for e in ("", "_err"))).items()})
+        out["nonuniformity_split"] = None if split is None else split.to_dict()
+        out["spatial_plots"] = (None if self.spatial_plots is None
+                                else self.spatial_plots.to_dict())
         return out
 
 
@@ -438,7 +460,7 @@ class _Stack:
         s2_err = math.sqrt(max(4.0 * max(s2, 0.0) * noise / n + 2.0 * noise * noise / n, 0.0))
         return SpatialSet(level=level, exposure=exposure, L=L, u_p=u_p, u_y=u_y,
                           s2_stack=s2_stack, s2_measured=s2_measured, s2=s2, s2_err=s2_err,
-                          n_pixels=n)
+                          n_pixels=n, image=avg)
 
 
 # --------------------------------------------------------------------------------------------
@@ -680,6 +702,27 @@ def _nonuniformity(sp: SpatialSet, spd: SpatialSet, K: float, K_err: float, note
         notes.append(f"the bright spatial variance does not exceed the dark one "
                      f"({sp.s2:.4g} vs {spd.s2:.4g} DN²): PRNU1288 is not a number")
     return dsnu, dsnu_err, prnu, prnu_err
+
+
+def _spatial_section(sp: SpatialSet, spd: SpatialSet, K: float, K_err: float,
+                     dsnu: float | None, prnu: float | None, notes: list[str]
+                     ) -> tuple[NonuniformitySplit | None, SpatialPlots | None]:
+    """The release 4.0 split of DSNU and PRNU and the arrays of sec. 8's plots, from the
+    average images of the spatial sets (:mod:`ccdcore.emva_spatial`)."""
+    if sp.image is None or spd.image is None:
+        return None, None
+    if sp.image.shape != spd.image.shape or min(sp.image.shape) < 2 * 5:
+        notes.append(f"the spatial sets' images ({sp.image.shape}, {spd.image.shape}) are too "
+                     "small or differ: no row/column/pixel split and no spatial plots")
+        return None, None
+    split = nonuniformity_split(variance_split(sp.image, sp.s2_stack, sp.L),
+                                variance_split(spd.image, spd.s2_stack, spd.L), K, K_err)
+    notes.extend(split.notes)
+    finite = (lambda v: v if v is not None and math.isfinite(v) else None)
+    plots = spatial_plots(sp.image, spd.image, L=sp.L, L_dark=spd.L, s2_stack=sp.s2_stack,
+                          s2_stack_dark=spd.s2_stack, K=K, DSNU1288=finite(dsnu),
+                          PRNU1288=finite(prnu))
+    return split, plots
 
 
 # --------------------------------------------------------------------------------------------
@@ -1018,10 +1061,18 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
     thr = _threshold_and_range(c.u_p, sens, dark)
     i_lin_min, i_lin_max, lin_a, lin_b, (le_min, le_min_err), (le_max, le_max_err) = \
         _linearity(c.u_p, c.Y, c.var_Y, sens.i_sat, label)
+    current = dark_current([d.exposure for d in dark_points],
+                           [d.u_y_dark for d in dark_points],
+                           [d.u_y_dark_err for d in dark_points],
+                           [d.s2_y_dark for d in dark_points],
+                           [d.s2_y_dark_err for d in dark_points], sens.K, sens.K_err)
+    notes.extend(current.notes)
     dsnu = dsnu_err = prnu = prnu_err = None
+    split = plots = None
     sp, spd = stacks.get("spatial"), stacks.get("spatial_dark")
     if sp is not None and spd is not None:
         dsnu, dsnu_err, prnu, prnu_err = _nonuniformity(sp, spd, sens.K, sens.K_err, notes)
+        split, plots = _spatial_section(sp, spd, sens.K, sens.K_err, dsnu, prnu, notes)
 
     points = tuple(replace(p, in_sensitivity_fit=i <= sens.i_fit,
                            in_linearity_fit=i_lin_min <= i <= i_lin_max,
@@ -1044,4 +1095,5 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
         index_linearity_min=i_lin_min, index_linearity_max=i_lin_max, points=points,
         dark_points=tuple(dark_points), spatial=sp, spatial_dark=spd,
         sigma_d_consistent=ptc.consistent, quantisation_limited=dark.quantisation_limited,
-        notes=tuple(notes), source=label)
+        notes=tuple(notes), source=label, dark_current=current, split=split,
+        spatial_plots=plots)

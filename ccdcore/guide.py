@@ -260,7 +260,8 @@ def ptc_gate(noise: Any) -> Gate:
     q = float(noise.Q) if noise.dof > 0 else float("nan")
     reasons = [f"A = {noise.A:.4g} ± {noise.A_err:.2g} DN/e⁻, σ²_C = {noise.sigma_c2:.4g} ± "
                f"{noise.sigma_c2_err:.2g} DN² from {used} levels; χ² = {noise.chi2:.3g} "
-               f"with {noise.dof} degrees of freedom, Q = {q:.3g}"]
+               f"with {noise.dof} degrees of freedom, Q = {q:.3g}",
+               f"fit range: {noise.fit_range}"]
     nxt: list[str] = []
     if used < 3:
         return Gate(GateStatus.FAIL, "fewer than 3 levels in the fit: Q cannot judge the line",
@@ -283,6 +284,10 @@ def ptc_gate(noise: Any) -> Gate:
                        f"worst level is {worst.level} ({r:+.1f} σ)")
         nxt.append(f"exclude level {worst.level} or switch on robust mode (drops levels beyond "
                    "3 σ one at a time); if levels near full scale misbehave, they are clipped")
+        top = [p for p in noise.points if p.used]
+        if noise.fit_fraction is None and top and worst.mu >= 0.7 * max(p.mu for p in top):
+            nxt.append("the worst level is near saturation: fit over the EMVA 1288 range "
+                       "(0–70 % of the saturation signal), where the standard fits the gain")
     if noise.A_err / noise.A > 0.05:
         status = GateStatus.WARN if status == GateStatus.PASS else status
         reasons.append(f"σ(A)/A = {_pct(noise.A_err / noise.A)} is above 5 %")

@@ -50,6 +50,8 @@ Exclusions (each excluded level keeps its reason in :attr:`PtcPoint.reason`; nev
   top 10 % of the levels' μ̂ range is excluded when its σ̂²_N is more than :data:`LINEARITY_Z` (5)
   standard deviations *and* more than ``linearity_tolerance`` away from the line fitted to the
   levels below that top 10 % (the linearity rules see only the levels the earlier rules kept);
+* outside the fit range (``fit_fraction``; the EMVA 1288 range is 0–70 % of the saturation
+  signal, that of the level of largest σ̂²_N): a level above the fraction of it;
 * robust mode: after the fit, the level with the largest |residual|/σ is dropped when that exceeds
   :data:`ROBUST_Z` (3), and the fit is repeated, as long as at least three levels remain.
 
@@ -91,7 +93,7 @@ from .session import FrameRecord, Session, open_session
 __all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
            "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
            "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP",
-           "EXCLUSIONS", "USER_EXCLUDED"]
+           "EXCLUSIONS", "USER_EXCLUDED", "EMVA_FIT_FRACTION"]
 
 #: a level is clipped when more than this fraction of its ROI pixel values is at 0 or full scale
 CLIP_LIMIT = 1e-4
@@ -113,7 +115,10 @@ _TOP_FRACTION = 0.10
 #: module docstring: clipped pixels, zero variance, excluded by the user, past saturation,
 #: beyond the linear range, dropped by the robust mode
 EXCLUSIONS: tuple[str, ...] = ("clipped", "zero-variance", "user", "saturation", "nonlinear",
-                               "robust")
+                               "range", "robust")
+#: the EMVA 1288 fit range of the gain: the points up to this fraction of the saturation signal
+#: (release 3.1 sec. 6.6: "0 - 70 %"); ``fit_fraction=EMVA_FIT_FRACTION`` applies it
+EMVA_FIT_FRACTION = 0.70
 #: the reason text of a level the user excluded
 USER_EXCLUDED = "excluded by user"
 
@@ -271,6 +276,15 @@ class PhotonTransfer:
     linearity_tolerance: float = LINEARITY_TOLERANCE
     source: str | None = None
     measure_notes: tuple[str, ...] = ()
+    fit_fraction: float | None = None
+
+    @property
+    def fit_range(self) -> str:
+        """The fit range in words: every level below saturation, or the EMVA 1288 range."""
+        if self.fit_fraction is None:
+            return "every level below saturation (the paper's range)"
+        return (f"the levels up to {100 * self.fit_fraction:g} % of the saturation signal "
+                "(the EMVA 1288 range)")
 
     @property
     def fit(self) -> LineFit:
@@ -291,8 +305,10 @@ class PhotonTransfer:
         return sorted(z, key=lambda lz: -abs(lz[1]))[:max(0, int(n))]
 
     def refit(self, *, exclude_levels: Iterable[int] = (), robust: bool = False,
-              linearity_tolerance: float | None = None) -> PhotonTransfer:
-        """Fit the same points again with other exclusions (no frame is read)."""
+              linearity_tolerance: float | None = None,
+              fit_fraction: float | None | str = "same") -> PhotonTransfer:
+        """Fit the same points again with other exclusions (no frame is read); ``fit_fraction``
+        ``"same"`` keeps this fit's range."""
         return fit_points(self.points, exclude_levels=exclude_levels, robust=robust,
                           bits=self.bits, black_level_dn=self.black_level_dn,
                           black_level_source=self.black_level_source, roi=self.roi,
@@ -300,7 +316,9 @@ class PhotonTransfer:
                           linearity_tolerance=(self.linearity_tolerance
                                                if linearity_tolerance is None
                                                else linearity_tolerance),
-                          source=self.source)
+                          source=self.source,
+                          fit_fraction=(self.fit_fraction if fit_fraction == "same"
+                                        else fit_fraction))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly values (NaN becomes ``None``); the keys of the ``ptc`` verb in docs/cli.md
@@ -319,7 +337,8 @@ class PhotonTransfer:
         out.update(black_level_source=self.black_level_source,
                    roi=None if self.roi is None else list(self.roi), bits=self.bits,
                    robust_dropped=list(self.robust_dropped), notes=list(self.notes),
-                   linearity_tolerance=self.linearity_tolerance, source=self.source)
+                   linearity_tolerance=self.linearity_tolerance, source=self.source,
+                   fit_fraction=self.fit_fraction, fit_range=self.fit_range)
         return out
 
 
@@ -724,6 +743,26 @@ def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tup
     return out
 
 
+def _range_reasons(points: Sequence[PtcPoint], reasons: dict[int, tuple[str, str]],
+                   fraction: float) -> dict[int, tuple[str, str]]:
+    """Levels above ``fraction`` of the saturation signal (the EMVA 1288 fit range, release 3.1
+    sec. 6.6): the saturation point is the level of largest σ̂²_N among the measured ones (the
+    standard's rule, as :func:`_saturation_reasons`), its signal μ̂ − b₀ the saturation signal;
+    a level not excluded already whose signal is above ``fraction`` of it is out of range."""
+    out: dict[int, tuple[str, str]] = {}
+    if not points:
+        return out
+    peak = max(points, key=lambda p: p.var)
+    limit = fraction * peak.mu
+    for p in points:
+        if p.level not in reasons and p.mu > limit:
+            out[p.level] = "range", (
+                f"outside the EMVA 1288 fit range: mean {p.mu:.4g} DN is above "
+                f"{100 * fraction:g} % of the saturation signal {peak.mu:.4g} DN (level "
+                f"{peak.level}, the largest variance)")
+    return out
+
+
 def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tuple[str, str]]:
     """Levels beyond the linear range (see the module docstring), level -> (code, reason)."""
     out: dict[int, tuple[str, str]] = {}
@@ -787,7 +826,7 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
                black_level_dn: float | None = None, black_level_source: str = "given",
                roi: Sequence[int] | None = None, notes: Sequence[str] = (),
                linearity_tolerance: float = LINEARITY_TOLERANCE,
-               source: str | None = None) -> PhotonTransfer:
+               source: str | None = None, fit_fraction: float | None = None) -> PhotonTransfer:
     """Apply the exclusion rules to measured levels and fit σ²_N = A·μ + σ²_C (eqs. 41, 59–67).
 
     Each point's ``used``/``reason`` is recomputed from scratch (clipping and zero variance from
@@ -811,6 +850,12 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         Carried into the result (``notes`` first, then the fit's own notes).
     linearity_tolerance
         Relative deviation tolerated by the linearity rule (module docstring).
+    fit_fraction
+        ``None`` (the paper's range: every level below saturation) or a fraction of the
+        saturation signal above which levels are left out (exclusion ``"range"``): the EMVA 1288
+        range is :data:`EMVA_FIT_FRACTION` = 0.7 (release 3.1 sec. 6.6). The saturation signal
+        is that of the level of largest σ̂²_N. The result says which range it used
+        (:attr:`PhotonTransfer.fit_range`).
 
     Raises
     ------
@@ -840,6 +885,11 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
     reasons.update(_saturation_reasons(candidates, float(linearity_tolerance)))
     candidates = [p for p in pts if p.level not in reasons]
     reasons.update(_linearity_reasons(candidates, float(linearity_tolerance)))
+    if fit_fraction is not None:
+        if not 0.0 < fit_fraction <= 1.0:
+            raise CcdError("fit_fraction", f"must be in (0, 1], got {fit_fraction!r}")
+        reasons.update(_range_reasons([p for p in pts if _data_reason(p, bits) is None],
+                                      reasons, float(fit_fraction)))
 
     def usable() -> list[PtcPoint]:
         return [p for p in pts if p.level not in reasons]
@@ -909,7 +959,8 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         roi=None if roi is None else tuple(int(v) for v in roi), bits=bits,
         robust_dropped=tuple(dropped), notes=tuple(all_notes), verdict=_verdict(fit.Q),
         linearity_tolerance=float(linearity_tolerance), source=source,
-        measure_notes=tuple(notes))
+        measure_notes=tuple(notes), fit_fraction=None if fit_fraction is None
+        else float(fit_fraction))
 
 
 def _exclusion_notes(points: Sequence[PtcPoint], limit: int = 5) -> list[str]:
@@ -932,7 +983,7 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
                     roi: Sequence[int] | None = None, robust: bool = False,
                     exclude_levels: Iterable[int] = (), black_level: float | None = None,
                     linearity_tolerance: float = LINEARITY_TOLERANCE,
-                    client: Any = None) -> PhotonTransfer:
+                    client: Any = None, fit_fraction: float | None = None) -> PhotonTransfer:
     """Estimate the noise model σ²_N = A·(μ − b₀) + σ²_C of a camera from its PTC frames.
 
     For each light level: μ̂ (eq. 37), σ̂²_N from the difference image (eq. 38) and
@@ -954,6 +1005,9 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
         b₀ in DN; overrides the manifest and the dark frames (module docstring).
     linearity_tolerance
         Relative deviation from linearity tolerated (module docstring).
+    fit_fraction
+        The fit range (:func:`fit_points`): ``None`` every level below saturation, 0.7 the
+        EMVA 1288 range.
     client
         A Dask :class:`distributed.Client`: the pairs (and the dark sums of the black level)
         are reduced on the cluster in bands of rows, each worker reading its band of every
@@ -981,4 +1035,4 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
     session = _as_session(session_or_path)
     points, ctx = _measure(session, roi, black_level, client)
     return fit_points(points, exclude_levels=exclude_levels, robust=robust,
-                      linearity_tolerance=linearity_tolerance, **ctx)
+                      linearity_tolerance=linearity_tolerance, fit_fraction=fit_fraction, **ctx)

@@ -28,7 +28,7 @@ import datetime
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Union
 
@@ -680,6 +680,7 @@ class _Run:
     response: bool
     emva1288: bool
     client: Any
+    dark_exposure: float | None = None
     made: dict[str, Any] = field(default_factory=dict)
     skipped: list[Skipped] = field(default_factory=list)
     lacking: dict[str, tuple[str, ...]] = field(init=False)
@@ -771,12 +772,46 @@ def _dark_reference(run: _Run) -> None:
         return
 
     def make() -> DarkReference:
-        fp_exposures = {r.exposure for r in session.by_role("fixed_pattern")} - {None}
-        dark_exp = next(iter(fp_exposures)) if len(fp_exposures) == 1 else None
-        dark_exposures = {r.exposure for r in session.dark_frames()}
-        return dark_reference(session, exposure=dark_exp if len(dark_exposures) > 1 else None,
-                              client=run.client)
+        exposure, note = dark_exposure_for(session, run.dark_exposure)
+        ref = dark_reference(session, exposure=exposure, client=run.client)
+        return replace(ref, notes=(note, *ref.notes)) if note else ref
     run.attempt("dark", (), make)
+
+
+#: the roles whose exposure the dark reference is matched to, in order of preference
+_DARK_MATCH_ROLES = ("fixed_pattern", "flat", "ptc")
+
+
+def dark_exposure_for(session: Session, named: float | None = None
+                      ) -> tuple[float | None, str | None]:
+    """The exposure of the dark frames the dark reference (and its hot and dead pixel maps) is
+    made from, and a note saying why: ``named`` when given; with darks at one exposure, that
+    one; else the one nearest (in ratio) the median exposure of the fixed-pattern frames, else
+    of the flats, else of the ptc frames (an EMVA 1288 set: the bright frames, whose spatial
+    set dominates the median); with none of those, the exposure with the most dark frames."""
+    from .darkframe import exposures_text, nearest_exposure
+
+    darks = [r.exposure for r in session.dark_frames() if r.exposure is not None]
+    have = sorted(set(darks))
+    if named is not None:
+        return float(named), (f"dark frames at {exposures_text(have)}: the dark reference is "
+                              f"made at {named:g} s, as named" if len(have) > 1 else None)
+    if len(have) <= 1:
+        return None, None
+    for role in _DARK_MATCH_ROLES:
+        times = [r.exposure for r in session.by_role(role) if r.exposure is not None]
+        if times:
+            target = float(np.median(times))
+            chosen = nearest_exposure(have, target)
+            return chosen, (f"dark frames at {exposures_text(have)}: the dark reference is made "
+                            f"at {chosen:g} s, the nearest to the {role.replace('_', '-')} "
+                            f"frames' median exposure {target:g} s (name another with "
+                            "--dark-exposure)")
+    counts = {t: darks.count(t) for t in have}
+    chosen = max(have, key=lambda t: (counts[t], t))
+    return chosen, (f"dark frames at {exposures_text(have)}: the dark reference is made at "
+                    f"{chosen:g} s, the exposure with the most dark frames ({counts[chosen]}; "
+                    "name another with --dark-exposure)")
 
 
 def _fixed_pattern(run: _Run) -> None:
@@ -851,7 +886,8 @@ _STEPS: tuple[tuple[str, Callable[[_Run], None]], ...] = (
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, response: bool = True,
-                 emva1288: bool = True, client: Any = None) -> Estimates:
+                 emva1288: bool = True, client: Any = None,
+                 dark_exposure: float | None = None) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
     An estimate whose frames are missing, or whose frames the method refuses (a
@@ -870,7 +906,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     (:mod:`ccdcore.distributed`; ``docs/distributed.md`` says what is not distributed yet).
     """
     run = _Run(session, roi=roi, window=window, p=p, noise=noise, response=response,
-               emva1288=emva1288, client=client)
+               emva1288=emva1288, client=client, dark_exposure=dark_exposure)
     report = Steps(progress, ESTIMATE_STEPS)
     for step, make in _STEPS:
         report(step)
@@ -900,11 +936,14 @@ def _damaged_maps(name: str, result: Any) -> str | None:
 def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
               progress: Progress | None = None,
-              noise: PhotonTransfer | None = None, client: Any = None) -> CalibrationProduct:
+              noise: PhotonTransfer | None = None, client: Any = None,
+              dark_exposure: float | None = None) -> CalibrationProduct:
     """Run every estimate the session's frames allow.
 
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
-    - ``dark`` frames: dark reference D̂_D with hot/dead flags (sec. V-A);
+    - ``dark`` frames: dark reference D̂_D with hot/dead flags (sec. V-A); with darks at
+      several exposures, from those at ``dark_exposure`` or at the one nearest the other
+      frames' (:func:`dark_exposure_for`);
     - ``fixed_pattern`` configurations and darks: K̂ (eqs. 45–50, ``window``, ``p``);
     - noise model and K̂: acquisition plan n1, n2 (sec. V-B), with warnings if the session has
       fewer frames;
@@ -937,7 +976,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         else open_session(session_or_path)
     session.raise_if_invalid()
     e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise,
-                     client=client)
+                     client=client, dark_exposure=dark_exposure)
     if not e.made:
         failed = [s for s in e.skipped if s.code == "failed"]
         why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (

@@ -116,7 +116,8 @@ def _ptc(Q: float, used: int = 6, A_rel_err: float = 0.01, dof: int | None = Non
         var = 0.01 * mu + 2.0 + (0.1 if i == used - 1 else 0.0)
         pts.append(NS(level=i + 1, mu=mu, var=var, var_err=0.1, used=i < used))
     return NS(points=pts, Q=Q, dof=used - 2 if dof is None else dof, A=0.01,
-              A_err=0.01 * A_rel_err, sigma_c2=2.0, sigma_c2_err=0.1, chi2=1.0)
+              A_err=0.01 * A_rel_err, sigma_c2=2.0, sigma_c2_err=0.1, chi2=1.0,
+              fit_fraction=None, fit_range="every level below saturation")
 
 
 @pytest.mark.parametrize("Q, status", [

@@ -1,0 +1,163 @@
+"""The dark current of an EMVA 1288 datasheet (release 3.1 sec. 3.1, as the emva1288 package
+computes it: ``Results1288.u_I_mean`` and ``Results1288.u_I_var``).
+
+The dark signal grows with the exposure time t at the dark current μ_I (e⁻/s):
+
+* from the mean: μ_y.dark(t) = μ_y.dark(0) + K μ_I t, so μ_I = (slope of μ_y.dark against t) / K;
+* from the variance: σ²_y.dark(t) = K² (σ²_d + μ_I t) + σ²_q (the thermal electrons are Poisson),
+  so μ_I = (slope of σ²_y.dark against t) / K².
+
+Both slopes are the unweighted least-squares lines of the package (``routines.LinearB``) through
+the dark points (two dark frames at each exposure time). Their standard errors propagate the
+points' errors through the line, √(Σ cᵢ² var_yᵢ) with cᵢ = (tᵢ − t̄)/S_tt, scaled by √(χ²/ν)
+when the points scatter more than their errors (ν = n − 2), then K's error.
+
+Where the package returns a number whatever it means, here a current is reported when it is
+*resolved*: positive by at least :data:`RESOLVED_Z` standard errors. Otherwise the figure is
+``None`` and its note gives the reason and the bound the exposure range gives (the slope plus
+:data:`RESOLVED_Z` errors, at least zero): never a negative current without a word. Fewer than
+three exposure times cannot give a current (the package's rule: NaN).
+
+Public objects
+--------------
+DarkCurrent, dark_current(exposures, u_y_dark, u_y_dark_err, s2_y_dark, s2_y_dark_err, K, K_err)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from .common import json_safe
+
+__all__ = ["DarkCurrent", "dark_current", "RESOLVED_Z", "MIN_EXPOSURES"]
+
+#: a dark current is resolved when it is positive by this many standard errors
+RESOLVED_Z = 2.0
+#: the fewest distinct exposure times that can give a dark current (the package's rule)
+MIN_EXPOSURES = 3
+
+
+@dataclass(frozen=True)
+class DarkLine:
+    """One unweighted line y = offset + slope · t with the slope's standard error, the reduced
+    chi-square of the points about it (their own errors) and the degrees of freedom."""
+
+    slope: float
+    slope_err: float
+    offset: float
+    chi2_dof: float
+    dof: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: json_safe(v) for k, v in self.__dict__.items()}
+
+
+def _line(t: np.ndarray, y: np.ndarray, var_y: np.ndarray) -> DarkLine:
+    tm = float(t.mean())
+    stt = float(np.sum((t - tm) ** 2))
+    slope = float(np.sum((t - tm) * (y - y.mean())) / stt)
+    offset = float(y.mean() - slope * tm)
+    c = (t - tm) / stt
+    err = math.sqrt(float(np.sum(c * c * var_y)))
+    dof = t.size - 2
+    chi2 = float(np.sum((y - offset - slope * t) ** 2 / var_y)) if np.all(var_y > 0) else math.nan
+    chi2_dof = chi2 / dof if dof > 0 else math.nan
+    if dof > 0 and chi2_dof > 1.0:
+        err *= math.sqrt(chi2_dof)
+    return DarkLine(slope=slope, slope_err=err, offset=offset, chi2_dof=chi2_dof, dof=dof)
+
+
+@dataclass(frozen=True)
+class DarkCurrent:
+    """The dark current from the mean dark signal (``u_I_mean``) and from the dark variance
+    (``u_I_var``), e⁻/s, with their standard errors; ``None`` where not resolved (then
+    ``u_I_mean_bound`` / ``u_I_var_bound`` is the upper bound, and ``notes`` say why). The lines
+    (``mean_line`` in DN against s, ``var_line`` in DN² against s; ``None`` below three exposure
+    times) serve the plots."""
+
+    u_I_mean: float | None
+    u_I_mean_err: float | None
+    u_I_var: float | None
+    u_I_var_err: float | None
+    u_I_mean_bound: float | None
+    u_I_var_bound: float | None
+    mean_line: DarkLine | None
+    var_line: DarkLine | None
+    exposures: tuple[float, ...]
+    notes: tuple[str, ...]
+
+    def figures(self) -> dict[str, float | None]:
+        return {"u_I_mean": self.u_I_mean, "u_I_mean_err": self.u_I_mean_err,
+                "u_I_var": self.u_I_var, "u_I_var_err": self.u_I_var_err}
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {k: json_safe(v) for k, v in self.figures().items()}
+        out.update(u_I_mean_bound=json_safe(self.u_I_mean_bound),
+                   u_I_var_bound=json_safe(self.u_I_var_bound),
+                   mean_line=None if self.mean_line is None else self.mean_line.to_dict(),
+                   var_line=None if self.var_line is None else self.var_line.to_dict(),
+                   exposures=json_safe(list(self.exposures)), notes=list(self.notes))
+        return out
+
+
+def _resolve(name: str, what: str, slope: float, slope_err: float, scale: float,
+             scale_rel_err: float, t_span: tuple[float, float], notes: list[str]
+             ) -> tuple[float | None, float | None, float | None]:
+    """(value, error, bound) of one dark current: slope / scale in e⁻/s when resolved."""
+    value = slope / scale
+    err_stat = slope_err / scale
+    err = math.hypot(err_stat, value * scale_rel_err)
+    span = f"{t_span[0]:g} to {t_span[1]:g} s"
+    if slope > RESOLVED_Z * slope_err and slope > 0:
+        return value, err, None
+    bound = max(value, 0.0) + RESOLVED_Z * err_stat
+    if value < 0:
+        notes.append(f"{name} is not determinable: the {what} falls with the exposure time "
+                     f"({value:.3g} ± {err_stat:.2g} e-/s over {span}), which a dark current "
+                     f"cannot do (offset drift or too short a range); the range bounds it below "
+                     f"{bound:.3g} e-/s")
+    else:
+        notes.append(f"{name} is not resolved: {value:.3g} ± {err_stat:.2g} e-/s over {span} is "
+                     f"within {RESOLVED_Z:g} standard errors of zero (longer exposures would "
+                     f"resolve it); it is below {bound:.3g} e-/s")
+    return None, None, bound
+
+
+def dark_current(exposures: Sequence[float | None], u_y_dark: ArrayLike, u_y_dark_err: ArrayLike,
+                 s2_y_dark: ArrayLike, s2_y_dark_err: ArrayLike, K: float, K_err: float
+                 ) -> DarkCurrent:
+    """The dark current (module docstring) from the dark points: exposure times (s), mean dark
+    signal μ_y.dark (DN) and temporal dark variance σ²_y.dark (DN²) with their standard errors,
+    and the system gain K (DN/e⁻) with its error."""
+    notes: list[str] = []
+    known = [i for i, t in enumerate(exposures) if t is not None]
+    t = np.array([exposures[i] for i in known], np.float64)
+    distinct = np.unique(t)
+    if distinct.size < MIN_EXPOSURES or len(known) < len(exposures):
+        why = ("some dark points have no exposure time" if len(known) < len(exposures) else
+               f"the dark points are at {distinct.size} exposure time"
+               f"{'s' if distinct.size != 1 else ''}")
+        notes.append(f"no dark current: {why}; it needs dark frames at "
+                     f"{MIN_EXPOSURES} or more exposure times (an exposure-time series)")
+        return DarkCurrent(None, None, None, None, None, None, None, None,
+                           tuple(float(x) for x in t), tuple(notes))
+    mu = np.asarray(u_y_dark, np.float64)[known]
+    mu_var = np.asarray(u_y_dark_err, np.float64)[known] ** 2
+    s2 = np.asarray(s2_y_dark, np.float64)[known]
+    s2_var = np.asarray(s2_y_dark_err, np.float64)[known] ** 2
+    mean_line = _line(t, mu, mu_var)
+    var_line = _line(t, s2, s2_var)
+    span = (float(t.min()), float(t.max()))
+    rel_K = K_err / K if K > 0 else math.nan
+    m, m_err, m_bound = _resolve("u_I_mean", "mean dark signal", mean_line.slope,
+                                 mean_line.slope_err, K, rel_K, span, notes)
+    v, v_err, v_bound = _resolve("u_I_var", "dark variance", var_line.slope, var_line.slope_err,
+                                 K * K, 2.0 * rel_K, span, notes)
+    return DarkCurrent(u_I_mean=m, u_I_mean_err=m_err, u_I_var=v, u_I_var_err=v_err,
+                       u_I_mean_bound=m_bound, u_I_var_bound=v_bound, mean_line=mean_line,
+                       var_line=var_line, exposures=tuple(float(x) for x in t),
+                       notes=tuple(notes))
