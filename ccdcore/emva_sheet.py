@@ -1,0 +1,109 @@
+"""The EMVA 1288 datasheet as rows: every figure in the standard's order, with its name, symbol,
+unit, value, standard error and, where it could not be determined, the reason.
+
+One list serves every place a person reads the datasheet: the report's section, the CLI's
+``datasheet`` files (CSV and JSON), the app. The order is that of the summary datasheet of EMVA
+Standard 1288 release 3.1 (sensitivity, noise, saturation, dynamic range, linearity, dark
+current, spatial nonuniformity), with release 4.0's row, column and pixel parts of DSNU and PRNU
+after the release 3.1 totals.
+
+Public objects
+--------------
+SheetRow
+    One figure of the datasheet.
+DATASHEET
+    (section, key, name, symbol, unit) of every figure, in order.
+datasheet_rows(emva)
+    The rows of a result's ``to_dict()`` (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, or the
+    ``emva1288`` entry of a calibration product).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+__all__ = ["SheetRow", "DATASHEET", "datasheet_rows"]
+
+#: (section, key under emva1288's names, the standard's name, symbol, unit), in order
+DATASHEET: tuple[tuple[str, str, str, str, str], ...] = (
+    ("Sensitivity", "QE", "Quantum efficiency", "η", "%"),
+    ("Sensitivity", "R", "Responsivity", "R", "DN/p"),
+    ("Sensitivity", "K", "Overall system gain", "K", "DN/e⁻"),
+    ("Noise", "sigma_d", "Temporal dark noise", "σ_d", "e⁻"),
+    ("Noise", "sigma_y_dark", "Temporal dark noise", "σ_y.dark", "DN"),
+    ("Noise", "sigma_d_ptc", "Temporal dark noise from the photon-transfer intercept", "σ_d",
+     "e⁻"),
+    ("Saturation", "u_p_min", "Absolute sensitivity threshold", "μ_p.min", "p"),
+    ("Saturation", "u_p_sat", "Saturation capacity", "μ_p.sat", "p"),
+    ("Saturation", "u_e_sat", "Saturation capacity", "μ_e.sat", "e⁻"),
+    ("Saturation", "SNR_max", "Maximum signal-to-noise ratio", "SNR_max", ""),
+    ("Dynamic range", "DR_dB", "Dynamic range", "DR", "dB"),
+    ("Dynamic range", "DR", "Dynamic range", "DR", ""),
+    ("Linearity", "LE_min", "Linearity error, minimum", "LE_min", "%"),
+    ("Linearity", "LE_max", "Linearity error, maximum", "LE_max", "%"),
+    ("Dark current", "u_I_mean", "Dark current from the mean", "μ_I.mean", "e⁻/s"),
+    ("Dark current", "u_I_var", "Dark current from the variance", "μ_I.var", "e⁻/s"),
+    ("Spatial nonuniformity", "DSNU1288", "Dark signal nonuniformity", "DSNU1288", "e⁻"),
+    ("Spatial nonuniformity", "DSNU1288_row", "DSNU, row part", "DSNU1288.row", "e⁻"),
+    ("Spatial nonuniformity", "DSNU1288_col", "DSNU, column part", "DSNU1288.col", "e⁻"),
+    ("Spatial nonuniformity", "DSNU1288_pixel", "DSNU, pixel part", "DSNU1288.pixel", "e⁻"),
+    ("Spatial nonuniformity", "PRNU1288", "Photo response nonuniformity", "PRNU1288", "%"),
+    ("Spatial nonuniformity", "PRNU1288_row", "PRNU, row part", "PRNU1288.row", "%"),
+    ("Spatial nonuniformity", "PRNU1288_col", "PRNU, column part", "PRNU1288.col", "%"),
+    ("Spatial nonuniformity", "PRNU1288_pixel", "PRNU, pixel part", "PRNU1288.pixel", "%"),
+)
+
+
+@dataclass(frozen=True)
+class SheetRow:
+    """One figure: where it belongs, what the standard calls it, its value and standard error
+    (``None`` when not determined) and, then, why (``note``: the reason, and a bound when the
+    data give one)."""
+
+    section: str
+    key: str
+    name: str
+    symbol: str
+    unit: str
+    value: float | None
+    error: float | None
+    note: str | None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+def _number(v: Any) -> float | None:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return None
+    return float(v) if math.isfinite(v) else None
+
+
+def _why(emva: Mapping[str, Any], key: str) -> str:
+    """The note that names ``key`` (the estimators write ``"<key> is not ..."``), with the bound
+    when one was found; else a plain reason."""
+    notes = [n for n in emva.get("notes") or () if isinstance(n, str)]
+    for note in notes:
+        if note.startswith(f"{key} "):
+            return note
+    if key.startswith("u_I_"):
+        for note in notes:
+            if note.startswith("no dark current"):
+                return note
+    if key.startswith(("DSNU1288", "PRNU1288")) and not emva.get("spatial"):
+        return "no spatial sets (L bright and L dark frames at one point, sec. 8) in the session"
+    if key == "sigma_d_ptc":
+        return "photon transfer was not run with the figures"
+    return "not determined from this session (see the notes)"
+
+
+def datasheet_rows(emva: Mapping[str, Any]) -> list[SheetRow]:
+    """Every figure of :data:`DATASHEET` from the JSON-safe figures ``emva``, in order."""
+    rows = []
+    for section, key, name, symbol, unit in DATASHEET:
+        value = _number(emva.get(key))
+        error = _number(emva.get(f"{key}_err")) if value is not None else None
+        rows.append(SheetRow(section, key, name, symbol, unit, value, error,
+                             None if value is not None else _why(emva, key)))
+    return rows
