@@ -10,7 +10,8 @@ The dark signal grows with the exposure time t at the dark current μ_I (e⁻/s)
 Both slopes are the unweighted least-squares lines of the package (``routines.LinearB``) through
 the dark points (two dark frames at each exposure time). Their standard errors propagate the
 points' errors through the line, √(Σ cᵢ² var_yᵢ) with cᵢ = (tᵢ − t̄)/S_tt, scaled by √(χ²/ν)
-when the points scatter more than their errors (ν = n − 2), then K's error.
+when the points scatter more than their errors (χ² of the weighted line, ν = n − 2), then K's
+error.
 
 Where the package returns a number whatever it means, here a current is reported when it is
 *resolved*: positive by at least :data:`RESOLVED_Z` standard errors. Otherwise the figure is
@@ -44,7 +45,8 @@ MIN_EXPOSURES = 3
 @dataclass(frozen=True)
 class DarkLine:
     """One unweighted line y = offset + slope · t with the slope's standard error, the reduced
-    chi-square of the points about it (their own errors) and the degrees of freedom."""
+    chi-square of the points about the weighted line (their own errors) and the degrees of
+    freedom."""
 
     slope: float
     slope_err: float
@@ -64,10 +66,19 @@ def _line(t: np.ndarray, y: np.ndarray, var_y: np.ndarray) -> DarkLine:
     c = (t - tm) / stt
     err = math.sqrt(float(np.sum(c * c * var_y)))
     dof = t.size - 2
-    chi2 = float(np.sum((y - offset - slope * t) ** 2 / var_y)) if np.all(var_y > 0) else math.nan
-    chi2_dof = chi2 / dof if dof > 0 else math.nan
-    if dof > 0 and chi2_dof > 1.0:
-        err *= math.sqrt(chi2_dof)
+    chi2_dof = math.nan
+    if dof > 0 and np.all(var_y > 0):
+        # whether the points scatter more than their errors: the χ² of the weighted line (the
+        # unweighted line's residuals at precise points carry the noisy points' pull: with
+        # errors spanning decades its χ² was 3 times ν for points scattered by their errors)
+        w = 1.0 / var_y
+        tw = float(np.sum(w * t) / np.sum(w))
+        sw = float(np.sum(w * (t - tw) ** 2))
+        b = float(np.sum(w * (t - tw) * y) / sw)
+        a = float(np.sum(w * (y - b * t)) / np.sum(w))
+        chi2_dof = float(np.sum(w * (y - a - b * t) ** 2)) / dof
+        if chi2_dof > 1.0:
+            err *= math.sqrt(chi2_dof)
     return DarkLine(slope=slope, slope_err=err, offset=offset, chi2_dof=chi2_dof, dof=dof)
 
 

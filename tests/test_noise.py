@@ -456,3 +456,29 @@ def test_colour_frames_are_refused(tmp_path) -> None:
     with pytest.raises(CcdError, match="colour frames .* per channel support comes with the "
                                        "flat-field work"):
         photon_transfer(root)
+
+
+def test_emva_fit_range_leaves_out_levels_above_70_percent_of_saturation(tmp_path) -> None:
+    """fit_fraction = 0.7 (EMVA 1288 release 3.1 sec. 6.6): levels whose signal is above 70 %
+    of the saturation signal (the level of largest variance) are left out as "range", the rest
+    as without it; the result and its dict say which range was used, and a refit keeps it."""
+    from ccdcore.noise import EMVA_FIT_FRACTION, EXCLUSIONS
+
+    root, truth = sim(tmp_path / "s", seed=14)
+    full = photon_transfer(root)
+    emva = photon_transfer(root, fit_fraction=EMVA_FIT_FRACTION)
+    assert EMVA_FIT_FRACTION == 0.7 and "range" in EXCLUSIONS
+    peak = max((p for p in full.points if p.used), key=lambda p: p.var)
+    for a, b in zip(full.points, emva.points):
+        above = a.used and a.mu > 0.7 * peak.mu
+        assert b.used == (a.used and not above), a.level
+        if above:
+            assert b.exclusion == "range" and "70 % of the saturation signal" in b.reason
+    assert sum(p.used for p in emva.points) < sum(p.used for p in full.points)
+    assert emva.fit_fraction == 0.7 and "EMVA 1288 range" in emva.fit_range
+    assert full.fit_fraction is None and "below saturation" in full.fit_range
+    assert emva.to_dict()["fit_fraction"] == 0.7
+    assert emva.refit().fit_fraction == 0.7 and emva.refit(fit_fraction=None).fit_fraction is None
+    check_against_truth(emva, truth)
+    with pytest.raises(CcdError, match="fit_fraction"):
+        photon_transfer(root, fit_fraction=1.5)
