@@ -926,11 +926,15 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         span = (g_from[k_hi] - g_from[k_lo]) / (g_new[k_hi] - g_new[k_lo])
         return g_from[k_lo] + (g_new - g_new[k_lo]) * span
 
-    for it in range(1, opts.max_iter + 1):
+    passes = 0
+    # max_iter bounds the passes over the pools; a round that takes a kept pass again makes none
+    while passes < opts.max_iter or reuse is not None:
+        it += 1
         # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
         # the pass also collects eq. 17's regressors: the last pass serves the noise fit and
         # the band (it lies within one step below the tolerance of the result)
         if reuse is None:
+            passes += 1
             wcode = _eq18_codes(s, gk)
             J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a, wcode=wcode)
             tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
@@ -998,20 +1002,19 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             # shortened (near a nearly saturated image the linearised step can mislead)
             if kept is not None and cost > kept[0]:
                 chi2_bad = chi2
-                cost, chi2, gk, a, b = kept
+                cost, chi2, gk, a, b, reuse = kept
                 radius *= 0.25
                 history.append({"iteration": it, "phase": phase, "step": step,
                                 "a_step": a_step, "chi2": chi2_bad, "pools": int(tm.size),
                                 "rejected": True})
                 if radius < 1e-3:
-                    converged = True             # no step of any length improves the fit
-                    break
-                continue
+                    converged = restore = True   # no step of any length improves the fit
+                continue                         # from the kept state and its pass
             flat = flat + 1 if kept is not None and kept[0] - cost < FLAT * kept[0] else 0
             if flat >= 3:
                 converged = True                 # the fit no longer improves: flat
                 break
-            kept = (cost, chi2, gk, a, b)
+            kept = (cost, chi2, gk, a, b, here)
         if phase == 1:
             rhs = -(Jm[:, :K].T @ (W * tm)) - lam * (P_s @ gk)
             delta = np.zeros(K)
