@@ -279,13 +279,14 @@ def _cmd_session(args: argparse.Namespace) -> int:
 
 
 def _cmd_ptc(args: argparse.Namespace) -> int:
-    from .noise import photon_transfer
+    from .noise import EMVA_FIT_FRACTION, photon_transfer
 
     from .distributed import get_client
 
     with get_client(args.scheduler, args.workers) as client:
         res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
-                              exclude_levels=tuple(args.exclude or ()), client=client)
+                              exclude_levels=tuple(args.exclude or ()), client=client,
+                              fit_fraction=EMVA_FIT_FRACTION if args.emva_range else None)
     _workers_note(args.workers, sum(2 * p.n_pairs for p in res.points),
                   sum(2 * p.n_pairs * p.n_pixels for p in res.points))
     if args.json:
@@ -297,6 +298,9 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     for p in res.points:
         used = "yes" if p.used else f"no ({p.exclusion})"
         print(f"{p.level:>5} {p.mu:>10.3f} {p.var:>11.4f} {p.var_err:>9.4f}  {used}")
+    _say("fit range", res.fit_range + ("" if args.emva_range else
+                                       "; --emva-range fits only the levels up to 70 % of the "
+                                       "saturation signal (the EMVA 1288 range)"), indent="")
     print(f"gain        A = {format_pm(res.A, res.A_err, unit='DN/e⁻')} (DN per electron; "
           f"conversion gain {format_pm(res.conversion_gain_e_per_dn, res.conversion_gain_e_per_dn_err, unit='e⁻/DN')})")
     print(f"signal-independent noise σ²_C = {format_pm(res.sigma_c2, res.sigma_c2_err, unit='DN²')}"
@@ -471,6 +475,107 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     for skip in product.skipped:  # on stderr, so --json stays one object on stdout
         _say(f"skipped {skip.estimate}", skip.reason, file=sys.stderr)
     return 0
+
+
+def _product_manifest(path: Path) -> Path | None:
+    """``calibration.json`` of a calibration product folder (or the file itself), else None."""
+    from .product import PRODUCT_FILE
+
+    if path.is_dir() and (path / PRODUCT_FILE).is_file():
+        return path / PRODUCT_FILE
+    if path.is_file() and path.name == PRODUCT_FILE:
+        return path
+    return None
+
+
+def _product_emva(manifest: Path) -> dict:
+    """The EMVA 1288 figures a product holds, or one line saying why there are none and how
+    to get them."""
+    from .product import load_product
+
+    product = load_product(manifest.parent)
+    if product.emva1288 is not None:
+        return product.emva1288
+    skip = {s.estimate: s for s in product.skipped}.get("emva1288")
+    why = f" (calibrate skipped them: {skip.reason})" if skip is not None else ""
+    raise CcdError(manifest, f"the product holds no EMVA 1288 figures{why}; they are made from "
+                             "a session whose ptc frames carry photon counts (an EMVA1288 "
+                             "descriptor, or photons = N in the manifest): run ccdcore "
+                             "datasheet on that session, or calibrate it again")
+
+
+def _cmd_datasheet(args: argparse.Namespace) -> int:
+    require_extra("matplotlib", "datasheet", "the datasheet")   # before any work
+    from .common import json_safe
+    from .datasheet_files import OUTPUTS, plot_plan, write_datasheet
+    from .emva_sheet import datasheet_rows
+    from .io import check_outputs
+
+    source = Path(args.source)
+    manifest = _product_manifest(source)
+    if manifest is not None:
+        inputs = [manifest, manifest.parent / "maps"]
+        check_outputs(args.out, OUTPUTS, inputs)
+        emva = _product_emva(manifest)
+        where = str(manifest)
+    else:
+        from .datasheet import emva_figures
+        from .product import session_inputs
+        from .session import open_session
+
+        session = open_session(source)
+        inputs = session_inputs(session)
+        check_outputs(args.out, OUTPUTS, inputs)   # before the work
+        emva = json_safe(emva_figures(session).to_dict())
+        where = session.label
+    plan = plot_plan(emva)
+    paths = write_datasheet(emva, args.out, inputs=inputs, where=where)
+    rows = datasheet_rows(emva)
+    used = {r.note for r in rows if r.note}
+    notes = [n for n in emva.get("notes") or () if isinstance(n, str) and n not in used]
+    if args.json:
+        _print_json({"source": where, "out": str(args.out), "files": [str(p) for p in paths],
+                     "rows": [r.to_dict() for r in rows], "notes": notes,
+                     "plots": plan.to_dict()})
+    else:
+        _print_datasheet(where, rows, notes, Path(args.out), paths)
+    for name, reason in plan.skipped:   # on stderr, so --json stays one object on stdout
+        _say(f"skipped plot {name}", reason, file=sys.stderr)
+    return 0
+
+
+def _print_datasheet(source: str, rows: Sequence[Any], notes: Sequence[str], out: Path,
+                     paths: Sequence[Path]) -> None:
+    """The rows as a table (name, symbol, value ± error unit, or why there is none), the other
+    notes, then the files."""
+    print(f"EMVA 1288 datasheet of {source} (release 3.1; DSNU and PRNU parts of release 4.0)")
+    name_w = max(len(r.name) for r in rows)
+    sym_w = max(len(r.symbol) for r in rows)
+    section = None
+    for r in rows:
+        if r.section != section:
+            section = r.section
+            print(f"  {section}")
+        head = f"    {r.name:<{name_w}}  {r.symbol:<{sym_w}}  "
+        if r.value is not None:
+            print(head + format_pm(r.value, r.error, unit=r.unit))
+        else:   # the reason below the row, at full width
+            print(head + "not determined")
+            _say("", r.note or "", indent="      ")
+    for note in notes:
+        _say("note", note)
+    from .datasheet_files import PLOTS_FOLDER
+
+    plots = [p for p in paths if p.parent.name == PLOTS_FOLDER]
+    print(f"written to {out}:")
+    for p in paths:
+        if p not in plots:
+            print(f"  {p}")
+    if plots:
+        stems = list(dict.fromkeys(p.stem for p in plots))
+        kinds = " and ".join(dict.fromkeys(p.suffix[1:].upper() for p in plots))
+        _say(f"  {plots[0].parent}/ ({len(stems)} plots, {kinds} each)", ", ".join(stems),
+             indent="")
 
 
 def _cmd_snup(args: argparse.Namespace) -> int:
@@ -858,6 +963,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop levels whose residual is beyond 3 sigma, one at a time")
     p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
                    help="exclude a light level from the fit (repeatable)")
+    p.add_argument("--emva-range", action="store_true",
+                   help="fit only the levels up to 70 %% of the saturation signal (that of the "
+                        "level of largest variance), the EMVA 1288 range; the others are "
+                        "listed as excluded (range)")
     cluster_args(p)
     json_flag(p)
 
@@ -876,6 +985,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "is replaced whole: its calibration.json and maps/, so maps this "
                         "calibration does not make are removed; other files are left alone)")
     cluster_args(p)
+    json_flag(p)
+
+    p = verb("datasheet", "the EMVA 1288 datasheet as files: datasheet.csv, datasheet.json and "
+                          "its plots (PNG and SVG)", _cmd_datasheet,
+             needs="a session whose ptc frames carry photon counts (an EMVA1288 descriptor) "
+                   "and its dark frames, or a calibration product with EMVA 1288 figures; "
+                   "matplotlib (pip install 'ccdcore[datasheet]')")
+    p.add_argument("source", type=Path,
+                   help=_SESSION_HELP + "; or a calibration product folder (ccdcore calibrate) "
+                                        "with EMVA 1288 figures")
+    p.add_argument("-o", "--out", type=Path, required=True, metavar="OUT_DIR",
+                   help="folder to write datasheet.csv, datasheet.json and plots/ into (an "
+                        "earlier datasheet there is replaced whole; other files are left alone)")
     json_flag(p)
 
     p = verb("apply", "correct images with a calibration product, float32 out", _cmd_apply,

@@ -50,7 +50,7 @@ spectrogram(image, vertical=False)
     The EMVA spectrogram of an image: frequency (cycles per pixel) and amplitude (DN).
 high_pass(image, size=5)
     The image less its size × size box mean (sec. 8.3's filter), valid part only.
-defect_histogram(values, bins=256), accumulated_histogram(values, bins=256)
+defect_histogram(values, bins=256, quantum=None), accumulated_histogram(values, bins=256)
     The logarithmic and accumulated histograms of sec. 8.3.
 profiles(image, vertical=False, points=1024)
     Mean, minimum, maximum and middle line of an image across one axis.
@@ -308,18 +308,35 @@ def _bins(lo: float, hi: float, bins: int) -> NDArray[np.float64]:
     return np.linspace(lo, hi, bins + 1)
 
 
-def defect_histogram(values: NDArray, bins: int = HISTOGRAM_BINS) -> dict[str, NDArray]:
+def _quantised_bins(lo: float, hi: float, bins: int, quantum: float) -> NDArray[np.float64]:
+    """At most ``bins`` + 1 bins whose width is a whole number of ``quantum`` steps, edges
+    half a step off the grid of values ``lo + k·quantum``: every bin holds as many steps."""
+    steps = max(int(round((hi - lo) / quantum)), 0) + 1
+    width = quantum * max(1, math.ceil(steps / bins))
+    n = max(1, math.ceil(steps * quantum / width))
+    return lo - 0.5 * quantum + width * np.arange(n + 1)
+
+
+def defect_histogram(values: NDArray, bins: int = HISTOGRAM_BINS,
+                     quantum: float | None = None) -> dict[str, NDArray]:
     """The logarithmic histogram of sec. 8.3 (``routines.Histogram1288``): ``bins`` equal bins
     from the smallest to the largest value (lower edges ``x``, pixel counts ``count``) and the
-    normal distribution of the same mean and standard deviation (``model``, counts per bin)."""
+    normal distribution of the same mean and standard deviation (``model``, counts per bin).
+
+    ``quantum``: the step of quantised values (an average of L integer frames takes values
+    1/L DN apart): the bins are then whole numbers of steps, as the package's integer bins are
+    (equal bins narrower than a step leave most of them empty and the rest too full)."""
     v = np.asarray(values, np.float64).ravel()
-    edges = _bins(float(v.min()), float(v.max()), bins)
+    if quantum is not None and quantum > 0:
+        edges = _quantised_bins(float(v.min()), float(v.max()), bins, float(quantum))
+    else:
+        edges = _bins(float(v.min()), float(v.max()), bins)
     count, _ = np.histogram(v, edges)
     mu, sd = float(v.mean()), float(v.std())
     width = edges[1] - edges[0]
     centre = 0.5 * (edges[:-1] + edges[1:])
     model = (v.size * width / (math.sqrt(2.0 * math.pi) * sd)
-             * np.exp(-0.5 * ((centre - mu) / sd) ** 2)) if sd > 0 else np.zeros(bins)
+             * np.exp(-0.5 * ((centre - mu) / sd) ** 2)) if sd > 0 else np.zeros(centre.size)
     return {"x": edges[:-1], "count": count.astype(np.int64), "model": model}
 
 
@@ -423,7 +440,10 @@ def spatial_plots(bright_avg: NDArray, dark_avg: NDArray, *, L: int, L_dark: int
               "sigma_y_stack_avg_percent": math.sqrt(max(s2_stack, 0.0) / L) * scale}
     dsnu_e = (d - d.mean()) / K
     prnu_pc = high_pass(signal_img) * scale
-    hist = {"DSNU": defect_histogram(dsnu_e), "PRNU": defect_histogram(prnu_pc)}
+    # the dark average of L_dark integer frames takes values 1/L_dark DN apart
+    sums = d * L_dark
+    quantum = 1.0 / (L_dark * K) if np.all(np.abs(sums - np.round(sums)) < 1e-6) else None
+    hist = {"DSNU": defect_histogram(dsnu_e, quantum=quantum), "PRNU": defect_histogram(prnu_pc)}
     acc = {"DSNU": accumulated_histogram(dsnu_e), "PRNU": accumulated_histogram(prnu_pc)}
     prof = {"bright_horizontal": profiles(signal_img), "bright_vertical": profiles(signal_img,
                                                                                   True),

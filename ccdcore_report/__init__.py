@@ -20,6 +20,7 @@ Modules: :mod:`~ccdcore_report.build` (the inputs, the orchestration, writing th
 :mod:`~ccdcore_report.sections` (one function per section), :mod:`~ccdcore_report.figures`
 (the Bokeh figures), :mod:`~ccdcore_report.html` (escaping, tables, the page and its CSS),
 :mod:`~ccdcore_report.ptc` (the photon-transfer figures the app's page draws too),
+:mod:`~ccdcore_report.emva_figures` (the EMVA 1288 datasheet's plots, which the app draws too),
 :mod:`~ccdcore_report.agreement` (the response's prediction agreement as table rows, also the
 app's), :mod:`~ccdcore_report.scales` (colour ranges, also the app's).
 

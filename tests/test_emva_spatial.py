@@ -157,3 +157,23 @@ def test_profiles_keep_extremes_when_reduced():
     assert float(p["mean"].mean()) == pytest.approx(float(img.mean()), rel=1e-9, abs=1e-12)
     q = profiles(img[:, :300], vertical=True)
     assert q["mean"].size == 40 and q["index"][-1] == 39
+
+
+def test_histogram_of_quantised_values_fills_every_bin_alike():
+    """Values on a grid of step q (an average of L integer frames): with ``quantum`` every bin
+    spans a whole number of steps, so a flat distribution fills the bins evenly; 256 equal bins
+    narrower than a step leave most empty."""
+    q = 1.0 / 16
+    v = np.repeat(np.arange(1000) * q, 7)                  # flat on the grid, 7 of each
+    plain = defect_histogram(v)
+    grid = defect_histogram(v, quantum=q)
+    assert int(grid["count"].sum()) == v.size
+    assert len(grid["count"]) <= 257
+    widths = np.diff(np.r_[grid["x"], grid["x"][-1] + (grid["x"][1] - grid["x"][0])])
+    steps = int(round(widths[0] / q))
+    assert np.allclose(widths / q, steps)
+    assert set(grid["count"][:-1].tolist()) == {7 * steps}   # the last bin may hold fewer
+    assert len(set(plain["count"][:-1].tolist())) > 1          # 3.9 steps a bin: 3 or 4
+    few = np.repeat(np.arange(60) * q, 5)                   # fewer steps than bins
+    assert np.sum(defect_histogram(few)["count"] == 0) > 100
+    assert np.all(defect_histogram(few, quantum=q)["count"] == 5)

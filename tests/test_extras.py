@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-EXTRA_PACKAGES = ("panel", "holoviews", "bokeh", "pandas", "dask", "distributed")
+EXTRA_PACKAGES = ("panel", "holoviews", "bokeh", "pandas", "dask", "distributed", "matplotlib")
 
 
 def _requirement_names(reqs: list[str]) -> set[str]:
@@ -49,6 +49,7 @@ def test_importing_every_ccdcore_module_imports_no_extra_package():
     (["report", "assets/healey94", "-o", "{tmp}/r.html"], "bokeh", "report"),
     (["app", "assets/healey94", "--port", "5999"], "panel", "app"),
     (["ptc", "assets/healey94", "--workers", "1"], "distributed", "distributed"),
+    (["datasheet", "assets/emva1288", "-o", "{tmp}/d"], "matplotlib", "datasheet"),
 ])
 def test_a_verb_without_its_extra_says_what_to_install(tmp_path, argv, missing, extra):
     """The extra's package made unimportable (``sys.modules[name] = None``), as on a machine

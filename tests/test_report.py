@@ -386,7 +386,8 @@ def test_emva1288_figures_table_notes_and_plots(h94):
     emva = section(text, "emva1288")
     assert html.escape(format_pm(0.1, 0.002, unit="DN/e\u207b")) in emva
     assert format_pm(50.0, 1.0, unit="%") in emva
-    assert "<td>DSNU\u2081\u2082\u2088\u2088</td><td class=\"num\">n/a</td>" in emva
+    assert ('<tr><td>Dark signal nonuniformity</td><td>DSNU1288</td><td class="num">not '
+            'determined</td>') in emva
     assert "a note about &lt;saturation&gt;" in emva
     for id_ in ("emva-snr", "emva-ptc", "emva-linearity"):
         assert f'id="{id_}"' in text, id_
@@ -395,7 +396,7 @@ def test_emva1288_figures_table_notes_and_plots(h94):
 def test_emva1288_with_missing_keys_still_reports(h94):
     text = build_report(with_emva(h94["product"], {"K": 0.1, "snr_curve": {"u_p": [1.0]}}))
     emva = section(text, "emva1288")
-    assert emva.count('class="num">n/a</td>') == 14 and "emva-snr" not in text
+    assert emva.count('<td class="num">not determined</td>') == 23 and "emva-snr" not in text
     assert 'id="emva1288"' not in build_report(with_emva(h94["product"], None))
 
 

@@ -20,6 +20,10 @@ Presets (each a module with ``simulate(out_dir, *, seed, size, **options) -> dic
 ``change``
     Tsin et al. (2001) sec. 5 change scene: planar textured background, 3x3 colour transforms for
     the illumination change and shadows, inserted objects, truth masks.
+``emva1288``
+    An EMVA 1288 exposure-time series (:mod:`ccdcore.simulate.emva`): photon counts, dark pairs
+    at every exposure, spatial sets; a known dark current and DSNU/PRNU maps with row, column and
+    pixel parts; written as an EMVA1288 descriptor and a manifest.
 
 Every preset writes a capture session (``session.toml`` + frames) and ``truth.json``. The same seed
 gives the same bytes whatever the CPU's vector features (AVX2, AVX-512, NEON): what feeds a digital
@@ -51,6 +55,7 @@ PRESETS: dict[str, str] = {
     "tsin01": "tsin",
     "tsin01-camera": "tsin_camera",
     "change": "change",
+    "emva1288": "emva",
 }
 
 

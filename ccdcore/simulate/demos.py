@@ -36,6 +36,7 @@ DEMOS: dict[str, dict] = {
     "tsin01": {},
     "tsin01-camera": {"size": (192, 128)},        # RGB, 10 exposures one stop apart, ~1 MB
     "change": {},
+    "emva1288": {"size": (96, 64)},               # an EMVA 1288 exposure-time series, ~1 MB
 }
 
 #: the file every complete demo holds (written last by the simulators' session writer)
