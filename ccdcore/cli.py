@@ -430,9 +430,21 @@ def _print_emva(e: dict) -> None:
             ("sensitivity", f"μ_p.min = {pm('u_p_min', 'photons')}"),
             ("dynamic range", f"DR = {pm('DR')} = {pm('DR_dB', 'dB')}"),
             ("linearity", f"LE_min = {pm('LE_min', '%')}, LE_max = {pm('LE_max', '%')}")]
+    if "u_I_mean" in e:
+        def current(key: str) -> str:
+            return pm(key, "e⁻/s") if e.get(key) is not None else "not determined (see notes)"
+        rows.append(("dark current", f"μ_I = {current('u_I_mean')} from the mean, "
+                                     f"{current('u_I_var')} from the variance"))
     if e.get("DSNU1288") is not None or e.get("PRNU1288") is not None:
         rows.append(("nonuniformity", f"DSNU1288 = {pm('DSNU1288', 'e⁻')}, "
                                       f"PRNU1288 = {pm('PRNU1288', '%')}"))
+
+        def parts(what: str, unit: str) -> str:
+            return ", ".join(f"{p} {pm(f'{what}_{p}', unit) if e.get(f'{what}_{p}') is not None else 'n/d'}"
+                             for p in ("row", "col", "pixel"))
+        if any(f"DSNU1288_{p}" in e for p in ("row", "col", "pixel")):
+            rows.append(("  DSNU parts", parts("DSNU1288", "e⁻")))
+            rows.append(("  PRNU parts", parts("PRNU1288", "%")))
     for name, text in rows:
         print(f"    {name:<14}{text}")
     for note in e.get("notes", ()):

@@ -185,6 +185,7 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
     made (not skipped) at the one nearest the ptc frames' median exposure, and a note says so
     in a few words (never every exposure); --dark-exposure names another."""
     from ccdcore.cli import main
+    from ccdcore.common import format_pm
     from ccdcore.product import calibrate, dark_exposure_for
     from ccdcore.session import open_session
 
@@ -205,6 +206,10 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
                  "--dark-exposure", repr(other)]) == 0
     out = capsys.readouterr().out
     assert f"made at {other:g} s, as named" in " ".join(out.split())
+    d = product.emva1288
+    assert (f"μ_I = {format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')} from the mean"
+            in out)
+    assert "DSNU parts  row " in out and "PRNU parts  row " in out
     with pytest.raises(SystemExit) as exc:
         main(["calibrate", str(gen.descriptor_path), "-o", str(tmp_path / "q"),
               "--dark-exposure", "-1"])
