@@ -916,38 +916,53 @@ _SESSION_HELP = ("a session folder (with session.toml), a session.toml, a plain 
 _ROI_HELP = "region of interest X,Y,W,H in pixels (left, top, width, height), e.g. 10,10,100,80"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="ccdcore", description="Radiometric camera calibration toolkit.",
-                     epilog="Each verb's --help says what it needs. Bad input exits with code 2 "
-                            "and one line naming the file and the problem.")
-    parser.add_argument("--version", action="version", version=f"ccdcore {__version__}")
-    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
-    sub.required = True
+def _verb(sub: Any, name: str, help_: str, func: Callable[[argparse.Namespace], int],
+          needs: str = "") -> argparse.ArgumentParser:
+    """A verb's parser: its help, what it needs (in its description) and its command."""
+    p = sub.add_parser(name, help=help_, description=help_ + (f". Needs: {needs}" if needs
+                                                               else ""))
+    p.set_defaults(func=func)
+    return p
 
-    def verb(name: str, help_: str, func: Callable[[argparse.Namespace], int],
-             needs: str = "") -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_, description=help_ + (f". Needs: {needs}" if needs
-                                                                   else ""))
-        p.set_defaults(func=func)
-        return p
 
-    def cluster_args(p: argparse.ArgumentParser) -> None:
-        g = p.add_mutually_exclusive_group()
-        g.add_argument("--scheduler", metavar="ADDRESS", default=None,
-                       help="reduce the frames on this Dask scheduler (tcp://host:8786); "
-                            "default $CCDCORE_SCHEDULER, else streamed in this process")
-        g.add_argument("--workers", type=_positive, metavar="N", default=None,
-                       help="reduce the frames on a local Dask cluster of N worker processes "
-                            "(one thread each), started and stopped by this command")
+def _cluster_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="reduce the frames on this Dask scheduler (tcp://host:8786); "
+                        "default $CCDCORE_SCHEDULER, else streamed in this process")
+    g.add_argument("--workers", type=_positive, metavar="N", default=None,
+                   help="reduce the frames on a local Dask cluster of N worker processes "
+                        "(one thread each), started and stopped by this command")
 
-    def json_flag(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--json", action="store_true",
-                       help="print one JSON object on stdout instead of the summary")
 
+def _json_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object on stdout instead of the summary")
+
+
+def _bloom_arg(p: argparse.ArgumentParser) -> None:
+    from .response.brackets import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
+
+    p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
+                   metavar="R", help="pixels within R of a saturated pixel are dropped as "
+                                     f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps them; "
+                                     f"at most {MAX_BLOOM_RADIUS})")
+
+
+def _bracket_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("session", type=Path, help=_SESSION_HELP)
+    p.add_argument("--stack", type=int, default=None,
+                   help="which bracket of the session (its 'stack'; default the first)")
+    _bloom_arg(p)
+
+
+def _add_simulate(sub: Any) -> None:
     from .simulate import PRESETS
 
-    p = verb("simulate", "write a simulated capture session and its truth.json", _cmd_simulate)
-    p.add_argument("preset", choices=sorted(PRESETS), help="which paper's capture procedure")
+    p = _verb(sub, "simulate", "write a simulated capture session and its truth.json",
+              _cmd_simulate)
+    p.add_argument("preset", choices=sorted(PRESETS),
+                   help="which capture procedure: a paper's, or the EMVA 1288 series")
     p.add_argument("out_dir", type=Path, help="folder to write (created): new, empty, or an "
                                               "earlier simulation (its truth.json)")
     p.add_argument("--force", action="store_true",
@@ -956,19 +971,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=_seed, default=0, help="random seed, 0 or more (default 0)")
     p.add_argument("--size", type=_size, default=None, metavar="WxH",
                    help="frame size WxH in pixels (default: the preset's)")
-    json_flag(p)
+    _json_flag(p)
 
-    p = verb("session", "inspect and validate a capture session", _cmd_session,
-             needs="any session; exits 2 when it has errors")
+
+def _add_session(sub: Any) -> None:
+    p = _verb(sub, "session", "inspect and validate a capture session", _cmd_session,
+              needs="any session; exits 2 when it has errors")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--draft", action="store_true",
                    help="write session.toml.draft beside the frames (a manifest to review, e.g. "
                         "for a plain folder or a descriptor)")
-    json_flag(p)
+    _json_flag(p)
 
-    p = verb("ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
-             _cmd_ptc, needs="ptc frames at 3 or more light levels (two or more frames each); "
-                             "dark frames give the black level")
+
+def _add_ptc(sub: Any) -> None:
+    p = _verb(sub, "ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
+              _cmd_ptc, needs="ptc frames at 3 or more light levels (two or more frames each); "
+                              "dark frames give the black level")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP)
     p.add_argument("--robust", action="store_true",
@@ -979,13 +998,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fit only the levels up to 70 %% of the saturation signal (that of the "
                         "level of largest variance), the EMVA 1288 range; the others are "
                         "listed as excluded (range)")
-    cluster_args(p)
-    json_flag(p)
+    _cluster_args(p)
+    _json_flag(p)
 
-    p = verb("calibrate", "every estimate the session allows, saved as a calibration product",
-             _cmd_calibrate, needs="any of: ptc frames (noise model), dark frames (dark "
-                                   "reference), fixed_pattern and dark frames (K map), flat and "
-                                   "dark frames (flat field); what cannot be made is listed")
+
+def _add_calibrate(sub: Any) -> None:
+    p = _verb(sub, "calibrate", "every estimate the session allows, saved as a calibration product",
+              _cmd_calibrate, needs="any of: ptc frames (noise model), dark frames (dark "
+                                    "reference), fixed_pattern and dark frames (K map), flat and "
+                                    "dark frames (flat field); what cannot be made is listed")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
     p.add_argument("--dark-exposure", type=_seconds, metavar="SECONDS", default=None,
@@ -996,25 +1017,29 @@ def build_parser() -> argparse.ArgumentParser:
                    help="product folder to write (new, empty, or an earlier product, which "
                         "is replaced whole: its calibration.json and maps/, so maps this "
                         "calibration does not make are removed; other files are left alone)")
-    cluster_args(p)
-    json_flag(p)
+    _cluster_args(p)
+    _json_flag(p)
 
-    p = verb("datasheet", "the EMVA 1288 datasheet as files: datasheet.csv, datasheet.json and "
-                          "its plots (PNG and SVG)", _cmd_datasheet,
-             needs="a session whose ptc frames carry photon counts (an EMVA1288 descriptor) "
-                   "and its dark frames, or a calibration product with EMVA 1288 figures; "
-                   "matplotlib (pip install 'ccdcore[datasheet]')")
+
+def _add_datasheet(sub: Any) -> None:
+    p = _verb(sub, "datasheet", "the EMVA 1288 datasheet as files: datasheet.csv, datasheet.json and "
+                           "its plots (PNG and SVG)", _cmd_datasheet,
+              needs="a session whose ptc frames carry photon counts (an EMVA1288 descriptor) "
+                    "and its dark frames, or a calibration product with EMVA 1288 figures; "
+                    "matplotlib (pip install 'ccdcore[datasheet]')")
     p.add_argument("source", type=Path,
                    help=_SESSION_HELP + "; or a calibration product folder (ccdcore calibrate) "
                                         "with EMVA 1288 figures")
     p.add_argument("-o", "--out", type=Path, required=True, metavar="OUT_DIR",
                    help="folder to write datasheet.csv, datasheet.json and plots/ into (an "
                         "earlier datasheet there is replaced whole; other files are left alone)")
-    json_flag(p)
+    _json_flag(p)
 
-    p = verb("apply", "correct images with a calibration product, float32 out", _cmd_apply,
-             needs="a product with a flat field (de Lasarte: O + G·DL) or a dark map "
-                   "(Healey & Kondepudy eq. 51: (D − D̂_D)/K̂)")
+
+def _add_apply(sub: Any) -> None:
+    p = _verb(sub, "apply", "correct images with a calibration product, float32 out", _cmd_apply,
+              needs="a product with a flat field (de Lasarte: O + G·DL) or a dark map "
+                    "(Healey & Kondepudy eq. 51: (D − D̂_D)/K̂)")
     p.add_argument("calib", type=Path, help="a calibration product folder (ccdcore calibrate)")
     p.add_argument("images", type=Path, nargs="+", help="images of the calibrated camera")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
@@ -1026,40 +1051,36 @@ def build_parser() -> argparse.ArgumentParser:
                    help="map the codes through the product's inverse response g instead "
                         "(values linear in exposure)")
 
-    p = verb("snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
-                     "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
+
+def _add_snup(sub: Any) -> None:
+    p = _verb(sub, "snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
+                      "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
     p.add_argument("images", type=Path, nargs="+", help="image files")
     p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP + " (even values on Bayer data)")
     p.add_argument("--layout", choices=list(LAYOUTS),
                    help="channel layout (default: from the file; give it for mosaicked raw data)")
-    json_flag(p)
+    _json_flag(p)
 
-    from .response.brackets import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
+
+def _add_response(sub: Any) -> None:
     from .response.methods import METHODS
 
-    def bracket_args(p: argparse.ArgumentParser) -> None:
-        p.add_argument("session", type=Path, help=_SESSION_HELP)
-        p.add_argument("--stack", type=int, default=None,
-                       help="which bracket of the session (its 'stack'; default the first)")
-        p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
-                       metavar="R", help="pixels within R of a saturated pixel are dropped as "
-                                         f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps "
-                                         f"them; at most {MAX_BLOOM_RADIUS})")
-
-    p = verb("response", "inverse camera response g per channel, with its band and the noise "
-                         "terms (Tsin et al. 2001 and classic methods)", _cmd_response,
-             needs="an exposure bracket (role = bracket, one exposure per frame)")
-    bracket_args(p)
+    p = _verb(sub, "response", "inverse camera response g per channel, with its band and the noise "
+                          "terms (Tsin et al. 2001 and classic methods)", _cmd_response,
+              needs="an exposure bracket (role = bracket, one exposure per frame)")
+    _bracket_args(p)
     p.add_argument("--method", choices=list(METHODS), default="tsin",
                    help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
     p.add_argument("--white-balance", action="store_true",
                    help="estimate each image's gain a_k and offset b_k too (tsin; up to a common "
                         "factor and a trend in the exposure, which no bracket fixes)")
-    json_flag(p)
+    _json_flag(p)
 
-    p = verb("hdr", "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
-             _cmd_hdr, needs="an exposure bracket; a product's response with --calib")
-    bracket_args(p)
+
+def _add_hdr(sub: Any) -> None:
+    p = _verb(sub, "hdr", "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
+              _cmd_hdr, needs="an exposure bracket; a product's response with --calib")
+    _bracket_args(p)
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "this bracket)")
@@ -1067,40 +1088,60 @@ def build_parser() -> argparse.ArgumentParser:
                    help="without --calib: estimate the gains and offsets too (see response)")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for radiance.exr, sigma.exr and flags.png")
-    cluster_args(p)
-    json_flag(p)
+    _cluster_args(p)
+    _json_flag(p)
 
-    p = verb("change", "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
-             _cmd_change, needs="reference and target brackets (roles reference, target)")
+
+def _add_change(sub: Any) -> None:
+    p = _verb(sub, "change", "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
+              _cmd_change, needs="reference and target brackets (roles reference, target)")
     p.add_argument("session", type=Path, help=_SESSION_HELP)
     p.add_argument("--pfa", type=float, default=0.01,
                    help="false-alarm probability per background pixel (default 0.01)")
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "the reference bracket)")
-    p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
-                   metavar="R", help="pixels within R of a saturated pixel are dropped as "
-                                     f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps them; "
-                                     f"at most {MAX_BLOOM_RADIUS})")
+    _bloom_arg(p)
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
-    cluster_args(p)
-    json_flag(p)
+    _cluster_args(p)
+    _json_flag(p)
 
-    p = verb("report", "one self-contained HTML calibration report: every estimate with its "
-                       "error, plots and maps, skipped estimates, provenance (opens offline)",
-             _cmd_report, needs="a session (it is calibrated first; with reference and target "
-                                "brackets, change detection runs too) or a calibration product "
-                                "folder (ccdcore calibrate)")
+
+def _add_report(sub: Any) -> None:
+    p = _verb(sub, "report", "one self-contained HTML calibration report: every estimate with its "
+                        "error, plots and maps, skipped estimates, provenance (opens offline)",
+              _cmd_report, needs="a session (it is calibrated first; with reference and target "
+                                 "brackets, change detection runs too) or a calibration product "
+                                 "folder (ccdcore calibrate)")
     p.add_argument("source", type=Path,
                    help=_SESSION_HELP + "; or a calibration product folder")
     p.add_argument("-o", "--out", type=Path, required=True,
                    help="the HTML file to write (replaced atomically; never an input)")
 
-    p = verb("app", "serve the browser app on 127.0.0.1", _cmd_app)
+
+def _add_app(sub: Any) -> None:
+    p = _verb(sub, "app", "serve the browser app on 127.0.0.1", _cmd_app)
     p.add_argument("session", nargs="?", default=None,
                    help="session to open (default: the bundled demo)")
     p.add_argument("--port", type=_port, default=5006, help="port, 1..65535 (default 5006)")
+
+
+#: the verbs in the order ``ccdcore --help`` lists them
+_VERBS: tuple[Callable[[Any], None], ...] = (
+    _add_simulate, _add_session, _add_ptc, _add_calibrate, _add_datasheet, _add_apply, _add_snup,
+    _add_response, _add_hdr, _add_change, _add_report, _add_app)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="ccdcore", description="Radiometric camera calibration toolkit.",
+                     epilog="Each verb's --help says what it needs. Bad input exits with code 2 "
+                            "and one line naming the file and the problem.")
+    parser.add_argument("--version", action="version", version=f"ccdcore {__version__}")
+    sub = parser.add_subparsers(dest="verb", metavar="VERB", parser_class=_Parser)
+    sub.required = True
+    for add in _VERBS:
+        add(sub)
     return parser
 
 

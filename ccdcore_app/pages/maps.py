@@ -17,6 +17,11 @@ MapsPage
     * **Scene**: V_S ± error per patch and per light level, the eq. 57 fit (Fig. 3) and the
       variance budget (Fig. 4) of a chosen patch.
     * **Planning**: n1 and n2 from typed or estimated inputs, with their formulas.
+    * **EMVA 1288 spatial** (an EMVA 1288 set with a spatial set only): the spatial
+      nonuniformity of EMVA Standard 1288 (release 3.1 sec. 8, release 4.0's row, column and
+      pixel parts): DSNU1288 and PRNU1288 with their parts, the spectrograms, the logarithmic and
+      accumulated histograms and the profiles (:mod:`ccdcore_report.emva_figures`), computed
+      once per session when the tab is first shown (off the UI thread, through the disk cache).
 
     Warnings that the session has fewer configurations or frames than the plan requires are shown
     at the top of the page; missing frames give an info alert saying what to capture.
@@ -33,6 +38,11 @@ missing_sentences(session)
     :class:`~ccdcore.product.Requirement` texts (:func:`ccdcore.product.missing_frames`).
 MAPS_ESTIMATES
     The estimates of :func:`ccdcore.product.estimate_all` this page shows.
+has_emva_spatial(session), emva_spatial_figures(session)
+    Whether the session is an EMVA 1288 set with a spatial set; its EMVA 1288 figures (the
+    JSON dict of :func:`ccdcore.datasheet.emva_figures`) for the EMVA 1288 spatial tab.
+emva_spatial_layout(emva), emva_spatial_text(emva)
+    The spatial section's plots as one Bokeh layout; its figures as Markdown.
 
 Every number comes from ccdcore: :func:`ccdcore.product.estimate_all` (the same estimates, with
 the same parameters, as ``calibrate()`` and the ``ccdcore calibrate`` verb: D̂_D, K̂, the plan and
@@ -62,6 +72,7 @@ import panel as pn
 import param
 
 from ccdcore.common import format_pm
+from ccdcore.emva_sheet import datasheet_rows
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image, write_map
 from ccdcore.planning import DEFAULT_WORST_RATIO, plan_acquisition
@@ -81,7 +92,8 @@ from ._choices import set_choices
 __all__ = ["MapsPage", "create_page", "dark_summary", "fixed_pattern_summary",
            "correction_summary", "scene_patch_frame", "scene_level_frame", "export_bytes",
            "missing_sentences", "MAPS_ESTIMATES", "PAPER_PLAN_INPUTS", "PLAN_INPUTS",
-           "DEFAULT_SHOWN", "EXPORT_FORMATS"]
+           "DEFAULT_SHOWN", "EXPORT_FORMATS", "EMVA_TAB", "has_emva_spatial",
+           "emva_spatial_figures", "emva_spatial_layout", "emva_spatial_text"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +113,8 @@ EXPORT_FORMATS = {"exr": ".exr", "fits": ".fits", "png": ".png"}
 #: the estimates of ccdcore.product.estimate_all shown on this page (in REQUIREMENTS order);
 #: the flat field has its own page
 MAPS_ESTIMATES = ("noise", "dark", "fixed_pattern", "plan", "correction_check", "scene")
+#: the tab of the EMVA 1288 spatial nonuniformity (an EMVA 1288 set with a spatial set only)
+EMVA_TAB = "EMVA 1288 spatial"
 
 _READINGS = {"paper (σ²_N/n2 ≤ 0.2 q², the literal text)": "paper",
              "with the dark reference's error": "with_dark",
@@ -290,6 +304,67 @@ def _table(df: pd.DataFrame | None = None, **kw: Any) -> pn.widgets.Tabulator:
                                 sizing_mode="stretch_width", **kw)
 
 
+def has_emva_spatial(session: Session | None) -> bool:
+    """The session is an EMVA 1288 set (its ptc frames carry photon counts) with a spatial set
+    (a ptc level of more than two frames, sec. 8)."""
+    if session is None or not any(r.photons for r in session.by_role("ptc")):
+        return False
+    return any(len(recs) > 2 for recs in session.ptc_levels().values())
+
+
+def emva_spatial_figures(session: Session) -> dict[str, Any]:
+    """The EMVA 1288 figures of ``session`` as their JSON dict
+    (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`; no photon transfer of our own: the
+    spatial section does not use it)."""
+    from ccdcore.datasheet import emva_figures
+
+    return emva_figures(session, with_ptc=False).to_dict()
+
+
+def emva_spatial_layout(emva: dict[str, Any]) -> Any | None:
+    """The plots of the spatial section (sec. 8) as one Bokeh layout, two side by side: the
+    DSNU and the PRNU spectrograms (horizontal, vertical), the logarithmic and the accumulated
+    histograms (DSNU, PRNU), the profiles (horizontal, vertical); ``None`` when the figures
+    have none (:mod:`ccdcore_report.emva_figures`)."""
+    from bokeh.layouts import column, row
+
+    from ccdcore_report.emva_figures import (HISTOGRAMS, PROFILES, SPECTROGRAMS,
+                                             accumulated_histogram_figure, histogram_figure,
+                                             profile_figure, spectrogram_figure)
+
+    groups = ([spectrogram_figure(emva, w) for w in SPECTROGRAMS[:2]],
+              [spectrogram_figure(emva, w) for w in SPECTROGRAMS[2:]],
+              [histogram_figure(emva, w) for w in HISTOGRAMS],
+              [accumulated_histogram_figure(emva, w) for w in HISTOGRAMS],
+              [profile_figure(emva, w) for w in PROFILES])
+    rows = [row(*shown, sizing_mode="stretch_width")
+            for shown in ([f for f in group if f is not None] for group in groups) if shown]
+    return column(*rows, sizing_mode="stretch_width") if rows else None
+
+
+def emva_spatial_text(emva: dict[str, Any]) -> str:
+    """The spatial section's figures (:func:`ccdcore.emva_sheet.datasheet_rows`) as Markdown:
+    each with its standard error, or why it is not determined."""
+    lines = []
+    for r in datasheet_rows(emva):
+        if r.section != "Spatial nonuniformity":
+            continue
+        if r.value is None:
+            lines.append(f"- {r.name}, {r.symbol}: not determined — {html.escape(r.note or '')}")
+        else:
+            lines.append(f"- {r.name}, {r.symbol} = "
+                         f"**{format_pm(r.value, r.error, unit=r.unit)}**")
+    sets = []
+    for key, what in (("spatial", "bright"), ("spatial_dark", "dark")):
+        s = emva.get(key)
+        if isinstance(s, dict) and s.get("L"):
+            sets.append(f"{s['L']} {what} frames")
+    head = ("**EMVA 1288 spatial nonuniformity** (release 3.1 sec. 8; the row, column and pixel "
+            "parts of release 4.0)" + (f", from the averages of {' and '.join(sets)}" if sets
+                                       else "") + ":")
+    return "\n".join([head, ""] + lines)
+
+
 # ================================================================================ the page ====
 class MapsPage(pn.viewable.Viewer):
     """Dark and fixed-pattern maps, planning and scene variation (see the module docstring)."""
@@ -332,6 +407,12 @@ class MapsPage(pn.viewable.Viewer):
                                doc="b0: the black level in DN.")
     n2_reading = param.Selector(default=PAPER_PLAN_INPUTS["n2_reading"], objects=_READINGS,
                                 doc="Which reading of the paper's n2 rule to plan with.")
+    # ---- the EMVA 1288 spatial tab
+    emva = param.Dict(default=None, allow_None=True, precedence=-1, doc=(
+        "The EMVA 1288 figures of the session (emva_spatial_figures), computed when the EMVA "
+        "1288 spatial tab is first shown; None before and for another session."))
+    emva_computing = param.Boolean(default=False, precedence=-1, doc=(
+        "True while the page computes the EMVA 1288 figures."))
 
     def __init__(self, state: AppState | None = None, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
@@ -353,6 +434,7 @@ class MapsPage(pn.viewable.Viewer):
         self._build_maps_tab()
         self._build_scene_tab()
         self._build_planning_tab()
+        self._build_emva_tab()
         self._layout: pn.viewable.Viewable | None = None
         self.state.param.watch(self._on_session, "session")
         self.state.results.param.watch(self._on_results, ["ptc", "estimates"])
@@ -505,6 +587,17 @@ class MapsPage(pn.viewable.Viewer):
         self.plan_alternatives = _table()
         self.plan_error = _alert("", "danger")
 
+    def _build_emva_tab(self) -> None:
+        self.emva_note = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                          css_classes=["ccd-emva-note"])
+        # one Bokeh layout for the section's twelve plots (one pane: the cheapest to send)
+        # (never hidden: Panel's Bokeh pane takes its visibility from the Bokeh model's)
+        self.emva_pane = pn.pane.Bokeh(None, sizing_mode="stretch_width",
+                                       css_classes=["ccd-emva-spatial"])
+        #: the Bokeh layout of ``emva`` (built with it, off the UI thread)
+        self._emva_layout: Any = None
+        self._emva_status()
+
     # ======================================================================== layout =======
     def on_show(self) -> None:
         """Called by the navigation each time it shows the page: compute on first show."""
@@ -568,9 +661,12 @@ class MapsPage(pn.viewable.Viewer):
             sizing_mode="stretch_width", name="Planning")
         # a button bar switching the content (Bokeh's Tabs lay a grid of fixed-size plots out
         # at zero size; swapping the content also renders each view only when it is shown)
-        self._tab_views = {"Maps": maps_tab, "Scene": scene_tab, "Planning": planning_tab}
+        emva_tab = pn.Column(self.emva_note, self.emva_pane, sizing_mode="stretch_width",
+                             name=EMVA_TAB)
+        self._tab_views = {"Maps": maps_tab, "Scene": scene_tab, "Planning": planning_tab,
+                           EMVA_TAB: emva_tab}
         self.tab_bar = pn.widgets.RadioButtonGroup(
-            options=list(self._tab_views), value="Maps", color="primary",
+            options=self._tab_names(), value="Maps", color="primary",
             variant="outline", css_classes=["ccd-maps-tabs"], margin=(10, 10, 0, 10))
         self.tab_content = pn.Column(maps_tab, sizing_mode="stretch_width")
         self.tab_bar.param.watch(self._on_tab, "value")
@@ -581,8 +677,25 @@ class MapsPage(pn.viewable.Viewer):
             pn.layout.Divider(margin=(0, 10)), self.tab_content,
             sizing_mode="stretch_width", name="Maps", stylesheets=[_CSS])
 
+    def _tab_names(self) -> list[str]:
+        """The tabs the session has (the EMVA 1288 spatial one for an EMVA set with a spatial
+        set only)."""
+        return [name for name in self._tab_views
+                if name != EMVA_TAB or has_emva_spatial(self.state.session)]
+
+    def _update_tabs(self) -> None:
+        if self._layout is None:
+            return
+        names = self._tab_names()
+        shown = self.tab_bar.value if self.tab_bar.value in names else "Maps"
+        self.tab_bar.param.update(options=names, value=shown)
+        if shown == EMVA_TAB and self.emva is None:      # another EMVA set, its tab shown
+            pn.state.execute(self.compute_emva)
+
     def _on_tab(self, event: Any = None) -> None:
         self.tab_content.objects = [self._tab_views[self.tab_bar.value]]
+        if self.tab_bar.value == EMVA_TAB and self.emva is None:
+            pn.state.execute(self.compute_emva)
 
     # ===================================================================== computing ========
     def _wants_auto_compute(self) -> bool:
@@ -636,6 +749,48 @@ class MapsPage(pn.viewable.Viewer):
                 cache.put(ptc_key, est.noise)
         await asyncio.to_thread(store)
 
+    async def compute_emva(self) -> None:
+        """Compute the EMVA 1288 figures of the session (:func:`emva_spatial_figures`, off the
+        UI thread, through the disk cache) for the EMVA 1288 spatial tab, once per session."""
+        session = self.state.session
+        if not has_emva_spatial(session) or self.emva_computing or self.emva is not None:
+            return
+        self.emva_computing = True
+        try:
+            found = await self.state.cached_compute(
+                "emva_figures", {"with_ptc": False}, emva_spatial_figures, session,
+                label="the EMVA 1288 spatial nonuniformity")
+            if found is not None and self.state.session is session:
+                # twelve figures (some 0.3 s): built off the UI thread too
+                layout = await asyncio.to_thread(emva_spatial_layout, found)
+                if self.state.session is session:
+                    self._emva_layout = layout
+                    self.emva = found
+        finally:
+            self.emva_computing = False
+        if self.state.session is not session:          # opened meanwhile: its own figures
+            self._update_tabs()
+
+    @param.depends("emva", watch=True)
+    @batched
+    def _show_emva(self) -> None:
+        if self.emva is None:
+            self._emva_layout = None
+        self.emva_pane.object = self._emva_layout
+        self._emva_status()
+
+    @param.depends("emva_computing", watch=True)
+    def _emva_status(self) -> None:
+        if self.emva is not None:
+            text = emva_spatial_text(self.emva)
+        elif self.emva_computing:
+            text = "Computing the EMVA 1288 figures … (progress and **Cancel** in the header)"
+        else:
+            text = ("The EMVA 1288 figures are computed when this tab is shown"
+                    + (" (the last try failed: see the error above; show the tab again to "
+                       "retry)." if self.state.error else "."))
+        self.emva_note.object = text
+
     @param.depends("computing", watch=True)
     def _on_computing(self) -> None:
         self.compute_button.loading = self.computing
@@ -644,6 +799,8 @@ class MapsPage(pn.viewable.Viewer):
     # ===================================================================== watchers =========
     def _on_session(self, event: Any = None) -> None:
         self.compute_button.disabled = self.state.session is None
+        self.emva = None
+        self._update_tabs()
         self._refresh()
         if event is not None and self._layout is not None and self.auto_compute \
                 and self._wants_auto_compute():
@@ -831,6 +988,8 @@ class MapsPage(pn.viewable.Viewer):
             view.release()
         with param.parameterized.discard_events(self):
             self.layers = {}
+            self.emva = None
+        self._emva_layout = None
 
     def _on_clim(self, event: Any) -> None:
         """The slider moved: the selected map's colour range, its view and histogram band."""

@@ -23,7 +23,8 @@ def state(tmp_path, assets):
 
 
 def test_demo_sessions_are_found(assets):
-    assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "tsin01-camera", "change"}
+    assert set(demo_sessions(assets)) == {"healey94", "delasarte07", "tsin01", "tsin01-camera",
+                                          "change", "emva1288"}
 
 
 def test_an_installed_package_writes_its_demos_once(tmp_path, monkeypatch, assets):

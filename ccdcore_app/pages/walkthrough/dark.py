@@ -1,5 +1,16 @@
 """Step 3, dark: the dark reference D̂_D with its hot and dead pixels, and the dark level per
-exposure (a table for a few exposures, a plot for a dark-current series)."""
+exposure (a table for a few exposures, a plot for a dark-current series); for an EMVA 1288 set,
+the dark current of the datasheet (release 3.1 sec. 3.1): the mean dark signal and the dark
+variance against the exposure time with their lines, μ_I.mean and μ_I.var with their errors or
+why they are not determined.
+
+The dark current is in e⁻/s: it needs the gain K of the EMVA 1288 figures, which the
+photon-transfer step makes (``results.emva``); for an EMVA set this step runs that step's
+computation when its figures are missing.
+
+The spatial nonuniformity plots (DSNU and PRNU) are in the photon-transfer step, beside the
+datasheet's rows they explain (see :mod:`.ptc`).
+"""
 from __future__ import annotations
 
 import math
@@ -11,8 +22,10 @@ import panel as pn
 
 from ccdcore import guide
 
+from ...batch import batched, in_document
 from ...image_view import ImageView, view_pane
 from ._common import IMAGE_WIDTH, Step, table
+from .ptc import is_emva_set
 
 #: the dark step lists the dark level per exposure as a table up to this many exposures, and
 #: plots it against the exposure beyond
@@ -53,6 +66,33 @@ def dark_level_figure() -> tuple[Any, Any]:
     return fig, src
 
 
+def dark_current_data(figures: dict[str, Any] | None) -> tuple:
+    """What the dark-current plots draw (they are rebuilt only when this changes): the dark
+    points and the dark-current lines of the EMVA 1288 figures."""
+    if not figures:
+        return (None, None)
+    return (figures.get("dark_points"), figures.get("dark_current"))
+
+
+def dark_current_markdown(figures: dict[str, Any]) -> str:
+    """μ_I.mean and μ_I.var of the EMVA 1288 figures as Markdown: each with its standard
+    error, or why it is not determined (:func:`ccdcore.emva_sheet.datasheet_rows`)."""
+    from ccdcore.common import format_pm
+    from ccdcore.emva_sheet import datasheet_rows
+
+    lines = ["**Dark current** (EMVA 1288 release 3.1 sec. 3.1: the slope of the mean dark "
+             "signal over K, and of the dark variance over K², against the exposure time):", ""]
+    for r in datasheet_rows(figures):
+        if r.section != "Dark current":
+            continue
+        if r.value is None:
+            lines.append(f"- {r.name}, {r.symbol}: not determined — {r.note}")
+        else:
+            lines.append(f"- {r.name}, {r.symbol} = "
+                         f"**{format_pm(r.value, r.error, unit=r.unit)}**")
+    return "\n".join(lines)
+
+
 def dark_level_table(levels: tuple[dict[str, Any], ...]) -> pd.DataFrame:
     """The dark level per exposure as table rows: exposure, frames, mean and its error."""
     return pd.DataFrame([
@@ -78,10 +118,41 @@ class DarkStep(Step):
         self.level_plot = pn.Column(pn.pane.Bokeh(self.level_fig, sizing_mode="stretch_width"),
                                     visible=False, sizing_mode="stretch_width",
                                     css_classes=["ccd-wt-dark-plot"])
+        # an EMVA 1288 set: the dark current, its two plots in one Bokeh layout
+        self.current_text = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                             css_classes=["ccd-wt-dark-current"])
+        self.current_pane = pn.pane.Bokeh(None, sizing_mode="stretch_width",
+                                          css_classes=["ccd-wt-dark-current-plots"])
+        self.current_holder = pn.Column(self.current_text, self.current_pane, visible=False,
+                                        sizing_mode="stretch_width")
+        self._current_shown: tuple = (None, None)
         return [pn.Row(self.pane, pn.Column(
             pn.pane.Markdown("**Dark level per exposure** (red crosses on the map: hot and dead "
                              "pixels)"), self.levels_table, self.level_plot,
-            sizing_mode="stretch_width"), sizing_mode="stretch_width")]
+            sizing_mode="stretch_width"), sizing_mode="stretch_width"),
+            self.current_holder]
+
+    async def run(self) -> None:
+        """The dark reference and its gate (:meth:`Step.run`); for an EMVA 1288 set then the
+        dark current, from the photon-transfer step's EMVA 1288 figures (made when missing)."""
+        await super().run()
+        session = self.page.state.session
+        if self.result is None or not is_emva_set(session):
+            return
+        if self.results.emva is None:
+            await self.page.steps["ptc"].ensure()
+        if self.page.state.session is not session:
+            return
+        in_document(self.page.doc, batched(self.draw_current if self.results.emva is not None
+                                           else self._no_current))
+
+    def _no_current(self) -> None:
+        self._current_shown = (None, None)
+        self.current_pane.object = None
+        self.current_text.object = ("**Dark current**: not made — it needs the EMVA 1288 "
+                                    "figures, which could not be made (step 4's gate says "
+                                    "why).")
+        self.current_holder.visible = True
 
     async def ensure(self) -> guide.DarkStep | None:
         """The dark step's result, computed once (``None`` when it failed: the gate says why)."""
@@ -103,6 +174,30 @@ class DarkStep(Step):
         self.levels_table.visible = not plot
         self.levels_table.object = (dark_level_table(step.levels)
                                     if step.levels and not plot else pd.DataFrame())
+        self.draw_current()
+
+    def draw_current(self) -> None:
+        """The dark current of the EMVA 1288 figures (``results.emva``): its text and its
+        plots, built again only when the dark points changed. Shown, the dark-signal plot
+        replaces the plain dark-level plot (the same points, with the line)."""
+        from ccdcore_report.emva_figures import dark_signal_figure, dark_variance_figure
+
+        figures = self.results.emva
+        shown = bool(figures) and is_emva_set(self.page.state.session)
+        self.current_holder.visible = shown
+        if not shown:
+            return
+        self.current_text.object = dark_current_markdown(figures)
+        data = dark_current_data(figures)
+        if data != self._current_shown:
+            from bokeh.layouts import row
+
+            self._current_shown = data
+            figs = [f for f in (dark_signal_figure(figures), dark_variance_figure(figures))
+                    if f is not None]
+            self.current_pane.object = row(*figs, sizing_mode="stretch_width") if figs else None
+        if self.current_pane.object is not None:
+            self.level_plot.visible = False
 
     def release(self) -> None:
         self.view.release()

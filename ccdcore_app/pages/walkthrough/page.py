@@ -203,7 +203,9 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self.steps["plan"].replan()
 
     @param.depends("exclude", "robust", watch=True)
-    def _on_ptc_options(self) -> None:
+    def refit_ptc(self) -> None:
+        """The photon-transfer options changed (levels left out, robust mode, the step's fit
+        range): drop step 4 on and, on that step, fit again."""
         self._invalidate("ptc", include=True)
         self.steps["ptc"].show_exclude()
         if self.auto and self.step == "ptc":
