@@ -13,17 +13,20 @@ SheetRow
     One figure of the datasheet.
 DATASHEET
     (section, key, name, symbol, unit) of every figure, in order.
+section_markdown(emva, section)
+    One section's rows as Markdown list items (the app's pages).
 datasheet_rows(emva)
     The rows of a result's ``to_dict()`` (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, or the
     ``emva1288`` entry of a calibration product).
 """
 from __future__ import annotations
 
+import html
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-__all__ = ["SheetRow", "DATASHEET", "datasheet_rows"]
+__all__ = ["SheetRow", "DATASHEET", "datasheet_rows", "section_markdown"]
 
 #: (section, key under emva1288's names, the standard's name, symbol, unit), in order
 DATASHEET: tuple[tuple[str, str, str, str, str], ...] = (
@@ -96,6 +99,22 @@ def _why(emva: Mapping[str, Any], key: str) -> str:
     if key == "sigma_d_ptc":
         return "photon transfer was not run with the figures"
     return "not determined from this session (see the notes)"
+
+
+def section_markdown(emva: Mapping[str, Any], section: str) -> list[str]:
+    """The rows of one ``section`` of the datasheet as Markdown list items: "- name, symbol =
+    **value ± error unit**", or "- name, symbol: not determined — the reason" (HTML-escaped)."""
+    from .common import format_pm
+
+    lines = []
+    for r in datasheet_rows(emva):
+        if r.section != section:
+            continue
+        if r.value is None:
+            lines.append(f"- {r.name}, {r.symbol}: not determined — {html.escape(r.note or '')}")
+        else:
+            lines.append(f"- {r.name}, {r.symbol} = **{format_pm(r.value, r.error, unit=r.unit)}**")
+    return lines
 
 
 def datasheet_rows(emva: Mapping[str, Any]) -> list[SheetRow]:

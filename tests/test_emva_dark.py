@@ -215,3 +215,20 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
               "--dark-exposure", "-1"])
     assert exc.value.code == 2
     assert "must be a positive number of seconds" in capsys.readouterr().err
+
+
+def test_a_section_as_markdown_items(generated):
+    from ccdcore.common import format_pm
+    from ccdcore.emva_sheet import section_markdown
+
+    _, ours, _ = generated
+    d = ours.to_dict()
+    lines = section_markdown(d, "Dark current")
+    assert lines == [f"- Dark current from the mean, μ_I.mean = **"
+                     f"{format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')}**",
+                     f"- Dark current from the variance, μ_I.var = **"
+                     f"{format_pm(d['u_I_var'], d['u_I_var_err'], unit='e⁻/s')}**"]
+    missing = section_markdown({"notes": ["u_I_mean is not resolved: <x> below 3 e-/s"]},
+                               "Dark current")
+    assert missing[0] == ("- Dark current from the mean, μ_I.mean: not determined — "
+                          "u_I_mean is not resolved: &lt;x&gt; below 3 e-/s")

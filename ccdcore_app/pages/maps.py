@@ -72,7 +72,7 @@ import panel as pn
 import param
 
 from ccdcore.common import format_pm
-from ccdcore.emva_sheet import datasheet_rows
+from ccdcore.emva_sheet import section_markdown
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image, write_map
 from ccdcore.planning import DEFAULT_WORST_RATIO, plan_acquisition
@@ -345,15 +345,7 @@ def emva_spatial_layout(emva: dict[str, Any]) -> Any | None:
 def emva_spatial_text(emva: dict[str, Any]) -> str:
     """The spatial section's figures (:func:`ccdcore.emva_sheet.datasheet_rows`) as Markdown:
     each with its standard error, or why it is not determined."""
-    lines = []
-    for r in datasheet_rows(emva):
-        if r.section != "Spatial nonuniformity":
-            continue
-        if r.value is None:
-            lines.append(f"- {r.name}, {r.symbol}: not determined — {html.escape(r.note or '')}")
-        else:
-            lines.append(f"- {r.name}, {r.symbol} = "
-                         f"**{format_pm(r.value, r.error, unit=r.unit)}**")
+    lines = section_markdown(emva, "Spatial nonuniformity")
     sets = []
     for key, what in (("spatial", "bright"), ("spatial_dark", "dark")):
         s = emva.get(key)

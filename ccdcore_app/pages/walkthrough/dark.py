@@ -77,20 +77,11 @@ def dark_current_data(figures: dict[str, Any] | None) -> tuple:
 def dark_current_markdown(figures: dict[str, Any]) -> str:
     """μ_I.mean and μ_I.var of the EMVA 1288 figures as Markdown: each with its standard
     error, or why it is not determined (:func:`ccdcore.emva_sheet.datasheet_rows`)."""
-    from ccdcore.common import format_pm
-    from ccdcore.emva_sheet import datasheet_rows
+    from ccdcore.emva_sheet import section_markdown
 
     lines = ["**Dark current** (EMVA 1288 release 3.1 sec. 3.1: the slope of the mean dark "
              "signal over K, and of the dark variance over K², against the exposure time):", ""]
-    for r in datasheet_rows(figures):
-        if r.section != "Dark current":
-            continue
-        if r.value is None:
-            lines.append(f"- {r.name}, {r.symbol}: not determined — {r.note}")
-        else:
-            lines.append(f"- {r.name}, {r.symbol} = "
-                         f"**{format_pm(r.value, r.error, unit=r.unit)}**")
-    return "\n".join(lines)
+    return "\n".join(lines + section_markdown(figures, "Dark current"))
 
 
 def dark_level_table(levels: tuple[dict[str, Any], ...]) -> pd.DataFrame:
