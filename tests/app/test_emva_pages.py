@@ -46,6 +46,23 @@ def make_emva_set(out: Path) -> Path:
     return Path(gen.descriptor_path)
 
 
+@pytest.fixture
+def run_now(monkeypatch):
+    """``pn.state.execute`` runs its callback to the end at once (its coroutine in a thread of
+    its own, as ``_run``): after a browser test the Panel server's loop may be running, and then
+    Panel only schedules the callback."""
+    import inspect
+
+    import panel as pn
+
+    def execute(callback, *args, **kwargs):
+        result = callback()
+        if inspect.isawaitable(result):
+            _run(result)
+
+    monkeypatch.setattr(pn.state, "execute", execute)
+
+
 @pytest.fixture(scope="module")
 def emva_set(tmp_path_factory) -> Path:
     return make_emva_set(tmp_path_factory.mktemp("emva") / "set")
@@ -153,7 +170,7 @@ def test_the_datasheet_table_has_every_row(walked, emva_set):
     assert linearity is not None and list(linearity.select(dict(name="deviation-fit")))
 
 
-def test_the_spatial_plots_open_with_their_card(walked):
+def test_the_spatial_plots_open_with_their_card(walked, run_now):
     step = walked.steps["ptc"]
     assert step.spatial_card.visible and step.spatial_card.collapsed
     assert step.spatial_pane.object is None          # nothing sent before it is opened
@@ -204,7 +221,8 @@ def test_an_undetermined_dark_current_says_why():
     assert "μ_I.var = **12.5 ± 1.5 e⁻/s**" in text
 
 
-def test_the_maps_page_shows_the_emva_spatial_tab(emva_set, assets, tmp_path, monkeypatch):
+def test_the_maps_page_shows_the_emva_spatial_tab(emva_set, assets, tmp_path, monkeypatch,
+                                                  run_now):
     calls = []
     compute = maps.emva_spatial_figures
 
