@@ -31,15 +31,18 @@ from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.stats import chi2
 
 from .common import json_safe
 
-__all__ = ["DarkCurrent", "dark_current", "RESOLVED_Z", "MIN_EXPOSURES"]
+__all__ = ["DarkCurrent", "dark_current", "RESOLVED_Z", "MIN_EXPOSURES", "POOR_FIT_Q"]
 
 #: a dark current is resolved when it is positive by this many standard errors
 RESOLVED_Z = 2.0
 #: the fewest distinct exposure times that can give a dark current (the package's rule)
 MIN_EXPOSURES = 3
+#: a line whose points scatter with a goodness of fit Q below this gets a note
+POOR_FIT_Q = 1e-3
 
 
 @dataclass(frozen=True)
@@ -168,6 +171,14 @@ def dark_current(exposures: Sequence[float | None], u_y_dark: ArrayLike, u_y_dar
                                  mean_line.slope_err, K, rel_K, span, notes)
     v, v_err, v_bound = _resolve("u_I_var", "dark variance", var_line.slope, var_line.slope_err,
                                  K * K, 2.0 * rel_K, span, notes)
+    for name, what, line in (("u_I_mean", "mean dark signal", mean_line),
+                             ("u_I_var", "dark variance", var_line)):
+        q = chi2.sf(line.chi2_dof * line.dof, line.dof) if math.isfinite(line.chi2_dof) else 1.0
+        if q < POOR_FIT_Q:
+            notes.append(f"{name}: the {what} scatters about its line far more than its errors "
+                         f"allow (chi²/dof = {line.chi2_dof:.3g}, Q = {q:.2g}); its error is "
+                         f"scaled by √(chi²/dof), but the line may not describe the darks "
+                         "(quantised dark frames, a drifting dark level)")
     return DarkCurrent(u_I_mean=m, u_I_mean_err=m_err, u_I_var=v, u_I_var_err=v_err,
                        u_I_mean_bound=m_bound, u_I_var_bound=v_bound, mean_line=mean_line,
                        var_line=var_line, exposures=tuple(float(x) for x in t),

@@ -232,3 +232,16 @@ def test_a_section_as_markdown_items(generated):
                                "Dark current")
     assert missing[0] == ("- Dark current from the mean, μ_I.mean: not determined — "
                           "u_I_mean is not resolved: &lt;x&gt; below 3 e-/s")
+
+
+def test_a_line_the_points_do_not_follow_is_noted():
+    """Points scattered 6 times their errors about the line (χ²/ν ≈ 36, Q ≪ 1e-3): the current
+    is still given, with its error scaled by √(χ²/ν), and a note says the line may not describe
+    the darks; points that follow their line get no note."""
+    t, mu, mu_err, s2, s2_err = _points(1500.0)
+    wobble = 6.0 * s2_err * np.where(np.arange(len(t)) % 2, 1.0, -1.0)
+    d = dark_current(t, mu, mu_err, s2 + wobble, s2_err, K, 0.0)
+    assert d.u_I_var is not None and d.var_line.chi2_dof > 20
+    assert any(n.startswith("u_I_var: the dark variance scatters") for n in d.notes)
+    assert not any(n.startswith("u_I_mean:") for n in d.notes)
+    assert dark_current(*_points(1500.0, noise=1.0, seed=2), K, 0.0).notes == ()
