@@ -53,7 +53,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .channels import LAYOUTS
+from .channels import LAYOUTS, Layout
 from .errors import CcdError
 from .planning import AcquisitionPlan, plan_acquisition
 
@@ -290,7 +290,7 @@ def plan_captures(bits: int, gain: float, *, read_noise_e: float | None = None,
     notes.append(f"exposures assume {_fmt_s(exposure_half)} gives about half of full scale "
                  "under your lamp (and that the bracket's brightest point is as bright as the "
                  "card); scale them all if it does not")
-    if layout != "mono":
+    if layout != Layout.MONO:
         notes.append(f"{layout} camera: the dark reference and K̂ of Healey & Kondepudy are made "
                      "for mono frames; the flat field's DL_0 serves instead")
 

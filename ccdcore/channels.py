@@ -50,6 +50,7 @@ demosaic_bilinear(raw, pattern)
 """
 from __future__ import annotations
 
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -57,7 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import CcdError
 
-__all__ = ["LAYOUTS", "is_bayer", "CHANNEL_NAMES", "channel_names", "check_layout",
+__all__ = ["Layout", "LAYOUTS", "is_bayer", "CHANNEL_NAMES", "channel_names", "check_layout",
            "channel_slices", "split_channels", "PATTERNS", "PLANES", "check_pattern",
            "plane_offsets", "plane_masks", "channel_masks", "mosaic", "planes",
            "demosaic_bilinear"]
@@ -68,11 +69,26 @@ PATTERNS: tuple[str, ...] = ("rggb", "bggr", "grbg", "gbrg")
 #: names of the four CFA planes; G1 is the green on the red row, G2 the green on the blue row
 PLANES: tuple[str, ...] = ("R", "G1", "G2", "B")
 
+class Layout(str, Enum):
+    """The colour layouts of a camera (manifest key ``[camera] layout``): a string enum, so a
+    layout compares equal to, and is written as, its name (``Layout.MONO == "mono"``)."""
+
+    MONO = "mono"
+    RGB = "rgb"
+    BAYER_RGGB = "bayer-rggb"
+    BAYER_BGGR = "bayer-bggr"
+    BAYER_GRBG = "bayer-grbg"
+    BAYER_GBRG = "bayer-gbrg"
+
+    def __str__(self) -> str:
+        return self.value
+
+
 #: the Bayer mosaic layouts, one per pattern
 _BAYER_LAYOUTS: tuple[str, ...] = tuple(f"bayer-{p}" for p in PATTERNS)
 
-#: the colour layouts of a camera (manifest key ``[camera] layout``)
-LAYOUTS: tuple[str, ...] = ("mono", "rgb") + _BAYER_LAYOUTS
+#: the names of :class:`Layout`, in order
+LAYOUTS: tuple[str, ...] = tuple(m.value for m in Layout)
 
 #: channel names per layout family
 CHANNEL_NAMES: dict[str, tuple[str, ...]] = {"mono": ("L",), "rgb": ("R", "G", "B"),
@@ -282,8 +298,9 @@ def channel_names(layout: str) -> tuple[str, ...]:
     return CHANNEL_NAMES["bayer" if is_bayer(name) else name]
 
 
-def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image") -> str:
-    """Normalised layout for frames of ``shape``; ``None`` infers mono (2-D) or rgb (H, W, 3).
+def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image") -> Layout:
+    """Normalised layout (a :class:`Layout`) for frames of ``shape``; ``None`` infers mono
+    (2-D) or rgb (H, W, 3).
 
     Raises
     ------
@@ -294,13 +311,13 @@ def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image
     shape = tuple(shape)
     if layout is None:
         if len(shape) == 2:
-            return "mono"
+            return Layout.MONO
         if len(shape) == 3 and shape[2] == 3:
-            return "rgb"
+            return Layout.RGB
         raise CcdError(where, f"cannot tell the colour layout of frames of shape {shape}; "
                               "pass layout='mono', 'rgb' or 'bayer-rggb' ...")
     name = _normal_layout(layout)
-    if name == "rgb":
+    if name == Layout.RGB:
         if len(shape) != 3 or shape[2] != 3:
             raise CcdError(where, f"layout 'rgb' needs (H, W, 3) frames, got shape {shape}")
     elif len(shape) != 2:
@@ -308,7 +325,7 @@ def check_layout(shape: tuple[int, ...], layout: str | None, where: Any = "image
                               + (" (a colour image: use layout='rgb')" if len(shape) == 3 else ""))
     elif is_bayer(name) and (shape[0] % 2 or shape[1] % 2):
         raise CcdError(where, f"Bayer frames need even height and width, got {shape}")
-    return name
+    return Layout(name)
 
 
 def channel_slices(shape: tuple[int, ...], layout: str | None) -> dict[str, tuple]:
@@ -318,9 +335,9 @@ def channel_slices(shape: tuple[int, ...], layout: str | None) -> dict[str, tupl
     """
     name = check_layout(shape, layout)
     full = slice(None)
-    if name == "mono":
+    if name == Layout.MONO:
         return {"L": (full, full)}
-    if name == "rgb":
+    if name == Layout.RGB:
         return {c: (full, full, i) for i, c in enumerate(CHANNEL_NAMES["rgb"])}
     return {p: (slice(r, None, 2), slice(c, None, 2))
             for p, (r, c) in plane_offsets(name).items()}

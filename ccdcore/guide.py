@@ -40,6 +40,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .channels import Layout
 from .map_names import MapName
 from .session.records import ProblemCode
 
@@ -196,7 +197,7 @@ def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
             GateStatus.SKIP, "no dark frames: the dark reference is skipped",
             next=("capture 16 or more lens-capped frames at the exposure of the other "
                   "frames (role = dark)",)))
-    if session.camera.layout != "mono":
+    if session.camera.layout != Layout.MONO:
         return DarkStep(None, (), None, Gate(
             GateStatus.SKIP, f"{session.camera.layout} camera: D̂_D of sec. V-A is made for "
                              "mono frames; the flat field's dark image DL_0 serves instead"))

@@ -35,6 +35,7 @@ from typing import Any, Callable, Iterable, Mapping, Union
 import numpy as np
 
 from . import __version__
+from .channels import Layout
 from .common import json_safe
 from .darkframe import DarkReference
 from .datasheet import EmvaFigures
@@ -765,7 +766,7 @@ def _dark_reference(run: _Run) -> None:
     from .darkframe import dark_reference
 
     session = run.session
-    if session.roles().get("dark") and session.camera.layout != "mono":
+    if session.roles().get("dark") and session.camera.layout != Layout.MONO:
         run.skipped.append(Skipped("dark", "not-applicable", f"{session.camera.layout} camera: "
                                    "the dark reference D̂_D of sec. V-A is made for mono frames; "
                                    "the flat-field DL_0 serves instead"))

@@ -105,6 +105,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .channels import Layout
 from .common import Roi, check_roi, json_safe
 from .errors import CcdError
 from .noise import READ_AHEAD
@@ -684,7 +685,7 @@ def scene_variations(session: Any, dark: Any, K: Any, noise: Any, *,
     """
     camera = getattr(session, "camera", None)
     layout = getattr(camera, "layout", "mono") or "mono"
-    if layout != "mono":
+    if layout != Layout.MONO:
         raise CcdError("camera.layout", f"colour frames ({layout}) are not supported yet: per "
                                         "channel support comes with the flat-field work")
     bits = getattr(camera, "bits", None)

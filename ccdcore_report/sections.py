@@ -600,9 +600,9 @@ def _product_maps(product: CalibrationProduct) -> dict[str, NDArray]:
 
 def _planes(name: str, data: NDArray, layout: str) -> dict[str, NDArray]:
     """Channel -> 2-D plane of a map (one plane ``""`` for mono maps)."""
-    from ccdcore.channels import split_channels
+    from ccdcore.channels import Layout, split_channels
 
-    if data.ndim == 2 and (not name.startswith("flat_") or layout == "mono"):
+    if data.ndim == 2 and (not name.startswith("flat_") or layout == Layout.MONO):
         return {"": data}
     try:
         return split_channels(data, layout)

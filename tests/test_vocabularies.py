@@ -65,6 +65,33 @@ def test_no_layout_name_is_matched_by_its_spelling():
     assert bad == []
 
 
+def test_layouts_are_an_enum_written_as_their_names(tmp_path):
+    """Layout is a string enum: LAYOUTS are its names, check_layout returns a member, and a
+    member compares equal to, prints as, and is written to JSON and TOML as its name."""
+    import tomllib
+
+    import tomli_w
+
+    assert channels.LAYOUTS == tuple(m.value for m in channels.Layout)
+    assert channels.check_layout((4, 6), None) is channels.Layout.MONO
+    assert channels.check_layout((4, 6, 3), "RGB ") is channels.Layout.RGB
+    assert channels.check_layout((4, 6), "grbg") is channels.Layout.BAYER_GRBG
+    assert channels.Layout.MONO == "mono" and str(channels.Layout.BAYER_RGGB) == "bayer-rggb"
+    assert json.loads(json.dumps({"layout": channels.Layout.RGB})) == {"layout": "rgb"}
+    text = tomli_w.dumps({"camera": {"layout": channels.Layout.BAYER_BGGR}})
+    assert tomllib.loads(text) == {"camera": {"layout": "bayer-bggr"}}
+
+
+def test_no_layout_is_compared_with_a_spelled_name():
+    """A layout is compared with a :class:`channels.Layout` member, never with its spelling."""
+    every = SOURCES + sorted((ROOT / "ccdcore_app").rglob("*.py")) + sorted(
+        (ROOT / "ccdcore_report").rglob("*.py"))
+    bad = [f"{p.relative_to(ROOT)}:{i}" for p in every
+           for i, line in enumerate(p.read_text().splitlines(), 1)
+           if re.search(r"""layout\s*[!=]=\s*["'](mono|rgb|bayer-\w+)["']""", line)]
+    assert bad == []
+
+
 # ------------------------------------------------------------------------ problem codes -----
 def test_every_problem_code_has_a_fix():
     assert len(ProblemCode) > 0
