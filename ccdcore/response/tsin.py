@@ -95,7 +95,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -935,33 +935,14 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
         # the band (it lies within one step below the tolerance of the result)
         if reuse is None:
             passes += 1
-            wcode = _eq18_codes(s, gk)
-            J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a, wcode=wcode)
-            tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM,
-                                                    mad_c)
+            here = _measure(s, a, b, gk, fit_a, mad_c, bw, D2)
             if it == 1:
-                before = _pick_pool(s, resid, gk)
-            # steps 6-7: eq. 13 per pool, eq. 15 with the smoothness term and the fixed point
-            Jm = J / n[:, None]
-            # a pool's mean error cannot be known better than its codes' quantisation
-            # (1/12 DN²) at a tenth of the curve's mean slope: where a step flattened g, the
-            # errors there vanish with the slope and their weights would grow without bound
-            floor = 0.1 * max(float(gk[-1] - gk[0]), 1e-12) / (L - 1) / np.sqrt(12.0 * n)
-            W = 1.0 / np.maximum(se, floor) ** 2
-            JWfull = Jm * W[:, None]
-            JW = JWfull[:, :K]
-            H = JW.T @ Jm[:, :K]
-            dg = np.diag(H)
-            lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
-            P_s = _smoothness(gk, D2)
-            Hs = H + lam * P_s
-            here = (J, X, resid, egrp, tm, sig, se, lo, hi, wmean, Jm, W, JWfull, JW, H, dg,
-                    lam, P_s, Hs)
+                before = _pick_pool(s, here.resid, gk)
         else:
-            # the pass at the last accepted curve, kept from when it was made
-            (J, X, resid, egrp, tm, sig, se, lo, hi, wmean, Jm, W, JWfull, JW, H, dg, lam, P_s,
-             Hs) = here = reuse
-            reuse = None
+            here, reuse = reuse, None    # the pass at the last accepted curve, kept
+        J, X, resid, tm, sig, se = here.J, here.X, here.resid, here.tm, here.sig, here.se
+        Jm, W, JWfull, dg, lam, P_s, Hs = (here.Jm, here.W, here.JWfull, here.dg, here.lam,
+                                           here.P_s, here.Hs)
         chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
         if restore:
             break                                 # the pass at the last accepted curve
@@ -1068,23 +1049,8 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
             break
     # the band, the noise terms and the pool's errors from the last pass
     after = _pick_pool(s, resid, gk, like=before)
-    Sg = _group_sums(resid, egrp, s.offsets, lo, hi, wmean, TRIM, int(opts.groups))
-    if fit_a and J.shape[1] == K + 2 * N:
-        Tf, _ = _joint_frame(free, a, t)
-        Hfull = JWfull.T @ Jm
-        Hfull[:K, :K] += lam * P_s
-        cov_f = _sandwich(Tf.T @ Hfull @ Tf, Tf.T @ (JWfull.T @ Sg), Tf)
-        gk, b, D = _least_offsets(gk, a, b, k_rep)
-        cov_f = D @ cov_f @ D.T
-        err, a_err, b_err = (np.sqrt(np.maximum(np.diag(cov_f)[part], 0.0))
-                             for part in (slice(0, K), slice(K, K + N), slice(K + N, None)))
-    else:
-        cov = np.zeros((K, K))
-        cov[np.ix_(free, free)] = _sandwich(Hs[np.ix_(free, free)], (JW.T @ Sg)[free])
-        # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
-        S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
-        err = np.sqrt(np.maximum(np.diag(S @ cov @ S.T), 0.0))
-        a_err, b_err = np.zeros(N), np.zeros(N)
+    gk, b, err, a_err, b_err = _band(s, here, gk, a, b, t, free, k_rep,
+                                     fit_a and J.shape[1] == K + 2 * N, int(opts.groups))
     theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
     # the reported scale: g(z_hi) = z_hi / (L - 1); a, b follow
@@ -1108,6 +1074,84 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
                      "predicted_image": before["predicted_image"], "before": before["values"],
                      "after": after["values"]},
         notes=tuple(notes))
+
+
+class _PassState(NamedTuple):
+    """One pass at (a, b, g) and what steps 6-7 make of it (:func:`_measure`)."""
+
+    J: NDArray            # rows' summed linearisations (eq. 13), in g (and a, b)
+    X: NDArray            # rows' eq. 17 regressors
+    resid: NDArray        # every prediction error (eq. 10), by row
+    egrp: NDArray         # the block of each error's pixel (for the sandwich)
+    tm: NDArray           # rows' trimmed means (eq. 11)
+    sig: NDArray          # rows' MAD sigmas (eq. 12)
+    se: NDArray           # the trimmed means' standard errors
+    lo: NDArray           # winsorising limits
+    hi: NDArray
+    wmean: NDArray        # winsorised means
+    Jm: NDArray           # J per pixel of the row (eq. 13's mean)
+    W: NDArray            # rows' weights (1 / se², floored)
+    JWfull: NDArray       # Jm W
+    JW: NDArray           # its g part
+    H: NDArray            # eq. 15's normal matrix in g
+    dg: NDArray           # its diagonal
+    lam: float            # the smoothness weight
+    P_s: NDArray          # the smoothness relative to the slope (:func:`_smoothness`)
+    Hs: NDArray           # H + lam P_s
+
+
+def _measure(s: _Setup, a: NDArray, b: NDArray, gk: NDArray, fit_a: bool, mad_c: float,
+             bw: float, D2: NDArray) -> _PassState:
+    """Steps 3-7's inputs at (a, b, g): radiance (eq. 9 with eq. 18's weights), errors (eq. 10),
+    trimmed means and MAD sigmas (eqs. 11-12), eq. 13 per pool, eq. 15's normal matrix with
+    the smoothness term; the pass also collects eq. 17's regressors (the last pass serves the
+    noise fit and the band)."""
+    L, K = int(s.data.levels), s.knots.n
+    n = np.diff(s.offsets).astype(np.float64)
+    J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a,
+                              wcode=_eq18_codes(s, gk))
+    tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
+    Jm = J / n[:, None]
+    # a pool's mean error cannot be known better than its codes' quantisation (1/12 DN²) at a
+    # tenth of the curve's mean slope: where a step flattened g, the errors there vanish with
+    # the slope and their weights would grow without bound
+    floor = 0.1 * max(float(gk[-1] - gk[0]), 1e-12) / (L - 1) / np.sqrt(12.0 * n)
+    W = 1.0 / np.maximum(se, floor) ** 2
+    JWfull = Jm * W[:, None]
+    JW = JWfull[:, :K]
+    H = JW.T @ Jm[:, :K]
+    dg = np.diag(H)
+    lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
+    P_s = _smoothness(gk, D2)
+    return _PassState(J, X, resid, egrp, tm, sig, se, lo, hi, wmean, Jm, W, JWfull, JW, H, dg,
+                      lam, P_s, H + lam * P_s)
+
+
+def _band(s: _Setup, p: _PassState, gk: NDArray, a: NDArray, b: NDArray, t: NDArray,
+          free: NDArray, k_rep: int, joint: bool, groups: int
+          ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """The 1-sigma band of g (and the errors of a, b) from the pass ``p``: a sandwich over
+    blocks of pixels, carried to the reported scale (g(z_hi) fixed) and, with ``joint`` (the
+    white-balance fit), to the offsets of smallest norm. Returns ``(g, b, g_err, a_err,
+    b_err)`` with g and b moved to those offsets."""
+    K, N = gk.size, a.size
+    Sg = _group_sums(p.resid, p.egrp, s.offsets, p.lo, p.hi, p.wmean, TRIM, groups)
+    if joint:
+        Tf, _ = _joint_frame(free, a, t)
+        Hfull = p.JWfull.T @ p.Jm
+        Hfull[:K, :K] += p.lam * p.P_s
+        cov_f = _sandwich(Tf.T @ Hfull @ Tf, Tf.T @ (p.JWfull.T @ Sg), Tf)
+        gk, b, D = _least_offsets(gk, a, b, k_rep)
+        cov_f = D @ cov_f @ D.T
+        err, a_err, b_err = (np.sqrt(np.maximum(np.diag(cov_f)[part], 0.0))
+                             for part in (slice(0, K), slice(K, K + N), slice(K + N, None)))
+        return gk, b, err, a_err, b_err
+    cov = np.zeros((K, K))
+    cov[np.ix_(free, free)] = _sandwich(p.Hs[np.ix_(free, free)], (p.JW.T @ Sg)[free])
+    # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
+    S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
+    err = np.sqrt(np.maximum(np.diag(S @ cov @ S.T), 0.0))
+    return gk, b, err, np.zeros(N), np.zeros(N)
 
 
 def _shorter_step(obj0: float, obj_t: float, gain: float, eta_t: float) -> float:
