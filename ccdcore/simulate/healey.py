@@ -48,7 +48,8 @@ simulate
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +79,143 @@ def _ptc_fractions(levels: int | Sequence[float], ptc_range: tuple[float, float]
     _check(len(fr) >= 2 and all(0 < f < 1.5 for f in fr), "levels",
            "give a count >= 2 or a list of at least 2 fractions of the usable range in (0, 1.5)")
     return fr
+
+
+@dataclass(frozen=True)
+class _Rig:
+    """The simulated camera as the capture steps use it: its model, drawn K and dark
+    electrons, the frame-noise stream (shared by every frame, in capture order), the usable
+    range and the session writer's ``add_frame``."""
+
+    model: SensorModel
+    K: np.ndarray
+    dark_e: np.ndarray
+    noise_rng: np.random.Generator
+    range_dn: float
+    dark_mean_dn: float
+    shape: tuple[int, int]
+    exposure: float
+    add: Callable[..., None]
+
+    def light_e(self, frac: float) -> float:
+        """Mean ideal electrons that put the raw frame mean at ``frac`` of the usable range."""
+        return max(frac * self.range_dn - self.dark_mean_dn, 0.01 * self.range_dn) / self.model.A
+
+    def expose(self, I: Any) -> np.ndarray:
+        return self.model.expose(I, self.K, self.dark_e, self.noise_rng)
+
+    def mean(self, I: Any) -> np.ndarray:
+        return self.model.expected_mean(I, self.K, self.dark_e)
+
+    def variance(self, I: Any) -> np.ndarray:
+        return self.model.expected_variance(I, self.K, self.dark_e)
+
+
+def _ptc_levels(rig: _Rig, seed: int, fractions: Sequence[float], ptc_frames: int,
+                illumination_std: float, card_reflectance_std: float, saturate_level: bool
+                ) -> list[dict[str, Any]]:
+    """Photon-transfer frames (sec. IV): ``ptc_frames`` per level of a smooth illumination on
+    a textured card; the truth of each level (eqs. 35-36)."""
+    model, shape = rig.model, rig.shape
+    ptc_field = ((1.0 + smooth_field(shape, child_rng(seed, "ptc_illumination"), illumination_std))
+                 * (1.0 + card_reflectance_std * child_rng(seed, "ptc_card").standard_normal(shape)))
+    specs = [(f, False) for f in fractions]
+    if saturate_level:
+        specs.append((1.6, True))
+    s_top = max(rig.light_e(f) for f in fractions)
+    ptc_truth = []
+    for li, (frac, saturated) in enumerate(specs, start=1):
+        S = rig.light_e(frac) if not saturated else 1.6 * rig.range_dn / model.A
+        I = S * ptc_field
+        paths = []
+        for k in range(ptc_frames):
+            p = f"ptc/L{li:02d}_{chr(97 + k)}.tif"
+            rig.add(p, rig.expose(I), role="ptc", level=li, exposure=rig.exposure)
+            paths.append(p)
+        entry = {"level": li, "nd_transmission": S / s_top, "I_mean_e": float(I.mean()),
+                 "mu": float(rig.mean(I).mean()), "sigma2_N": float(rig.variance(I).mean()),
+                 "saturated": saturated, "frames": paths}
+        if saturated:
+            entry["mu_clipped"] = float(model.expected_pixel_mean(I, rig.K, rig.dark_e).mean())
+            full = rig.mean(I) >= model.full_scale - 0.5
+            if model.full_well_e is not None:
+                full |= rig.K * I + rig.dark_e >= model.full_well_e
+            entry["clipped_fraction"] = float(np.mean(full))
+        ptc_truth.append(entry)
+    return ptc_truth
+
+
+def _fixed_pattern(rig: _Rig, seed: int, n1: int, n2: int, fp_level: float,
+                   card_reflectance_std: float, outlier_fraction: float,
+                   outlier_contrast: float, illumination_std: float) -> list[float]:
+    """Fixed-pattern configurations (sec. V-B): the card and lamp moved between ``n1``
+    configurations (a new texture, spots and illumination each), ``n2`` frames each; their
+    expected means."""
+    shape = rig.shape
+    fp_rng = child_rng(seed, "fixed_pattern_scene")
+    S_fp = rig.light_e(fp_level)
+    fp_means = []
+    for c in range(1, n1 + 1):
+        refl = 1.0 + card_reflectance_std * fp_rng.standard_normal(shape)
+        spots = fp_rng.random(shape) < outlier_fraction
+        sign = np.where(fp_rng.random(shape) < 0.5, -1.0, 1.0)
+        refl = np.where(spots, refl * (1.0 + sign * outlier_contrast), refl)
+        illum = 1.0 + smooth_field(shape, fp_rng, illumination_std)
+        I = S_fp * illum * refl
+        fp_means.append(float(rig.mean(I).mean()))
+        for f in range(n2):
+            rig.add(f"fixed_pattern/C{c:02d}_F{f:02d}.tif", rig.expose(I),
+                    role="fixed_pattern", config=c, exposure=rig.exposure)
+    return fp_means
+
+
+def _scene_patches(rig: _Rig, seed: int, patches: Sequence[tuple[str, float]],
+                   scene_levels: Sequence[float], scene_illumination_std: float, m: int,
+                   roi: list[int]) -> list[dict[str, Any]]:
+    """Scene patches (sec. VI, VII-B): one frame per (patch, level); each patch's scene
+    variation V_S (eq. 57) over the ROI inside the margin ``m``."""
+    model, shape = rig.model, rig.shape
+    h, w = shape
+    sl = (slice(m, h - m), slice(m, w - m))
+    scene_rng = child_rng(seed, "scene_patches")
+    patch_truth = []
+    s_scene_top = max(rig.light_e(f) for f in scene_levels)
+    for name, rel_std in patches:
+        texture = ((1.0 + float(rel_std) * scene_rng.standard_normal(shape))
+                   * (1.0 + smooth_field(shape, scene_rng, scene_illumination_std)))
+        tex_roi = texture[sl]
+        v_s = float(tex_roi.var(ddof=1) / tex_roi.mean() ** 2)
+        frames = []
+        for li, frac in enumerate(scene_levels, start=1):
+            S = rig.light_e(frac)
+            I = S * texture
+            p = f"scene/{name}_L{li:02d}.tif"
+            rig.add(p, rig.expose(I), role="scene", level=li, exposure=rig.exposure, roi=roi,
+                    patch=name)
+            frames.append({"level": li, "path": p, "nd_transmission": S / s_scene_top,
+                           "mu_D": float(model.A * I[sl].mean()),
+                           "mu_raw": float(rig.mean(I)[sl].mean()),
+                           "sigma2_N": float(rig.variance(I)[sl].mean())})
+        patch_truth.append({"name": name, "roi": roi, "rel_std": float(rel_std), "V_S": v_s,
+                            "V_S_model": float((1 + rel_std ** 2)
+                                               * (1 + scene_illumination_std ** 2) - 1),
+                            "frames": frames})
+    return patch_truth
+
+
+def _max_intensity(rig: _Rig, seed: int, level: float, illumination_std: float
+                   ) -> dict[str, Any]:
+    """The maximum-intensity frame of the correction check (sec. VII-A) and what dividing by
+    K (eq. 51) changes in it."""
+    model = rig.model
+    I = rig.light_e(level) * (1.0 + smooth_field(
+        rig.shape, child_rng(seed, "max_illumination"), illumination_std))
+    p = "scene/max_intensity.tif"
+    rig.add(p, rig.expose(I), role="scene", exposure=rig.exposure, flags=["max-intensity"])
+    change = np.abs(rig.K - 1.0) * I * model.A  # what dividing by K (eq. 51) changes, in DN
+    return {"path": p, "mu": float(rig.mean(I).mean()),
+            "fraction_changed_gt_1q": float(np.mean(change > model.q)),
+            "fraction_changed_gt_2q": float(np.mean(change > 2 * model.q))}
 
 
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128, 96),
@@ -173,117 +311,33 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
                         full_well_e=None if full_well_e is None else float(full_well_e),
                         q=1.0, exposure_ref=float(exposure))
     fs = model.full_scale
-
     K = model.draw_K(shape, child_rng(seed, "K"))
     dark_e = model.dark_electrons(model.draw_dark_map(shape, child_rng(seed, "dark_map")), exposure)
     dark_dn_map = dark_e * model.A + model.black_level_dn
-    dark_mean_dn = float(dark_dn_map.mean())
-    noise_rng = child_rng(seed, "frame_noise")
-
     # usable range: the ADC's full scale, or the full well if that is reached first
     range_dn = float(fs) if model.full_well_e is None else min(
         float(fs), model.full_well_e * model.A + model.black_level_dn)
-
-    def light_e(frac: float) -> float:
-        """Mean ideal electrons that put the raw frame mean at ``frac`` of the usable range."""
-        return max(frac * range_dn - dark_mean_dn, 0.01 * range_dn) / model.A
-
     # the simulated camera's electronic offset is known, so the manifest states it ([camera]
     # black_level, DN): the photon-transfer fit then needs no dark-frame estimate of it
     writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits),
                                             "layout": "mono",
                                             "black_level": float(model.black_level_dn)})
-    add = writer.add_frame
+    rig = _Rig(model, K, dark_e, child_rng(seed, "frame_noise"), range_dn,
+               float(dark_dn_map.mean()), shape, float(exposure), writer.add_frame)
+    dark_mean_dn = rig.dark_mean_dn
 
-    # ---- dark frames (sec. V-A, eq. 43) -----------------------------------------------------
-    for i in range(n_dark):
-        add(f"dark/dark_{i:03d}.tif", model.expose(0.0, K, dark_e, noise_rng),
-            role="dark", exposure=exposure)
-
-    # ---- photon-transfer pairs (sec. IV) ----------------------------------------------------
-    ptc_field = ((1.0 + smooth_field(shape, child_rng(seed, "ptc_illumination"), illumination_std))
-                 * (1.0 + card_reflectance_std * child_rng(seed, "ptc_card").standard_normal(shape)))
-    specs = [(f, False) for f in fractions]
-    if saturate_level:
-        specs.append((1.6, True))
-    s_top = max(light_e(f) for f in fractions)
-    ptc_truth = []
-    for li, (frac, saturated) in enumerate(specs, start=1):
-        S = light_e(frac) if not saturated else 1.6 * range_dn / model.A
-        I = S * ptc_field
-        paths = []
-        for k in range(ptc_frames):
-            p = f"ptc/L{li:02d}_{chr(97 + k)}.tif"
-            add(p, model.expose(I, K, dark_e, noise_rng), role="ptc", level=li, exposure=exposure)
-            paths.append(p)
-        mu = float(model.expected_mean(I, K, dark_e).mean())
-        entry = {"level": li, "nd_transmission": S / s_top, "I_mean_e": float(I.mean()),
-                 "mu": mu, "sigma2_N": float(model.expected_variance(I, K, dark_e).mean()),
-                 "saturated": saturated, "frames": paths}
-        if saturated:
-            entry["mu_clipped"] = float(model.expected_pixel_mean(I, K, dark_e).mean())
-            full = model.expected_mean(I, K, dark_e) >= fs - 0.5
-            if model.full_well_e is not None:
-                full |= K * I + dark_e >= model.full_well_e
-            entry["clipped_fraction"] = float(np.mean(full))
-        ptc_truth.append(entry)
-
-    # ---- fixed-pattern configurations (sec. V-B) --------------------------------------------
-    fp_rng = child_rng(seed, "fixed_pattern_scene")
-    S_fp = light_e(fp_level)
-    fp_means = []
-    for c in range(1, n1 + 1):
-        refl = 1.0 + card_reflectance_std * fp_rng.standard_normal(shape)
-        spots = fp_rng.random(shape) < outlier_fraction
-        sign = np.where(fp_rng.random(shape) < 0.5, -1.0, 1.0)
-        refl = np.where(spots, refl * (1.0 + sign * outlier_contrast), refl)
-        illum = 1.0 + smooth_field(shape, fp_rng, illumination_std)
-        I = S_fp * illum * refl
-        fp_means.append(float(model.expected_mean(I, K, dark_e).mean()))
-        for f in range(n2):
-            add(f"fixed_pattern/C{c:02d}_F{f:02d}.tif", model.expose(I, K, dark_e, noise_rng),
-                role="fixed_pattern", config=c, exposure=exposure)
-
-    # ---- scene patches (sec. VI, VII-B) -----------------------------------------------------
+    for i in range(n_dark):                     # dark frames (sec. V-A, eq. 43)
+        rig.add(f"dark/dark_{i:03d}.tif", rig.expose(0.0), role="dark", exposure=exposure)
+    ptc_truth = _ptc_levels(rig, seed, fractions, ptc_frames, illumination_std,
+                            card_reflectance_std, saturate_level)
+    fp_means = _fixed_pattern(rig, seed, n1, n2, fp_level, card_reflectance_std,
+                              outlier_fraction, outlier_contrast, illumination_std)
     m = int(scene_margin)
     roi = [m, m, w - 2 * m, h - 2 * m]
-    sl = (slice(m, h - m), slice(m, w - m))
-    scene_rng = child_rng(seed, "scene_patches")
-    patch_truth = []
-    s_scene_top = max(light_e(f) for f in scene_levels)
-    for name, rel_std in patches:
-        texture = ((1.0 + float(rel_std) * scene_rng.standard_normal(shape))
-                   * (1.0 + smooth_field(shape, scene_rng, scene_illumination_std)))
-        tex_roi = texture[sl]
-        v_s = float(tex_roi.var(ddof=1) / tex_roi.mean() ** 2)
-        frames = []
-        for li, frac in enumerate(scene_levels, start=1):
-            S = light_e(frac)
-            I = S * texture
-            p = f"scene/{name}_L{li:02d}.tif"
-            add(p, model.expose(I, K, dark_e, noise_rng), role="scene", level=li,
-                exposure=exposure, roi=roi, patch=name)
-            frames.append({"level": li, "path": p, "nd_transmission": S / s_scene_top,
-                           "mu_D": float(model.A * I[sl].mean()),
-                           "mu_raw": float(model.expected_mean(I, K, dark_e)[sl].mean()),
-                           "sigma2_N": float(model.expected_variance(I, K, dark_e)[sl].mean())})
-        patch_truth.append({"name": name, "roi": roi, "rel_std": float(rel_std), "V_S": v_s,
-                            "V_S_model": float((1 + rel_std ** 2)
-                                               * (1 + scene_illumination_std ** 2) - 1),
-                            "frames": frames})
-
-    # ---- maximum-intensity frame (sec. VII-A correction check) ------------------------------
-    max_truth = None
-    if max_intensity is not None:
-        I = light_e(float(max_intensity)) * (1.0 + smooth_field(
-            shape, child_rng(seed, "max_illumination"), illumination_std))
-        p = "scene/max_intensity.tif"
-        add(p, model.expose(I, K, dark_e, noise_rng), role="scene", exposure=exposure,
-            flags=["max-intensity"])
-        change = np.abs(K - 1.0) * I * model.A  # what dividing by K (eq. 51) changes, in DN
-        max_truth = {"path": p, "mu": float(model.expected_mean(I, K, dark_e).mean()),
-                     "fraction_changed_gt_1q": float(np.mean(change > model.q)),
-                     "fraction_changed_gt_2q": float(np.mean(change > 2 * model.q))}
+    patch_truth = _scene_patches(rig, seed, patches, scene_levels, scene_illumination_std, m,
+                                 roi)
+    max_truth = (None if max_intensity is None else
+                 _max_intensity(rig, seed, float(max_intensity), illumination_std))
 
     writer.add_map("truth/K.exr", K, name="K")
     writer.add_map("truth/dark.exr", dark_dn_map, name="dark")
