@@ -415,38 +415,32 @@ def _print_product(product: Any, folder: Path) -> None:
         _say("note", note)
 
 
+#: the datasheet's sections as the calibrate summary labels them (15 characters at most)
+_EMVA_SECTION_LABELS = {"Spatial nonuniformity": "nonuniformity"}
+
+
 def _print_emva(e: dict) -> None:
-    """The EMVA 1288 block of ``calibrate`` (the figures of ``CalibrationProduct.emva1288``)."""
-    def pm(key: str, unit: str = "") -> str:
-        return format_pm(_get(e, key), _get(e, f"{key}_err"), unit=unit)
+    """The EMVA 1288 block of ``calibrate``: the datasheet's rows
+    (:func:`ccdcore.emva_sheet.datasheet_rows`), one line per section, then the notes."""
+    from .emva_sheet import datasheet_rows
 
-    print("  EMVA 1288      (release 3.1 definitions, as the emva1288 package computes them)")
-    rows = [("system gain", f"K = {pm('K', 'DN/e⁻')}"),
-            ("quantum eff.", f"η = {pm('QE', '%')}"),
-            ("dark noise", f"σ_y.dark = {pm('sigma_y_dark', 'DN')}; σ_d = {pm('sigma_d', 'e⁻')} "
-                           f"from darks, {pm('sigma_d_ptc', 'e⁻')} from photon transfer"),
-            ("saturation", f"μ_p.sat = {pm('u_p_sat', 'photons')}, "
-                           f"μ_e.sat = {pm('u_e_sat', 'e⁻')}, SNR_max = {pm('SNR_max')}"),
-            ("sensitivity", f"μ_p.min = {pm('u_p_min', 'photons')}"),
-            ("dynamic range", f"DR = {pm('DR')} = {pm('DR_dB', 'dB')}"),
-            ("linearity", f"LE_min = {pm('LE_min', '%')}, LE_max = {pm('LE_max', '%')}")]
-    if "u_I_mean" in e:
-        def current(key: str) -> str:
-            return pm(key, "e⁻/s") if e.get(key) is not None else "not determined (see notes)"
-        rows.append(("dark current", f"μ_I = {current('u_I_mean')} from the mean, "
-                                     f"{current('u_I_var')} from the variance"))
-    if e.get("DSNU1288") is not None or e.get("PRNU1288") is not None:
-        rows.append(("nonuniformity", f"DSNU1288 = {pm('DSNU1288', 'e⁻')}, "
-                                      f"PRNU1288 = {pm('PRNU1288', '%')}"))
-
-        def parts(what: str, unit: str) -> str:
-            return ", ".join(f"{p} {pm(f'{what}_{p}', unit) if e.get(f'{what}_{p}') is not None else 'n/d'}"
-                             for p in ("row", "col", "pixel"))
-        if any(f"DSNU1288_{p}" in e for p in ("row", "col", "pixel")):
-            rows.append(("  DSNU parts", parts("DSNU1288", "e⁻")))
-            rows.append(("  PRNU parts", parts("PRNU1288", "%")))
-    for name, text in rows:
-        print(f"    {name:<14}{text}")
+    print("  EMVA 1288      (release 3.1, with release 4.0's DSNU/PRNU parts; as emva1288 "
+          "computes them)")
+    sections: dict[str, list[str]] = {}
+    for r in datasheet_rows(e):
+        if r.value is None and r.key == "sigma_d_ptc":
+            continue                                 # photon transfer not run: nothing to say
+        text = (format_pm(r.value, r.error, unit=r.unit) if r.value is not None
+                else "not determined (see the notes)")
+        name = f"{r.symbol} from photon transfer" if r.key == "sigma_d_ptc" else r.symbol
+        # no line break inside a figure: only between them
+        sections.setdefault(r.section, []).append(f"{name} = {text}".replace(" ", "\u00a0"))
+    for section, items in sections.items():
+        label = _EMVA_SECTION_LABELS.get(section, section.lower())
+        lines = textwrap.wrap(f"{label:<15}" + "; ".join(items), width=_WIDTH,
+                              initial_indent="    ", subsequent_indent="        ",
+                              break_long_words=False, break_on_hyphens=False)
+        print("\n".join(lines).replace("\u00a0", " "))
     for note in e.get("notes", ()):
         _say("EMVA note", note, indent="    ")
 

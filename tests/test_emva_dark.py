@@ -207,9 +207,14 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
     out = capsys.readouterr().out
     assert f"made at {other:g} s, as named" in " ".join(out.split())
     d = product.emva1288
-    assert (f"μ_I = {format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')} from the mean"
-            in out)
-    assert "DSNU parts  row " in out and "PRNU parts  row " in out
+    assert (f"    dark current   μ_I.mean = "
+            f"{format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')}; μ_I.var = " in out)
+    flat = " ".join(out.split())
+    for part in ("row", "col", "pixel"):
+        assert (f"DSNU1288.{part} = "
+                f"{format_pm(d[f'DSNU1288_{part}'], d[f'DSNU1288_{part}_err'], unit='e⁻')}"
+                in flat)
+    assert "\u00a0" not in out
     with pytest.raises(SystemExit) as exc:
         main(["calibrate", str(gen.descriptor_path), "-o", str(tmp_path / "q"),
               "--dark-exposure", "-1"])
