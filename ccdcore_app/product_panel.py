@@ -205,16 +205,18 @@ def _response(e: Mapping[str, Any]) -> str:
             + ("" if all(converged) else "; **not converged**"))
 
 
+#: the EMVA 1288 figures in a product's headline (keys of :data:`ccdcore.emva_sheet.DATASHEET`)
+_EMVA_HEADLINE = ("K", "QE", "sigma_d", "u_e_sat", "DR_dB", "u_I_mean", "DSNU1288", "PRNU1288")
+
+
 def _emva(e: Mapping[str, Any]) -> str:
-    parts = [f"K = {format_pm(e.get('K'), e.get('K_err'))} DN/e⁻",
-             f"QE = {format_pm(e.get('QE'), e.get('QE_err'))} %",
-             f"σ_d = {format_pm(e.get('sigma_d'), e.get('sigma_d_err'))} e⁻",
-             f"μ_e.sat = {format_pm(e.get('u_e_sat'), e.get('u_e_sat_err'))} e⁻",
-             f"DR = {format_pm(e.get('DR_dB'), e.get('DR_dB_err'))} dB"]
-    for key, unit in (("DSNU1288", " e⁻"), ("PRNU1288", " %")):
-        if e.get(key) is not None:
-            parts.append(f"{key} = {format_pm(e.get(key), e.get(key + '_err'))}{unit}")
-    return ", ".join(parts)
+    """The headline figures of the datasheet's rows (:func:`ccdcore.emva_sheet.datasheet_rows`),
+    those the product has."""
+    from ccdcore.emva_sheet import datasheet_rows
+
+    return ", ".join(f"{r.symbol} = {format_pm(r.value, r.error, unit=r.unit)}"
+                     for r in datasheet_rows(e)
+                     if r.key in _EMVA_HEADLINE and r.value is not None)
 
 
 #: the EMVA 1288 figures of a product (``CalibrationProduct.emva1288``), listed as an estimate

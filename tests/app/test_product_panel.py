@@ -156,7 +156,8 @@ def test_headlines_of_an_emva_product_and_of_damaged_summaries(made):
     rows = estimates_frame(dataclasses.replace(product, emva1288=emva))
     headline = dict(zip(rows["estimate"], rows["headline"]))["emva1288"]
     assert f"K = {format_pm(0.0123, 0.0004)} DN/e⁻" in headline
-    assert f"QE = {format_pm(51.2, 1.3)} %" in headline and "DSNU" not in headline
+    assert f"η = {format_pm(51.2, 1.3)} %" in headline and "DSNU" not in headline
+    assert "μ_I.mean" not in headline                  # the product has no dark current
     assert f"PRNU1288 = {format_pm(0.71, 0.05)} %" in headline
     # a summary of another version: what is missing reads "?", nothing raises
     assert estimate_headline("noise", {"A": 0.01}).startswith("A = 0.01 DN")
