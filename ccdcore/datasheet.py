@@ -29,6 +29,8 @@ Public objects
 --------------
 emva_figures(session, noise=None, progress=None)
     Every figure below, from one streamed pass over the frames.
+with_photon_transfer(figures, noise)
+    The same figures with σ_d from another photon transfer (no frame read).
 EmvaFigures, EmvaPoint, DarkPoint, SpatialSet
     Frozen results (``to_dict()`` gives the JSON-safe dict under emva1288's names).
 EMVA_STEPS
@@ -63,7 +65,8 @@ from .noise import READ_AHEAD, PhotonTransfer
 from .progress import Progress, Steps
 from .session import FrameRecord, Session, open_session
 
-__all__ = ["EmvaFigures", "EmvaPoint", "DarkPoint", "SpatialSet", "emva_figures", "EMVA_STEPS",
+__all__ = ["EmvaFigures", "EmvaPoint", "DarkPoint", "SpatialSet", "emva_figures",
+           "with_photon_transfer", "EMVA_STEPS",
            "QUANTISATION_VARIANCE", "SIGMA2_Y_DARK_FLOOR", "SENSITIVITY_FRACTION",
            "LINEARITY_RANGE", "DISAGREEMENT_Z", "QUANTISATION_LIMIT_DN"]
 
@@ -251,6 +254,9 @@ class EmvaFigures:
     dark_current: DarkCurrent | None = None
     split: NonuniformitySplit | None = None
     spatial_plots: SpatialPlots | None = None
+    #: the notes of ``notes`` that come from the photon transfer (replaced by
+    #: :func:`with_photon_transfer`)
+    ptc_notes: tuple[str, ...] = ()
 
     # ---- curves for the report ----------------------------------------------------------
     def snr_curve(self) -> dict[str, list[float | None]]:
@@ -894,7 +900,7 @@ class _PtcReadNoise:
     consistent: bool | None = None
 
 
-def _ptc_read_noise(session: Session, noise: PhotonTransfer | None, with_ptc: bool,
+def _ptc_read_noise(session: Session | None, noise: PhotonTransfer | None, with_ptc: bool,
                     dark: _DarkNoise, notes: list[str]) -> _PtcReadNoise:
     """σ_d from the intercept of our photon-transfer line (Healey & Kondepudy eq. 27), and
     whether it agrees with σ_d from the darks within :data:`DISAGREEMENT_Z` standard errors."""
@@ -1067,7 +1073,9 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
     sens = _sensitivity(c, raw, label, notes)
     dark = _dark_noise(dark_points, sens, notes)
     report("photon transfer")
-    ptc = _ptc_read_noise(session, noise, with_ptc, dark, notes)
+    ptc_notes: list[str] = []
+    ptc = _ptc_read_noise(session, noise, with_ptc, dark, ptc_notes)
+    notes.extend(ptc_notes)
     thr = _threshold_and_range(c.u_p, sens, dark)
     i_lin_min, i_lin_max, lin_a, lin_b, (le_min, le_min_err), (le_max, le_max_err) = \
         _linearity(c.u_p, c.Y, c.var_Y, sens.i_sat, label)
@@ -1106,4 +1114,21 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
         dark_points=tuple(dark_points), spatial=sp, spatial_dark=spd,
         sigma_d_consistent=ptc.consistent, quantisation_limited=dark.quantisation_limited,
         notes=tuple(notes), source=label, dark_current=current, split=split,
-        spatial_plots=plots)
+        spatial_plots=plots, ptc_notes=tuple(ptc_notes))
+
+
+def with_photon_transfer(figures: EmvaFigures, noise: PhotonTransfer | None) -> EmvaFigures:
+    """``figures`` with σ_d from the intercept of ``noise`` (``sigma_d_ptc``, ``K_ptc``, their
+    agreement with the darks and its note) instead of the photon transfer they were made with;
+    ``None`` leaves them out. No frame is read: a page that refits the photon transfer (other
+    levels, another fit range) keeps the figures of the frames and changes only these."""
+    base = [n for n in figures.notes if n not in set(figures.ptc_notes)]
+    dark = _DarkNoise(figures.sigma_y_dark, figures.sigma_y_dark_err,
+                      figures.sigma_y_dark_measured, figures.u_y_dark, figures.u_y_dark_err,
+                      figures.sigma_d, figures.sigma_d_err, figures.quantisation_limited)
+    ptc_notes: list[str] = []
+    ptc = (_ptc_read_noise(None, noise, False, dark, ptc_notes) if noise is not None
+           else _PtcReadNoise())
+    return replace(figures, sigma_d_ptc=ptc.sigma_d, sigma_d_ptc_err=ptc.sigma_d_err,
+                   K_ptc=ptc.K, K_ptc_err=ptc.K_err, sigma_d_consistent=ptc.consistent,
+                   notes=tuple(base + ptc_notes), ptc_notes=tuple(ptc_notes))

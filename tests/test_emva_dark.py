@@ -250,3 +250,24 @@ def test_a_line_the_points_do_not_follow_is_noted():
     assert any(n.startswith("u_I_var: the dark variance scatters") for n in d.notes)
     assert not any(n.startswith("u_I_mean:") for n in d.notes)
     assert dark_current(*_points(1500.0, noise=1.0, seed=2), K, 0.0).notes == ()
+
+
+def test_figures_take_another_photon_transfer_without_reading_frames(generated):
+    """with_photon_transfer(figures without photon transfer, noise) is what emva_figures gives
+    with that photon transfer (its notes in another order), for the paper's and the EMVA
+    range; and None takes σ_d from the intercept out again."""
+    from ccdcore.datasheet import with_photon_transfer
+    from ccdcore.noise import EMVA_FIT_FRACTION, photon_transfer
+    from ccdcore.session import open_session
+
+    gen, base, _ = generated
+    session = open_session(gen.descriptor_path)
+    for fraction in (None, EMVA_FIT_FRACTION):
+        noise = photon_transfer(session, fit_fraction=fraction)
+        want = emva_figures(session, noise=noise).to_dict()
+        got = with_photon_transfer(base, noise).to_dict()
+        assert got["sigma_d_ptc"] == want["sigma_d_ptc"] and got["K_ptc"] == want["K_ptc"]
+        assert sorted(got.pop("notes")) == sorted(want.pop("notes"))
+        assert got == want
+    again = with_photon_transfer(with_photon_transfer(base, noise), None)
+    assert again.sigma_d_ptc is None and again.notes == base.notes

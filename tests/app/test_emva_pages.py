@@ -83,7 +83,11 @@ def _used(noise) -> list[int]:
     return [p.level for p in noise.points if p.used]
 
 
-def test_the_fit_range_control_sets_the_fit_and_the_gate(walked, emva_set):
+def test_the_fit_range_control_sets_the_fit_and_the_gate(walked, emva_set, monkeypatch):
+    from ccdcore_app.pages.walkthrough import ptc
+
+    reads = []
+    monkeypatch.setattr(ptc, "emva_of_frames", lambda s: reads.append(s))  # read once before
     page, session = walked, open_session(emva_set)
     step = page.steps["ptc"]
     # an EMVA set starts with the EMVA 1288 range
@@ -112,6 +116,10 @@ def test_the_fit_range_control_sets_the_fit_and_the_gate(walked, emva_set):
     assert sorted(used_src["level"]) == sorted(_used(every))
     # the EMVA points did not change: the deviation-from-linearity plot is the same figure
     assert step.linearity_pane.object is linearity
+    # nor were the frames read again: only σ_d from the new intercept changed
+    assert reads == []
+    assert page.results.emva["sigma_d_ptc"] == emva_figures(
+        session, noise=every).to_dict()["sigma_d_ptc"]
     # back to the EMVA range
     step.range_select.value = "emva"
     _run(page.run_step("ptc"))
@@ -279,10 +287,10 @@ def test_the_dark_step_says_when_the_emva_figures_cannot_be_made(emva_set, monke
     from ccdcore.errors import CcdError
     from ccdcore_app.pages.walkthrough import ptc
 
-    def refuse(session, noise):
+    def refuse(session):
         raise CcdError(session.label, "every point saturated")
 
-    monkeypatch.setattr(ptc, "compute_emva", refuse)
+    monkeypatch.setattr(ptc, "emva_of_frames", refuse)
     state = AppState(allowed_roots=[emva_set.parent])
     assert state.load(str(emva_set))
     page = WalkthroughPage(state, auto=False)

@@ -72,11 +72,13 @@ def compute_ptc(session: Session, exclude: list[int], robust: bool,
                            fit_fraction=fit_fraction)
 
 
-def compute_emva(session: Session, noise: Any) -> dict[str, Any]:
-    """The EMVA 1288 figures (:func:`ccdcore.datasheet.emva_figures`) as their JSON dict."""
+def emva_of_frames(session: Session) -> Any:
+    """The EMVA 1288 figures of the session's frames, without photon transfer: what a refit of
+    the photon transfer does not change (:func:`ccdcore.datasheet.with_photon_transfer` adds
+    it)."""
     from ccdcore.datasheet import emva_figures
 
-    return emva_figures(session, noise=noise).to_dict()
+    return emva_figures(session, with_ptc=False)
 
 
 #: the text of a figure the session does not determine
@@ -120,6 +122,8 @@ class PtcStep(Step, param.Parameterized):
         param.Parameterized.__init__(self)
         Step.__init__(self, page)
         self._resetting = False
+        #: (session, its EMVA 1288 figures without photon transfer): read once per session
+        self._emva_frames: tuple[Session, Any] | None = None
         #: what the EMVA plots show: the data they were built from
         self._linearity_shown: tuple | None = None
         self._spatial_shown: Any = None
@@ -184,7 +188,8 @@ class PtcStep(Step, param.Parameterized):
             self.page.refit_ptc()             # as the levels left out and the robust mode
 
     def dropped(self, names: Any) -> None:
-        if "session" in names:                # another session: its own default range
+        if "session" in names:                # another session: its own figures and range
+            self._emva_frames = None
             self.reset_fit_range()
 
     @property
@@ -217,10 +222,17 @@ class PtcStep(Step, param.Parameterized):
         return found
 
     async def _with_emva(self, session: Session, noise: Any, gate: Gate) -> Gate:
-        """The EMVA 1288 figures (``results.emva``), and ``gate`` with their notes."""
+        """The EMVA 1288 figures (``results.emva``), and ``gate`` with their notes. The frames
+        are read once per session; a refit (levels left out, robust mode, fit range) changes
+        only σ_d from the photon-transfer intercept."""
+        from ccdcore.datasheet import with_photon_transfer
+
         state = self.page.state
-        figures = await state.compute(compute_emva, session, noise,
-                                      label="the EMVA 1288 figures")
+        if self._emva_frames is None or self._emva_frames[0] is not session:
+            base = await state.compute(emva_of_frames, session, label="the EMVA 1288 figures")
+            self._emva_frames = None if base is None else (session, base)
+        figures = (None if self._emva_frames is None
+                   else with_photon_transfer(self._emva_frames[1], noise).to_dict())
         self.results.emva = figures
         if figures is None:
             notes: tuple[str, ...] = (
