@@ -239,8 +239,8 @@ def encode(value: Any, arrays: dict[str, np.ndarray]) -> Any:
     tuples and enums of ccdcore's own modules (by class name and fields, items or value). Raises
     :class:`Unserialisable` for anything else (a function, another library's object).
     """
-    if value is None or isinstance(value, (bool, str)):
-        return value
+    if value is None or isinstance(value, bool) or type(value) is str:
+        return value                            # a str enum (channels.Layout) is an enum below
     if isinstance(value, (int, float)) and type(value) in (int, float):
         return value
     if isinstance(value, np.ndarray) or isinstance(value, np.generic):
