@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +107,123 @@ def _linear_low(model: SensorModel, tol: float = 0.05) -> float:
     bias = np.abs(clipped_normal_mean(grid, s, 0.0, float(model.full_scale)) - grid)
     ok = np.nonzero(bias < tol)[0]
     return float(max(grid[ok[0]], 0.0)) if ok.size else float(model.full_scale)
+
+
+@dataclass(frozen=True)
+class _Camera:
+    """The simulated 3-CCD camera: per-channel gains (DN/e⁻, at the gain setting and bit
+    depth), read noise, dark-current rates (DN/s), spatial spreads, bit depth, the 8-bit to
+    ``bits`` scale and the response's knee (DN)."""
+
+    A: tuple[float, ...]
+    read_noise_e: float
+    dark_dn_per_s: tuple[float, ...]
+    dark_spatial_std: float
+    prnu_std: float
+    bits: int
+    scale: float
+    knee: float
+
+    def model(self, c: int, setting: str) -> SensorModel:
+        """Channel ``c``'s sensor at offset ``setting``."""
+        a = self.A[c]
+        return SensorModel(A=a, read_noise_e=self.read_noise_e,
+                           dark_current_e=self.dark_dn_per_s[c] / a,
+                           dark_spatial_std=self.dark_spatial_std, sigma_K=self.prnu_std,
+                           bits=self.bits, black_level_dn=SETTINGS[setting][1][c] * self.scale,
+                           full_well_e=None, q=1.0, exposure_ref=1.0, knee_dn=self.knee)
+
+
+def _true_maps(cam: _Camera, seed: int, shape: tuple[int, int], centre_jitter: float,
+               vignetting_corner: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per channel: the cos⁴ vignetting about a jittered optical centre, the flat field
+    F_c = V_c K_c / mean (PRNU K_c) and the dark-current map (electrons per second)."""
+    h, w = shape
+    geo = child_rng(seed, "vignetting")
+    vign = np.empty(shape + (3,))
+    flat = np.empty(shape + (3,))
+    dark_rate_e = np.empty(shape + (3,))  # dark electrons per second
+    for c in range(3):
+        m0 = cam.model(c, "NZDI")
+        centre = (w / 2.0 + geo.uniform(-1, 1) * centre_jitter * w,
+                  h / 2.0 + geo.uniform(-1, 1) * centre_jitter * h)
+        vign[..., c] = _vignetting(shape, centre, vignetting_corner)
+        K = m0.draw_K(shape, child_rng(seed, f"prnu_{CHANNELS[c]}"))
+        vk = vign[..., c] * K
+        flat[..., c] = vk / vk.mean()
+        dark_rate_e[..., c] = m0.draw_dark_map(shape, child_rng(seed, f"dark_{CHANNELS[c]}"))
+    return vign, flat, dark_rate_e
+
+
+@dataclass
+class _Shooter:
+    """Exposes and writes the frames, in capture order (one frame-noise stream), and keeps
+    each frame's truth."""
+
+    cam: _Camera
+    writer: SessionWriter
+    flat: np.ndarray
+    dark_rate_e: np.ndarray
+    noise_rng: np.random.Generator
+    levels: list[float]
+    signal_dn_per_s: tuple[float, ...]
+    linear_low: dict[str, list[float]]
+    gain: float
+    frames_truth: list[dict[str, Any]] = field(default_factory=list)
+
+    def signal_e(self, c: int, level: float, t: float) -> np.ndarray:
+        m = self.cam.model(c, "NZDI")
+        return self.signal_dn_per_s[c] * level * t / m.A * self.flat[..., c]
+
+    def shoot(self, relpath: str, setting: str, role: str, t: float,
+              level_id: int | None) -> None:
+        models = [self.cam.model(c, setting) for c in range(3)]
+        level = 0.0 if level_id is None else self.levels[level_id - 1]
+        fs = 2 ** self.cam.bits - 1
+        chans, mean, mean_lin, lin_ok, sat = [], [], [], True, []
+        for c, m in enumerate(models):
+            I = self.signal_e(c, level, t)
+            d = m.dark_electrons(self.dark_rate_e[..., c], t)
+            chans.append(m.expose(I, 1.0, d, self.noise_rng))
+            mean.append(float(m.expected_pixel_mean(I, 1.0, d).mean()))
+            lin = m.expected_mean(I, 1.0, d)
+            mean_lin.append(float(lin.mean()))
+            lin_ok = lin_ok and bool(np.all((lin >= self.linear_low[setting][c])
+                                            & (lin <= self.cam.knee)))
+            sat.append(float(np.mean(m.response(lin) >= fs - 0.5)))
+        frame = np.stack(chans, axis=-1)
+        self.writer.add_frame(relpath, frame, role=role, level=level_id, exposure=t,
+                              gain=self.gain, setting=setting)
+        self.frames_truth.append({"path": relpath, "role": role, "setting": setting,
+                                  "level": level_id, "exposure": t, "mean_dn": mean,
+                                  "mean_dn_linear": mean_lin, "in_linear_range": lin_ok,
+                                  "saturated_fraction": sat})
+
+
+def _truth_maps(writer: SessionWriter, cam: _Camera, settings: Sequence[str], flat: np.ndarray,
+                vign: np.ndarray, dark_rate_e: np.ndarray, t_base: float,
+                linear_low: dict[str, list[float]]) -> dict[str, Any]:
+    """The true maps (flat field, vignetting, dark rate, each setting's dark at the base
+    exposure) into ``truth/``, and each setting's truth."""
+    writer.add_map("truth/flatfield.exr", flat, name="flatfield")
+    writer.add_map("truth/vignetting.exr", vign, name="vignetting")
+    writer.add_map("truth/dark_rate.exr",
+                   dark_rate_e * np.array([cam.model(c, "NZDI").A for c in range(3)]),
+                   name="dark_rate")
+    per_setting: dict[str, Any] = {}
+    for setting in settings:
+        ms = [cam.model(c, setting) for c in range(3)]
+        dark_base = np.stack([ms[c].expected_pixel_mean(0.0, 1.0, ms[c].dark_electrons(
+            dark_rate_e[..., c], t_base)) for c in range(3)], axis=-1)
+        rel = writer.add_map(f"truth/dark_{setting}.exr", dark_base, name=f"dark_{setting}")
+        per_setting[setting] = {
+            "offset_register": SETTINGS[setting][0],
+            "black_level_dn": [m.black_level_dn for m in ms],
+            "linear_range_dn": [[linear_low[setting][c], cam.knee] for c in range(3)],
+            "dark_map": rel, "dark_map_exposure": t_base,
+            "dark_mean_dn_at_base": [float(x) for x in dark_base.reshape(-1, 3).mean(axis=0)],
+        }
+    return per_setting
 
 
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96, 64),
@@ -192,88 +310,31 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96,
     exposures = [float(t) for t in exposures]
     levels = [float(v) for v in levels]
     t_base = exposures[base[1] - 1]
-
-    def model(c: int, setting: str) -> SensorModel:
-        a = float(A[c]) * float(gain) * scale
-        return SensorModel(A=a, read_noise_e=float(read_noise_e),
-                           dark_current_e=float(dark_current_dn_per_s[c]) * scale / a,
-                           dark_spatial_std=float(dark_spatial_std), sigma_K=float(prnu_std),
-                           bits=int(bits), black_level_dn=SETTINGS[setting][1][c] * scale,
-                           full_well_e=None, q=1.0, exposure_ref=1.0, knee_dn=knee)
-
-    # ---- true maps --------------------------------------------------------------------------
-    geo = child_rng(seed, "vignetting")
-    vign = np.empty(shape + (3,))
-    flat = np.empty(shape + (3,))
-    dark_rate_e = np.empty(shape + (3,))  # dark electrons per second
-    for c in range(3):
-        m0 = model(c, "NZDI")
-        centre = (w / 2.0 + geo.uniform(-1, 1) * centre_jitter * w,
-                  h / 2.0 + geo.uniform(-1, 1) * centre_jitter * h)
-        vign[..., c] = _vignetting(shape, centre, float(vignetting_corner))
-        K = m0.draw_K(shape, child_rng(seed, f"prnu_{CHANNELS[c]}"))
-        vk = vign[..., c] * K
-        flat[..., c] = vk / vk.mean()
-        dark_rate_e[..., c] = m0.draw_dark_map(shape, child_rng(seed, f"dark_{CHANNELS[c]}"))
-
+    cam = _Camera(tuple(float(a) * float(gain) * scale for a in A), float(read_noise_e),
+                  tuple(float(v) * scale for v in dark_current_dn_per_s), float(dark_spatial_std),
+                  float(prnu_std), int(bits), scale, knee)
+    model = cam.model
+    vign, flat, dark_rate_e = _true_maps(cam, seed, shape, float(centre_jitter),
+                                         float(vignetting_corner))
     linear_low = {st: [_linear_low(model(c, st)) for c in range(3)] for st in settings}
-    noise_rng = child_rng(seed, "frame_noise")
     writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits), "layout": "rgb"})
-    frames_truth: list[dict[str, Any]] = []
-
-    def signal_e(c: int, level: float, t: float) -> np.ndarray:
-        m = model(c, "NZDI")
-        return float(signal_dn_per_s[c]) * scale * level * t / m.A * flat[..., c]
-
-    def shoot(relpath: str, setting: str, role: str, t: float, level_id: int | None) -> None:
-        models = [model(c, setting) for c in range(3)]
-        level = 0.0 if level_id is None else levels[level_id - 1]
-        chans, mean, mean_lin, lin_ok, sat = [], [], [], True, []
-        for c, m in enumerate(models):
-            I = signal_e(c, level, t)
-            d = m.dark_electrons(dark_rate_e[..., c], t)
-            chans.append(m.expose(I, 1.0, d, noise_rng))
-            mean.append(float(m.expected_pixel_mean(I, 1.0, d).mean()))
-            lin = m.expected_mean(I, 1.0, d)
-            mean_lin.append(float(lin.mean()))
-            lin_ok = lin_ok and bool(np.all((lin >= linear_low[setting][c]) & (lin <= knee)))
-            sat.append(float(np.mean(m.response(lin) >= fs - 0.5)))
-        frame = np.stack(chans, axis=-1)
-        writer.add_frame(relpath, frame, role=role, level=level_id, exposure=t, gain=float(gain),
-                         setting=setting)
-        frames_truth.append({"path": relpath, "role": role, "setting": setting, "level": level_id,
-                             "exposure": t, "mean_dn": mean, "mean_dn_linear": mean_lin,
-                             "in_linear_range": lin_ok, "saturated_fraction": sat})
-
-    for setting in settings:
+    shooter = _Shooter(cam, writer, flat, dark_rate_e, child_rng(seed, "frame_noise"), levels,
+                       tuple(float(v) * scale for v in signal_dn_per_s), linear_low,
+                       float(gain))
+    for setting in settings:                    # darks, then flats, per offset setting
         tag = setting.lower()
         for ei, t in enumerate(exposures, start=1):
             for k in range(n_dark):
-                shoot(f"{tag}/dark_E{ei:02d}_{k}.tif", setting, "dark", t, None)
+                shooter.shoot(f"{tag}/dark_E{ei:02d}_{k}.tif", setting, "dark", t, None)
         for li in range(1, len(levels) + 1):
             for ei, t in enumerate(exposures, start=1):
                 n = n_average if (li, ei) == tuple(base) else n_frames
                 for k in range(n):
-                    shoot(f"{tag}/flat_L{li}_E{ei:02d}_{k}.tif", setting, "flat", t, li)
-
-    # ---- maps and truth ---------------------------------------------------------------------
-    writer.add_map("truth/flatfield.exr", flat, name="flatfield")
-    writer.add_map("truth/vignetting.exr", vign, name="vignetting")
-    writer.add_map("truth/dark_rate.exr",
-                   dark_rate_e * np.array([model(c, "NZDI").A for c in range(3)]), name="dark_rate")
-    per_setting: dict[str, Any] = {}
-    for setting in settings:
-        ms = [model(c, setting) for c in range(3)]
-        dark_base = np.stack([ms[c].expected_pixel_mean(0.0, 1.0, ms[c].dark_electrons(
-            dark_rate_e[..., c], t_base)) for c in range(3)], axis=-1)
-        rel = writer.add_map(f"truth/dark_{setting}.exr", dark_base, name=f"dark_{setting}")
-        per_setting[setting] = {
-            "offset_register": SETTINGS[setting][0],
-            "black_level_dn": [m.black_level_dn for m in ms],
-            "linear_range_dn": [[linear_low[setting][c], knee] for c in range(3)],
-            "dark_map": rel, "dark_map_exposure": t_base,
-            "dark_mean_dn_at_base": [float(x) for x in dark_base.reshape(-1, 3).mean(axis=0)],
-        }
+                    shooter.shoot(f"{tag}/flat_L{li}_E{ei:02d}_{k}.tif", setting, "flat", t,
+                                  li)
+    frames_truth = shooter.frames_truth
+    per_setting = _truth_maps(writer, cam, settings, flat, vign, dark_rate_e, t_base,
+                              linear_low)
     m_nz = [model(c, "NZDI") for c in range(3)]
     truth: dict[str, Any] = {
         "preset": "delasarte07", "seed": int(seed), "size": [w, h], "bits": int(bits),
