@@ -44,8 +44,8 @@ import param
 
 from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
-from ccdcore.noise import (ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint, photon_transfer,
-                           ptc_points)
+from ccdcore.noise import (EMVA_FIT_FRACTION, ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint,
+                           photon_transfer, ptc_points)
 from ccdcore.session import FrameRecord, Session
 
 from ccdcore_report import ptc as ptc_plots
@@ -166,6 +166,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
     robust = param.Boolean(default=False, doc=(
         f"Robust mode: drop, one at a time, the level whose residual exceeds {ROBUST_Z:g} sigma "
         "(at least three levels kept)."))
+    emva_range = param.Boolean(default=False, doc=(
+        "Fit the gain over the EMVA 1288 range only: the levels up to 70 % of the saturation "
+        "signal (that of the level of largest variance; release 3.1 sec. 6.6)."))
     points = param.ClassSelector(class_=tuple, default=(), doc=(
         "The measured levels (ccdcore.noise.PtcPoint) at the applied ROI, with the estimator's "
         "flags when fitted."))
@@ -218,6 +221,8 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.robust_checkbox = pn.widgets.Checkbox.from_param(
             self.param.robust, label=f"Robust mode (drop levels beyond {ROBUST_Z:g}\u03c3, one at "
                                     "a time)")
+        self.emva_checkbox = pn.widgets.Checkbox.from_param(
+            self.param.emva_range, label="EMVA 1288 range (0–70 % of saturation)")
         self.all_levels_button = pn.widgets.Button(label="Use all levels", color="light")
         self.all_levels_button.on_click(self._on_all_levels)
         self.robust_pane = pn.pane.Markdown("", sizing_mode="stretch_width",
@@ -278,7 +283,7 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             pn.pane.Markdown("Untick a level to leave it out; the fit follows at once.",
                              margin=(0, 10)),
             self.level_select, self.all_levels_button, pn.layout.Divider(),
-            self.robust_checkbox, self.robust_pane,
+            self.robust_checkbox, self.robust_pane, self.emva_checkbox,
             pn.pane.Markdown(_NAV_NOTE, styles={"font-size": "0.85em", "color": "#6c757d"}),
             title="Levels", width=320, collapsible=False)
         fit_card = pn.Card(self.verdict_alert, self.parameter_table, title="Noise model",
@@ -426,20 +431,22 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         """Levels the user unticked (kept across ROI changes while the level exists)."""
         return set(self.param.levels.objects) - set(self.levels)
 
-    @param.depends("points", "levels", "robust", watch=True)
+    @param.depends("points", "levels", "robust", "emva_range", watch=True)
     @batched
     def _refit(self) -> None:
-        """Fit the measured points again with the ticked levels and the robust mode (instant:
-        ``PhotonTransfer.refit``, i.e. ``fit_points``; no frame is read)."""
+        """Fit the measured points again with the ticked levels, the robust mode and the fit
+        range (instant: ``PhotonTransfer.refit``, i.e. ``fit_points``; no frame is read)."""
         error, self._fit_error = self._fit_error, ""
         excluded = sorted(self._excluded() & {p.level for p in self.points})
         result: PhotonTransfer | None = None
         if self.base is not None:
-            if not excluded and not self.robust:
+            if not excluded and not self.robust and not self.emva_range:
                 result = self.base
             else:
                 try:
-                    result = self.base.refit(exclude_levels=excluded, robust=self.robust)
+                    result = self.base.refit(
+                        exclude_levels=excluded, robust=self.robust,
+                        fit_fraction=EMVA_FIT_FRACTION if self.emva_range else None)
                 except CcdError as err:
                     error = str(err)
         self.result = result
@@ -483,7 +490,9 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             self.notes_pane.object = "No fit."
         else:
             kind, text = verdict_message(result)
-            self.verdict_alert.param.update(alert_type=kind, object=text, visible=True)
+            self.verdict_alert.param.update(
+                alert_type=kind, object=f"{text}\n\nFit range: {result.fit_range}.",
+                visible=True)
             self.parameter_table.object = parameter_frame(result, self.shape)
             if self.robust:
                 dropped = result.robust_dropped

@@ -183,6 +183,30 @@ def test_robust_mode_drops_the_outlier(state, tmp_path):
     assert page.result.robust_dropped == () and all(p.used for p in page.result.points)
 
 
+def test_the_emva_range_refits_without_reading_frames(state, assets, monkeypatch):
+    """The EMVA 1288 range (0–70 % of the saturation signal) is a refit of the measured points:
+    the levels above it are left out as "range", the verdict says which range was used, and
+    unticking it gives the default fit back."""
+    from ccdcore.noise import EMVA_FIT_FRACTION
+
+    root = assets / "healey94"
+    page = _page(state, root)
+    default = page.result
+    assert "every level below saturation" in page.verdict_alert.object
+    import ccdcore_app.pages.photon_transfer as pt_page
+
+    monkeypatch.setattr(pt_page, "ptc_points", None)      # no frame may be read again
+    monkeypatch.setattr(pt_page, "photon_transfer", None)
+    page.emva_range = True
+    expected = photon_transfer(root, fit_fraction=EMVA_FIT_FRACTION)
+    assert [p.used for p in page.result.points] == [p.used for p in expected.points]
+    assert any(p.exclusion == "range" for p in page.result.points)
+    assert page.result.A == pytest.approx(expected.A, rel=1e-12)
+    assert "EMVA 1288 range" in page.verdict_alert.object
+    page.emva_range = False
+    assert page.result is default
+
+
 def test_a_session_without_ptc_frames_says_what_to_capture(state, assets):
     page = _page(state, assets / "tsin01")
     assert page.info_alert.visible and page.info_alert.object == NO_PTC_MESSAGE
