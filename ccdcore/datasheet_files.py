@@ -47,7 +47,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 import numpy as np
 
 from .common import format_pm, json_safe
-from .emva_sheet import datasheet_rows
+from .emva_sheet import datasheet_rows, linearity_deviation
 from .errors import CcdError, require_extra
 
 __all__ = ["write_datasheet", "datasheet_csv", "datasheet_document", "plot_plan", "PlotPlan",
@@ -325,10 +325,9 @@ def _draw_deviation(fig: Any, emva: Mapping[str, Any], where: str) -> None:
     the linearity fit (5–95 % of the saturation signal), with LE_min and LE_max, its extremes.
     The points outside that range are not drawn: near zero signal a small offset is a large
     relative deviation, which would hide the range the standard rates."""
-    u_p, Y, fit, _, a, b = _linearity_data(emva, where)
-    model = a * u_p + b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dev = np.where(model != 0, 100.0 * (Y - model) / model, np.nan)
+    _linearity_data(emva, where)                  # the points and the line are sound
+    d = linearity_deviation(emva)
+    u_p, dev, fit = d["u_p"], d["deviation"], d["in_fit"]
     ax = _axes(fig, "Deviation from linearity (the points of the fit, 5–95 % of saturation)",
                "μ_p [photons per pixel]", "100·(Y − (a·μ_p + b))/(a·μ_p + b) [%]")
     ax.plot(u_p[fit], dev[fit], label="points of the fit", **_FIT)

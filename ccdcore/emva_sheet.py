@@ -15,6 +15,8 @@ DATASHEET
     (section, key, name, symbol, unit) of every figure, in order.
 section_markdown(emva, section)
     One section's rows as Markdown list items (the app's pages).
+linearity_deviation(emva)
+    The deviation from linearity of every point (the report's and the datasheet files' plot).
 datasheet_rows(emva)
     The rows of a result's ``to_dict()`` (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, or the
     ``emva1288`` entry of a calibration product).
@@ -26,7 +28,10 @@ import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-__all__ = ["SheetRow", "DATASHEET", "datasheet_rows", "section_markdown"]
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["SheetRow", "DATASHEET", "datasheet_rows", "section_markdown", "linearity_deviation"]
 
 #: (section, key under emva1288's names, the standard's name, symbol, unit), in order
 DATASHEET: tuple[tuple[str, str, str, str, str], ...] = (
@@ -77,6 +82,10 @@ class SheetRow:
         return dict(self.__dict__)
 
 
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _number(v: Any) -> float | None:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         return None
@@ -115,6 +124,40 @@ def section_markdown(emva: Mapping[str, Any], section: str) -> list[str]:
         else:
             lines.append(f"- {r.name}, {r.symbol} = **{format_pm(r.value, r.error, unit=r.unit)}**")
     return lines
+
+
+def linearity_deviation(emva: Mapping[str, Any]) -> dict[str, NDArray] | None:
+    """The deviation from linearity of every point (sec. 6.7), as LE_min and LE_max are
+    taken: ``deviation`` = 100 (Y − (a μ_p + b)) / (a μ_p + b) % with Y = μ_y − μ_y.dark and
+    a, b the figures' ``linearity_slope`` and ``linearity_offset``; with ``u_p``, ``level``
+    and ``in_fit`` (the point is in the linearity fit: its ``in_linearity_fit``, else the
+    index range of the fit). Points without a finite μ_p, μ_y or μ_y.dark are left out.
+    ``None`` without the fitted line or points."""
+    a, b = _number(emva.get("linearity_slope")), _number(emva.get("linearity_offset"))
+    points = emva.get("points")
+    if a is None or b is None or not isinstance(points, list):
+        return None
+    keep = [i for i, p in enumerate(points) if isinstance(p, Mapping)
+            and all(_finite(p.get(k)) for k in ("u_p", "u_y", "u_y_dark"))]
+    if not keep:
+        return None
+    rows = [points[i] for i in keep]
+    u_p = np.array([p["u_p"] for p in rows], np.float64)
+    Y = np.array([p["u_y"] - p["u_y_dark"] for p in rows], np.float64)
+    fitted = a * u_p + b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        deviation = np.where(fitted != 0, 100.0 * (Y - fitted) / fitted, np.nan)
+    lo, hi = emva.get("index_linearity_min"), emva.get("index_linearity_max")
+    if all("in_linearity_fit" in p for p in rows):
+        in_fit = np.array([bool(p["in_linearity_fit"]) for p in rows])
+    elif _finite(lo) and _finite(hi):
+        in_fit = np.array([lo <= i <= hi for i in keep])
+    else:
+        in_fit = np.ones(len(rows), bool)
+    level = np.array([float(p["level"]) if _finite(p.get("level")) else np.nan
+                      for p in rows])
+    return {"u_p": u_p, "deviation": deviation, "in_fit": in_fit & np.isfinite(deviation),
+            "level": level}
 
 
 def datasheet_rows(emva: Mapping[str, Any]) -> list[SheetRow]:

@@ -31,7 +31,7 @@ histogram_figure(emva, which), accumulated_histogram_figure(emva, which)
     The logarithmic and the accumulated histogram of DSNU or PRNU.
 profile_figure(emva, which)
     The horizontal or vertical profiles of the signal and of the dark image.
-linearity_deviation(emva), linearity_deviation_figure(emva)
+linearity_deviation_figure(emva)
     The deviation from linearity of every point, and its plot with LE_min and LE_max.
 """
 from __future__ import annotations
@@ -42,14 +42,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.common import format_pm
+from ccdcore.emva_sheet import linearity_deviation
 
-from .figures import _line_figure
+from .figures import line_figure
 from .html import finite, json_floats
 
 __all__ = ["SPECTROGRAMS", "HISTOGRAMS", "PROFILES", "dark_signal_figure",
            "dark_variance_figure", "dark_current_text", "spectrogram_figure",
            "histogram_figure", "accumulated_histogram_figure", "profile_figure",
-           "linearity_deviation", "linearity_deviation_figure"]
+           "linearity_deviation_figure"]
 
 #: the spectrograms of sec. 8.2, the histograms of sec. 8.3 and the profiles of sec. 8.4
 SPECTROGRAMS = ("DSNU_horizontal", "DSNU_vertical", "PRNU_horizontal", "PRNU_vertical")
@@ -95,6 +96,11 @@ def _columns(data: Mapping[str, Any] | None, *names: str) -> dict[str, NDArray] 
     return out if len({v.size for v in out.values()}) == 1 else None
 
 
+def _check_which(which: str, allowed: tuple[str, ...]) -> None:
+    if which not in allowed:
+        raise ValueError(f"which must be one of {', '.join(allowed)}, not {which!r}")
+
+
 def _number(v: Any) -> float | None:
     return float(v) if finite(v) else None
 
@@ -105,7 +111,7 @@ def _figure(title: str, xlabel: str, ylabel: str, *, y_log: bool = False, height
     report's other plots, :mod:`ccdcore_report.figures`)."""
     if y_log:
         kw["y_axis_type"] = "log"
-    return _line_figure(title, xlabel, ylabel, height, **kw)
+    return line_figure(title, xlabel, ylabel, height, **kw)
 
 
 def _legend_outside(fig: Any, place: str = "below") -> None:
@@ -242,8 +248,7 @@ def spectrogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     temporal noise of one frame σ_y.stack and the white-noise floor σ_y.stack/√L that the
     temporal noise leaves in the average of the L frames, each as a labelled line.
     ``None`` when the figures have no spatial plots."""
-    if which not in SPECTROGRAMS:
-        raise ValueError(f"which must be one of {', '.join(SPECTROGRAMS)}, not {which!r}")
+    _check_which(which, SPECTROGRAMS)
     data = _columns(_mapping(emva, "spatial_plots", "spectrograms", which), "f", "amplitude")
     if data is None:
         return None
@@ -286,8 +291,7 @@ def histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     of the mean signal). ``None`` when the figures have no spatial plots."""
     from bokeh.models import ColumnDataSource, Range1d
 
-    if which not in HISTOGRAMS:
-        raise ValueError(f"which must be one of {', '.join(HISTOGRAMS)}, not {which!r}")
+    _check_which(which, HISTOGRAMS)
     data = _columns(_mapping(emva, "spatial_plots", "histograms", which), "x", "count", "model")
     if data is None or not (data["count"] > 0).any():
         return None
@@ -317,8 +321,7 @@ def accumulated_histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     figures have no spatial plots."""
     from bokeh.models import ColumnDataSource
 
-    if which not in HISTOGRAMS:
-        raise ValueError(f"which must be one of {', '.join(HISTOGRAMS)}, not {which!r}")
+    _check_which(which, HISTOGRAMS)
     data = _columns(_mapping(emva, "spatial_plots", "accumulated", which), "x", "percent")
     if data is None:
         return None
@@ -353,8 +356,7 @@ def profile_figure(emva: Mapping[str, Any], which: str) -> Any:
     spatial plots (one figure when only one of the two profiles is there)."""
     from bokeh.layouts import column
 
-    if which not in PROFILES:
-        raise ValueError(f"which must be one of {', '.join(PROFILES)}, not {which!r}")
+    _check_which(which, PROFILES)
     profiles = _mapping(emva, "spatial_plots", "profiles")
     xlabel = "column index x" if which == "horizontal" else "row index y"
     line = "column" if which == "horizontal" else "row"
@@ -380,39 +382,6 @@ def profile_figure(emva: Mapping[str, Any], which: str) -> Any:
 # ---------------------------------------------------------------------------------------------
 # deviation from linearity (sec. 6.7)
 # ---------------------------------------------------------------------------------------------
-def linearity_deviation(emva: Mapping[str, Any]) -> dict[str, NDArray] | None:
-    """The deviation from linearity of every point (sec. 6.7), as LE_min and LE_max are
-    taken: ``deviation`` = 100 (Y − (a μ_p + b)) / (a μ_p + b) % with Y = μ_y − μ_y.dark and
-    a, b the figures' ``linearity_slope`` and ``linearity_offset``; with ``u_p``, ``level``
-    and ``in_fit`` (the point is in the linearity fit: its ``in_linearity_fit``, else the
-    index range of the fit). Points without a finite μ_p, μ_y or μ_y.dark are left out.
-    ``None`` without the fitted line or points."""
-    a, b = _number(emva.get("linearity_slope")), _number(emva.get("linearity_offset"))
-    points = emva.get("points")
-    if a is None or b is None or not isinstance(points, list):
-        return None
-    keep = [i for i, p in enumerate(points) if isinstance(p, Mapping)
-            and all(finite(p.get(k)) for k in ("u_p", "u_y", "u_y_dark"))]
-    if not keep:
-        return None
-    rows = [points[i] for i in keep]
-    u_p = np.array([p["u_p"] for p in rows], np.float64)
-    Y = np.array([p["u_y"] - p["u_y_dark"] for p in rows], np.float64)
-    fitted = a * u_p + b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        deviation = np.where(fitted != 0, 100.0 * (Y - fitted) / fitted, np.nan)
-    lo, hi = emva.get("index_linearity_min"), emva.get("index_linearity_max")
-    if all("in_linearity_fit" in p for p in rows):
-        in_fit = np.array([bool(p["in_linearity_fit"]) for p in rows])
-    elif finite(lo) and finite(hi):
-        in_fit = np.array([lo <= i <= hi for i in keep])
-    else:
-        in_fit = np.ones(len(rows), bool)
-    level = json_floats([p.get("level") for p in rows])
-    return {"u_p": u_p, "deviation": deviation, "in_fit": in_fit & np.isfinite(deviation),
-            "level": level}
-
-
 def _deviation_scale(dev: NDArray, in_fit: NDArray, marks: list[float]
                      ) -> tuple[float, float, NDArray]:
     """The y range of the deviation plot and which points lie on it: the points of the fit and

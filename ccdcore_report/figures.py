@@ -310,7 +310,7 @@ def ptc_figures(result: Any) -> Any:
 # ---------------------------------------------------------------------------------------------
 # response curves
 # ---------------------------------------------------------------------------------------------
-def _line_figure(title: str, xlabel: str, ylabel: str, height: int, **kw: Any) -> Any:
+def line_figure(title: str, xlabel: str, ylabel: str, height: int, **kw: Any) -> Any:
     """A stretched figure with the report's tools, its toolbar hidden until hovered."""
     from bokeh.plotting import figure
 
@@ -328,7 +328,7 @@ def response_figures(channels: Sequence[str], gs: Sequence[NDArray],
     from bokeh.layouts import column
     from bokeh.models import ColumnDataSource, HoverTool
 
-    fig = _line_figure("Inverse response g(z) per channel, \u00b12\u03c3 band", "code z",
+    fig = line_figure("Inverse response g(z) per channel, \u00b12\u03c3 band", "code z",
                        "g(z) (linear in exposure)", 400)
     lines, sources = [], []
     for i, (ch, g) in enumerate(zip(channels, gs)):
@@ -345,7 +345,7 @@ def response_figures(channels: Sequence[str], gs: Sequence[NDArray],
     fig.legend.location = "top_left"
     fig.add_tools(HoverTool(renderers=lines, tooltips=[("z", "@z"), ("g", "@g{0.00000}"),
                                                        ("\u00b11\u03c3", "@err{0.00000}")]))
-    err_fig = _line_figure("The band's half-width: the 1\u03c3 error of g(z)", "code z",
+    err_fig = line_figure("The band's half-width: the 1\u03c3 error of g(z)", "code z",
                            "\u03c3 of g(z)", 200, x_range=fig.x_range)
     for src, line in zip(sources, lines):
         err_fig.line("z", "err", source=src, line_color=line.glyph.line_color, line_width=2)

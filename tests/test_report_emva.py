@@ -29,7 +29,7 @@ np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E7
 from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 
 from ccdcore.common import format_pm  # noqa: E402
-from ccdcore.emva_sheet import DATASHEET, datasheet_rows  # noqa: E402
+from ccdcore.emva_sheet import DATASHEET, datasheet_rows, linearity_deviation  # noqa: E402
 from ccdcore.product import calibrate  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore_report import build_report  # noqa: E402
@@ -245,7 +245,7 @@ def test_linearity_deviation_is_the_datasheets(full):
     u_p = np.array([p["u_p"] for p in pts])
     Y = np.array([p["u_y"] - p["u_y_dark"] for p in pts])
     want = 100 * (Y - (a * u_p + b)) / (a * u_p + b)
-    d = ef.linearity_deviation(emva)
+    d = linearity_deviation(emva)
     np.testing.assert_allclose(d["deviation"], want, rtol=EXACT)
     in_fit = np.array([p["in_linearity_fit"] for p in pts])
     np.testing.assert_array_equal(d["in_fit"], in_fit)
@@ -272,7 +272,7 @@ def test_linearity_deviation_is_the_datasheets(full):
 
 def test_linearity_deviation_needs_the_fitted_line(full):
     emva = {**full["emva"], "linearity_slope": None}
-    assert ef.linearity_deviation(emva) is None and ef.linearity_deviation_figure(emva) is None
+    assert linearity_deviation(emva) is None and ef.linearity_deviation_figure(emva) is None
 
 
 @pytest.mark.parametrize("which", ef.SPECTROGRAMS)
