@@ -117,6 +117,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.polynomial import legendre as npleg
 from numpy.polynomial import polynomial as nppoly
@@ -529,22 +530,35 @@ def _to_codes(grid: Knots, g_nodes: NDArray, known_nodes: NDArray[np.bool_]
 def _trace_gram(zi: NDArray, t: NDArray, weights: NDArray, levels: int) -> NDArray[np.float64]:
     """``H[m, m'] = sum_j weights_j sum_{k, k'} t_k t_k' [z_kj = m] [z_k'j = m']`` over the
     usable observations (``zi``: the codes, ``levels`` where unusable): the products of every
-    two observations of one pixel, summed pixel by pixel at code resolution. H is symmetric:
-    one weighted bincount per pair of images ``k < k'`` (``N (N - 1) / 2`` passes over the
-    pixels) and one per image for ``k = k'``; the extra code ``levels`` is dropped."""
-    N = zi.shape[0]
+    two observations of one pixel, summed pixel by pixel at code resolution, in one pass over
+    the pixels (:func:`_trace_gram_kernel` releases the GIL: the channels of a bracket run side
+    by side). H is symmetric: the pairs ``k < k'`` are summed once."""
+    off, diag = _trace_gram_kernel(np.ascontiguousarray(zi), np.asarray(t, np.float64),
+                                   np.ascontiguousarray(weights, np.float64), int(levels))
+    H = off + off.T
+    H[np.diag_indices(levels + 1)] += diag
+    return H[:levels, :levels]
+
+
+@numba.njit(cache=True, nogil=True)
+def _trace_gram_kernel(zi, t, weights, levels):  # pragma: no cover - compiled
+    """The pair sums (k < k', upper part) and the diagonal of :func:`_trace_gram`, pair by
+    pair of images (each pass streams two rows of codes)."""
+    N, P = zi.shape
     L1 = levels + 1
-    off = np.zeros(L1 * L1)
+    off = np.zeros((L1, L1))
     diag = np.zeros(L1)
     for k in range(N):
-        diag += t[k] * t[k] * np.bincount(zi[k], weights, minlength=L1)
-        zs = zi[k].astype(np.intp) * L1
+        zk = zi[k]
+        tk2 = t[k] * t[k]
+        for p in range(P):
+            diag[zk[p]] += weights[p] * tk2
         for k2 in range(k + 1, N):
-            off += t[k] * t[k2] * np.bincount(zs + zi[k2], weights, minlength=L1 * L1)
-    H = off.reshape(L1, L1)
-    H = H + H.T
-    H[np.diag_indices(L1)] += diag
-    return H[:levels, :levels]
+            z2 = zi[k2]
+            tw = t[k] * t[k2]
+            for p in range(P):
+                off[zk[p], z2[p]] += weights[p] * tw
+    return off, diag
 
 
 def robertson(data: BracketData, *, max_iter: int = 50, tol: float = 1e-6) -> ClassicFit:
