@@ -7,7 +7,7 @@ times, in this order:
 * ``oiio``: the bare OpenImageIO read loop of the same files (reading only: the limit);
 * ``streamed``: ``dark_reference(session)``: ``Session.iter_frames`` with read-ahead threads and
   :class:`ccdcore.stats.PixelMoments` in this process (today's default path);
-* ``cluster``: ``dark_reference(session, client=client)`` on a ``LocalCluster`` of ``--workers``
+* ``cluster``: ``dark_reference(session, reducer=DaskReducer(client))`` on a ``LocalCluster`` of ``--workers``
   processes (one thread each): bands of rows, each worker reading its bands
   (:mod:`ccdcore.distributed`). The maps are checked bit-identical to ``streamed``.
 
@@ -116,6 +116,7 @@ def main() -> None:
 
     from ccdcore import distributed as ccd_dist
     from ccdcore.darkframe import dark_reference
+    from ccdcore.distributed import DaskReducer
     from ccdcore.session import open_session
     from ccdcore.stats import PixelMoments
 
@@ -147,7 +148,7 @@ def main() -> None:
         client_start = psutil.Process(me).memory_info().rss    # the streamed maps are kept
         with RssSampler(list(pids.values()) + [me]) as rs, get_task_stream(client) as ts:
             t0 = time.perf_counter()
-            cl = dark_reference(session, client=client)
+            cl = dark_reference(session, reducer=DaskReducer(client))
             t_cluster = time.perf_counter() - t0
         tasks = [t for t in ts.data if t["key"][0].startswith("_moments_task")
                  or "_moments_task" in str(t["key"])]

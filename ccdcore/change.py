@@ -51,7 +51,7 @@ detect(E_ref, sigma_ref, E_tgt, sigma_tgt, options)
     Sec. 5 on two radiance maps with their sigmas.
 prediction_d2(E_ref, sigma_ref, E_tgt, sigma_tgt, M, M_cov)
     d² of every pixel under one transform.
-session_change(session, options, calib=None, client=None)
+session_change(session, options, calib=None, reducer=None)
     Both brackets of a session turned into radiance (the response estimated from the reference
     bracket or taken from a calibration product) and :func:`detect`.
 """
@@ -69,6 +69,7 @@ from scipy import stats
 
 from .errors import CcdError
 from .progress import Progress, silent, within
+from .reduce import STREAMED, Reducer
 
 __all__ = ["ChangeOptions", "Cluster", "ChangeResult", "detect", "prediction_d2",
            "session_change", "LABEL_CHANGE", "LABEL_UNDETERMINED"]
@@ -841,7 +842,7 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
 
 def session_change(session: Any, options: ChangeOptions | None = None, *,
                    calib: str | Path | None = None, bloom_radius: int | None = None,
-                   progress: Progress | None = None, client: Any = None,
+                   progress: Progress | None = None, reducer: Reducer | None = None,
                    band_rows: int | None = None) -> tuple[ChangeResult, dict[str, Any]]:
     """Sec. 5 on a session's ``reference`` and ``target`` brackets.
 
@@ -852,11 +853,12 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
     half (without ``calib``), :func:`detect` the rest.
 
-    With a Dask ``client`` both merges run on the cluster, band by band, the workers reading
+    ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
+    reducer (:class:`ccdcore.distributed.DaskReducer`) they run band by band, the workers reading
     the frames (:func:`ccdcore.response.hdr.merge_bracket`; ``band_rows`` sets the band height):
     the radiance and sigma maps are bit-identical to the streamed ones, hence so is everything
     after.  The shapes and sample types are then checked first, from the headers.  What stays
-    on the client: the response estimated from the reference bracket without ``calib`` (it
+    in this process: the response estimated from the reference bracket without ``calib`` (it
     reads the reference frames here, as the streamed path does: the pixel traces of every
     pixel), and the fit of M and d² (:func:`detect`), which need the whole radiance maps --
     the streamed path holds them too.
@@ -868,13 +870,12 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     radius = DEFAULT_BLOOM_RADIUS if bloom_radius is None else int(bloom_radius)
     recs = {role: bracket_records(session, None, role=role) for role in ("reference", "target")}
     first = {role: recs[role][0].relpath for role in recs}
-    if client is None:
-        frames: dict[str, Any] = {role: [session.read(r) for r in recs[role]] for role in recs}
-        described = {role: [(f.shape, f.dtype) for f in frames[role]] for role in recs}
-    else:
-        frames = {role: None for role in recs}
-        described = {role: [(tuple(h.shape), np.dtype(h.dtype)) for h in
-                            (session.header(r) for r in recs[role])] for role in recs}
+    red = reducer or STREAMED
+    # the frames the merge takes as read (None: its workers read them); else their headers
+    frames: dict[str, Any] = {role: red.preload(session, recs[role]) for role in recs}
+    described = {role: ([(f.shape, f.dtype) for f in frames[role]] if frames[role] is not None
+                        else [(tuple(h.shape), np.dtype(h.dtype)) for h in
+                              (session.header(r) for r in recs[role])]) for role in recs}
     (ref_shape, ref_dtype), (tgt_shape, tgt_dtype) = (described["reference"][0],
                                                       described["target"][0])
     if ref_shape != tgt_shape:
@@ -920,7 +921,7 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
                                 float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
               for ch, m in models.items()}
         out[role] = merge_bracket(recs[role], ms, layout=layout, bloom_radius=radius,
-                                  frames=frames[role], client=client, session=session,
+                                  frames=frames[role], reducer=red, session=session,
                                   band_rows=band_rows)
         frames[role] = None
     inputs = {"E_ref": out["reference"].radiance, "sigma_ref": out["reference"].sigma,

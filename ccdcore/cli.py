@@ -6,6 +6,7 @@ exits with code 2 and one line on stderr naming the file and the problem, never 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -13,7 +14,7 @@ import sys
 import textwrap
 import warnings
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from . import __version__
 import numpy as np
@@ -21,6 +22,7 @@ import numpy as np
 from .channels import LAYOUTS, is_bayer
 from .common import Roi, format_pm, format_size
 from .errors import CcdError, require_extra
+from .reduce import STREAMED_NAME
 
 __all__ = ["main", "build_parser"]
 
@@ -161,6 +163,24 @@ def _cores() -> int:
 _SMALL_SESSION_PIXELS = 100_000_000
 
 
+@contextlib.contextmanager
+def _reducer(args: argparse.Namespace) -> Iterator[Any]:
+    """The reducer of ``--scheduler`` / ``--workers`` (:func:`ccdcore.distributed.open_reducer`),
+    its errors naming the flag rather than the parameter."""
+    from .distributed import open_reducer
+
+    try:
+        cm = open_reducer(args.scheduler, args.workers)
+        reducer = cm.__enter__()
+    except CcdError as err:
+        if err.where in ("scheduler", "workers"):
+            raise CcdError(f"--{err.where}", err.problem) from None
+        raise
+    with contextlib.ExitStack() as stack:
+        stack.push(cm)
+        yield reducer
+
+
 def _workers_note_for(workers: int | None, session: Any, records: Sequence[Any]) -> None:
     """:func:`_workers_note` for ``records`` of ``session``, their pixels from the cached
     headers (no pixel is read)."""
@@ -281,11 +301,9 @@ def _cmd_session(args: argparse.Namespace) -> int:
 def _cmd_ptc(args: argparse.Namespace) -> int:
     from .noise import EMVA_FIT_FRACTION, photon_transfer
 
-    from .distributed import get_client
-
-    with get_client(args.scheduler, args.workers) as client:
+    with _reducer(args) as reducer:
         res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
-                              exclude_levels=tuple(args.exclude or ()), client=client,
+                              exclude_levels=tuple(args.exclude or ()), reducer=reducer,
                               fit_fraction=EMVA_FIT_FRACTION if args.emva_range else None)
     _workers_note(args.workers, sum(2 * p.n_pairs for p in res.points),
                   sum(2 * p.n_pairs * p.n_pixels for p in res.points))
@@ -454,8 +472,6 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .product import PRODUCT_FILE, calibrate, session_inputs
     from .session import open_session
 
-    from .distributed import get_client
-
     session = open_session(args.session)
     inputs = session_inputs(session)
     # before the work: the product's files must not be (or hold) the session's
@@ -463,8 +479,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     earlier = (Path(args.out) / PRODUCT_FILE).is_file()
     try:
         _workers_note_for(args.workers, session, session.frames)
-        with get_client(args.scheduler, args.workers) as client:
-            product = calibrate(session, roi=args.roi, client=client,
+        with _reducer(args) as reducer:
+            product = calibrate(session, roi=args.roi, reducer=reducer,
                                 dark_exposure=args.dark_exposure)
         folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
     except KeyboardInterrupt:
@@ -745,13 +761,11 @@ def _cmd_change(args: argparse.Namespace) -> int:
     opts.check()
     names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
-    from .distributed import STREAMED, describe, get_client
-
     folder = _out_folder(args.out_dir, names, session, args.calib)
-    with get_client(args.scheduler, args.workers) as client:
+    with _reducer(args) as reducer:
         res, inputs = session_change(session, opts, calib=args.calib,
-                                     bloom_radius=args.bloom_radius, client=client)
-        scheduler = describe(client)
+                                     bloom_radius=args.bloom_radius, reducer=reducer)
+        scheduler = reducer.description
     _workers_note(args.workers, len(records), len(records) * int(res.labels.size))
     change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
     d2 = np.where(res.valid, res.d2_best, np.nan).astype(np.float32)
@@ -768,7 +782,7 @@ def _cmd_change(args: argparse.Namespace) -> int:
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
     channels = [str(c) for c in inputs["channels"]]
-    if scheduler != STREAMED:
+    if scheduler != STREAMED_NAME:
         print(f"  brackets merged on {scheduler}")
     print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "
           f"(χ²_{res.dof}: {summary['threshold_chi2']:.3g}; observed on the background "
@@ -803,7 +817,6 @@ def _cmd_change(args: argparse.Namespace) -> int:
 
 
 def _cmd_hdr(args: argparse.Namespace) -> int:
-    from .distributed import STREAMED, describe, get_client
     from .io import write_image, write_map, write_outputs
     from .product import load_product, session_inputs
     from .response.brackets import check_times, bracket_records, load_bracket
@@ -817,9 +830,12 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     names = ("radiance.exr", "sigma.exr", "flags.png")
     _workers_note_for(args.workers, session, records)
     folder = _out_folder(args.out_dir, names, session, args.calib)
-    with get_client(args.scheduler, args.workers) as client:
-        frames = None
-        if args.calib is not None and client is not None:
+    with _reducer(args) as reducer:
+        # read once here for the traces and the merge; with a calibration only when the
+        # merge wants the frames as read (streamed)
+        frames = (reducer.preload(session, records) if args.calib is not None
+                  else [session.read(r) for r in records])
+        if frames is None:
             # the workers read the frames: only what the calibration's models need here
             files = [r.relpath for r in records]
             if session.camera.bits is None:
@@ -829,7 +845,6 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
             levels = 2 ** int(session.camera.bits)
             times = np.sort(check_times([r.exposure for r in records], files), kind="stable")
         else:
-            frames = [session.read(r) for r in records]      # read once: traces and merge
             brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,
                                     frames=frames)
             first = next(iter(brackets.values()))
@@ -850,9 +865,9 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
             models = res.models()
             source = "response estimated from this bracket (sec. 3.2)"
         out = merge_bracket(records, models, layout=session.camera.layout,
-                            bloom_radius=args.bloom_radius, frames=frames, client=client,
+                            bloom_radius=args.bloom_radius, frames=frames, reducer=reducer,
                             session=session)
-        scheduler = describe(client)
+        scheduler = reducer.description
     paths = write_outputs(folder, {   # as one set: never new and old files mixed
         names[0]: lambda p: write_map(p, out.radiance),
         names[1]: lambda p: write_map(p, out.sigma),
@@ -867,7 +882,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     else:
         print(f"HDR radiance of {len(records)} exposures ({source}), channels "
               f"{', '.join(out.channels)}")
-        if scheduler != STREAMED:
+        if scheduler != STREAMED_NAME:
             print(f"  merged on {scheduler}")
         for p in paths:
             print(f"  {p}")

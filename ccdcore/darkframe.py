@@ -33,15 +33,15 @@ as_dark_map(dark, where="dark")
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from scipy import special
 
 from .darkmap import DarkReference, as_dark_map
 from .errors import CcdError
-from .noise import READ_AHEAD
-from .stats import MomentsResult, PixelMoments
+from .reduce import STREAMED, Reducer
+from .stats import MomentsResult
 
 __all__ = ["DarkReference", "dark_reference", "as_dark_map", "exposures_text", "nearest_exposure"]
 
@@ -106,7 +106,7 @@ def nearest_exposure(exposures: Sequence[float], target: float) -> float:
 
 def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
                    noisy_factor: float = 1.0, exposure: float | None = None,
-                   client: Any = None) -> DarkReference:
+                   reducer: Reducer | None = None) -> DarkReference:
     """Average dark frames into the dark reference image D̂_D(a, b) (sec. V-A, eq. 43).
 
     Parameters
@@ -121,11 +121,12 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         Multiplies the χ² threshold of the temporal-variance ("noisy"/RTS) rule; ``inf`` disables.
     exposure
         With a session whose darks have several exposures, the exposure to use (seconds).
-    client
-        A Dask :class:`distributed.Client`: the moments are reduced on the cluster in bands of
-        rows, each worker reading its band of every frame (:mod:`ccdcore.distributed`); the
-        maps are bit-identical to the streamed ones, and the hot/dead rules run here on them.
-        ``frames_or_session`` is then a session or a sequence of records or file paths.
+    reducer
+        Runs the moments (:mod:`ccdcore.reduce`; default streamed here). On a Dask cluster
+        (:class:`ccdcore.distributed.DaskReducer`) they are reduced in bands of rows, each
+        worker reading its band of every frame; the maps are bit-identical to the streamed
+        ones, and the hot/dead rules run here on them. ``frames_or_session`` is then a session
+        or a sequence of records or file paths.
 
     Returns
     -------
@@ -137,52 +138,18 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         No frames, frames of different shapes (naming the file), colour frames, or a session
         with darks at several exposures and no ``exposure``.
     """
-    notes: list[str] = []
-    if client is not None:
-        res, exp, notes = _cluster_moments(client, frames_or_session, exposure)
-        return _reference(res, exp, notes, hot_sigma, noisy_factor)
-    acc = PixelMoments()
-    if _is_session(frames_or_session):
-        recs, exp, notes = _session_darks(frames_or_session, exposure)
-        items: Iterable = frames_or_session.iter_frames(recs, read_ahead=READ_AHEAD)
+    session = frames_or_session if _is_session(frames_or_session) else None
+    if session is not None:
+        items, exp, notes = _session_darks(session, exposure)
     else:
-        items, exp = frames_or_session, exposure
+        items, exp, notes = frames_or_session, exposure, []
         if isinstance(items, np.ndarray) and items.ndim == 2:
             raise CcdError("frames", "give an iterable of dark frames (or a (s, H, W) stack), "
                                      "not a single frame")
-    for k, item in enumerate(items):
-        rec, arr = item if isinstance(item, tuple) else (None, item)
-        name = getattr(rec, "relpath", None) or f"dark frame {k}"
-        arr = np.asarray(arr)
-        _check_mono(arr, name)
-        acc.add(arr, name=name)
-    if acc.n == 0:
-        raise CcdError("dark", "no dark frames given")
-    return _reference(acc.result(in_place=True), exp, notes, hot_sigma, noisy_factor)
-
-
-def _cluster_moments(client: Any, source: Any, exposure: float | None
-                     ) -> tuple[MomentsResult, float | None, list[str]]:
-    """The dark frames' moments on a Dask cluster, after the streamed path's checks of every
-    frame's shape and dtype from its header (same messages, same order)."""
-    from .distributed import band_moments, check_averageable, headers_of
-
-    session = None
-    if _is_session(source):
-        session = source
-        recs, exp, notes = _session_darks(source, exposure)
-    else:
-        if isinstance(source, np.ndarray):
-            raise CcdError("frames", "on a cluster, give the dark frames as session records or "
-                                     "file paths (the workers read them), not arrays")
-        recs, exp, notes = list(source), exposure, []
-    if not recs:
-        raise CcdError("dark", "no dark frames given")
-    first = None
-    for frame, hdr in headers_of(recs, session):
-        _check_mono(np.broadcast_to(np.zeros((), hdr.dtype), hdr.shape), frame.name)
-        first = check_averageable(frame, hdr, first)
-    return band_moments(client, recs, shape=first), exp, notes
+    res, _ = (reducer or STREAMED).moments(
+        items, what="dark", session=session, check=lambda name, a: _check_mono(a, name),
+        name=lambda k: f"dark frame {k}", empty="no dark frames given")
+    return _reference(res, exp, notes, hot_sigma, noisy_factor)
 
 
 def _reference(res: MomentsResult, exp: float | None, notes: list[str], hot_sigma: float,

@@ -88,6 +88,8 @@ import numpy as np
 from .errors import CcdError, ImageReadError, require_extra
 from .io import read_image, read_region
 from .progress import Cancelled, checkpoint
+from .reduce import STREAMED as STREAMED_REDUCER
+from .reduce import STREAMED_NAME, Check, PairLevel, Reducer, stand_in
 from .stats import MomentsResult, PixelMoments
 
 __all__ = ["Frame", "frames_of", "headers_of", "check_averageable", "check_pixels", "get_client", "describe", "bands", "band_moments",
@@ -105,7 +107,7 @@ RETRIES = 3
 #: relative tolerance of σ̂²_N (eq. 38) merged over bands against the streamed two-pass value
 PTC_RTOL = 1e-12
 #: provenance of a reduction run in this process
-STREAMED = "streamed (this process)"
+STREAMED = STREAMED_NAME
 #: seconds to wait for a scheduler before giving up: the whole connection and handshake, not
 #: each of Dask's retries (a server that accepts and never answers, or answers something else,
 #: fails within this)
@@ -229,7 +231,7 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
     if scheduler is None and workers is None:
         scheduler = os.environ.get(SCHEDULER_ENV) or None
     if scheduler is not None and workers is not None:
-        raise CcdError("--scheduler", "give a scheduler address or a number of local workers, "
+        raise CcdError("scheduler", "give a scheduler address or a number of local workers, "
                                       "not both")
     if scheduler is None and workers is None:
         yield None
@@ -240,9 +242,9 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
     if workers is not None:
         n = int(workers)
         if n < 1:
-            raise CcdError("--workers", f"must be at least 1, got {workers}")
+            raise CcdError("workers", f"must be at least 1, got {workers}")
         if n > max_workers():
-            raise CcdError("--workers", f"{workers} worker processes is more than the limit of "
+            raise CcdError("workers", f"{workers} worker processes is more than the limit of "
                                         f"{max_workers()} (4 per core, at most {MAX_WORKERS})")
         # scheduler and workers on the loopback interface only; the dashboard (an HTTP server
         # showing the tasks and the files' paths) only when asked for, by default on loopback.
@@ -1060,3 +1062,148 @@ def fixed_pattern_bands(client: Any, configs: Any, dark: Any, *, window: int = 9
     return fixed_pattern_of(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p,
                             window=window, center=center, none=none[0], ids=ids,
                             levels=levels, noises=noises, n2s=n2s, notes=notes)
+
+
+# --------------------------------------------------------------------------------------------
+# the reducer
+# --------------------------------------------------------------------------------------------
+__all__ += ["DaskReducer", "open_reducer"]
+
+
+class DaskReducer(Reducer):
+    """The reductions of :class:`ccdcore.reduce.Reducer` on the Dask cluster of ``client``,
+    band by band of rows, each worker reading its band of every frame: the same results
+    (photon-transfer variances to :data:`PTC_RTOL`). Every frame is checked first from its
+    header, with the messages the streamed reductions give, before anything is submitted;
+    frames are given as session records or file paths (the workers read them)."""
+
+    def __init__(self, client: Any):
+        self.client = client
+
+    @property
+    def description(self) -> str:                      # type: ignore[override]
+        return describe(self.client)
+
+    def moments(self, frames: Any, *, what: str, session: Any = None,
+                check: Check | None = None, zeros: dict | None = None,
+                layout: str | None = None, even: bool = False,
+                name: Callable[[int], str] | None = None, empty: str | None = None
+                ) -> tuple[MomentsResult, str]:
+        from .channels import check_layout, is_bayer
+
+        if isinstance(frames, np.ndarray):
+            raise CcdError("frames", f"on a cluster, give the {what} frames as session records "
+                                     "or file paths (the workers read them), not arrays")
+        recs = list(frames)
+        if not recs:
+            raise CcdError(what, empty or f"no {what} frames")
+        first = None
+        lay = layout
+        named = []
+        for frame, hdr in headers_of(recs, session):
+            named.append(frame)
+            if check is not None:
+                check(frame.name, stand_in(hdr))
+            first = check_averageable(frame, hdr, first)
+            if zeros is not None:
+                lay = check_layout(hdr.shape, lay, frame.name)
+        try:
+            even = even or is_bayer(check_layout(first, lay, named[0].name))
+        except CcdError:  # reported by the estimator's own check, after the averages
+            pass
+        res = band_moments(self.client, recs, shape=first, even=even)
+        if zeros is not None:
+            zeros.update(zero_counts(self.client, recs, shape=first, layout=lay))
+        return res, named[0].name
+
+    def frame_sums(self, session: Any, records: Sequence[Any], *,
+                   pixels: Callable[[Any, np.ndarray], np.ndarray],
+                   header_pixels: Callable[[Any], np.ndarray],
+                   roi: tuple[int, int, int, int] | None,
+                   nonfinite: Callable[[str, int], CcdError]
+                   ) -> Iterator[tuple[Any, tuple[float, int]]]:
+        for rec in records:
+            header_pixels(rec)
+        shape = session.header(records[0]).shape
+        yield from zip(records, frame_sums(self.client, records, shape=shape, roi=roi,
+                                           nonfinite=nonfinite))
+
+    def pair_stats(self, session: Any, paired: Mapping[int, Sequence[Any]], *,
+                   pixels: Callable[[Any, np.ndarray], np.ndarray],
+                   header_pixels: Callable[[Any], np.ndarray],
+                   roi: tuple[int, int, int, int] | None, full: float | None,
+                   nonfinite: Callable[[str, int], CcdError]) -> Iterator[PairLevel]:
+        pairs, shapes = {}, {}
+        for level, recs in paired.items():
+            pairs[level] = list(zip(recs[0::2], recs[1::2]))
+            for r1, r2 in pairs[level]:
+                p1, p2 = header_pixels(r1), header_pixels(r2)
+                if p1.shape != p2.shape:
+                    raise CcdError(r2.relpath, f"shape {p2.shape} differs from {r1.relpath} "
+                                               f"{p1.shape}")
+            if recs:
+                shapes[level] = session.header(recs[0]).shape
+        sums = pair_sums(self.client, {lv: p for lv, p in pairs.items() if p}, shapes=shapes,
+                         roi=roi, full=full, nonfinite=nonfinite)
+        for level in paired:
+            got = sums.get(level, [])
+            yield ([p.mu for p in got], [p.var for p in got], sum(p.clipped for p in got),
+                   sum(2 * p.m for p in got), got[-1].m if got else 0)
+
+    def preload(self, session: Any, records: Sequence[Any]) -> list[np.ndarray] | None:
+        return None
+
+    def merge(self, records: Sequence[Any], models: Any, *, layout: str | None,
+              bloom_radius: int, frames: Sequence[Any] | None = None, session: Any = None,
+              band_rows: int | None = None) -> Any:
+        shape, lay = check_bracket(records, session, layout)
+        return band_merge(self.client, records, models, layout=lay, bloom_radius=bloom_radius,
+                          shape=shape, band_rows=band_rows)
+
+    def configurations(self, source: Any) -> tuple[list[tuple[Any, Any]], Any]:
+        if hasattr(source, "fixed_pattern_configs") and hasattr(source, "iter_frames"):
+            return list(source.fixed_pattern_configs().items()), source
+        if isinstance(source, Mapping):
+            return [(cid, tuple(recs)) for cid, recs in source.items()], None
+        raise CcdError("configs", "on a cluster, give a session or a mapping config id -> "
+                                  "records or file paths (the workers read the frames), not "
+                                  "arrays")
+
+    def fixed_pattern(self, source: Any, *, dark_of: Callable[[Any], np.ndarray], window: int,
+                      p: float, center: str) -> Any:
+        configs, session = self.configurations(source)
+        where = str(getattr(session, "root", "fixed_pattern"))
+        notes: list[str] = []
+        dmap = self._dark_map(session, dark_of, configs, where, notes)
+        _check_configurations(configs, session, dmap.shape)
+        return fixed_pattern_bands(self.client, configs, dmap, window=window, p=p,
+                                   center=center, notes=notes, where=where)
+
+
+def _check_configurations(configs: list[tuple[Any, tuple]], session: Any,
+                          ref_shape: tuple) -> None:
+    """The streamed K̂'s checks of every configuration's frames, from their headers (same
+    messages), before anything is submitted."""
+    for cid, recs in configs:
+        if not recs:
+            raise CcdError(f"configuration {cid}", "has no frames")
+        first = None
+        for frame, hdr in headers_of(recs, session):
+            if len(hdr.shape) == 3:
+                raise CcdError(frame.name, f"colour frames {hdr.shape}: the fixed-pattern map is "
+                                           "mono only for now; per channel support comes with "
+                                           "the flat-field work")
+            if first is None and hdr.shape != ref_shape:
+                raise CcdError(frame.name, f"frame shape {hdr.shape} differs from the dark "
+                                           f"reference's {ref_shape}")
+            first = check_averageable(frame, hdr, first)
+
+
+@contextlib.contextmanager
+def open_reducer(scheduler: str | None = None, workers: int | None = None
+                 ) -> Iterator[Reducer]:
+    """The reducer a command asks for, chosen once: :data:`ccdcore.reduce.STREAMED`, or a
+    :class:`DaskReducer` on the client of :func:`get_client` (closed, with any cluster it
+    started, on exit). Raises as :func:`get_client`."""
+    with get_client(scheduler, workers) as client:
+        yield STREAMED_REDUCER if client is None else DaskReducer(client)

@@ -39,7 +39,8 @@ temporaries; they sum in the same order as the array formulas they replace, so t
 the same to the bit.  The frames of the next configuration are decoded ahead in worker threads
 (``Session.iter_frames(read_ahead=...)``).
 
-On a Dask cluster (``client=``), eqs. 45–50 run band by band of rows on the workers
+The streamed estimate is :meth:`ccdcore.reduce.Reducer.fixed_pattern`. With a Dask reducer
+(``reducer=DaskReducer(client)``), eqs. 45–50 run band by band of rows on the workers
 (:func:`ccdcore.distributed.fixed_pattern_bands`): each band's averages e_i are read with a halo
 of m//2 + 1 rows above and m//2 below; ē_i's column running sums are handed from band to band
 (:func:`box_mean_band`), and the whole-frame means (the levels, the noise, σ̂) are rebuilt from
@@ -63,105 +64,24 @@ CorrectionCheck, correction_check(frame, dark, K, q)
 """
 from __future__ import annotations
 
-import itertools
-import math
 from dataclasses import dataclass
-from typing import Any, Iterable, Mapping
+from typing import Any
 
 import numpy as np
 
 from .darkframe import DarkReference, as_dark_map, dark_reference
 from .errors import CcdError
-from .kmap_kernels import (NO_SIGMA, NOT_LIT, FixedPattern, eq49_reject, fixed_pattern_of,
-                           local_mean, slope_moments, slopes_into)
-from .noise import READ_AHEAD
-from .stats import PixelMoments
+from .kmap_kernels import FixedPattern, fixed_pattern_of
+from .reduce import STREAMED, Reducer
 
 __all__ = ["FixedPattern", "fixed_pattern_map", "fixed_pattern_of", "correct", "CorrectionCheck",
            "correction_check"]
 
 
 # --------------------------------------------------------------------------------------------
-def _configs_from(source: Any) -> tuple[list[tuple[Any, Iterable]], Any]:
-    """[(config id, iterable of frames or (record, frame) pairs)] and the session (or None)."""
-    if hasattr(source, "fixed_pattern_configs") and hasattr(source, "iter_frames"):
-        cfgs = source.fixed_pattern_configs()
-        # one stream over every configuration, decoded ahead in worker threads: the next
-        # configuration's first frames are read while this one is filtered
-        stream = source.iter_frames([r for recs in cfgs.values() for r in recs],
-                                    read_ahead=READ_AHEAD)
-        return [(cid, itertools.islice(stream, len(recs))) for cid, recs in cfgs.items()], source
-    if isinstance(source, Mapping):
-        return list(source.items()), None
-    if isinstance(source, np.ndarray):
-        if source.ndim != 4:
-            raise CcdError("configs", f"an array of configurations must be (n1, n2, H, W), "
-                                      f"got shape {source.shape}")
-        return [(i + 1, source[i]) for i in range(source.shape[0])], None
-    return [(i + 1, c) for i, c in enumerate(source)], None
-
-
-def _average_config(cid: Any, frames: Iterable, ref_shape: tuple | None,
-                    ref_name: str | None) -> tuple[np.ndarray, float, int, str]:
-    """Stream-average one configuration's frames (eq. 45): mean, mean variance, n2, first name."""
-    acc = PixelMoments()
-    first = None
-    if isinstance(frames, np.ndarray) and frames.ndim == 2:
-        frames = [frames]  # an already averaged configuration
-    for k, item in enumerate(frames):
-        rec, arr = item if isinstance(item, tuple) else (None, item)
-        name = getattr(rec, "relpath", None) or f"configuration {cid} frame {k}"
-        arr = np.asarray(arr)
-        if arr.ndim == 3:
-            raise CcdError(name, f"colour frames {arr.shape}: the fixed-pattern map is mono only "
-                                 "for now; per channel support comes with the flat-field work")
-        if first is None:
-            first = name
-            if ref_shape is not None and arr.shape != ref_shape:
-                raise CcdError(name, f"frame shape {arr.shape} differs from {ref_name}'s "
-                                     f"{ref_shape}")
-        acc.add(arr, name=name)
-    if acc.n == 0:
-        raise CcdError(f"configuration {cid}", "has no frames")
-    res = acc.result(in_place=True)   # the mean is then e_i's buffer (eq. 46)
-    noise = float(np.mean(res.var)) / res.n if res.n > 1 else float("nan")
-    return res.mean, noise, res.n, first
-
-
-def _config_records(source: Any) -> tuple[list[tuple[Any, tuple]], Any]:
-    """[(config id, records or paths)] and the session (or None), for a cluster."""
-    if hasattr(source, "fixed_pattern_configs") and hasattr(source, "iter_frames"):
-        return list(source.fixed_pattern_configs().items()), source
-    if isinstance(source, Mapping):
-        return [(cid, tuple(recs)) for cid, recs in source.items()], None
-    raise CcdError("configs", "on a cluster, give a session or a mapping config id -> records "
-                              "or file paths (the workers read the frames), not arrays")
-
-
-def _check_cluster_configs(configs: list[tuple[Any, tuple]], session: Any,
-                           ref_shape: tuple) -> None:
-    """The streamed path's checks of every configuration's frames, from their headers (same
-    messages), before anything is submitted to a cluster."""
-    from .distributed import check_averageable, headers_of
-
-    for cid, recs in configs:
-        if not recs:
-            raise CcdError(f"configuration {cid}", "has no frames")
-        first = None
-        for frame, hdr in headers_of(recs, session):
-            if len(hdr.shape) == 3:
-                raise CcdError(frame.name, f"colour frames {hdr.shape}: the fixed-pattern map is "
-                                           "mono only for now; per channel support comes with "
-                                           "the flat-field work")
-            if first is None and hdr.shape != ref_shape:
-                raise CcdError(frame.name, f"frame shape {hdr.shape} differs from the dark "
-                                           f"reference's {ref_shape}")
-            first = check_averageable(frame, hdr, first)
-
-
 def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray | None = None,
                       *, window: int = 9, p: float = 1.5,
-                      center: str = "median", client: Any = None) -> FixedPattern:
+                      center: str = "median", reducer: Reducer | None = None) -> FixedPattern:
     """Estimate the fixed-pattern map K̂(a, b) (eqs. 45–50 of Healey & Kondepudy 1994).
 
     Parameters
@@ -180,13 +100,13 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
     center
         Centre of the rejection interval: ``"median"`` (default) of the n1 slopes, or ``"mean"``,
         the paper's m̄ of eq. 48 (see the module docstring for why the median is the default).
-    client
-        A Dask :class:`distributed.Client`: eqs. 45–50 run on the cluster band by band of rows
-        (:func:`ccdcore.distributed.fixed_pattern_bands`), so that no process holds the n1
-        full-frame averages; the result equals the streamed one (every map ``np.array_equal``,
-        the summary statistics ``==``).  ``session_or_configs`` is then a session or a mapping
-        ``config id -> records or file paths``; a dark reference computed here uses the cluster
-        too.
+    reducer
+        Runs eqs. 45–50 over the frames (:mod:`ccdcore.reduce`; default streamed here). On a
+        Dask cluster (:class:`ccdcore.distributed.DaskReducer`) they run band by band of rows,
+        so that no process holds the n1 full-frame averages; the result equals the streamed one
+        (every map ``np.array_equal``, the summary statistics ``==``).  ``session_or_configs``
+        is then a session or a mapping ``config id -> records or file paths``; a dark
+        reference computed here uses the same reducer.
 
     Returns
     -------
@@ -205,75 +125,26 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
         raise CcdError("center", f"choose 'median' or 'mean', got {center!r}")
     if not (p > 0):
         raise CcdError("p", f"the rejection width p must be positive, got {p}")
-    if client is None:
-        configs, session = _configs_from(session_or_configs)
-    else:
-        configs, session = _config_records(session_or_configs)
-    where = str(getattr(session, "root", "fixed_pattern"))
-    n1 = len(configs)
-    if n1 < 2:
-        raise CcdError(where, f"{n1} fixed-pattern configuration{'s' if n1 != 1 else ''}: K̂ "
-                              "needs at least 2 (sec. V-B; the paper used 20), each a new "
-                              "position of card and lamp")
-    notes: list[str] = []
-    if n1 < 3:
-        notes.append(f"only n1 = {n1} configurations: outlier rejection cannot tell which slope "
-                     "is the outlier (capture at least 3, better 10-20)")
-    if dark is None:
+    red = reducer or STREAMED
+
+    def dark_of(session: Any) -> np.ndarray:
+        if dark is not None:
+            return as_dark_map(dark)
         if session is None:
             raise CcdError("dark", "no dark reference D̂_D: K̂ needs e_i = average − D̂_D "
                                    "(eq. 46); pass dark= (see dark_reference())")
         if not session.dark_frames():
-            raise CcdError(where, "no dark frames (role = 'dark'): K̂ needs the dark reference "
-                                  "D̂_D (eq. 46); capture lens-capped frames or pass dark=")
+            raise CcdError(str(session.root), "no dark frames (role = 'dark'): K̂ needs the dark "
+                                              "reference D̂_D (eq. 46); capture lens-capped "
+                                              "frames or pass dark=")
         # darks at several exposures: use those at the fixed-pattern frames' exposure
         fp_exp = {r.exposure for cfg in session.fixed_pattern_configs().values() for r in cfg}
         dark_exp = {r.exposure for r in session.dark_frames()}
         pick = next(iter(fp_exp)) if len(dark_exp) > 1 and len(fp_exp) == 1 else None
-        dark = dark_reference(session, exposure=pick, client=client)
-    dmap = as_dark_map(dark)
-    if dmap.ndim != 2:
-        raise CcdError("dark", f"the dark reference must be a 2-D map, got shape {dmap.shape}")
+        return as_dark_map(dark_reference(session, exposure=pick, reducer=red))
 
-    shape = dmap.shape
-    if client is not None:
-        from .distributed import fixed_pattern_bands
-
-        _check_cluster_configs(configs, session, shape)
-        return fixed_pattern_bands(client, configs, dmap, window=window, p=p, center=center,
-                                   notes=notes, where=where)
-    slopes = np.empty((n1,) + shape, dtype=np.float32)   # the n1 slope maps m_i (eq. 47)
-    e_bar = np.empty(shape)                               # ē_i, reused for every configuration
-    ids, levels, noises, n2s = [], [], [], []
-    averages = (_average_config(cid, frames, shape, "the dark reference")
-                for cid, frames in configs)
-    for i, ((cid, _), (e, noise, n2, name)) in enumerate(zip(configs, averages)):
-        np.subtract(e, dmap, out=e)                             # eq. 46, e_i = average − D̂_D
-        local_mean(e, window, e_bar)                           # ē_i, the m×m local mean
-        level = float(e.mean())
-        if level <= 0:
-            raise CcdError(name, NOT_LIT.format(cid=cid, level=level))
-        slopes_into(e, e_bar, slopes[i])                       # eq. 47
-        ids.append(cid)
-        levels.append(level)
-        noises.append(noise)
-        n2s.append(n2)
-        del e
-    del e_bar
-
-    # eq. 48: m̄, and the per-pixel sample std of the slopes (one compiled pass over the n1 maps)
-    m_bar = np.empty(shape)
-    sd = np.empty(shape)
-    slope_moments(slopes.reshape(n1, -1), m_bar.reshape(-1), sd.reshape(-1))
-    sigma_hat = float(np.nanmean(sd)) if np.isfinite(sd).any() else float("nan")
-    del sd
-    if not math.isfinite(sigma_hat):
-        raise CcdError(where, NO_SIGMA)
-    K, rejected, used, K_var, none = eq49_reject(slopes, m_bar, p * sigma_hat, center)
-    del slopes
-    return fixed_pattern_of(K, used, rejected, m_bar, K_var, sigma_hat=sigma_hat, p=p, window=window,
-                   center=center, none=none, ids=ids, levels=levels, noises=noises, n2s=n2s,
-                   notes=notes)
+    return red.fixed_pattern(session_or_configs, dark_of=dark_of, window=window, p=p,
+                             center=center)
 
 
 # --------------------------------------------------------------------------------------------

@@ -86,11 +86,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter
 
-from .channels import channel_names, channel_slices, check_layout, is_bayer, split_channels
+from .channels import channel_names, channel_slices, check_layout, split_channels
 from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
 from .map_names import MapName
+from .reduce import STREAMED, Reducer
 from .stats import MomentsResult, PixelMoments
 from .uniformity import Linearity, linearity, snup
 
@@ -234,29 +235,17 @@ def correct(frame: ArrayLike, G: ArrayLike, O: ArrayLike, *,
     return out.astype(np.float32)
 
 
-def _moments(src: Any, what: str, counts: dict | None = None,
-             layout: str | None = None) -> tuple[MomentsResult, str]:
-    """Stream frames into PixelMoments (or take a MomentsResult / DarkReference as is)."""
+def _moments(reducer: Reducer, src: Any, what: str, counts: dict | None,
+             layout: str | None, session: Any = None) -> tuple[MomentsResult, str]:
+    """The frames' per-pixel moments by ``reducer`` (a MomentsResult or DarkReference is taken
+    as is); with ``counts``, their zero values per channel of ``layout``."""
     if isinstance(src, MomentsResult):
         return src, what
     if isinstance(src, DarkReference):
         return MomentsResult(mean=src.mean_map, var=src.var_map, n=src.s), what
     if src is None:
         raise CcdError(what, f"no {what} frames")
-    acc = PixelMoments()
-    first = None
-    lay = layout
-    for name, arr in named_frames(src, what):
-        first = first or name
-        acc.add(arr, name=name)
-        if counts is not None:
-            lay = check_layout(arr.shape, lay, name)
-            for c, v in split_channels(arr, lay).items():
-                z, n = counts.get(c, (0, 0))
-                counts[c] = (z + int(np.count_nonzero(v == 0)), n + v.size)
-    if acc.n == 0:
-        raise CcdError(what, f"no {what} frames")
-    return acc.result(), first
+    return reducer.moments(src, what=what, session=session, zeros=counts, layout=layout)
 
 
 def _channel_k(k: Any, names: tuple[str, ...]) -> dict[str, float | None]:
@@ -278,7 +267,7 @@ def _channel_k(k: Any, names: tuple[str, ...]) -> dict[str, float | None]:
 def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
                k: float | Sequence[float] | Mapping[str, float] | None = None,
                noise_limit: float = NOISE_LIMIT, window: int = WINDOW,
-               client: Any = None) -> FlatField:
+               reducer: Reducer | None = None, session: Any = None) -> FlatField:
     """Gain and offset maps G, O of the flat-field correction (eqs. 1–4, de Lasarte et al. 2007).
 
     Parameters
@@ -295,12 +284,15 @@ def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
         Reference level(s); default the paper's ⟨DL_B − DL_0⟩ per channel (over unflagged pixels).
     noise_limit, window
         c and the neighbourhood of the flag rule (module docstring).
-    client
-        A Dask :class:`distributed.Client`: DL_0 and DL_B (and the dark image's zero counts)
-        are reduced on the cluster in bands of rows (:mod:`ccdcore.distributed`), bit-identical
-        to the streamed averages; frames are then given as session records or file paths (a
+    reducer
+        Runs the averages (:mod:`ccdcore.reduce`; default streamed here). On a Dask cluster
+        (:class:`ccdcore.distributed.DaskReducer`) DL_0 and DL_B (and the dark image's zero
+        counts) are reduced in bands of rows, bit-identical to the streamed averages; frames
+        are then given as session records or file paths (a
         :class:`~ccdcore.stats.MomentsResult` or :class:`~ccdcore.darkframe.DarkReference` is
         taken as is).
+    session
+        The session whose records the frames are (its header cache and read-ahead).
 
     Returns
     -------
@@ -326,42 +318,10 @@ def flat_field(dark_frames: Any, base_frames: Any, *, layout: str | None = None,
     if window < 1:
         raise CcdError("window", f"must be >= 1, got {window}")
     zeros: dict[str, tuple[int, int]] = {}
-    if client is None:
-        dark, dname = _moments(dark_frames, "dark", zeros, layout)
-        base, bname = _moments(base_frames, "base", None)
-    else:
-        dark, dname = _cluster_moments(client, dark_frames, "dark", zeros, layout)
-        base, bname = _cluster_moments(client, base_frames, "base", None, layout)
+    red = reducer or STREAMED
+    dark, dname = _moments(red, dark_frames, "dark", zeros, layout, session)
+    base, bname = _moments(red, base_frames, "base", None, layout, session)
     return _gain_offset(dark, dname, base, bname, zeros, layout, k, noise_limit, window)
-
-
-def _cluster_moments(client: Any, src: Any, what: str, counts: dict | None,
-                     layout: str | None, session: Any = None) -> tuple[MomentsResult, str]:
-    """:func:`_moments` on a Dask cluster: the frames' headers are checked here first (the
-    streamed path's messages), then the moments (and the zero counts) are reduced in bands."""
-    from .distributed import band_moments, check_averageable, headers_of, zero_counts
-
-    if isinstance(src, (MomentsResult, DarkReference)) or src is None:
-        return _moments(src, what, counts, layout)
-    recs = list(src)
-    if not recs:
-        raise CcdError(what, f"no {what} frames")
-    first = None
-    lay = layout
-    frames = []
-    for frame, hdr in headers_of(recs, session):
-        frames.append(frame)
-        first = check_averageable(frame, hdr, first)
-        if counts is not None:
-            lay = check_layout(hdr.shape, lay, frame.name)
-    try:
-        even = is_bayer(check_layout(first, lay, frames[0].name))
-    except CcdError:  # reported by the streamed path's own check, after the averages
-        even = False
-    res = band_moments(client, recs, shape=first, even=even)
-    if counts is not None:
-        counts.update(zero_counts(client, recs, shape=first, layout=lay))
-    return res, frames[0].name
 
 
 def _gain_offset(dark: MomentsResult, dname: str, base: MomentsResult, bname: str,
@@ -448,7 +408,7 @@ def _pick_darks(session: Any, setting: str | None, gain: float | None,
 
 def flat_field_from_session(session: Any, *, setting: str | None = None,
                             base: tuple[Any, Any] | str = "auto", gain: float | None = None,
-                            dark_exposure: float | None = None, client: Any = None,
+                            dark_exposure: float | None = None, reducer: Reducer | None = None,
                             **options: Any) -> FlatField:
     """:func:`flat_field` from a session's frames.
 
@@ -467,9 +427,8 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
     dark_exposure
         Exposure of the dark frames; default the base frames' exposure (a single dark exposure,
         or darks without exposure, are used as they are, noted).
-    client
-        A Dask :class:`distributed.Client`: DL_0 and DL_B are reduced on the cluster (see
-        :func:`flat_field`; bit-identical maps).
+    reducer
+        Runs the averages (see :func:`flat_field`; bit-identical maps on a cluster).
     **options
         ``k``, ``noise_limit``, ``window`` of :func:`flat_field`.
     """
@@ -491,12 +450,8 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
                                    f"{', '.join(map(str, groups))}")
     t = key[1] if dark_exposure is None else dark_exposure
     darks, t_used, more = _pick_darks(session, setting, gain, t)
-    if client is None:
-        ff = flat_field(session.iter_frames(darks), session.iter_frames(groups[key]),
-                        layout=session.camera.layout, **options)
-    else:
-        ff = flat_field(darks, groups[key], layout=session.camera.layout, client=client,
-                        **options)
+    ff = flat_field(darks, groups[key], layout=session.camera.layout, reducer=reducer,
+                    session=session, **options)
     return replace(ff, base_key=key, setting=setting, dark_exposure=t_used,
                    notes=tuple(notes + more) + ff.notes)
 
@@ -637,7 +592,7 @@ def _base_maps(session, setting, gain, keys, groups, **options
         recs, t = darks[key]
         if t != dark_t:
             dark_t, dark = t, None
-            dark = _moments(session.iter_frames(recs), "dark")[0]
+            dark = _moments(STREAMED, session.iter_frames(recs), "dark", None, None)[0]
         ff = flat_field(dark, session.iter_frames(groups[key]), layout=session.camera.layout,
                         **options)
         out[key] = (ff.G, ff.O, ff.layout, float(np.mean([c.base_level for c in ff.channels])))
@@ -945,11 +900,12 @@ def compare_with_k_map(session: Any, *, setting: str | None = None, gain: float 
     def dark_at(t):
         recs, tt, _ = _pick_darks(session, setting, gain, t)
         if tt not in dark_cache:
-            dark_cache[tt] = _moments(session.iter_frames(recs), "dark")[0].mean
+            dark_cache[tt] = _moments(STREAMED, session.iter_frames(recs), "dark", None,
+                                      None)[0].mean
         return dark_cache[tt]
 
-    e = {key: _moments(session.iter_frames(groups[key]), "flat")[0].mean - dark_at(key[1])
-         for key in configs}
+    e = {key: _moments(STREAMED, session.iter_frames(groups[key]), "flat", None, None)[0].mean
+         - dark_at(key[1]) for key in configs}
     K = np.empty(ff.shape, np.float64)
     for c, idx in channel_slices(ff.shape, lay).items():
         fp = fixed_pattern_map({key: np.ascontiguousarray(v[idx]) for key, v in e.items()},

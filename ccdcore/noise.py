@@ -76,19 +76,19 @@ CLIP_LIMIT, LINEARITY_Z, LINEARITY_TOLERANCE, ROBUST_Z, QUANTISATION_STEP
 """
 from __future__ import annotations
 
-import itertools
 import math
-import os
 from dataclasses import dataclass, replace
 from os import PathLike
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from .common import check_roi, crop, json_safe
 from .errors import CcdError
+from .reduce import STREAMED, Reducer, stand_in
 from .session import FrameRecord, Session, open_session
+from .stats import pair_statistics
 
 __all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
            "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
@@ -103,8 +103,6 @@ LINEARITY_Z = 5.0
 LINEARITY_TOLERANCE = 0.05
 #: robust mode drops a level whose |residual| / σ exceeds this
 ROBUST_Z = 3.0
-#: frames decoded ahead in worker threads while one is measured (memory: this many + 1 frames)
-READ_AHEAD = min(4, os.cpu_count() or 1)
 #: quantisation step q of integer data, DN (eq. 4)
 QUANTISATION_STEP = 1.0
 #: the fraction of the μ̂ range where the variance-based linearity rule looks
@@ -406,35 +404,6 @@ def weighted_line_fit(mu: ArrayLike, var: ArrayLike, var_var: ArrayLike) -> Line
                    Q=goodness_of_fit(chi2, dof))
 
 
-def pair_statistics(d1: ArrayLike, d2: ArrayLike) -> tuple[float, float, float, int]:
-    """μ̂, σ̂²_N, var[σ̂²_N] and M of one pair of frames (ROI already applied).
-
-    μ̂ is the mean of both frames (eq. 37); σ̂²_N the sample variance of the difference image
-    D_Δ = D₁ − D₂ divided by two, Σ(D_Δ − μ̂_Δ)²/(2(M − 1)) (eqs. 31, 38); and
-    var[σ̂²_N] ≈ 2(σ̂²_N)²/(M − 1) (eq. 40, normal pixels).  Computed in float64.
-
-    Raises
-    ------
-    CcdError
-        Shapes differ or the frames have fewer than two pixels.
-    """
-    a = np.asarray(d1, dtype=np.float64)
-    b = np.asarray(d2, dtype=np.float64)
-    if a.shape != b.shape:
-        raise CcdError("pair_statistics", f"frame shapes differ: {a.shape} and {b.shape}")
-    m = int(a.size)
-    if m < 2:
-        raise CcdError("pair_statistics", "a pair needs at least two pixels per frame")
-    mu = (a.sum() + b.sum()) / (2.0 * m)                         # eq. 37
-    diff = a - b                                                 # eq. 31
-    del a, b
-    diff -= diff.mean()                                          # in place: (D_Δ − μ̂_Δ)²
-    diff *= diff
-    var = float(np.sum(diff) / (2.0 * (m - 1)))                  # eq. 38
-    var_var = 2.0 * var * var / (m - 1)                          # eq. 40
-    return float(mu), var, float(var_var), m
-
-
 # --------------------------------------------------------------------------------------------
 # reading a session
 # --------------------------------------------------------------------------------------------
@@ -491,7 +460,7 @@ def _checked_pixels(rec: FrameRecord, frame: np.ndarray,
 
 
 def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None,
-                      client: Any = None) -> tuple[float, str, tuple[str, ...]]:
+                      reducer: Reducer) -> tuple[float, str, tuple[str, ...]]:
     """b₀ from the dark frames (rules ``dark_extrapolated`` / ``dark_mean`` / ``none``)."""
     darks = session.dark_frames()
     if not darks:
@@ -501,7 +470,10 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None,
     sums: dict[float | None, float] = {}
     counts: dict[float | None, int] = {}
     frames: dict[float | None, int] = {}
-    for rec, (total, size) in _dark_sums(session, darks, roi, client):
+    sums_of = reducer.frame_sums(session, darks, pixels=lambda r, f: _checked_pixels(r, f, roi),
+                                 header_pixels=lambda r: _header_pixels(session, r, roi),
+                                 roi=roi, nonfinite=_nonfinite(roi))
+    for rec, (total, size) in sums_of:
         t = rec.exposure
         sums[t] = sums.get(t, 0.0) + total
         counts[t] = counts.get(t, 0) + size
@@ -528,28 +500,10 @@ def _dark_black_level(session: Session, roi: tuple[int, int, int, int] | None,
         "contains the dark shot noise A^2 E_DC; give [camera] black_level to separate them",)
 
 
-def _dark_sums(session: Session, darks: Sequence[FrameRecord],
-               roi: tuple[int, int, int, int] | None, client: Any
-               ) -> Iterator[tuple[FrameRecord, tuple[float, int]]]:
-    """Per dark frame in order: the sum and the number of its ROI pixel values (streamed, or
-    on a Dask cluster in bands: exact for integer data)."""
-    if client is None:
-        for rec, frame in session.iter_frames(darks, read_ahead=READ_AHEAD):
-            pix = _checked_pixels(rec, frame, roi)
-            yield rec, (float(pix.sum(dtype=np.float64)), pix.size)
-        return
-    from .distributed import frame_sums
-
-    for rec in darks:
-        _header_pixels(session, rec, roi)
-    shape = session.header(darks[0]).shape
-    yield from zip(darks, frame_sums(client, darks, shape=shape, roi=roi,
-                                     nonfinite=_nonfinite(roi)))
-
-
 def _measure(session: Session, roi: Sequence[int] | None, black_level: float | None,
-             client: Any = None) -> tuple[tuple[PtcPoint, ...], dict[str, Any]]:
-    """One streamed pass over the PTC (and dark) frames: the points and the fit context."""
+             reducer: Reducer = STREAMED) -> tuple[tuple[PtcPoint, ...], dict[str, Any]]:
+    """One pass over the PTC (and dark) frames by ``reducer``: the points and the fit
+    context."""
     session.raise_if_invalid(roles=("ptc", "dark"))
     label = session.label
     levels = session.ptc_levels()
@@ -582,15 +536,15 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
         b0, source = float(session.camera.black_level), "camera"
         notes.append(f"black level b0 = {b0:g} DN from the manifest ([camera] black_level)")
     else:
-        b0, source, more = _dark_black_level(session, roi_t, client)
+        b0, source, more = _dark_black_level(session, roi_t, reducer)
         notes.extend(more)
 
     points = []
     paired = {level: recs[:2 * (len(recs) // 2)] for level, recs in levels.items()}
-    if client is None:
-        measured = _streamed_pairs(session, paired, roi_t, full)
-    else:
-        measured = _cluster_pairs(client, session, paired, roi_t, full)
+    measured = reducer.pair_stats(session, paired,
+                                  pixels=lambda r, f: _checked_pixels(r, f, roi_t),
+                                  header_pixels=lambda r: _header_pixels(session, r, roi_t),
+                                  roi=roi_t, full=full, nonfinite=_nonfinite(roi_t))
     for level, recs in levels.items():
         n_pairs = len(recs) // 2
         if len(recs) % 2:
@@ -614,38 +568,13 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
     return tuple(points), context
 
 
-def _streamed_pairs(session: Session, paired: dict[int, tuple[FrameRecord, ...]],
-                    roi_t: tuple[int, int, int, int] | None, full: float | None
-                    ) -> Iterator[tuple[list[float], list[float], int, int, int]]:
-    """Per level in order: the pairs' μ̂ and σ̂²_N (eqs. 37, 38), the clipped and all ROI pixel
-    values, and M; one stream over the frames, read ahead in threads."""
-    stream = session.iter_frames([r for recs in paired.values() for r in recs],
-                                 read_ahead=READ_AHEAD)
-    for level, recs in paired.items():
-        mus, vars_, clipped, count, m = [], [], 0, 0, 0
-        frames = itertools.islice(stream, len(recs))
-        for (r1, f1), (r2, f2) in zip(frames, frames):
-            p1, p2 = _checked_pixels(r1, f1, roi_t), _checked_pixels(r2, f2, roi_t)
-            if p1.shape != p2.shape:
-                raise CcdError(r2.relpath, f"shape {p2.shape} differs from {r1.relpath} "
-                                           f"{p1.shape}")
-            if full is not None:
-                clipped += int(np.count_nonzero(p1 <= 0) + np.count_nonzero(p1 >= full)
-                               + np.count_nonzero(p2 <= 0) + np.count_nonzero(p2 >= full))
-            count += p1.size + p2.size
-            mu, var, _, m = pair_statistics(p1, p2)
-            mus.append(mu)
-            vars_.append(var)
-        yield mus, vars_, clipped, count, m
-
-
 def _header_pixels(session: Session, rec: FrameRecord,
                    roi: tuple[int, int, int, int] | None) -> np.ndarray:
     """A zero-memory stand-in for ``_checked_pixels(rec, frame, roi)`` built from the header:
     the same colour-frame error, and the ROI's shape and dtype."""
     hdr = session.header(rec)
     _require_mono(rec, hdr.shape)
-    return crop(np.broadcast_to(np.zeros((), hdr.dtype), hdr.shape), roi)
+    return crop(stand_in(hdr), roi)
 
 
 def _nonfinite(roi: Sequence[int] | None) -> Callable[[str, int], CcdError]:
@@ -655,32 +584,6 @@ def _nonfinite(roi: Sequence[int] | None) -> Callable[[str, int], CcdError]:
                               f" in the {'ROI' if roi else 'frame'}; photon transfer "
                               "needs finite pixel values")
     return error
-
-
-def _cluster_pairs(client: Any, session: Session, paired: dict[int, tuple[FrameRecord, ...]],
-                   roi_t: tuple[int, int, int, int] | None, full: float | None
-                   ) -> Iterator[tuple[list[float], list[float], int, int, int]]:
-    """:func:`_streamed_pairs` on a Dask cluster (:func:`ccdcore.distributed.pair_sums`):
-    headers checked here first with the streamed messages; μ̂ equal, σ̂²_N to a relative
-    :data:`ccdcore.distributed.PTC_RTOL`."""
-    from .distributed import pair_sums
-
-    pairs, shapes = {}, {}
-    for level, recs in paired.items():
-        pairs[level] = list(zip(recs[0::2], recs[1::2]))
-        for r1, r2 in pairs[level]:
-            p1, p2 = _header_pixels(session, r1, roi_t), _header_pixels(session, r2, roi_t)
-            if p1.shape != p2.shape:
-                raise CcdError(r2.relpath, f"shape {p2.shape} differs from {r1.relpath} "
-                                           f"{p1.shape}")
-        if recs:
-            shapes[level] = session.header(recs[0]).shape
-    sums = pair_sums(client, {lv: p for lv, p in pairs.items() if p}, shapes=shapes, roi=roi_t,
-                     full=full, nonfinite=_nonfinite(roi_t))
-    for level in paired:
-        got = sums.get(level, [])
-        yield ([p.mu for p in got], [p.var for p in got], sum(p.clipped for p in got),
-               sum(2 * p.m for p in got), got[-1].m if got else 0)
 
 
 def ptc_points(session: Session | str | PathLike, *, roi: Sequence[int] | None = None,
@@ -983,7 +886,8 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
                     roi: Sequence[int] | None = None, robust: bool = False,
                     exclude_levels: Iterable[int] = (), black_level: float | None = None,
                     linearity_tolerance: float = LINEARITY_TOLERANCE,
-                    client: Any = None, fit_fraction: float | None = None) -> PhotonTransfer:
+                    reducer: Reducer | None = None, fit_fraction: float | None = None
+                    ) -> PhotonTransfer:
     """Estimate the noise model σ²_N = A·(μ − b₀) + σ²_C of a camera from its PTC frames.
 
     For each light level: μ̂ (eq. 37), σ̂²_N from the difference image (eq. 38) and
@@ -1008,13 +912,13 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
     fit_fraction
         The fit range (:func:`fit_points`): ``None`` every level below saturation, 0.7 the
         EMVA 1288 range.
-    client
-        A Dask :class:`distributed.Client`: the pairs (and the dark sums of the black level)
-        are reduced on the cluster in bands of rows, each worker reading its band of every
-        frame (:func:`ccdcore.distributed.pair_sums`).  μ̂ (eq. 37) and the clipped fractions
-        are then identical to the streamed ones for integer data; σ̂²_N (eq. 38), merged over
-        the bands, agrees to a relative 1e-12 (:data:`ccdcore.distributed.PTC_RTOL`), and so
-        do A, σ²_C and their errors.
+    reducer
+        Runs the reductions over frames (:mod:`ccdcore.reduce`; default streamed here). On a
+        Dask cluster (:class:`ccdcore.distributed.DaskReducer`) the pairs and the dark sums of
+        the black level are reduced in bands of rows, each worker reading its band of every
+        frame: μ̂ (eq. 37) and the clipped fractions are identical for integer data; σ̂²_N
+        (eq. 38), merged over the bands, agrees to a relative 1e-12
+        (:data:`ccdcore.distributed.PTC_RTOL`), and so do A, σ²_C and their errors.
 
     Returns
     -------
@@ -1033,6 +937,6 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
     >>> pt.A, pt.read_noise_e, pt.Q                                  # doctest: +SKIP
     """
     session = _as_session(session_or_path)
-    points, ctx = _measure(session, roi, black_level, client)
+    points, ctx = _measure(session, roi, black_level, reducer or STREAMED)
     return fit_points(points, exclude_levels=exclude_levels, robust=robust,
                       linearity_tolerance=linearity_tolerance, fit_fraction=fit_fraction, **ctx)

@@ -49,6 +49,7 @@ from .map_names import MapName
 from .noise import PhotonTransfer
 from .planning import AcquisitionPlan
 from .progress import Progress, Steps
+from .reduce import STREAMED, Reducer
 from .scene import SceneVariation
 from .session import MAX_INTENSITY, Camera, Session, open_session
 
@@ -680,7 +681,7 @@ class _Run:
     noise: PhotonTransfer | None
     response: bool
     emva1288: bool
-    client: Any
+    reducer: Reducer
     dark_exposure: float | None = None
     made: dict[str, Any] = field(default_factory=dict)
     skipped: list[Skipped] = field(default_factory=list)
@@ -739,7 +740,7 @@ def _photon_transfer(run: _Run) -> None:
         run.made["noise"] = run.noise
     else:
         run.attempt("noise", (), lambda: photon_transfer(run.session, roi=run.roi,
-                                                         client=run.client))
+                                                         reducer=run.reducer))
 
 
 def _emva_figures(run: _Run) -> None:
@@ -774,7 +775,7 @@ def _dark_reference(run: _Run) -> None:
 
     def make() -> DarkReference:
         exposure, note = dark_exposure_for(session, run.dark_exposure)
-        ref = dark_reference(session, exposure=exposure, client=run.client)
+        ref = dark_reference(session, exposure=exposure, reducer=run.reducer)
         return replace(ref, notes=(note, *ref.notes)) if note else ref
     run.attempt("dark", (), make)
 
@@ -821,7 +822,7 @@ def _fixed_pattern(run: _Run) -> None:
 
     run.attempt("fixed_pattern", ("dark",),
                 lambda: fixed_pattern_map(run.session, run.made["dark"], window=run.window,
-                                          p=run.p, client=run.client))
+                                          p=run.p, reducer=run.reducer))
 
 
 def _plan(run: _Run) -> None:
@@ -864,7 +865,7 @@ def _flat_field(run: _Run) -> None:
     from .flatfield import flat_field_from_session
 
     run.attempt("flat_field", (), lambda: flat_field_from_session(run.session, base="auto",
-                                                                  client=run.client))
+                                                                  reducer=run.reducer))
 
 
 def _response(run: _Run) -> None:
@@ -887,7 +888,7 @@ _STEPS: tuple[tuple[str, Callable[[_Run], None]], ...] = (
 def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = None,
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, response: bool = True,
-                 emva1288: bool = True, client: Any = None,
+                 emva1288: bool = True, reducer: Reducer | None = None,
                  dark_exposure: float | None = None) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
@@ -902,12 +903,13 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     ``progress`` (a :class:`ccdcore.progress.Progress`) gets ``progress(start, name)`` as each
     of :data:`ESTIMATE_STEPS` starts; each step is one function (``_STEPS``).
 
-    ``client`` (a Dask :class:`distributed.Client`) runs the reductions over frames of the
-    photon transfer, the dark reference, K̂ and the flat field on the cluster
-    (:mod:`ccdcore.distributed`; ``docs/distributed.md`` says what is not distributed yet).
+    ``reducer`` (:mod:`ccdcore.reduce`; default streamed here) runs the reductions over frames
+    of the photon transfer, the dark reference, K̂ and the flat field; a
+    :class:`ccdcore.distributed.DaskReducer` runs them on a Dask cluster
+    (``docs/distributed.md`` says what is not distributed yet).
     """
     run = _Run(session, roi=roi, window=window, p=p, noise=noise, response=response,
-               emva1288=emva1288, client=client, dark_exposure=dark_exposure)
+               emva1288=emva1288, reducer=reducer or STREAMED, dark_exposure=dark_exposure)
     report = Steps(progress, ESTIMATE_STEPS)
     for step, make in _STEPS:
         report(step)
@@ -937,7 +939,7 @@ def _damaged_maps(name: str, result: Any) -> str | None:
 def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
               progress: Progress | None = None,
-              noise: PhotonTransfer | None = None, client: Any = None,
+              noise: PhotonTransfer | None = None, reducer: Reducer | None = None,
               dark_exposure: float | None = None) -> CalibrationProduct:
     """Run every estimate the session's frames allow.
 
@@ -963,9 +965,8 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
     refused).  The provenance records the session's content hash, the date (UTC) and the
-    ``scheduler`` the reductions ran on: ``"streamed (this process)"``, or with ``client`` (a
-    Dask :class:`distributed.Client`, see :func:`estimate_all`) the scheduler's address and its
-    number of workers.
+    ``scheduler`` the reductions ran on: ``"streamed (this process)"``, or with a Dask
+    ``reducer`` (see :func:`estimate_all`) the scheduler's address and its number of workers.
 
     Raises
     ------
@@ -977,7 +978,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         else open_session(session_or_path)
     session.raise_if_invalid()
     e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise,
-                     client=client, dark_exposure=dark_exposure)
+                     reducer=reducer, dark_exposure=dark_exposure)
     if not e.made:
         failed = [s for s in e.skipped if s.code == "failed"]
         why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (
@@ -1042,7 +1043,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
                   "session_hash": session.content_hash(),
                   "date": datetime.datetime.now(datetime.timezone.utc).isoformat(
                       timespec="seconds"),
-                  "scheduler": _scheduler(client), "steps": steps}
+                  "scheduler": (reducer or STREAMED).description, "steps": steps}
     return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
                               provenance=json_safe(provenance), skipped=e.skipped,
                               warnings=e.plan_warnings, emva1288=emva)
@@ -1061,14 +1062,6 @@ def session_inputs(session: Session) -> list[Path]:
             maps = json.loads(truth.read_text(encoding="utf-8")).get("maps") or {}
             files += [Path(session.root) / str(rel) for rel in maps.values()]
     return files
-
-
-def _scheduler(client: Any) -> str:
-    """The provenance's ``scheduler``: "streamed (this process)" or the Dask address and
-    workers (:func:`ccdcore.distributed.describe`; dask is imported only with a client)."""
-    from .distributed import describe
-
-    return describe(client)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -108,7 +108,7 @@ from numpy.typing import ArrayLike, NDArray
 from .channels import Layout
 from .common import Roi, check_roi, json_safe
 from .errors import CcdError
-from .noise import READ_AHEAD
+from .reduce import READ_AHEAD
 
 __all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "scene_measurement",
            "fit_scene_variation", "scene_variation", "scene_variations", "variance_budget",

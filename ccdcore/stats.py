@@ -8,6 +8,8 @@ Public objects
     Runs :class:`PixelMoments` over any iterable of frames.
 :class:`MomentsResult`
     Frozen result: per-pixel mean, unbiased variance, and the number of frames.
+:func:`pair_statistics`
+    μ̂, σ̂²_N and var[σ̂²_N] of one pair of frames (Healey & Kondepudy 1994, eqs. 37, 38, 40).
 
 The accumulation is the shifted-data algorithm: sums of ``x - x_0`` and ``(x - x_0)**2`` in
 float64, with ``x_0`` the first frame, fused into one compiled pass per frame (numba), about three
@@ -23,10 +25,11 @@ from typing import Iterable
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .errors import CcdError
 
-__all__ = ["PixelMoments", "MomentsResult", "pixel_moments"]
+__all__ = ["PixelMoments", "MomentsResult", "pixel_moments", "pair_statistics"]
 
 
 @dataclass(frozen=True)
@@ -162,3 +165,32 @@ def pixel_moments(frames: Iterable[np.ndarray]) -> MomentsResult:
         else:
             acc.add(item)
     return acc.result()
+
+
+def pair_statistics(d1: ArrayLike, d2: ArrayLike) -> tuple[float, float, float, int]:
+    """μ̂, σ̂²_N, var[σ̂²_N] and M of one pair of frames (ROI already applied).
+
+    μ̂ is the mean of both frames (eq. 37); σ̂²_N the sample variance of the difference image
+    D_Δ = D₁ − D₂ divided by two, Σ(D_Δ − μ̂_Δ)²/(2(M − 1)) (eqs. 31, 38); and
+    var[σ̂²_N] ≈ 2(σ̂²_N)²/(M − 1) (eq. 40, normal pixels).  Computed in float64.
+
+    Raises
+    ------
+    CcdError
+        Shapes differ or the frames have fewer than two pixels.
+    """
+    a = np.asarray(d1, dtype=np.float64)
+    b = np.asarray(d2, dtype=np.float64)
+    if a.shape != b.shape:
+        raise CcdError("pair_statistics", f"frame shapes differ: {a.shape} and {b.shape}")
+    m = int(a.size)
+    if m < 2:
+        raise CcdError("pair_statistics", "a pair needs at least two pixels per frame")
+    mu = (a.sum() + b.sum()) / (2.0 * m)                         # eq. 37
+    diff = a - b                                                 # eq. 31
+    del a, b
+    diff -= diff.mean()                                          # in place: (D_Δ − μ̂_Δ)²
+    diff *= diff
+    var = float(np.sum(diff) / (2.0 * (m - 1)))                  # eq. 38
+    var_var = 2.0 * var * var / (m - 1)                          # eq. 40
+    return float(mu), var, float(var_var), m

@@ -24,6 +24,7 @@ import pytest
 
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
+from ccdcore.distributed import DaskReducer  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
 from ccdcore.darkframe import dark_reference  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
@@ -113,7 +114,7 @@ def test_band_moments_float_frames_keep_the_order(client, tmp_path, band_rows):
 
 def test_dark_reference(client, healey, band_rows):
     a = dark_reference(healey)
-    b = dark_reference(healey, client=client)
+    b = dark_reference(healey, reducer=DaskReducer(client))
     assert b.s == a.s
     for name in ("mean_map", "var_map", "hot_mask", "dead_mask", "sem_map"):
         assert _same(getattr(a, name), getattr(b, name)), name
@@ -123,12 +124,12 @@ def test_dark_reference(client, healey, band_rows):
 def test_fixed_pattern_map(client, healey, band_rows):
     dark = dark_reference(healey)
     a = fixed_pattern_map(healey, dark)
-    b = fixed_pattern_map(healey, dark, client=client)
+    b = fixed_pattern_map(healey, dark, reducer=DaskReducer(client))
     for name in ("K", "K_var", "n1_used", "rejected", "m_bar"):
         assert _same(getattr(a, name), getattr(b, name)), name
     assert b.to_dict() == a.to_dict()
     # the dark reference made inside, on the cluster too
-    c = fixed_pattern_map(healey, client=client)
+    c = fixed_pattern_map(healey, reducer=DaskReducer(client))
     assert _same(c.K, a.K) and _same(c.K_var, a.K_var)
 
 
@@ -145,16 +146,16 @@ def _ptc_close(a, b):
 
 
 def test_photon_transfer(client, healey, band_rows):
-    _ptc_close(photon_transfer(healey), photon_transfer(healey, client=client))
+    _ptc_close(photon_transfer(healey), photon_transfer(healey, reducer=DaskReducer(client)))
     roi = (13, 21, 101, 77)
-    _ptc_close(photon_transfer(healey, roi=roi), photon_transfer(healey, roi=roi, client=client))
+    _ptc_close(photon_transfer(healey, roi=roi), photon_transfer(healey, roi=roi, reducer=DaskReducer(client)))
 
 
 def test_photon_transfer_black_level_from_darks(client, healey, band_rows):
     """Without [camera] black_level, b0 is the dark frames' mean: summed band by band."""
     s = dataclasses.replace(healey, camera=dataclasses.replace(healey.camera, black_level=None))
     a, b = photon_transfer(s, roi=(5, 3, 200, 150)), photon_transfer(s, roi=(5, 3, 200, 150),
-                                                                     client=client)
+                                                                     reducer=DaskReducer(client))
     assert a.black_level_source == b.black_level_source == "dark_mean"
     assert b.black_level_dn == a.black_level_dn
     _ptc_close(a, b)
@@ -166,7 +167,7 @@ def test_flat_field(client, band_rows, setting):
     (counted band by band) are not all 0."""
     s = open_session(DELASARTE)
     a = flat_field_from_session(s, setting=setting)
-    b = flat_field_from_session(s, setting=setting, client=client)
+    b = flat_field_from_session(s, setting=setting, reducer=DaskReducer(client))
     for name in ("G", "O", "flags", "G_rel_err"):
         assert _same(getattr(a, name), getattr(b, name)), name
     for which in ("dark", "base"):
@@ -176,7 +177,7 @@ def test_flat_field(client, band_rows, setting):
     # flat_field itself with records (or paths) on the cluster
     darks = s.dark_groups(setting=b.setting)[b.dark_exposure]
     base = s.flat_groups(setting=b.setting)[b.base_key]
-    c = flat_field([r.path for r in darks], list(base), layout="rgb", client=client)
+    c = flat_field([r.path for r in darks], list(base), layout="rgb", reducer=DaskReducer(client))
     assert _same(c.G, a.G) and _same(c.O, a.O)
 
 
@@ -186,7 +187,7 @@ def test_flat_field_bayer_bands_keep_the_cfa(client, healey, band_rows):
     darks = healey.dark_frames()
     base = max(healey.ptc_levels().values(), key=lambda recs: recs[0].level)
     a = flat_field(healey.iter_frames(darks), healey.iter_frames(base), layout="bayer-rggb")
-    b = flat_field(darks, base, layout="bayer-rggb", client=client)
+    b = flat_field(darks, base, layout="bayer-rggb", reducer=DaskReducer(client))
     for name in ("G", "O", "flags"):
         assert _same(getattr(a, name), getattr(b, name)), name
     assert b.to_dict() == a.to_dict()
@@ -211,7 +212,7 @@ def test_get_client_address_and_environment(client, monkeypatch):
 
 def test_calibrate_product_and_provenance(client):
     a = calibrate(HEALEY)
-    b = calibrate(HEALEY, client=client)
+    b = calibrate(HEALEY, reducer=DaskReducer(client))
     assert sorted(b.maps) == sorted(a.maps)
     for name in a.maps:
         assert _same(a.maps[name], b.maps[name]), name
@@ -309,7 +310,7 @@ def test_unreadable_file_same_message(client, damaged):
              (lambda **k: fixed_pattern_map(damaged, zeros, **k), "C03_F01.tif")]
     for fn, name in cases:
         streamed = _message(fn)
-        cluster = _message(lambda: fn(client=client))
+        cluster = _message(lambda: fn(reducer=DaskReducer(client)))
         assert cluster == streamed
         assert name in cluster[1] and "\n" not in cluster[1]
 
@@ -334,7 +335,7 @@ def test_nonfinite_pixels_same_message(client, tmp_path):
     assert "2 NaN or infinite pixel values" in streamed[1] and bad.relpath in streamed[1]
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(ccd_dist, "BAND_BYTES", 7 * 3 * 8 * 64)
-        assert _message(lambda: photon_transfer(s, client=client)) == streamed
+        assert _message(lambda: photon_transfer(s, reducer=DaskReducer(client))) == streamed
     dark = s.dark_frames()[1]
     frame = read_image(dark.path)
     frame[0, 0] = np.inf
@@ -343,7 +344,7 @@ def test_nonfinite_pixels_same_message(client, tmp_path):
         s.camera, black_level=None))
     streamed = _message(lambda: photon_transfer(s))
     assert dark.relpath in streamed[1]
-    assert _message(lambda: photon_transfer(s, client=client)) == streamed
+    assert _message(lambda: photon_transfer(s, reducer=DaskReducer(client))) == streamed
 
 
 def test_header_checks_same_message(client, healey, tmp_path):
@@ -359,12 +360,12 @@ def test_header_checks_same_message(client, healey, tmp_path):
     darks = list(healey.dark_frames()[:3])
     for recs in (darks + [odd], darks + [rgb]):
         streamed = _message(lambda: dark_reference([(r, read_image(r.path)) for r in recs]))
-        assert _message(lambda: dark_reference(recs, client=client)) == streamed
+        assert _message(lambda: dark_reference(recs, reducer=DaskReducer(client))) == streamed
     configs = {1: healey.fixed_pattern_configs()[1], 2: (rgb,)}
     dark = dark_reference(healey)
     streamed = _message(lambda: fixed_pattern_map(
         {c: [(r, read_image(r.path)) for r in recs] for c, recs in configs.items()}, dark))
-    assert _message(lambda: fixed_pattern_map(configs, dark, client=client)) == streamed
+    assert _message(lambda: fixed_pattern_map(configs, dark, reducer=DaskReducer(client))) == streamed
 
 
 def test_first_unreadable_frame_is_reported(client, damaged, monkeypatch):
@@ -377,7 +378,7 @@ def test_first_unreadable_frame_is_reported(client, damaged, monkeypatch):
     streamed = _message(lambda: dark_reference(damaged))
     assert "dark_001.tif" in streamed[1]
     monkeypatch.setattr(ccd_dist, "BAND_BYTES", 7 * 3 * 8 * 256)
-    assert _message(lambda: dark_reference(damaged, client=client)) == streamed
+    assert _message(lambda: dark_reference(damaged, reducer=DaskReducer(client))) == streamed
 
 
 # --------------------------------------------------------------------------------------------

@@ -21,6 +21,7 @@ import pytest
 
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
+from ccdcore.distributed import DaskReducer  # noqa: E402
 from ccdcore.change import ChangeOptions, session_change  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
@@ -147,7 +148,7 @@ def test_merge_bracket_streamed_and_cluster(client):
     recs, frames, model = _tsin()
     streamed = merge_bracket(recs, model, layout="mono")
     _same(streamed, merge(frames, model, layout="mono"))
-    _same(merge_bracket(recs, model, layout="mono", client=client, band_rows=9), streamed)
+    _same(merge_bracket(recs, model, layout="mono", reducer=DaskReducer(client), band_rows=9), streamed)
 
 
 # --------------------------------------------------------------------------------------------
@@ -169,7 +170,7 @@ def test_merge_errors_same_message(client, bayer, tmp_path):
     for ms, ps in cases:
         streamed = _message(lambda: merge([read_image(p) for p in ps], ms,
                                           layout="bayer-rggb"))
-        cluster = _message(lambda: merge_bracket(ps, ms, layout="bayer-rggb", client=client,
+        cluster = _message(lambda: merge_bracket(ps, ms, layout="bayer-rggb", reducer=DaskReducer(client),
                                                  band_rows=4))
         assert cluster == streamed
     # tsin01's longest frame with garbage in its lower strips, and a response of 128 codes:
@@ -184,14 +185,14 @@ def test_merge_errors_same_message(client, bayer, tmp_path):
     low = ResponseModel(G[:128], model.a, model.b, *NOISE)
     streamed = _message(lambda: merge_bracket(ps, low, layout="mono"))
     assert "bad.tif" in streamed[1]
-    assert _message(lambda: merge_bracket(ps, low, layout="mono", client=client,
+    assert _message(lambda: merge_bracket(ps, low, layout="mono", reducer=DaskReducer(client),
                                           band_rows=8)) == streamed
     odd = write_image(tmp_path / "odd.tif", np.zeros((40, 22), np.uint8))
     ps = paths[:2] + [str(odd)]
     streamed = _message(lambda: merge([read_image(p) for p in ps], models,
                                       layout="bayer-rggb"))
     assert _message(lambda: merge_bracket(ps, models, layout="bayer-rggb",
-                                          client=client)) == streamed
+                                          reducer=DaskReducer(client))) == streamed
 
 
 @pytest.fixture
@@ -214,13 +215,13 @@ def test_bad_bracket_file_same_message(client, damaged):
     calib_free = dict(calib=None, bloom_radius=3)
     streamed = _message(lambda: session_change(damaged, ChangeOptions(), **calib_free))
     assert "k02.tif" in streamed[1] and "\n" not in streamed[1]
-    cluster = _message(lambda: session_change(damaged, ChangeOptions(), client=client,
+    cluster = _message(lambda: session_change(damaged, ChangeOptions(), reducer=DaskReducer(client),
                                               band_rows=8, **calib_free))
     assert cluster == streamed
     recs = bracket_records(damaged, role="target")
     models = _change_models(recs)
     streamed = _message(lambda: merge_bracket(recs, models, layout="rgb"))
-    assert _message(lambda: merge_bracket(recs, models, layout="rgb", client=client,
+    assert _message(lambda: merge_bracket(recs, models, layout="rgb", reducer=DaskReducer(client),
                                           session=damaged, band_rows=5)) == streamed
 
 
@@ -229,7 +230,7 @@ def test_session_change_with_client_equals_streamed(client):
     s = open_session(CHANGE)
     opts = ChangeOptions(pfa=0.01)
     streamed, s_in = session_change(s, opts)
-    cluster, c_in = session_change(open_session(CHANGE), opts, client=client, band_rows=11)
+    cluster, c_in = session_change(open_session(CHANGE), opts, reducer=DaskReducer(client), band_rows=11)
     for key in ("E_ref", "sigma_ref", "E_tgt", "sigma_tgt"):
         np.testing.assert_array_equal(c_in[key], s_in[key], err_msg=key)
     assert c_in["channels"] == s_in["channels"] and c_in["files"] == s_in["files"]

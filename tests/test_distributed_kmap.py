@@ -16,6 +16,7 @@ import pytest
 
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
+from ccdcore.distributed import DaskReducer  # noqa: E402
 from ccdcore.darkframe import dark_reference  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.fixedpattern import fixed_pattern_map  # noqa: E402
@@ -100,14 +101,14 @@ def test_fixed_pattern_map_uses_the_bands(client, healey, dark, monkeypatch):
     """``fixed_pattern_map(client=)``: the default bands (one band here), then 16-row bands
     through BAND_BYTES; the dark reference computed inside on the cluster too."""
     streamed = fixed_pattern_map(healey, dark)
-    _assert_same(streamed, fixed_pattern_map(healey, dark, client=client))
+    _assert_same(streamed, fixed_pattern_map(healey, dark, reducer=DaskReducer(client)))
     calls = []
     real = ccd_dist.bands
     monkeypatch.setattr(ccd_dist, "bands", lambda *a, **k: calls.append(real(*a, **k)) or
                         calls[-1])
     n1 = len(healey.fixed_pattern_configs())
     monkeypatch.setattr(ccd_dist, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
-    _assert_same(streamed, fixed_pattern_map(healey, client=client))
+    _assert_same(streamed, fixed_pattern_map(healey, reducer=DaskReducer(client)))
     assert len(calls[-1]) == 12 and {rows for _, rows in calls[-1]} == {16}
 
 
@@ -136,7 +137,7 @@ def test_bad_frame_same_message(client, healey, tmp_path, monkeypatch):
     assert "C03_F01.tif" in streamed[1]
     n1 = len(s.fixed_pattern_configs())
     monkeypatch.setattr(ccd_dist, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
-    assert _message(lambda: fixed_pattern_map(s, zeros, client=client)) == streamed
+    assert _message(lambda: fixed_pattern_map(s, zeros, reducer=DaskReducer(client))) == streamed
 
 
 def test_unlit_configuration_same_message(client, healey):

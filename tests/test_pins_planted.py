@@ -4,10 +4,10 @@ Each test compares the library with an expectation computed independently of its
 a direct formula written out here, the papers' equations (../shared/seeds), a finite difference
 or a Monte Carlo.  Seeds are fixed; every tolerance says why it is what it is.
 
-1. the trimmed fraction of eq. 11 (Tsin et al.: keep 66 %) in ``tsin._row_stats``;
+1. the trimmed fraction of eq. 11 (Tsin et al.: keep 66 %) in ``tsin_kernels.row_stats``;
 2. eq. 12's Bayer factor of the MAD sigma (``BracketData.mad_factor``) and its use by
    ``tsin.estimate``;
-3. eq. 13's correction for the pixels whose trace lacks the predicted image (``tsin._rows``);
+3. eq. 13's correction for the pixels whose trace lacks the predicted image (``tsin_kernels.pool_rows``);
 4. the error of a square root (``tsin._sqrt_err``, the delta method);
 5. the bit-depth scaling of Debevec & Malik's lambda (``classic.debevec``);
 6. the ``- var M P`` term of the sandwich covariance of the colour transform (``change``);
@@ -28,6 +28,7 @@ from ccdcore import change as ch
 from ccdcore.planning import plan_acquisition
 from ccdcore.response import classic
 from ccdcore.response import tsin as T
+from ccdcore.response import tsin_kernels as TK
 from ccdcore.response.brackets import BAYER_MAD_FACTOR, BracketData, bracket_data
 from ccdcore.response.scale import rms_error
 from ccdcore.simulate import tsin as sim
@@ -44,7 +45,7 @@ def sec41(seed: int, size=(64, 64)):
     return bracket_data(frames, t, 8, bloom_radius=0, border=0)["L"]
 
 
-# ----------------------------------------------------------- 1. eq. 11-12: _row_stats -----
+# ------------------------------------------------------------ 1. eq. 11-12: row_stats -----
 #: row sizes: small, odd, and exact multiples of 100, where 0.17 n is an integer (the case where
 #: alpha = 0.5 (1 - 0.66), which is 0.16999... in floating point, used to trim one value fewer)
 SIZES = (10, 37, 100, 101, 256, 300, 1000)
@@ -52,7 +53,7 @@ SIZES = (10, 37, 100, 101, 256, 300, 1000)
 
 def _rows_of(seed: int):
     """Rows of heavy-tailed data (Student t, 3 dof, plus a few gross outliers), sorted within
-    each row as _row_stats requires, and their CSR offsets."""
+    each row as row_stats requires, and their CSR offsets."""
     rng = np.random.default_rng(seed)
     rows = []
     for n in SIZES:
@@ -76,13 +77,13 @@ def test_row_stats_against_scipy_and_a_direct_computation():
 
     The number cut from each end is floor(0.17 n) in exact arithmetic: (17 n) // 100. At
     n = 100, 300, 1000 that is 17, 51, 170 (66 % kept exactly); floor(0.16999... n) gave one
-    fewer (found by this test and fixed in _row_stats; estimate's rows hold at most POOL_CAP =
+    fewer (found by this test and fixed in row_stats; estimate's rows hold at most POOL_CAP =
     256 pixels, below the first affected size, 300, so its results did not change).
 
     Tolerance: 1e-12 relative -- the same sums in another order (rounding only)."""
     rows, flat, offsets = _rows_of(11)
     c = 1.483
-    tm, sig, se, lo, hi, wmean = T._row_stats(flat, offsets, T.TRIM, c)
+    tm, sig, se, lo, hi, wmean = TK.row_stats(flat, offsets, T.TRIM, c)
     for r, x in enumerate(rows):
         n = x.size
         g = (17 * n) // 100
@@ -230,7 +231,7 @@ def test_sqrt_err_in_the_noise_terms():
     gk = np.interp(s.knots.codes, np.arange(256.0), g)
     _, X, resid, _ = T._pass(s, a, b, gk, want_noise=True)
     n = np.diff(s.offsets).astype(np.float64)
-    _, sig, _, _, _, _ = T._row_stats(T._sorted_rows(s, resid), s.offsets, T.TRIM,
+    _, sig, _, _, _, _ = TK.row_stats(T._sorted_rows(s, resid), s.offsets, T.TRIM,
                                       data.mad_factor)
     th, te, _ = T.noise_fit(X / n[:, None], sig, n)
     for i, name in enumerate(("sigma_s", "sigma_c1", "sigma_c2")):

@@ -9,9 +9,13 @@ Modules
 :mod:`ccdcore.response.scale`
     The one scale every response curve is reported on, and the RMS comparison of curves.
 :mod:`ccdcore.response.classic`
-    Debevec & Malik (1997), Robertson, Borman & Stevenson (2003), Mitsunaga & Nayar (1999).
+    Debevec & Malik (1997), Robertson, Borman & Stevenson (2003), Mitsunaga & Nayar (1999);
+    their shared input checks and curve finishing in :mod:`ccdcore.response.classic_common`.
 :mod:`ccdcore.response.tsin`
-    The iterative estimator of sec. 3.2 (instrumented pools), its band and the noise terms.
+    The iterative estimator of sec. 3.2 (instrumented pools), its band and the noise terms;
+    its compiled passes over the pools in :mod:`ccdcore.response.tsin_kernels`, the gauge of
+    the white-balance fit and the band in :mod:`ccdcore.response.tsin_gauge`, eq. 17's fit in
+    :mod:`ccdcore.response.tsin_noise`.
 :mod:`ccdcore.response.methods`
     The registry of methods (``METHODS``) and the response of a session's bracket.
 :mod:`ccdcore.response.hdr`

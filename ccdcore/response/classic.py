@@ -111,6 +111,9 @@ MAX_NODES
 DEBEVEC_SMOOTHNESS, DEBEVEC_SAMPLES, MN_MAX_DEGREE, MN_MAX_ITER, MN_TOL, MN_RATIO_FLOOR,
 MN_MIN_PAIRS
     Defaults of the methods' settings.
+
+The bracket check and the finishing of every curve (codes without data, monotonicity, the
+reported scale) are shared with :mod:`ccdcore.response.classic_common`.
 """
 from __future__ import annotations
 
@@ -125,11 +128,11 @@ from numpy.typing import NDArray
 from scipy import sparse
 from scipy.linalg import eigh
 from scipy.sparse.linalg import splu
-from scipy.optimize import isotonic_regression
 
 from ..errors import CcdError
 from .brackets import BracketData
-from .scale import MAX_NODES, Knots, normalize, reference_codes
+from .classic_common import Checked, check_bracket, code_dtype, finish_curve
+from .scale import MAX_NODES, Knots
 
 __all__ = ["ClassicFit", "debevec", "robertson", "mitsunaga_nayar", "MAX_NODES",
            "DEBEVEC_SMOOTHNESS", "DEBEVEC_SAMPLES", "MN_MAX_DEGREE", "MN_MAX_ITER", "MN_TOL",
@@ -181,149 +184,6 @@ class ClassicFit:
 
 
 # ------------------------------------------------------------------------------ helpers ------
-@dataclass(frozen=True, eq=False)
-class _Checked:
-    where: str
-    z: NDArray[np.unsignedinteger]  # (N, P) codes, 0 wherever not usable; uint8/uint16/uint32
-    valid: NDArray[np.bool_]        # (N, P)
-    t: NDArray[np.float64]          # (N,), increasing
-    levels: int
-    counts: NDArray[np.int64]       # usable observations per code
-    row_counts: NDArray[np.int64]   # (N, levels) usable observations per image and code
-    n_valid: NDArray[np.integer]    # (P,) usable observations per pixel
-
-
-def _code_dtype(levels: int) -> type:
-    """The smallest unsigned integer type holding the codes ``0 .. levels - 1``."""
-    return np.uint8 if levels <= 2 ** 8 else np.uint16 if levels <= 2 ** 16 else np.uint32
-
-
-def _per_pixel_count(valid: NDArray[np.bool_]) -> NDArray[np.integer]:
-    """Usable observations of every pixel (a row-by-row sum: several times faster than
-    ``valid.sum(axis=0)`` on a wide bracket)."""
-    n = valid.shape[0]
-    out = np.zeros(valid.shape[1], np.uint8 if n < 256 else np.int64)
-    for row in valid:
-        out += row
-    return out
-
-
-def _check(data: BracketData, method: str, *, pairs: bool = False) -> _Checked:
-    """The bracket's arrays, checked for what every method needs; images sorted by exposure."""
-    where = data.files[0] if data.files else f"channel {data.channel}"
-    z = np.asarray(data.z)
-    valid = np.asarray(data.valid, dtype=bool)
-    t = np.asarray(data.t, dtype=np.float64).reshape(-1)
-    levels = int(data.levels)
-    if z.ndim != 2 or valid.shape != z.shape or t.size != z.shape[0]:
-        raise CcdError(where, f"{method}: inconsistent bracket: codes {z.shape}, mask "
-                              f"{valid.shape}, {t.size} exposure times")
-    n = z.shape[0]
-    if n < 2:
-        raise CcdError(where, f"{method} needs at least two exposures, the bracket has {n}")
-    if levels < 2:
-        raise CcdError(where, f"{method}: the bracket has {levels} code levels")
-    if not (np.all(np.isfinite(t)) and np.all(t > 0)):
-        raise CcdError(where, f"{method}: exposure times must be positive, got {t.tolist()}")
-    if np.any(np.diff(t) <= 0):              # brackets arrive sorted: reorder only when not
-        order = np.argsort(t, kind="stable")
-        t, z, valid = t[order], z[order], valid[order]
-        if np.any(np.diff(t) <= 0):
-            raise CcdError(where, f"{method}: two images have the same exposure time")
-    if not valid.any():
-        raise CcdError(where, f"{method}: channel {data.channel} has no usable observation "
-                              "(every code clipped, near a saturated pixel or on the border)")
-    zc = np.where(valid, z, 0)                # one pass; the codes' range checked on it
-    if zc.min() < 0 or zc.max() >= levels:
-        zv = z[valid]
-        raise CcdError(where, f"{method}: codes {int(zv.min())}..{int(zv.max())} fall outside "
-                              f"0..{levels - 1}")
-    # the smallest unsigned type: every later pass over the codes reads less memory
-    zc = zc.astype(_code_dtype(levels), copy=False)
-    # row by row (faster than one pass over (N, P)), the masked observations (code 0 in zc)
-    # taken out
-    row_counts = np.stack([np.bincount(row, minlength=levels) for row in zc])
-    row_counts[:, 0] -= np.array([valid.shape[1] - np.count_nonzero(row) for row in valid])
-    counts = row_counts.sum(axis=0)
-    if np.count_nonzero(counts) < 2:
-        only = int(np.flatnonzero(counts)[0])
-        raise CcdError(where, f"{method}: only one code ({only}) has usable data; a "
-                              "response needs at least two")
-    n_valid = _per_pixel_count(valid)
-    if pairs:
-        if not any(np.any(valid[k] & valid[k + 1]) for k in range(n - 1)):
-            raise CcdError(where, f"{method}: no pixel is usable in two consecutive exposures, "
-                                  "nothing links the images")
-    elif not np.any(n_valid >= 2):
-        raise CcdError(where, f"{method}: no pixel is usable in two exposures, nothing links "
-                              "the images")
-    return _Checked(where, zc, valid, t, levels, counts, row_counts, n_valid)
-
-
-def _span(mask: NDArray[np.bool_]) -> str:
-    """Codes where ``mask`` is True as compact ranges, e.g. ``"0, 255"`` or ``"0..3"``."""
-    idx = np.flatnonzero(mask)
-    if idx.size == 0:
-        return ""
-    breaks = np.flatnonzero(np.diff(idx) > 1)
-    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
-    ends = np.concatenate([idx[breaks], [idx[-1]]])
-    parts = [f"{a}" if a == b else f"{a}..{b}" for a, b in zip(starts.tolist(), ends.tolist())]
-    if len(parts) > 6:
-        parts = parts[:3] + ["..."] + parts[-2:]
-    return ", ".join(parts)
-
-
-def _finish(g: NDArray[np.float64], known: NDArray[np.bool_], weights: NDArray[np.float64],
-            levels: int, notes: list[str], where: str, method: str) -> NDArray[np.float64]:
-    """Fill codes without data, make g non-decreasing, put it on the reported scale."""
-    g = np.asarray(g, dtype=np.float64).copy()
-    known = known & np.isfinite(g)
-    codes = np.arange(levels)
-    kc = np.flatnonzero(known)
-    if kc.size < 2:
-        raise CcdError(where, f"{method}: fewer than two codes with a usable estimate")
-    lo, hi = int(kc[0]), int(kc[-1])
-    inner = ~known & (codes > lo) & (codes < hi)
-    if inner.any():
-        g[inner] = np.interp(codes[inner], kc, g[kc])
-        notes.append(f"codes {_span(inner)} have no data: interpolated")
-    k_end = max(3, int(round(0.02 * levels)))
-    if lo > 0:
-        sel = kc[:k_end]
-        if sel.size >= 2:
-            slope, icpt = np.polyfit(sel.astype(np.float64), g[sel], 1)
-            line = slope * codes[:lo] + icpt
-        else:
-            line = np.full(lo, g[lo])
-        g[:lo] = np.clip(line, min(0.0, g[lo]), g[lo])
-        notes.append(f"codes {_span(codes < lo)} have no data: extrapolated")
-    if hi < levels - 1:
-        sel = kc[-k_end:]
-        if sel.size >= 2:
-            slope, icpt = np.polyfit(sel.astype(np.float64), g[sel], 1)
-            line = slope * codes[hi + 1:] + icpt
-        else:
-            line = np.full(levels - 1 - hi, g[hi])
-        g[hi + 1:] = np.maximum(line, g[hi])
-        notes.append(f"codes {_span(codes > hi)} have no data: extrapolated")
-    w = np.maximum(np.asarray(weights, dtype=np.float64), 1.0)
-    if np.any(np.diff(g) < 0):
-        mono = isotonic_regression(g, weights=w, increasing=True).x
-        moved = np.abs(mono - g) > 1e-12 * max(1.0, float(np.max(np.abs(g))))
-        notes.append(f"monotonicity enforced (pool-adjacent-violators) on codes {_span(moved)}")
-        g = mono
-    z_lo, z_hi = reference_codes(levels)
-    if not g[z_hi] > 0:
-        raise CcdError(where, f"{method}: the fitted response is not positive at the reference "
-                              f"code {z_hi}: the bracket does not support this method")
-    g = normalize(g, levels)[0]
-    g[z_hi] = z_hi / (levels - 1)             # exact, whatever the rounding of s * g
-    g[:z_hi] = np.minimum(g[:z_hi], g[z_hi])
-    g[z_hi + 1:] = np.maximum(g[z_hi + 1:], g[z_hi])
-    return g
-
-
 def _mid_node(node_counts: NDArray, centre: float) -> int:
     """The knot with data nearest ``centre`` (a knot index)."""
     have = np.flatnonzero(node_counts > 0)
@@ -331,7 +191,7 @@ def _mid_node(node_counts: NDArray, centre: float) -> int:
 
 
 # ------------------------------------------------------------------------------ Debevec ------
-def _stratified_sample(chk: _Checked, samples: int, seed: int) -> NDArray[np.int64]:
+def _stratified_sample(chk: Checked, samples: int, seed: int) -> NDArray[np.int64]:
     """Pixel columns for Debevec's system: a systematic sample of the pixels sorted by their
     code in the middle exposure (shuffled within a code by ``seed``), so every stratum of codes
     gets its share in proportion to its pixels, topped up with one pixel for every code with
@@ -406,7 +266,7 @@ def debevec(data: BracketData, *, smoothness: float = DEBEVEC_SMOOTHNESS,
         (the code with ``ln g = 0`` in the solve).
     """
     method = "Debevec & Malik"
-    chk = _check(data, method)
+    chk = check_bracket(data, method)
     if not (np.isfinite(smoothness) and smoothness >= 0):
         raise CcdError("smoothness", f"must be >= 0, got {smoothness}")
     if int(samples) < 1:
@@ -482,7 +342,7 @@ def debevec(data: BracketData, *, smoothness: float = DEBEVEC_SMOOTHNESS,
     g_nodes = np.exp(lng)
     notes = [f"{S} pixels sampled of {chk.z.shape[1]} ({n_obs} observations)"]
     g, known = _to_codes(grid, g_nodes, known_nodes)
-    g = _finish(g, known, chk.counts, levels, notes, chk.where, method)
+    g = finish_curve(g, known, chk.counts, levels, notes, chk.where, method)
     extra = {"smoothness": float(smoothness), "samples": int(S), "observations": n_obs,
              "fixed_code": int(round(grid.codes[fixed])), "knots": int(G)}
     return ClassicFit(g, 1, True, tuple(notes), extra)
@@ -581,7 +441,7 @@ def robertson(data: BracketData, *, max_iter: int = 50, tol: float = 1e-6) -> Cl
         or more), ``knots``.
     """
     method = "Robertson, Borman & Stevenson"
-    chk = _check(data, method)
+    chk = check_bracket(data, method)
     if int(max_iter) < 1:
         raise CcdError("max_iter", f"must be >= 1, got {max_iter}")
     levels = chk.levels
@@ -599,7 +459,7 @@ def robertson(data: BracketData, *, max_iter: int = 50, tol: float = 1e-6) -> Cl
         codes = np.arange(levels + 1)
         w_code = np.exp(-4.0 * (codes - c) ** 2 / (c * c))           # Gaussian-like
         w_code[levels] = 0.0                                          # unusable
-        zi = np.where(chk.valid, chk.z, np.asarray(levels, _code_dtype(levels + 1)))
+        zi = np.where(chk.valid, chk.z, np.asarray(levels, code_dtype(levels + 1)))
         den = np.zeros(zi.shape[1])
         for k in range(zi.shape[0]):
             den += np.take(w_code * chk.t[k] ** 2, zi[k])
@@ -645,7 +505,7 @@ def robertson(data: BracketData, *, max_iter: int = 50, tol: float = 1e-6) -> Cl
         notes.append(f"not converged after {it} iterations (relative change {change:.2g}, "
                      f"tolerance {tol:g})")
     g, known = _to_codes(grid, I, have)
-    g = _finish(g, known, chk.counts, levels, notes, chk.where, method)
+    g = finish_curve(g, known, chk.counts, levels, notes, chk.where, method)
     extra = {"change": change, "pixels": int(P), "knots": int(G)}
     return ClassicFit(g, it, converged, tuple(notes), extra)
 
@@ -707,7 +567,7 @@ def mitsunaga_nayar(data: BracketData, *, max_degree: int = MN_MAX_DEGREE,
         ``history`` (the chosen degree's error at each refinement); ``pairs`` (pixel pairs).
     """
     method = "Mitsunaga & Nayar"
-    chk = _check(data, method, pairs=True)
+    chk = check_bracket(data, method, pairs=True)
     if int(max_degree) < 1:
         raise CcdError("max_degree", f"must be >= 1, got {max_degree}")
     if int(max_iter) < 0:
@@ -725,7 +585,7 @@ def mitsunaga_nayar(data: BracketData, *, max_degree: int = MN_MAX_DEGREE,
     known = np.zeros(chk.levels, bool)
     uc = np.flatnonzero(system.used)
     known[uc[0]:uc[-1] + 1] = True
-    g = _finish(best.gz, known, chk.counts, chk.levels, notes, chk.where, method)
+    g = finish_curve(best.gz, known, chk.counts, chk.levels, notes, chk.where, method)
     ratios = np.where(system.n_pairs > 0, best.R, np.nan)
     extra: dict[str, Any] = {"degree": int(best.degree), "coefficients": [float(x) for x in mono],
                              "ratios": [float(x) for x in ratios],

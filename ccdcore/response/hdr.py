@@ -7,7 +7,7 @@ images' predictions (eq. 9), with the weights of eq. 18 and the standard deviati
 pixels without a usable code get a bound and a flag (``SATURATED``, ``DARK``, ``BLOOMED``).
 The merge itself, on frames in memory, is :mod:`ccdcore.response.hdr_merge` (its docstring gives
 the method); this module adds :func:`merge_bracket`, which reads the bracket here or runs the
-merge band by band on a Dask cluster, and re-exports the merge's names, so that
+merge band by band on a Dask cluster (through :mod:`ccdcore.reduce`), and re-exports the merge's names, so that
 ``ccdcore.response.hdr`` remains their address.
 
 Public objects
@@ -18,9 +18,9 @@ HdrResult
     Radiance, σ_E and flags per pixel (and channel), the number of images merged per pixel.
 merge(frames, models, ...)
     Eqs. 9, 18, 19 over a bracket's frames (one model per channel).
-merge_bracket(records, models, ..., client=None)
+merge_bracket(records, models, ..., reducer=None)
     The same over a bracket's files: read here (streamed), or band by band by the workers of a
-    Dask client (:func:`ccdcore.distributed.band_merge`, bit-identical).
+    Dask reducer (:func:`ccdcore.distributed.band_merge`, bit-identical).
 noise_sigma(model, z, k)
     σ(a_k, z) of eq. 7 for codes z of image k.
 FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED
@@ -34,6 +34,7 @@ from typing import Any, Mapping, Sequence
 
 from numpy.typing import ArrayLike
 
+from ..reduce import STREAMED, Reducer
 from .brackets import DEFAULT_BLOOM_RADIUS
 from .hdr_merge import (FLAG_BLOOMED, FLAG_DARK, FLAG_OK, FLAG_SATURATED, HdrResult,
                         ResponseModel, merge, noise_sigma)
@@ -44,26 +45,19 @@ __all__ = ["ResponseModel", "HdrResult", "merge", "merge_bracket", "noise_sigma"
 
 def merge_bracket(records: Sequence[Any], models: Mapping[str, Any] | Any, *,
                   layout: str | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-                  frames: Sequence[ArrayLike] | None = None, client: Any = None,
+                  frames: Sequence[ArrayLike] | None = None, reducer: Reducer | None = None,
                   session: Any = None, band_rows: int | None = None) -> HdrResult:
-    """:func:`merge` of a bracket given as its frame records (or paths), in the models' order.
+    """:func:`merge` of a bracket given as its frame records (or paths), in the models' order,
+    by ``reducer`` (:meth:`ccdcore.reduce.Reducer.merge`).
 
-    Streamed (``client=None``): the frames (``frames`` when already read, else each file read
-    here with :func:`ccdcore.io.read_image`) are merged whole.  With a Dask ``client`` the
-    frames are read by the workers, band by band with a halo covering the blooming disk
-    (:func:`ccdcore.distributed.band_merge`); the result is bit-identical.  The frames' shapes,
-    integer codes and layout are then checked first on the client, from the headers
-    (``session``'s cache when given), with :func:`merge`'s messages; ``band_rows`` sets the band
-    height (frame rows).
+    Streamed (the default): the frames (``frames`` when already read, else each file read
+    here with :func:`ccdcore.io.read_image`) are merged whole.  With a Dask reducer
+    (:class:`ccdcore.distributed.DaskReducer`) the frames are read by the workers, band by
+    band with a halo covering the blooming disk (:func:`ccdcore.distributed.band_merge`); the
+    result is bit-identical.  The frames' shapes, integer codes and layout are then checked
+    first, from the headers (``session``'s cache when given), with :func:`merge`'s messages;
+    ``band_rows`` sets the band height (frame rows).
     """
-    if client is None:
-        if frames is None:
-            from ..io import read_image
-
-            frames = [read_image(getattr(r, "path", r)) for r in records]
-        return merge(frames, models, layout=layout, bloom_radius=bloom_radius)
-    from ..distributed import band_merge, check_bracket
-
-    shape, lay = check_bracket(records, session, layout)
-    return band_merge(client, records, models, layout=lay, bloom_radius=bloom_radius,
-                      shape=shape, band_rows=band_rows)
+    return (reducer or STREAMED).merge(records, models, layout=layout,
+                                       bloom_radius=bloom_radius, frames=frames,
+                                       session=session, band_rows=band_rows)

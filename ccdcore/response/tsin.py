@@ -79,6 +79,9 @@ Departures from the paper, each for a measured reason (docs/response.md):
   offsets of smallest norm and g(z_hi) fixed. A bracket that does not fit gets a note (the pools'
   chi²/dof above 3).
 
+The compiled kernels are in :mod:`ccdcore.response.tsin_kernels`, the white-balance gauge and the
+band in :mod:`ccdcore.response.tsin_gauge`, eq. 17's fit in :mod:`ccdcore.response.tsin_noise`.
+
 Public objects
 --------------
 TsinOptions
@@ -97,15 +100,17 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import isotonic_regression, nnls
+from scipy.optimize import isotonic_regression
 
 from ..errors import CcdError
 from ..progress import Progress
 from .brackets import BracketData
 from .scale import Knots, normalize, reference_codes
+from .tsin_gauge import band, joint_step
+from .tsin_kernels import pool_counts, pool_members, pool_rows, row_counts, row_stats
+from .tsin_noise import noise_fit
 
 __all__ = ["TsinOptions", "ChannelResponse", "PoolTable", "estimate", "noise_terms", "TRIM",
            "MAX_ENTRIES"]
@@ -119,8 +124,6 @@ MAX_ENTRIES = 2 ** 24
 #: most pixels a pool keeps (evenly spread over the frame): beyond a few hundred pixels the
 #: error of a pool's trimmed mean is far below the bias of g, and the pass costs in proportion
 POOL_CAP = 256
-#: relative efficiency of the MAD for Gaussian data (weights of the eq. 17 fit)
-_MAD_EFFICIENCY = 0.37
 
 
 @dataclass(frozen=True)
@@ -252,341 +255,6 @@ class ChannelResponse:
         return int(self.g.size)
 
 
-# ------------------------------------------------------------------------------ kernels ------
-@numba.njit(cache=True, nogil=True)
-def _pool_counts(pb, obs, clip, K):  # pragma: no cover - compiled
-    """seen[j, m, i]: pixels of pool (j, m) observed in image i; clipped[j, m, i] those clipped."""
-    N, P = pb.shape
-    seen = np.zeros((N, K, N), np.int64)
-    clipped = np.zeros((N, K, N), np.int64)
-    for p in range(P):
-        for j in range(N):
-            if not obs[j, p] or clip[j, p]:
-                continue
-            m = pb[j, p]
-            for i in range(N):
-                if obs[i, p]:
-                    seen[j, m, i] += 1
-                    if clip[i, p]:
-                        clipped[j, m, i] += 1
-    return seen, clipped
-
-
-@numba.njit(cache=True, nogil=True)
-def _pool_members(pb, obs, clip, K, cap):  # pragma: no cover - compiled
-    """The pixels of every pool (j, m), pool by pool (CSR: ``start`` indexed j * K + m); a
-    pool larger than ``cap`` keeps ``cap`` of its pixels, evenly spread over the frame."""
-    N, P = pb.shape
-    full = np.zeros(N * K, np.int64)
-    for p in range(P):
-        for j in range(N):
-            if obs[j, p] and not clip[j, p]:
-                full[j * K + pb[j, p]] += 1
-    counts = np.zeros(N * K + 1, np.int64)
-    for q in range(N * K):
-        counts[q + 1] = min(full[q], cap)
-    start = np.cumsum(counts)
-    members = np.empty(start[-1], np.int64)
-    cur = start[:-1].copy()
-    seen = np.zeros(N * K, np.int64)
-    for p in range(P):
-        for j in range(N):
-            if obs[j, p] and not clip[j, p]:
-                q = j * K + pb[j, p]
-                i = seen[q]
-                seen[q] += 1
-                n = full[q]
-                if n > cap and (i * cap) // n == ((i + 1) * cap) // n:
-                    continue
-                members[cur[q]] = p
-                cur[q] += 1
-    return start, members
-
-
-@numba.njit(cache=True, nogil=True)
-def _trace(q, j, m, mflag, inc, paper, idx):  # pragma: no cover - compiled
-    """The images of membership q's trace within pool (j, m), written to idx; their number.
-    ``mflag`` bit 0: observed, bit 1: clipped."""
-    N = mflag.shape[1]
-    ns = 0
-    for i in range(N):
-        fl = mflag[q, i]
-        if not fl & 1:
-            continue
-        if paper:
-            if not fl & 2:
-                idx[ns] = i
-                ns += 1
-        elif i != j and inc[j, m, i]:
-            idx[ns] = i
-            ns += 1
-    return ns
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_counts(start, mflag, inc, paper, K):  # pragma: no cover - compiled
-    N = mflag.shape[1]
-    counts = np.zeros((N, K, N), np.int64)
-    idx = np.empty(N, np.int64)
-    for j in range(N):
-        for m in range(K):
-            for q in range(start[j * K + m], start[j * K + m + 1]):
-                ns = _trace(q, j, m, mflag, inc, paper, idx)
-                if ns < 2:
-                    continue
-                if paper:
-                    counts[j, m, j] += 1
-                else:
-                    for kk in range(ns):
-                        counts[j, m, idx[kk]] += 1
-    return counts
-
-
-@numba.njit(cache=True, nogil=True)
-def _knot(code, step, identity, K):  # pragma: no cover - compiled
-    """Knot j0 and fraction f of a code: g(z) = (1 - f) g[j0] + f g[j0 + 1]."""
-    if identity:
-        return code, 0.0
-    u = code / step
-    j0 = min(int(u), K - 2)
-    return j0, u - j0
-
-
-@numba.njit(cache=True, nogil=True)
-def _rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc, wimg, wcode, K, step,
-          identity, want_noise, with_a):  # pragma: no cover - compiled
-    """One pass over the pools: every prediction error (eq. 10) stored by row, the rows' summed
-    linearisations (eq. 13) and, when asked, the rows' eq. 17 regressors.
-
-    A pixel's error for image k of its trace is e = a_k Ê + b_k - g(ẑ_k) with
-    Ê = Σ_i w (g(ẑ_i) - b_i) / a_i; its derivative in g is a_k u - δ(ẑ_k) with
-    u = Σ_i (w / a_i) δ(ẑ_i), the same u for every k. So u (and the like terms of eq. 17)
-    are summed once per pool, less the pixels whose trace lacks k, and only the
-    δ(ẑ_k) terms per row. The pool's pixels' traces are read from ``mz``, ``mflag``: copies in
-    pool order, so that the pass streams through memory.
-    """
-    N = mz.shape[1]
-    R = offsets.size - 1
-    J = np.zeros((R, K + (2 * N if with_a else 0)))
-    X = np.zeros((R, 3))
-    resid = np.empty(offsets[R])
-    egrp = np.empty(offsets[R], np.int32)
-    cursor = offsets[:R].copy()
-    idx = np.empty(N, np.int64)
-    gv = np.empty(N)
-    jv = np.empty(N, np.int64)
-    fv = np.empty(N)
-    wv = np.empty(N)
-    # pool sums: [0:K] u in g, then the eq. 17 terms Σ w² v/a², Σ w²/a², Σ w² g'²/a², then
-    # (with_a) Σ w (g_i - b_i)/a_i² per image and Σ Ê, for the derivatives in a
-    nu = K + 3 + N + 1 + N
-    U = np.zeros(nu)
-    C = np.zeros((N, nu))             # the same sums over the pixels lacking image k
-    H = np.zeros((N, K))              # per row: Σ δ(ẑ_k)
-    Hs = np.zeros((N, 5))             # per row: Σ (1-2w), Σ (1-2w) v_k, Σ (1-2w) g'_k²,
-    #                                   Σ w (g_k - b_k)/a_k, n
-    miss = np.empty(N, np.bool_)
-    ux = np.zeros(10)
-    cols = np.zeros(10, np.int64)
-    for j in range(N):
-        for m in range(K):
-            q0 = start[j * K + m]
-            q1 = start[j * K + m + 1]
-            if q1 == q0:
-                continue
-            any_row = False
-            for k in range(N):
-                if rowid[j, m, k] >= 0:
-                    any_row = True
-            if not any_row:
-                continue
-            U[:] = 0.0
-            C[:, :] = 0.0
-            H[:, :] = 0.0
-            Hs[:, :] = 0.0
-            for q in range(q0, q1):
-                ns = _trace(q, j, m, mflag, inc, paper, idx)
-                if ns < 2:
-                    continue
-                # eq. 9's weights: w_i ∝ wimg_i wcode(z_i) (eq. 18: a_i / σ(z_i); or constant)
-                sw = 0.0
-                for ii in range(ns):
-                    i = idx[ii]
-                    wv[i] = wimg[i] * wcode[mz[q, i]]
-                    sw += wv[i]
-                for ii in range(ns):
-                    wv[idx[ii]] /= sw
-                nmiss = 0
-                for k in range(N):
-                    miss[k] = (not paper) and rowid[j, m, k] >= 0
-                for kk in range(ns):
-                    miss[idx[kk]] = False
-                for k in range(N):
-                    if miss[k]:
-                        nmiss += 1
-                E = 0.0
-                for ii in range(ns):
-                    i = idx[ii]
-                    jq, f = _knot(mz[q, i], step, identity, K)
-                    jv[i] = jq
-                    fv[i] = f
-                    gv[i] = gk[jq] if f == 0.0 else (1.0 - f) * gk[jq] + f * gk[jq + 1]
-                    E += wv[i] * (gv[i] - b[i]) / a[i]
-                for ii in range(ns):
-                    i = idx[ii]
-                    c = wv[i] / a[i]
-                    f = fv[i]
-                    ux[0] = c * (1.0 - f)
-                    cols[0] = jv[i]
-                    nterm = 1
-                    if f != 0.0:
-                        ux[1] = c * f
-                        cols[1] = jv[i] + 1
-                        nterm = 2
-                    if want_noise:
-                        gpi = gpc[mz[q, i]]
-                        ux[nterm] = c * c * max(gv[i] - b[i], 0.0)
-                        cols[nterm] = K
-                        ux[nterm + 1] = c * c
-                        cols[nterm + 1] = K + 1
-                        ux[nterm + 2] = c * c * gpi * gpi
-                        cols[nterm + 2] = K + 2
-                        nterm += 3
-                    if with_a:
-                        ux[nterm] = c * (gv[i] - b[i]) / a[i]
-                        cols[nterm] = K + 3 + i
-                        ux[nterm + 1] = c
-                        cols[nterm + 1] = K + 4 + N + i
-                        nterm += 2
-                    for t in range(nterm):
-                        U[cols[t]] += ux[t]
-                    if nmiss:
-                        for k in range(N):
-                            if miss[k]:
-                                for t in range(nterm):
-                                    C[k, cols[t]] += ux[t]
-                if with_a:
-                    U[K + 3 + N] += E
-                    if nmiss:
-                        for k in range(N):
-                            if miss[k]:
-                                C[k, K + 3 + N] += E
-                for kk in range(ns):
-                    k = idx[kk]
-                    if paper and k != j:
-                        continue
-                    r = rowid[j, m, k]
-                    if r < 0:
-                        continue
-                    e = a[k] * E + b[k] - gv[k]
-                    pos = cursor[r]
-                    resid[pos] = e
-                    egrp[pos] = mgrp[q]
-                    cursor[r] = pos + 1
-                    f = fv[k]
-                    if f == 0.0:
-                        H[k, jv[k]] += 1.0
-                    else:
-                        H[k, jv[k]] += 1.0 - f
-                        H[k, jv[k] + 1] += f
-                    if with_a:
-                        Hs[k, 3] += wv[k] * (gv[k] - b[k]) / a[k]
-                        Hs[k, 4] += 1.0
-                    if want_noise:
-                        gpk = gpc[mz[q, k]]
-                        Hs[k, 0] += 1.0 - 2.0 * wv[k]
-                        Hs[k, 1] += (1.0 - 2.0 * wv[k]) * max(gv[k] - b[k], 0.0)
-                        Hs[k, 2] += (1.0 - 2.0 * wv[k]) * gpk * gpk
-            for k in range(N):
-                r = rowid[j, m, k]
-                if r < 0 or (paper and k != j):
-                    continue
-                ak = a[k]
-                for t in range(K):
-                    J[r, t] = ak * (U[t] - C[k, t]) - H[k, t]
-                if with_a:
-                    for i in range(N):
-                        J[r, K + i] = -ak * (U[K + 3 + i] - C[k, K + 3 + i])
-                    J[r, K + k] = (U[K + 3 + N] - C[k, K + 3 + N]) - Hs[k, 3]
-                    for i in range(N):
-                        J[r, K + N + i] = -ak * (U[K + 4 + N + i] - C[k, K + 4 + N + i])
-                    J[r, K + N + k] += Hs[k, 4]
-                if want_noise:
-                    a2 = ak * ak
-                    X[r, 0] = a2 * (U[K] - C[k, K]) + Hs[k, 1]
-                    X[r, 1] = a2 * (U[K + 1] - C[k, K + 1]) + Hs[k, 0]
-                    X[r, 2] = a2 * (U[K + 2] - C[k, K + 2]) + Hs[k, 2]
-    return J, X, resid, egrp
-
-
-@numba.njit(cache=True, nogil=True)
-def _row_stats(resid, offsets, trim, mad_c):  # pragma: no cover - compiled
-    """Per row (``resid`` sorted within each row): trimmed mean (eq. 11), MAD sigma (eq. 12),
-    standard error of the trimmed mean (Tukey-McLaughlin) and the winsorising limits."""
-    R = offsets.size - 1
-    tm = np.empty(R)
-    sig = np.empty(R)
-    se = np.empty(R)
-    lo = np.empty(R)
-    hi = np.empty(R)
-    wmean = np.empty(R)
-    alpha = 0.5 * (1.0 - trim)
-    for r in range(R):
-        x = resid[offsets[r]:offsets[r + 1]]
-        n = x.size
-        # floor(alpha n) with a guard: alpha = 0.5 (1 - 0.66) is 0.16999... in floating point,
-        # and at n = 300 alpha n = 50.99999...: one value fewer trimmed than eq. 11's 66 %
-        g = int(math.floor(alpha * n + 1e-9))
-        tm[r] = x[g:n - g].mean()
-        lo[r] = x[g]
-        hi[r] = x[n - g - 1]
-        w = np.minimum(np.maximum(x, lo[r]), hi[r])
-        wm = w.mean()
-        wmean[r] = wm
-        sw2 = ((w - wm) ** 2).sum() / (n - 1)
-        se[r] = math.sqrt(sw2 / (n * trim * trim))
-        sig[r] = mad_c * _sorted_mad(x, tm[r])
-    return tm, sig, se, lo, hi, wmean
-
-
-@numba.njit(cache=True, nogil=True)
-def _sorted_mad(x, c):  # pragma: no cover - compiled
-    """median |x - c| of a sorted array by merging the deviations on either side of c."""
-    n = x.size
-    right = np.searchsorted(x, c)
-    left = right - 1
-    half = n // 2
-    prev = 0.0
-    cur = 0.0
-    for step in range(half + 1):
-        dl = c - x[left] if left >= 0 else np.inf
-        dr = x[right] - c if right < n else np.inf
-        prev = cur
-        if dl <= dr:
-            cur = dl
-            left -= 1
-        else:
-            cur = dr
-            right += 1
-    if n % 2 == 1:
-        return cur
-    return 0.5 * (prev + cur)
-
-
-@numba.njit(cache=True, nogil=True)
-def _group_sums(resid, egrp, offsets, lo, hi, wmean, trim, G):  # pragma: no cover - compiled
-    """Per row and block of pixels: the summed influence of the row's pixels on its trimmed
-    mean (winsorised deviation / ((1 - 2α) n))."""
-    R = offsets.size - 1
-    S = np.zeros((R, G))
-    for r in range(R):
-        n = offsets[r + 1] - offsets[r]
-        for q in range(offsets[r], offsets[r + 1]):
-            v = min(max(resid[q], lo[r]), hi[r])
-            S[r, egrp[q]] += (v - wmean[r]) / (trim * n)
-    return S
-
-
 # ------------------------------------------------------------------------------ helpers ------
 @dataclass
 class _Setup:
@@ -608,11 +276,6 @@ class _Setup:
 #: the shortest step of g (as a fraction of eq. 16's step) tried before the fit is taken as
 #: converged: no step along the update lowers its objective
 MIN_ETA = 1.0 / 8
-#: the largest relative change of a gain a_k in one step of the white-balance fit
-MAX_GAIN_STEP = 0.05
-#: the white-balance fit's trust region grows to at most this many MAX_GAIN_STEP after accepted
-#: steps (on a real bracket the gains travel far in one direction, step after step)
-MAX_RADIUS = 8.0
 #: the smoothness relative to the slope counts slopes from this fraction of the median one
 SLOPE_FLOOR = 0.1
 #: the iteration has converged once a step moves g by less than this fraction of g's
@@ -623,71 +286,6 @@ RESOLUTION = 0.1
 #: the white-balance fit stops when three steps in a row lower its objective by less than
 #: this fraction each
 FLAT = 1e-5
-
-
-def _gain_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The gauge of the gains: steps δa = T y + off keep ln(a_k / t_k) at zero mean and zero
-    trend in ln t_k (linearised). A bracket cannot tell a_k^u (with g^u) from a_k, nor a common
-    factor of every a_k from the scale of E (sec. 3.2's u-ambiguity)."""
-    N = a.size
-    lt = np.log(t) - np.mean(np.log(t))
-    C = np.stack([np.ones(N), lt])
-    d0 = -np.linalg.pinv(C) @ (C @ np.log(a / t))
-    Q = np.linalg.svd(C)[2][2:].T
-    return a[:, None] * Q, a * d0
-
-
-def _in_gauge(a, t) -> NDArray[np.float64]:
-    """The gains with ln(a_k / t_k) of zero mean and zero trend in ln t_k."""
-    la, lt = np.log(a / t), np.log(t) - np.mean(np.log(t))
-    C = np.stack([np.ones(a.size), lt], axis=1)
-    return t * np.exp(la - C @ np.linalg.lstsq(C, la, rcond=None)[0])
-
-
-def _ab_gauge(a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Steps (δa, δb) = T y + off: the gains in their gauge (:func:`_gain_gauge`), b_0 = 0
-    (the offsets are defined up to b_k + c a_k)."""
-    N = a.size
-    Tg, off_a = _gain_gauge(a, t)
-    T = np.zeros((2 * N, Tg.shape[1] + N - 1))
-    T[:N, :Tg.shape[1]] = Tg
-    T[N + 1:, Tg.shape[1]:] = np.eye(N - 1)
-    return T, np.concatenate([off_a, np.zeros(N)])
-
-
-def _joint_frame(free, a, t) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Steps (δg, δa, δb) = T y + off: the knots marked ``free`` and the gains and offsets in
-    their gauge (:func:`_ab_gauge`)."""
-    K, N = free.size, a.size
-    Tg, off_ab = _ab_gauge(a, t)
-    fk = np.flatnonzero(free)
-    T = np.zeros((K + 2 * N, fk.size + Tg.shape[1]))
-    T[fk, np.arange(fk.size)] = 1.0
-    T[K:, fk.size:] = Tg
-    return T, np.concatenate([np.zeros(K), off_ab])
-
-
-def _least_offsets(gk, a, b, k_hi):
-    """``(g + c, b + c - beta a, D)``: the offsets of smallest norm and the Jacobian ``D`` of
-    the reported (g, a, b) -- g then scaled to its value at knot ``k_hi`` -- on the fitted ones.
-
-    With offsets free the bracket cannot tell an offset c of g (with every b_k + c) nor an
-    offset beta of the radiance (with every b_k - beta a_k): g(z) = a_k E + b_k fits as well.
-    Of that family the reported one has the smallest offsets, i.e. b is orthogonal to 1 and
-    to a -- the truth's offsets are small and unrelated to the gains."""
-    K, N = gk.size, a.size
-    A = np.stack([np.ones(N), -a], axis=1)
-    pinv = np.linalg.pinv(A)                        # (c, beta) = pinv @ (-b)
-    c, beta = pinv @ (-b)
-    g_new, b_new = gk + c, b + c - beta * a
-    # d g_new / d b = -pinv[0] on every knot; d b_new / d b = I - A pinv
-    D = np.eye(K + 2 * N)
-    D[:K, K + N:] = -pinv[0][None, :]
-    D[K + N:, K + N:] = np.eye(N) - A @ pinv
-    # then g / g[k_hi] (the reported scale): its Jacobian on g
-    S = np.eye(K) - np.outer(g_new / g_new[k_hi], np.eye(K)[k_hi])
-    D[:K] = S @ D[:K]
-    return g_new, b_new, D
 
 
 def _sample(data: BracketData) -> tuple[BracketData, int]:
@@ -723,15 +321,15 @@ def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
         grp = np.arange(P, dtype=np.int64) * G // max(P, 1)
     grp = np.clip(grp, 0, G - 1).astype(np.int32)
     paper = opts.pools == "paper"
-    seen, nclip = _pool_counts(pb, obs, clip, K)
+    seen, nclip = pool_counts(pb, obs, clip, K)
     inc = (seen > 0) & (nclip <= opts.clip_fraction * seen)
     for j in range(N):
         inc[j, :, j] = False
-    start, members = _pool_members(pb, obs, clip, K, int(POOL_CAP))
+    start, members = pool_members(pb, obs, clip, K, int(POOL_CAP))
     mz = np.ascontiguousarray(z.T.astype(np.uint16)[members])
     mflag = np.ascontiguousarray((obs.astype(np.uint8) | (clip.astype(np.uint8) << 1)).T[members])
     mgrp = grp[members]
-    counts = _row_counts(start, mflag, inc, paper, K)
+    counts = row_counts(start, mflag, inc, paper, K)
     # small brackets: lower the pool threshold to what their size allows (at least 10)
     per_code = P / max(1, K)
     min_pool = int(max(min(10, opts.min_pool), min(opts.min_pool, 0.4 * per_code)))
@@ -758,7 +356,8 @@ def _slopes(knots: Knots, gk: NDArray, levels: int) -> NDArray[np.float64]:
 
 
 def _pass(s: _Setup, a, b, gk, want_noise=False, with_a=False, wcode=None):
-    """One pass of :func:`_rows` at ``(a, b, g)``; the eq. 17 regressors with ``want_noise``.
+    """One pass of :func:`ccdcore.response.tsin_kernels.pool_rows` at ``(a, b, g)``; the eq. 17
+    regressors with ``want_noise``.
     ``wcode``: 1/σ per code for eq. 18's weights (``None``: constant weights)."""
     L = int(s.data.levels)
     gpc = _slopes(s.knots, gk, L) if want_noise else np.zeros(L)
@@ -766,12 +365,12 @@ def _pass(s: _Setup, a, b, gk, want_noise=False, with_a=False, wcode=None):
         wimg, wcode = np.ones(len(a)), np.ones(L)
     else:
         wimg = np.asarray(a, np.float64)
-    J, X, resid, egrp = _rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
-                              s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
-                              np.asarray(gk, np.float64), gpc, wimg, np.asarray(wcode, np.float64),
-                              s.knots.n,
-                              float(s.knots.step), bool(s.knots.identity), want_noise,
-                              with_a)
+    J, X, resid, egrp = pool_rows(s.start, s.mz, s.mflag, s.mgrp, s.inc, s.paper, s.rowid,
+                                  s.offsets, np.asarray(a, np.float64), np.asarray(b, np.float64),
+                                  np.asarray(gk, np.float64), gpc, wimg,
+                                  np.asarray(wcode, np.float64), s.knots.n,
+                                  float(s.knots.step), bool(s.knots.identity), want_noise,
+                                  with_a)
     return J, X, resid, egrp
 
 
@@ -806,8 +405,6 @@ def _anchors(s: _Setup) -> tuple[int, int]:
     return lo, hi
 
 
-
-
 def _sorted_rows(s: _Setup, resid: NDArray) -> NDArray[np.float64]:
     """The residuals sorted within each row, by one vectorised sort: each row's values are
     shifted into an interval of their own."""
@@ -835,33 +432,11 @@ def _pav(g: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.asarray(isotonic_regression(g, weights=np.maximum(weights, 1e-12)).x, np.float64)
 
 
-def noise_fit(X: NDArray, sig: NDArray, n: NDArray) -> tuple[NDArray, NDArray, float]:
-    """Eq. 17 by non-negative least squares: ``(σ_s², σ_c1², σ_c2²)``, their standard errors and
-    the reduced chi-square. Rows: per pool, the regressors ``X`` (mean over its pixels of
-    Σ_i c_i² (g - b), Σ_i c_i², Σ_i c_i² g'²) and the measured MAD sigma ``sig``; weights from
-    the MAD's sampling variance (2 σ⁴ / (0.37 n))."""
-    y = sig ** 2
-    sw = np.sqrt(_MAD_EFFICIENCY * n / 2.0) / np.maximum(y, 1e-30)
-    A = X * sw[:, None]
-    scale = np.maximum(np.abs(A).max(axis=0), 1e-30)
-    theta_s, _ = nnls(A / scale, y * sw)
-    theta = theta_s / scale
-    dof = max(1, y.size - 3)
-    chi2 = float(np.sum((A @ theta - y * sw) ** 2)) / dof
-    try:
-        cov = np.linalg.inv(A.T @ A) * max(chi2, 1.0)
-        err = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    except np.linalg.LinAlgError:
-        err = np.full(3, np.nan)
-    return theta, err, chi2
-
-
 def _sqrt_err(v: float, e: float) -> tuple[float, float]:
     s = math.sqrt(max(v, 0.0))
     if s > 0:
         return s, e / (2 * s)
     return 0.0, math.sqrt(max(e, 0.0))
-
 
 # ------------------------------------------------------------------------------ estimate ------
 def estimate(data: BracketData, options: TsinOptions | None = None, *,
@@ -878,7 +453,89 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     opts = options or TsinOptions()
     opts.check(data.files[0] if data.files else "bracket")
     data, sampled = _sample(data)
-    s = _setup(data, opts)
+    st = _start(_setup(data, opts), opts)                      # steps 1-2
+    # max_iter bounds the passes over the pools; a round that takes a kept pass again makes none
+    while not st.done and (st.passes < opts.max_iter or st.reuse is not None):
+        here = _next_pass(st)                                  # steps 3-5
+        chi2 = float(np.sum(here.W * here.tm ** 2)) / max(1, here.tm.size - int(st.free.sum()))
+        if st.restore:
+            break                                 # the pass at the last accepted curve
+        obj = 0.0
+        if st.phase == 1:
+            obj, ended = _guard(st, here, chi2)
+            if ended:
+                continue
+        if st.phase == 2 and _guard_gains(st, here, chi2):
+            continue
+        if st.phase == 1:
+            delta, rhs = _phase1_step(st, here)                # steps 6-7
+            st.last = (obj, st.gk, delta, float(np.mean(np.abs(delta))),
+                       float(delta[st.free] @ rhs[st.free]), here)
+            gk_new = _advance(st, here, st.gk, delta, st.eta)  # steps 8-9
+            st.eta = min(float(opts.eta), 2.0 * st.eta)
+        else:
+            delta = _phase2_step(st, here)                     # steps 6-7, gains and offsets
+            gk_new = _advance(st, here, st.gk, delta, opts.eta)
+        st.step = float(np.mean(np.abs(gk_new - st.gk)))
+        st.gk = gk_new
+        st.history.append({"iteration": st.it, "phase": st.phase, "step": st.step,
+                           "a_step": st.a_step, "chi2": chi2, "pools": int(here.tm.size)})
+        if progress is not None:
+            progress(min(0.95, st.it / (4.0 if not st.fit_a else 12.0)),
+                     f"iteration {st.it}: mean |Δg| {st.step:.1e}")
+        _check_converged(st, chi2)                             # step 10
+    return _result(st, sampled)
+
+
+@dataclass(eq=False)
+class _Fit:
+    """The state of :func:`estimate`'s iteration, with what it holds fixed.
+
+    With the gains a_k free: g first at the nominal times (phase 1), then g, the gains and the
+    offsets together (phase 2); with offsets free g(z) and s g(z) + c fit alike, so g keeps both
+    fixed points throughout (eq. 15's two fixed points)."""
+
+    s: _Setup
+    opts: TsinOptions
+    t: NDArray                   # the nominal exposure times
+    mad_c: float                 # eq. 12's c
+    bw: float                    # the smoothness bandwidth, in knots
+    D2: NDArray                  # second differences on the knots
+    k_lo: int                    # the fit's fixed points (knots; see _anchors)
+    k_hi: int
+    k_rep: int                   # the reported scale's code (knot)
+    free: NDArray                # the knots the fit moves
+    gk: NDArray                  # g on the knots
+    a: NDArray                   # the gains
+    b: NDArray                   # the offsets
+    fit_a: bool                  # white balance: the gains and offsets are fitted
+    history: list[dict[str, float]] = field(default_factory=list)
+    before: dict[str, Any] = field(default_factory=dict)   # the pool's errors at the start
+    here: _PassState | None = None                          # the round's pass
+    it: int = 0
+    passes: int = 0
+    phase: int = 1
+    converged: bool = False
+    done: bool = False                  # the iteration ends (converged, or flat)
+    restore: bool = False               # one more round: the pass at the last accepted curve
+    step: float = float("inf")          # mean |η Δg| of the last step
+    a_step: float = 0.0                 # largest relative change of a gain in the last step
+    kept: tuple | None = None           # the last accepted state of phase 2
+    radius: float = 1.0                 # of the trust region, in MAX_GAIN_STEP
+    flat: int = 0                       # accepted steps in a row that gained < FLAT
+    last: tuple | None = None           # phase 1: (objective, g, Δg, ...) last accepted
+    eta: float = 1.0                    # phase 1: the step, shortened on a worse fit
+    reuse: _PassState | None = None     # a pass to take again instead of making it
+    resolution: float = 0.0             # a tenth of g's statistical error (per knot)
+
+    @property
+    def where(self) -> str:
+        return self.s.data.files[0] if self.s.data.files else "bracket"
+
+
+def _start(s: _Setup, opts: TsinOptions) -> _Fit:
+    """Step 2: g the straight line through the fixed points, a_k the nominal exposures, b = 0."""
+    data = s.data
     N = data.n_images
     L = int(data.levels)
     K = s.knots.n
@@ -892,166 +549,169 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     k_lo, k_hi = _anchors(s)
     gk = s.knots.codes / (L - 1.0)          # step 2: the straight line through the fixed points
     D2 = _second_differences(K)
-    P_s = D2.T @ D2
     bw = opts.smoothness * (K - 1) / 255.0
     free = np.ones(K, bool)
     free[k_hi] = False
     free[k_lo] = True
-    history: list[dict[str, float]] = []
-    before: dict[str, Any] = {}
-    converged = False
+    return _Fit(s, opts, t, mad_c, bw, D2, k_lo, k_hi, k_rep, free, gk, a, b,
+                bool(opts.white_balance), eta=float(opts.eta))
+
+
+def _next_pass(st: _Fit) -> _PassState:
+    """Steps 3-5 of a round: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas
+    (11-12); the pass also collects eq. 17's regressors: the last pass serves the noise fit and
+    the band (it lies within one step below the tolerance of the result). A kept pass (at the
+    last accepted curve) is taken again instead of making it."""
+    st.it += 1
+    if st.reuse is None:
+        st.passes += 1
+        here = _measure(st.s, st.a, st.b, st.gk, st.fit_a, st.mad_c, st.bw, st.D2)
+        if st.it == 1:
+            st.before = _pick_pool(st.s, here.resid, st.gk)
+    else:
+        here, st.reuse = st.reuse, None    # the pass at the last accepted curve, kept
+    st.here = here
+    return here
+
+
+def _advance(st: _Fit, p: _PassState, g_from: NDArray, delta: NDArray, eta: float) -> NDArray:
+    """Steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV (weighted by the pass
+    ``p``'s normal matrix), the fixed points."""
+    g_new = _pav(g_from + eta * delta, p.dg + p.lam)
+    k_lo, k_hi = st.k_lo, st.k_hi
+    if st.free[k_lo]:
+        return g_new * g_from[k_hi] / g_new[k_hi]
+    span = (g_from[k_hi] - g_from[k_lo]) / (g_new[k_hi] - g_new[k_lo])
+    return g_from[k_lo] + (g_new - g_new[k_lo]) * span
+
+
+def _guard(st: _Fit, p: _PassState, chi2: float) -> tuple[float, bool]:
+    """Phase 1's guarded step (a departure, for real cameras: far from the solution the
+    linearised step of eq. 15 can overshoot into a curve that fits worse): the step is accepted
+    when the objective (the pools' χ² and the smoothness term) falls, else the last accepted
+    curve is taken again with a shorter step. Returns the objective and whether the round ends
+    here (a step taken back, or the fit at its minimum or flat)."""
+    obj = float(np.sum(p.W * p.tm ** 2)) + p.lam * float(st.gk @ p.P_s @ st.gk)
+    last = st.last
+    if last is not None and obj > last[0]:
+        st.history.append({"iteration": st.it, "phase": st.phase, "step": st.step,
+                           "a_step": st.a_step, "chi2": chi2, "pools": int(p.tm.size),
+                           "rejected": True})
+        st.eta = _shorter_step(last[0], obj, last[4], st.eta)
+        if st.eta < MIN_ETA or st.eta * last[3] < st.resolution:
+            # no step along Δg improves the fit: it is at a minimum of the objective;
+            # its pass is the one kept at the last accepted curve
+            st.gk, st.reuse = last[1], last[5]
+            if st.fit_a:
+                st.phase, st.free[st.k_lo] = 2, False
+                return obj, True
+            st.restore, st.converged = True, True
+            return obj, True
+        gk_new = _advance(st, p, last[1], last[2], st.eta)
+        st.step = float(np.mean(np.abs(gk_new - last[1])))
+        st.gk = gk_new
+        return obj, True
+    st.flat = st.flat + 1 if last is not None and last[0] - obj < FLAT * last[0] else 0
+    if st.flat >= 3 and not st.fit_a:
+        st.converged = st.done = True            # the fit no longer improves: flat
+        return obj, True
+    return obj, False
+
+
+def _guard_gains(st: _Fit, p: _PassState, chi2: float) -> bool:
+    """Phase 2's guard: a step of the gains that made the fit worse (the pools' χ² and the
+    a-priori bound) is taken back and the next one shortened (near a nearly saturated image the
+    linearised step can mislead). True when the round ends here (taken back, or flat)."""
+    opts = st.opts
+    cost = float(np.sum(p.W * p.tm ** 2))
+    if opts.gain_prior:
+        cost += float(np.sum((np.log(st.a / st.t) / opts.gain_prior) ** 2))
+    kept = st.kept
+    if kept is not None and cost > kept[0]:
+        _, _, st.gk, st.a, st.b, st.reuse = kept
+        st.radius *= 0.25
+        st.history.append({"iteration": st.it, "phase": st.phase, "step": st.step,
+                           "a_step": st.a_step, "chi2": chi2, "pools": int(p.tm.size),
+                           "rejected": True})
+        if st.radius < 1e-3:
+            st.converged = st.restore = True     # no step of any length improves the fit
+        return True                              # from the kept state and its pass
+    st.flat = st.flat + 1 if kept is not None and kept[0] - cost < FLAT * kept[0] else 0
+    if st.flat >= 3:
+        st.converged = st.done = True            # the fit no longer improves: flat
+        return True
+    st.kept = (cost, chi2, st.gk, st.a, st.b, p)
+    return False
+
+
+def _phase1_step(st: _Fit, p: _PassState) -> tuple[NDArray, NDArray]:
+    """Steps 6-7 at the nominal gains: eq. 15's weighted least squares for the update of the
+    free knots, ``(delta, rhs)``; sets the resolution (a tenth of g's statistical error)."""
+    K, free = st.s.knots.n, st.free
+    rhs = -(p.Jm[:, :K].T @ (p.W * p.tm)) - p.lam * (p.P_s @ st.gk)
+    delta = np.zeros(K)
+    Hf = p.Hs[np.ix_(free, free)]
+    try:
+        delta[free] = np.linalg.solve(Hf, rhs[free])
+        st.resolution = RESOLUTION * float(np.mean(np.sqrt(np.maximum(
+            np.diag(np.linalg.inv(Hf)), 0.0))))
+    except np.linalg.LinAlgError:
+        delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
+    return delta, rhs
+
+
+def _phase2_step(st: _Fit, p: _PassState) -> NDArray:
+    """Steps 6-8 of the white-balance fit: one joint step of g, the gains and the offsets in
+    their gauge (:func:`ccdcore.response.tsin_gauge.joint_step`); the gains and offsets are
+    moved, the update of g returned."""
+    K = st.s.knots.n
+    Hfull = p.JWfull.T @ p.Jm
+    Hfull[:K, :K] += p.lam * p.P_s
+    grad = -(p.Jm.T @ (p.W * p.tm))
+    grad[:K] -= p.lam * (p.P_s @ st.gk)
+    delta, a_new, st.b, st.radius = joint_step(Hfull, grad, st.free, st.a, st.b, st.t,
+                                               st.opts.gain_prior, st.opts.eta, st.radius,
+                                               st.where)
+    st.a_step = float(np.max(np.abs(a_new / st.a - 1.0)))
+    st.a = a_new
+    return delta
+
+
+def _check_converged(st: _Fit, chi2: float) -> None:
+    """Step 10 after an accepted step: converged below the tolerance; with white balance, the
+    move from phase 1 to phase 2."""
+    opts = st.opts
+    if not st.fit_a:
+        if st.step < max(opts.tol, st.resolution):  # step 10
+            st.converged = st.done = True
+        return
+    if st.phase == 1:
+        # g at the nominal times only needs to come near: once it has, or once its fit
+        # stops improving (gains far off the nominal times then pull it away), the gains
+        # are freed, and g(z_lo) is held where it is (with offsets free, g and s g + c fit
+        # alike: both fixed points)
+        worse = len(st.history) > 1 and chi2 > st.history[-2]["chi2"]
+        if st.step < max(opts.tol, 1e-4) or worse:
+            st.phase = 2
+            st.free[st.k_lo] = False
+        return
+    if st.step < opts.tol and st.a_step < opts.tol:
+        st.converged = st.done = True
+
+
+def _result(st: _Fit, sampled: int) -> ChannelResponse:
+    """The band, the noise terms and the pool's errors from the last pass, on the reported
+    scale."""
+    s, opts, here, data = st.s, st.opts, st.here, st.s.data
+    N, L, K = data.n_images, int(data.levels), s.knots.n
+    fit_a, t, a, history = st.fit_a, st.t, st.a, st.history
     n = np.diff(s.offsets).astype(np.float64)
-    step = float("inf")
-    a_step = 0.0
-    fit_a = bool(opts.white_balance)
-    # with the gains a_k free: g first at the nominal times (phase 1), then g, the gains and
-    # the offsets together (phase 2); with offsets free g(z) and s g(z) + c fit alike, so g
-    # keeps both fixed points throughout (eq. 15's two fixed points)
-    phase = 1
-    kept: tuple | None = None                    # the last accepted state of phase 2
-    radius = 1.0                                 # of the trust region, in MAX_GAIN_STEP
-    flat = 0                                     # accepted steps in a row that gained < FLAT
-    last: tuple | None = None                    # phase 1: (objective, g, Δg) last accepted
-    eta = float(opts.eta)                        # phase 1: the step, shortened on a worse fit
-    restore = False
-    reuse: tuple | None = None                   # a pass to take again instead of making it
-    resolution = 0.0                             # a tenth of g's statistical error (per knot)
-    it = 0
-
-    def advance(g_from: NDArray, delta: NDArray, eta: float) -> NDArray:
-        # steps 8-9: the update (eq. 16, g - η Δg with Δg = -delta), PAV, the fixed points
-        g_new = _pav(g_from + eta * delta, dg + lam)
-        if free[k_lo]:
-            return g_new * g_from[k_hi] / g_new[k_hi]
-        span = (g_from[k_hi] - g_from[k_lo]) / (g_new[k_hi] - g_new[k_lo])
-        return g_from[k_lo] + (g_new - g_new[k_lo]) * span
-
-    passes = 0
-    # max_iter bounds the passes over the pools; a round that takes a kept pass again makes none
-    while passes < opts.max_iter or reuse is not None:
-        it += 1
-        # steps 3-5: radiance (eq. 9), errors (eq. 10), trimmed means and MAD sigmas (11-12);
-        # the pass also collects eq. 17's regressors: the last pass serves the noise fit and
-        # the band (it lies within one step below the tolerance of the result)
-        if reuse is None:
-            passes += 1
-            here = _measure(s, a, b, gk, fit_a, mad_c, bw, D2)
-            if it == 1:
-                before = _pick_pool(s, here.resid, gk)
-        else:
-            here, reuse = reuse, None    # the pass at the last accepted curve, kept
-        J, X, resid, tm, sig, se = here.J, here.X, here.resid, here.tm, here.sig, here.se
-        Jm, W, JWfull, dg, lam, P_s, Hs = (here.Jm, here.W, here.JWfull, here.dg, here.lam,
-                                           here.P_s, here.Hs)
-        chi2 = float(np.sum(W * tm ** 2)) / max(1, tm.size - int(free.sum()))
-        if restore:
-            break                                 # the pass at the last accepted curve
-        if phase == 1:
-            # a guarded step (a departure, for real cameras: far from the solution the
-            # linearised step of eq. 15 can overshoot into a curve that fits worse): the step
-            # is accepted when the objective (the pools' χ² and the smoothness term) falls,
-            # else the last accepted curve is taken again with a shorter step
-            obj = float(np.sum(W * tm ** 2)) + lam * float(gk @ P_s @ gk)
-            if last is not None and obj > last[0]:
-                history.append({"iteration": it, "phase": phase, "step": step,
-                                "a_step": a_step, "chi2": chi2, "pools": int(tm.size),
-                                "rejected": True})
-                eta = _shorter_step(last[0], obj, last[4], eta)
-                if eta < MIN_ETA or eta * last[3] < resolution:
-                    # no step along Δg improves the fit: it is at a minimum of the objective;
-                    # its pass is the one kept at the last accepted curve
-                    gk, reuse = last[1], last[5]
-                    if fit_a:
-                        phase, free[k_lo] = 2, False
-                        continue
-                    restore, converged = True, True
-                    continue
-                gk_new = advance(last[1], last[2], eta)
-                step = float(np.mean(np.abs(gk_new - last[1])))
-                gk = gk_new
-                continue
-            flat = flat + 1 if last is not None and last[0] - obj < FLAT * last[0] else 0
-            if flat >= 3 and not fit_a:
-                converged = True                 # the fit no longer improves: flat
-                break
-        if phase == 2:
-            # the objective of the gains' step: the pools' χ² and the a-priori bound
-            cost = float(np.sum(W * tm ** 2))
-            if opts.gain_prior:
-                cost += float(np.sum((np.log(a / t) / opts.gain_prior) ** 2))
-            # a step of the gains that made the fit worse is taken back and the next one
-            # shortened (near a nearly saturated image the linearised step can mislead)
-            if kept is not None and cost > kept[0]:
-                chi2_bad = chi2
-                cost, chi2, gk, a, b, reuse = kept
-                radius *= 0.25
-                history.append({"iteration": it, "phase": phase, "step": step,
-                                "a_step": a_step, "chi2": chi2_bad, "pools": int(tm.size),
-                                "rejected": True})
-                if radius < 1e-3:
-                    converged = restore = True   # no step of any length improves the fit
-                continue                         # from the kept state and its pass
-            flat = flat + 1 if kept is not None and kept[0] - cost < FLAT * kept[0] else 0
-            if flat >= 3:
-                converged = True                 # the fit no longer improves: flat
-                break
-            kept = (cost, chi2, gk, a, b, here)
-        if phase == 1:
-            rhs = -(Jm[:, :K].T @ (W * tm)) - lam * (P_s @ gk)
-            delta = np.zeros(K)
-            Hf = Hs[np.ix_(free, free)]
-            try:
-                delta[free] = np.linalg.solve(Hf, rhs[free])
-                resolution = RESOLUTION * float(np.mean(np.sqrt(np.maximum(
-                    np.diag(np.linalg.inv(Hf)), 0.0))))
-            except np.linalg.LinAlgError:
-                delta[free] = np.linalg.lstsq(Hf, rhs[free], rcond=None)[0]
-        else:
-            Hfull = JWfull.T @ Jm
-            Hfull[:K, :K] += lam * P_s
-            grad = -(Jm.T @ (W * tm))
-            grad[:K] -= lam * (P_s @ gk)
-            delta, a_new, b, radius = _joint_step(Hfull, grad, free, a, b, t, opts, radius,
-                                                  data.files[0] if data.files else "bracket")
-            a_step = float(np.max(np.abs(a_new / a - 1.0)))
-            a = a_new
-        if phase == 1:
-            last = (obj, gk, delta, float(np.mean(np.abs(delta))),
-                    float(delta[free] @ rhs[free]), here)
-            gk_new = advance(gk, delta, eta)
-            eta = min(float(opts.eta), 2.0 * eta)
-        else:
-            gk_new = advance(gk, delta, opts.eta)
-        step = float(np.mean(np.abs(gk_new - gk)))
-        gk = gk_new
-        history.append({"iteration": it, "phase": phase, "step": step,
-                        "a_step": a_step, "chi2": chi2, "pools": int(tm.size)})
-        if progress is not None:
-            progress(min(0.95, it / (4.0 if not fit_a else 12.0)),
-                     f"iteration {it}: mean |Δg| {step:.1e}")
-        if not fit_a:
-            if step < max(opts.tol, resolution):  # step 10
-                converged = True
-                break
-            continue
-        if phase == 1:
-            # g at the nominal times only needs to come near: once it has, or once its fit
-            # stops improving (gains far off the nominal times then pull it away), the gains
-            # are freed, and g(z_lo) is held where it is (with offsets free, g and s g + c fit
-            # alike: both fixed points)
-            worse = len(history) > 1 and chi2 > history[-2]["chi2"]
-            if step < max(opts.tol, 1e-4) or worse:
-                phase = 2
-                free[k_lo] = False
-            continue
-        if step < opts.tol and a_step < opts.tol:
-            converged = True
-            break
-    # the band, the noise terms and the pool's errors from the last pass
-    after = _pick_pool(s, resid, gk, like=before)
-    gk, b, err, a_err, b_err = _band(s, here, gk, a, b, t, free, k_rep,
-                                     fit_a and J.shape[1] == K + 2 * N, int(opts.groups))
-    theta_n, theta_e, _ = noise_fit(X / n[:, None], sig, n)
+    tm, sig, se = here.tm, here.sig, here.se
+    after = _pick_pool(s, here.resid, st.gk, like=st.before)
+    gk, b, err, a_err, b_err = band(here, s.offsets, st.gk, a, st.b, t, st.free, st.k_rep,
+                                    fit_a and here.J.shape[1] == K + 2 * N, int(opts.groups),
+                                    TRIM)
+    theta_n, theta_e, _ = noise_fit(here.X / n[:, None], sig, n)
     codes = np.arange(L, dtype=np.float64)
     # the reported scale: g(z_hi) = z_hi / (L - 1); a, b follow
     g_rep, sc, c0 = normalize(np.interp(codes, s.knots.codes, gk), L)
@@ -1059,16 +719,17 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
     chi2_last = history[-1]["chi2"] if history else float("nan")
-    notes = _estimate_notes(opts, data, s, sampled=sampled, converged=converged, step=step,
-                            chi2=chi2_last, theta=theta_n)
+    notes = _estimate_notes(opts, data, s, sampled=sampled, converged=st.converged,
+                            step=st.step, chi2=chi2_last, theta=theta_n)
     pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
                       n.astype(np.int64), tm * sc, sig * sc, se * sc)
+    before = st.before
     return ChannelResponse(
         channel=data.channel, method="tsin", g=g_rep,
         g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc if fit_a else a,
         a_err=a_err * sc, b=b * sc + c0 if fit_a else b, b_err=b_err * sc, t=t, sigma_s=ss,
         sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
-        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=it, converged=converged,
+        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=st.it, converged=st.converged,
         white_balance=fit_a, pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],
                      "predicted_image": before["predicted_image"], "before": before["values"],
@@ -1110,7 +771,7 @@ def _measure(s: _Setup, a: NDArray, b: NDArray, gk: NDArray, fit_a: bool, mad_c:
     n = np.diff(s.offsets).astype(np.float64)
     J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a,
                               wcode=_eq18_codes(s, gk))
-    tm, sig, se, lo, hi, wmean = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
+    tm, sig, se, lo, hi, wmean = row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
     Jm = J / n[:, None]
     # a pool's mean error cannot be known better than its codes' quantisation (1/12 DN²) at a
     # tenth of the curve's mean slope: where a step flattened g, the errors there vanish with
@@ -1125,33 +786,6 @@ def _measure(s: _Setup, a: NDArray, b: NDArray, gk: NDArray, fit_a: bool, mad_c:
     P_s = _smoothness(gk, D2)
     return _PassState(J, X, resid, egrp, tm, sig, se, lo, hi, wmean, Jm, W, JWfull, JW, H, dg,
                       lam, P_s, H + lam * P_s)
-
-
-def _band(s: _Setup, p: _PassState, gk: NDArray, a: NDArray, b: NDArray, t: NDArray,
-          free: NDArray, k_rep: int, joint: bool, groups: int
-          ) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
-    """The 1-sigma band of g (and the errors of a, b) from the pass ``p``: a sandwich over
-    blocks of pixels, carried to the reported scale (g(z_hi) fixed) and, with ``joint`` (the
-    white-balance fit), to the offsets of smallest norm. Returns ``(g, b, g_err, a_err,
-    b_err)`` with g and b moved to those offsets."""
-    K, N = gk.size, a.size
-    Sg = _group_sums(p.resid, p.egrp, s.offsets, p.lo, p.hi, p.wmean, TRIM, groups)
-    if joint:
-        Tf, _ = _joint_frame(free, a, t)
-        Hfull = p.JWfull.T @ p.Jm
-        Hfull[:K, :K] += p.lam * p.P_s
-        cov_f = _sandwich(Tf.T @ Hfull @ Tf, Tf.T @ (p.JWfull.T @ Sg), Tf)
-        gk, b, D = _least_offsets(gk, a, b, k_rep)
-        cov_f = D @ cov_f @ D.T
-        err, a_err, b_err = (np.sqrt(np.maximum(np.diag(cov_f)[part], 0.0))
-                             for part in (slice(0, K), slice(K, K + N), slice(K + N, None)))
-        return gk, b, err, a_err, b_err
-    cov = np.zeros((K, K))
-    cov[np.ix_(free, free)] = _sandwich(p.Hs[np.ix_(free, free)], (p.JW.T @ Sg)[free])
-    # g is reported with g(z_hi) fixed instead of the fit's fixed point: the band follows
-    S = np.eye(K) - np.outer(gk / gk[k_rep], np.eye(K)[k_rep])
-    err = np.sqrt(np.maximum(np.diag(S @ cov @ S.T), 0.0))
-    return gk, b, err, np.zeros(N), np.zeros(N)
 
 
 def _shorter_step(obj0: float, obj_t: float, gain: float, eta_t: float) -> float:
@@ -1177,54 +811,6 @@ def _smoothness(gk: NDArray, D2: NDArray) -> NDArray[np.float64]:
     gmed = float(np.median(gpk[gpk > 0])) if np.any(gpk > 0) else 1.0
     gpk = np.maximum(gpk, SLOPE_FLOOR * gmed)
     return D2.T @ (((gmed / gpk) ** 2)[:, None] * D2)
-
-
-def _joint_step(Hfull: NDArray, grad: NDArray, free: NDArray, a: NDArray, b: NDArray,
-                t: NDArray, opts: TsinOptions, radius: float, where: str
-                ) -> tuple[NDArray, NDArray, NDArray, float]:
-    """One Gauss-Newton step of g, the gains and the offsets together, within the gauge
-    (:func:`_joint_frame`), with sec. 3.2's a-priori bound on the gains and a trust region:
-    ``(Δg, a, b, radius)`` after the step.
-
-    The bound: ln(a_k / t_k) ~ N(0, gain_prior²); it only holds directions the data leave
-    loose (a nearly saturated image). The trust region: no gain moves by more than
-    :data:`MAX_GAIN_STEP` × ``radius`` in one step (far from the solution the linearised step
-    overshoots along the loosely held directions); the radius then doubles, up to
-    :data:`MAX_RADIUS`."""
-    K, N = free.size, a.size
-    Tf, off = _joint_frame(free, a, t)
-    Hfull, grad = Hfull.copy(), grad.copy()
-    if opts.gain_prior:
-        ia = np.arange(K, K + N)
-        Hfull[ia, ia] += 1.0 / (a * opts.gain_prior) ** 2
-        grad[K:K + N] -= np.log(a / t) / (a * opts.gain_prior ** 2)
-    y = np.linalg.lstsq(Tf.T @ Hfull @ Tf, Tf.T @ (grad - Hfull @ off), rcond=None)[0]
-    d = Tf @ y + off
-    rel = float(np.max(np.abs(opts.eta * d[K:K + N] / a)))
-    if rel > MAX_GAIN_STEP * radius:
-        d = d * (MAX_GAIN_STEP * radius / rel)
-    a_new = a + opts.eta * d[K:K + N]
-    if np.any(a_new <= 0):
-        raise CcdError(where, "an image's gain went non-positive: the bracket does not "
-                              "constrain it")
-    a_new = _in_gauge(a_new, t)                  # exactly, whatever the step's length
-    return d[:K], a_new, b + opts.eta * d[K + N:], min(MAX_RADIUS, 2.0 * radius)
-
-
-def _sandwich(bread: NDArray, scores: NDArray, frame: NDArray | None = None
-              ) -> NDArray[np.float64]:
-    """The sandwich covariance B⁻¹ (Ψ Ψᵀ G/(G − 1)) B⁻¹ from the blocks' scores Ψ (one column
-    per block of rows; one pixel's noise enters many pools' rows, and neighbours of an
-    interpolated colour frame are correlated), mapped by ``frame`` (T B⁻¹ … B⁻¹ Tᵀ) when
-    given; NaN where the bread is singular."""
-    G = scores.shape[1]
-    n = bread.shape[0] if frame is None else frame.shape[0]
-    try:
-        Bi = np.linalg.inv(bread)
-    except np.linalg.LinAlgError:
-        return np.full((n, n), np.nan)
-    cov = Bi @ ((scores @ scores.T) * (G / (G - 1.0))) @ Bi
-    return cov if frame is None else frame @ cov @ frame.T
 
 
 def _estimate_notes(opts: TsinOptions, data: BracketData, s: _Setup, *, sampled: int,
@@ -1295,10 +881,11 @@ def noise_terms(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,
     mad_c = float(opts.mad_factor) if opts.mad_factor else data.mad_factor
     _, X, resid, _ = _pass(s, a, b, gk, want_noise=True)
     n = np.diff(s.offsets).astype(np.float64)
-    _, sig, _, _, _, _ = _row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
+    _, sig, _, _, _, _ = row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
     th, te, chi2 = noise_fit(X / n[:, None], sig, n)
     ss, ss_e = _sqrt_err(th[0], te[0])
     s1, s1_e = _sqrt_err(th[1], te[1])
     s2, s2_e = _sqrt_err(th[2], te[2])
     return {"sigma_s": ss, "sigma_c1": s1, "sigma_c2": s2, "sigma_s_err": ss_e,
             "sigma_c1_err": s1_e, "sigma_c2_err": s2_e, "chi2": chi2}
+

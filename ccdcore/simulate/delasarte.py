@@ -226,6 +226,81 @@ def _truth_maps(writer: SessionWriter, cam: _Camera, settings: Sequence[str], fl
     return per_setting
 
 
+def _check_args(w: int, h: int, bits: int, A: Sequence[float],
+                signal_dn_per_s: Sequence[float], dark_current_dn_per_s: Sequence[float],
+                levels: Sequence[float], exposures: Sequence[float], n_frames: int,
+                n_average: int, base: tuple[int, int], n_dark: int, settings: Sequence[str],
+                vignetting_corner: float) -> None:
+    """Check :func:`simulate`'s arguments."""
+    _check(w >= 8 and h >= 8, "size", f"{w}x{h} is too small; use at least 8x8")
+    _check(1 <= int(bits) <= 16, "bits", f"bit depth must be 1..16, got {bits}")
+    _check(len(A) == 3 and len(signal_dn_per_s) == 3 and len(dark_current_dn_per_s) == 3,
+           "A/signal_dn_per_s/dark_current_dn_per_s", "give one value per channel (R, G, B)")
+    _check(len(levels) >= 1 and len(exposures) >= 2, "levels/exposures",
+           "need at least one radiance level and two exposure times")
+    _check(n_frames >= 1 and n_average >= n_frames and n_dark >= 1, "n_frames/n_average/n_dark",
+           "need n_frames >= 1, n_average >= n_frames, n_dark >= 1")
+    _check(1 <= base[0] <= len(levels) and 1 <= base[1] <= len(exposures), "base",
+           f"base condition {tuple(base)} is not a (level id, exposure index) of this session")
+    for s in settings:
+        _check(s in SETTINGS, "settings", f"unknown offset setting {s!r}; choose NZDI or ZDI")
+    _check(0 < vignetting_corner <= 1, "vignetting_corner", "must be in (0, 1]")
+
+
+def _shoot_session(shooter: _Shooter, settings: Sequence[str], levels: Sequence[float],
+                   exposures: Sequence[float], n_dark: int, n_frames: int, n_average: int,
+                   base: tuple[int, int]) -> None:
+    """Every frame in capture order: per offset setting, the darks at each exposure, then the
+    flats of each level and exposure (``n_average`` of them at the base condition)."""
+    for setting in settings:                    # darks, then flats, per offset setting
+        tag = setting.lower()
+        for ei, t in enumerate(exposures, start=1):
+            for k in range(n_dark):
+                shooter.shoot(f"{tag}/dark_E{ei:02d}_{k}.tif", setting, "dark", t, None)
+        for li in range(1, len(levels) + 1):
+            for ei, t in enumerate(exposures, start=1):
+                n = n_average if (li, ei) == tuple(base) else n_frames
+                for k in range(n):
+                    shooter.shoot(f"{tag}/flat_L{li}_E{ei:02d}_{k}.tif", setting, "flat", t,
+                                  li)
+
+
+def _truth(cam: _Camera, shooter: _Shooter, seed: int, w: int, h: int,
+           exposures: list[float], n_frames: int, n_average: int, n_dark: int,
+           base: tuple[int, int], t_base: float, vignetting_corner: float,
+           per_setting: dict[str, Any]) -> dict[str, Any]:
+    """The truth dictionary (module docstring)."""
+    m_nz = [cam.model(c, "NZDI") for c in range(3)]
+    flat, levels = shooter.flat, shooter.levels
+    fs = 2 ** cam.bits - 1
+    return {
+        "preset": "delasarte07", "seed": int(seed), "size": [w, h], "bits": cam.bits,
+        "layout": "rgb", "channels": list(CHANNELS), "gain_setting": shooter.gain,
+        "A": [m.A for m in m_nz], "conversion_gain_e_per_dn": [1.0 / m.A for m in m_nz],
+        "read_noise_e": cam.read_noise_e, "sigma_c2": [m.sigma_c2 for m in m_nz],
+        "q": 1.0, "full_scale": fs, "saturation_dn": fs, "knee_dn": cam.knee,
+        "signal_dn_per_s": list(shooter.signal_dn_per_s),
+        "dark_current_dn_per_s": list(cam.dark_dn_per_s),
+        "dark_spatial_std": cam.dark_spatial_std, "prnu_std": cam.prnu_std,
+        "vignetting_corner": float(vignetting_corner),
+        "flatfield_snup": [float(100 * flat[..., c].std() / flat[..., c].mean()) for c in range(3)],
+        "radiance_levels": {str(i): v for i, v in enumerate(levels, start=1)},
+        "exposures": exposures, "n_frames": int(n_frames), "n_average": int(n_average),
+        "n_dark": int(n_dark),
+        "base": {"level": int(base[0]), "exposure": t_base},
+        "settings": per_setting,
+        "setting_key": "manifest key setting = '<NZDI|ZDI>'",
+        "flatfield_map": "truth/flatfield.exr",
+        "frames": shooter.frames_truth,
+        "notes": {"mean_dn": "spatial mean of E[DL] per channel incl. knee and clipping "
+                             "(Gaussian approx.)",
+                  "mean_dn_linear": "black + A(E_DC + signal): the ideal linear response",
+                  "flatfield": "F_c = V_c K_c / mean; de Lasarte's G = 1/F_c",
+                  "dark_rate": "dark-current signal per second, DN/s; dark(t) = black + rate*t, "
+                               "then clipped at 0"},
+    }
+
+
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96, 64),
              bits: int = 8, gain: float = 1.0,
              A: Sequence[float] = (0.0125, 0.0100, 0.0150), read_noise_e: float = 60.0,
@@ -290,19 +365,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96,
         The truth written to ``truth.json`` (see the module docstring).
     """
     w, h = (int(size[0]), int(size[1]))
-    _check(w >= 8 and h >= 8, "size", f"{w}x{h} is too small; use at least 8x8")
-    _check(1 <= int(bits) <= 16, "bits", f"bit depth must be 1..16, got {bits}")
-    _check(len(A) == 3 and len(signal_dn_per_s) == 3 and len(dark_current_dn_per_s) == 3,
-           "A/signal_dn_per_s/dark_current_dn_per_s", "give one value per channel (R, G, B)")
-    _check(len(levels) >= 1 and len(exposures) >= 2, "levels/exposures",
-           "need at least one radiance level and two exposure times")
-    _check(n_frames >= 1 and n_average >= n_frames and n_dark >= 1, "n_frames/n_average/n_dark",
-           "need n_frames >= 1, n_average >= n_frames, n_dark >= 1")
-    _check(1 <= base[0] <= len(levels) and 1 <= base[1] <= len(exposures), "base",
-           f"base condition {tuple(base)} is not a (level id, exposure index) of this session")
-    for s in settings:
-        _check(s in SETTINGS, "settings", f"unknown offset setting {s!r}; choose NZDI or ZDI")
-    _check(0 < vignetting_corner <= 1, "vignetting_corner", "must be in (0, 1]")
+    _check_args(w, h, bits, A, signal_dn_per_s, dark_current_dn_per_s, levels, exposures,
+                n_frames, n_average, base, n_dark, settings, vignetting_corner)
     shape = (h, w)
     scale = (2 ** int(bits) - 1) / 255.0
     fs = 2 ** int(bits) - 1
@@ -310,56 +374,22 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (96,
     exposures = [float(t) for t in exposures]
     levels = [float(v) for v in levels]
     t_base = exposures[base[1] - 1]
+    # ---- the camera and its true maps ---------------------------------------------------------
     cam = _Camera(tuple(float(a) * float(gain) * scale for a in A), float(read_noise_e),
                   tuple(float(v) * scale for v in dark_current_dn_per_s), float(dark_spatial_std),
                   float(prnu_std), int(bits), scale, knee)
-    model = cam.model
     vign, flat, dark_rate_e = _true_maps(cam, seed, shape, float(centre_jitter),
                                          float(vignetting_corner))
-    linear_low = {st: [_linear_low(model(c, st)) for c in range(3)] for st in settings}
+    linear_low = {st: [_linear_low(cam.model(c, st)) for c in range(3)] for st in settings}
+    # ---- shooting the frames ------------------------------------------------------------------
     writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits), "layout": "rgb"})
     shooter = _Shooter(cam, writer, flat, dark_rate_e, child_rng(seed, "frame_noise"), levels,
                        tuple(float(v) * scale for v in signal_dn_per_s), linear_low,
                        float(gain))
-    for setting in settings:                    # darks, then flats, per offset setting
-        tag = setting.lower()
-        for ei, t in enumerate(exposures, start=1):
-            for k in range(n_dark):
-                shooter.shoot(f"{tag}/dark_E{ei:02d}_{k}.tif", setting, "dark", t, None)
-        for li in range(1, len(levels) + 1):
-            for ei, t in enumerate(exposures, start=1):
-                n = n_average if (li, ei) == tuple(base) else n_frames
-                for k in range(n):
-                    shooter.shoot(f"{tag}/flat_L{li}_E{ei:02d}_{k}.tif", setting, "flat", t,
-                                  li)
-    frames_truth = shooter.frames_truth
+    _shoot_session(shooter, settings, levels, exposures, n_dark, n_frames, n_average, base)
+    # ---- the truth ----------------------------------------------------------------------------
     per_setting = _truth_maps(writer, cam, settings, flat, vign, dark_rate_e, t_base,
                               linear_low)
-    m_nz = [model(c, "NZDI") for c in range(3)]
-    truth: dict[str, Any] = {
-        "preset": "delasarte07", "seed": int(seed), "size": [w, h], "bits": int(bits),
-        "layout": "rgb", "channels": list(CHANNELS), "gain_setting": float(gain),
-        "A": [m.A for m in m_nz], "conversion_gain_e_per_dn": [1.0 / m.A for m in m_nz],
-        "read_noise_e": float(read_noise_e), "sigma_c2": [m.sigma_c2 for m in m_nz],
-        "q": 1.0, "full_scale": fs, "saturation_dn": fs, "knee_dn": knee,
-        "signal_dn_per_s": [float(v) * scale for v in signal_dn_per_s],
-        "dark_current_dn_per_s": [float(v) * scale for v in dark_current_dn_per_s],
-        "dark_spatial_std": float(dark_spatial_std), "prnu_std": float(prnu_std),
-        "vignetting_corner": float(vignetting_corner),
-        "flatfield_snup": [float(100 * flat[..., c].std() / flat[..., c].mean()) for c in range(3)],
-        "radiance_levels": {str(i): v for i, v in enumerate(levels, start=1)},
-        "exposures": exposures, "n_frames": int(n_frames), "n_average": int(n_average),
-        "n_dark": int(n_dark),
-        "base": {"level": int(base[0]), "exposure": t_base},
-        "settings": per_setting,
-        "setting_key": "manifest key setting = '<NZDI|ZDI>'",
-        "flatfield_map": "truth/flatfield.exr",
-        "frames": frames_truth,
-        "notes": {"mean_dn": "spatial mean of E[DL] per channel incl. knee and clipping "
-                             "(Gaussian approx.)",
-                  "mean_dn_linear": "black + A(E_DC + signal): the ideal linear response",
-                  "flatfield": "F_c = V_c K_c / mean; de Lasarte's G = 1/F_c",
-                  "dark_rate": "dark-current signal per second, DN/s; dark(t) = black + rate*t, "
-                               "then clipped at 0"},
-    }
+    truth = _truth(cam, shooter, seed, w, h, exposures, n_frames, n_average, n_dark, base,
+                   t_base, vignetting_corner, per_setting)
     return writer.finish(truth, note=f"ccdcore simulate delasarte07 --seed {int(seed)} --size {w}x{h}")

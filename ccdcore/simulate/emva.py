@@ -113,6 +113,7 @@ simulate
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -161,6 +162,202 @@ def _parts(split: Any, scale: float) -> dict[str, float | None]:
                     ("total", split.s2)):
         out[part] = float(np.sqrt(v)) * scale if v > 0 else None
     return out
+
+
+def _micro(t: float) -> int:
+    """An exposure time in whole microseconds (at least 1)."""
+    return max(int(round(t * 1e6)), 1)
+
+
+def _seconds(us: int) -> float:
+    """The exposure as the descriptor's reader has it: nanoseconds / 1e9."""
+    return float(us * 1000) / 1e9
+
+
+def _checked_parts(w: int, h: int, steps: int, L: int, bits: int, K: float, qe: float,
+                   sigma_d0_e: float, dark_current_e: float, full_well_e: float,
+                   exposure_min: float, exposure_max: float, saturation_at: float,
+                   spatial_fraction: float, dsnu_parts: Sequence[float],
+                   prnu_parts: Sequence[float], image_format: str
+                   ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """Check :func:`simulate`'s arguments; the DSNU (e⁻) and PRNU (%) parts' standard
+    deviations."""
+    _check(w >= 10 and h >= 10, "size", f"{w}x{h} is too small; the spatial split needs at "
+                                        "least 10x10")
+    _check(int(steps) >= 3, "steps", f"need at least 3 exposure times, got {steps}")
+    _check(int(L) >= 3, "L", f"a spatial set needs at least 3 frames, got {L}")
+    _check(8 <= int(bits) <= 16, "bits", f"bit depth must be 8..16, got {bits}")
+    _check(K > 0 and 0 < qe <= 1, "K/qe", "K must be positive and qe in (0, 1]")
+    _check(sigma_d0_e >= 0 and dark_current_e >= 0 and full_well_e > 0,
+           "sigma_d0_e/dark_current_e/full_well_e",
+           "the noise and the dark current must be >= 0 and the full well positive")
+    _check(0 < exposure_min < exposure_max, "exposure_min/exposure_max",
+           "need 0 < exposure_min < exposure_max")
+    _check(0 < saturation_at and 0 < spatial_fraction < 1, "saturation_at/spatial_fraction",
+           "saturation_at must be positive and spatial_fraction in (0, 1)")
+    _check(image_format in _FORMATS, "image_format", f"choose one of {', '.join(_FORMATS)}")
+    dsnu_std = _three(dsnu_parts, "dsnu_parts")
+    prnu_pc = _three(prnu_parts, "prnu_parts")
+    _check(sum(prnu_pc) < 20.0, "prnu_parts", "the PRNU parts must stay small (sum < 20 %) so "
+                                             "the response map stays positive")
+    return dsnu_std, prnu_pc
+
+
+@dataclass(frozen=True)
+class _Series:
+    """The exposure times (whole µs) of the temporal series and of the spatial sets, the
+    saturation exposure and the photon flux Φ (photons/pixel/s)."""
+
+    t_sat: float
+    flux_p: float
+    exposures_us: list[int]
+    spatial_us: int
+
+    def photons(self, us: int) -> float:
+        """μ_p at ``us`` as the descriptor holds it (three decimals)."""
+        return float(f"{self.flux_p * _seconds(us):.3f}")
+
+
+def _series(steps: int, qe: float, dark_current_e: float, full_well_e: float,
+            exposure_min: float, exposure_max: float, saturation_at: float,
+            spatial_fraction: float) -> _Series:
+    """Exposure times and photon flux: the mean charge reaches the full well at
+    ``saturation_at`` × ``exposure_max``."""
+    t_sat = saturation_at * exposure_max
+    flux_e = (full_well_e - dark_current_e * t_sat) / t_sat        # η Φ, e⁻/s of signal
+    _check(flux_e > 0, "dark_current_e", "the dark current alone fills the well before "
+                                         "saturation_at x exposure_max")
+    flux_p = flux_e / qe                                            # Φ, photons/pixel/s
+    exposures_us = [_micro(t) for t in np.linspace(exposure_min, exposure_max, steps)]
+    _check(len(set(exposures_us)) == steps, "steps", "exposure times closer than 1 µs")
+    spatial_us = _micro(spatial_fraction * t_sat)
+    return _Series(t_sat, flux_p, exposures_us, spatial_us)
+
+
+@dataclass(frozen=True)
+class _Camera:
+    """The simulated camera (module docstring): its parameters, its DSNU map D (e⁻) and PRNU
+    map P, and the frames' noise stream (shared by every frame, in capture order)."""
+
+    shape: tuple[int, int]
+    K: float
+    qe: float
+    sigma_d0_e: float
+    dark_current_e: float
+    dark_offset_e: float
+    black_offset_dn: float
+    full_well_e: float
+    full_scale: int
+    D: np.ndarray
+    P: np.ndarray
+    rng: np.random.Generator
+
+    def frame(self, mu_p: float, t: float) -> np.ndarray:
+        """One frame of ``mu_p`` photons per pixel at exposure ``t`` (s), uint16 codes."""
+        shape, P = self.shape, self.P
+        charge = self.rng.poisson(self.dark_current_e * t, shape).astype(np.float64)
+        if mu_p > 0:
+            charge += self.rng.poisson(np.maximum(self.qe * mu_p * P, 0.0))
+        np.minimum(charge, self.full_well_e, out=charge)
+        e = charge + self.dark_offset_e + self.D + self.sigma_d0_e * self.rng.standard_normal(shape)
+        y = np.rint(e * self.K + self.black_offset_dn)
+        np.clip(y, 0, self.full_scale, out=y)
+        return y.astype(np.uint16)
+
+
+def _shoot(writer: SessionWriter, cam: _Camera, series: _Series, L: int, image_format: str,
+           bits: int, w: int, h: int) -> list[str]:
+    """Expose and write every frame in descriptor order (a bright and a dark pair at each
+    exposure, then the spatial sets); the descriptor's lines."""
+    lines = ["v 4.0", f"n {bits} {w} {h}"]
+    count = 0
+    level = 0
+
+    def point(mu_p: float | None, us: int, n: int) -> None:
+        nonlocal count, level
+        t = _seconds(us)
+        if mu_p is None:
+            lines.append(f"d {us * 1000:.1f}")
+        else:
+            level += 1
+            lines.append(f"b {us * 1000:.1f} {mu_p:.3f}")
+        for _ in range(n):
+            name = f"image{count:04d}.{image_format}"
+            count += 1
+            lines.append(f"i images\\{name}")
+            meta: dict[str, Any] = ({"role": "dark", "photons": 0.0} if mu_p is None else
+                                    {"role": "ptc", "level": level, "photons": mu_p})
+            writer.add_frame(f"images/{name}", cam.frame(mu_p or 0.0, t), exposure=t, **meta)
+
+    for us in series.exposures_us:
+        point(series.photons(us), us, 2)
+        point(None, us, 2)
+    point(series.photons(series.spatial_us), series.spatial_us, L)
+    point(None, series.spatial_us, L)
+    return lines
+
+
+def _image_parts(cam: _Camera, series: _Series) -> dict[str, float | None]:
+    """The PRNU1288 parts (%) of the definition applied to the noiseless expected spatial
+    images (module docstring)."""
+    K, D = cam.K, cam.D
+    t_sp = _seconds(series.spatial_us)
+    dark_img = K * (cam.dark_current_e * t_sp + cam.dark_offset_e + D) + cam.black_offset_dn
+    bright_img = K * cam.qe * series.photons(series.spatial_us) * cam.P + dark_img
+    sb, sd = variance_split(bright_img, 0.0, 1), variance_split(dark_img, 0.0, 1)
+    signal = float(bright_img.mean() - dark_img.mean())
+    images = {}
+    for part in ("row", "col", "pixel", "total"):
+        v = sb.part(part)[0] - sd.part(part)[0]
+        images[part] = 100.0 * float(np.sqrt(v)) / signal if v > 0 else None
+    return images
+
+
+def _truth(cam: _Camera, series: _Series, seed: int, w: int, h: int, bits: int, steps: int,
+           L: int, dsnu_std: tuple[float, float, float],
+           prnu_pc: tuple[float, float, float]) -> dict[str, Any]:
+    """The truth dictionary (module docstring)."""
+    K, qe, D, P = cam.K, cam.qe, cam.D, cam.P
+    sigma_d0_e, dark_current_e = cam.sigma_d0_e, cam.dark_current_e
+    P_mean = float(P.mean())
+    dsnu = _parts(variance_split(D, 0.0, 1), 1.0)
+    prnu = _parts(variance_split(P, 0.0, 1), 100.0 / P_mean)
+    images = _image_parts(cam, series)
+    t_sp = _seconds(series.spatial_us)
+    sigma2_y_dark = K * K * sigma_d0_e ** 2 + 1.0 / 12.0
+    photons, exposures_us, spatial_us = series.photons, series.exposures_us, series.spatial_us
+    return {
+        "preset": "emva1288", "seed": int(seed), "size": [w, h], "bits": bits,
+        "K": float(K), "QE": 100.0 * qe * P_mean, "qe": float(qe),
+        "sigma_d": float(sigma_d0_e), "sigma_y_dark": float(np.sqrt(sigma2_y_dark)),
+        "u_I_mean": float(dark_current_e), "u_I_var": float(dark_current_e),
+        "DSNU1288": dsnu["total"], "PRNU1288": prnu["total"],
+        **{f"DSNU1288_{p}": dsnu[p] for p in ("row", "col", "pixel")},
+        **{f"PRNU1288_{p}": prnu[p] for p in ("row", "col", "pixel")},
+        "PRNU1288_images": images["total"],
+        **{f"PRNU1288_{p}_images": images[p] for p in ("row", "col", "pixel")},
+        "generating": {"dsnu_row_e": dsnu_std[0], "dsnu_col_e": dsnu_std[1],
+                       "dsnu_pixel_e": dsnu_std[2], "prnu_row_percent": prnu_pc[0],
+                       "prnu_col_percent": prnu_pc[1], "prnu_pixel_percent": prnu_pc[2]},
+        "P_mean": P_mean, "D_mean_e": float(D.mean()),
+        "dark_offset_e": float(cam.dark_offset_e), "black_offset_dn": float(cam.black_offset_dn),
+        "full_well_e": float(cam.full_well_e), "full_scale": cam.full_scale,
+        "photon_flux": series.flux_p, "saturation_exposure": series.t_sat,
+        "exposures": [_seconds(us) for us in exposures_us],
+        "photons": [photons(us) for us in exposures_us],
+        "spatial": {"exposure": t_sp, "photons": photons(spatial_us), "L": L},
+        "steps": steps, "L": L, "descriptor": DESCRIPTOR_NAME,
+        "notes": {
+            "QE": "100 qe mean(P): the camera's responsivity over K",
+            "sigma_d": "read noise sigma_d0; the ADC rounds without dither, its rounding is the "
+                       "standard's 1/12 DN2",
+            "DSNU1288_*": "sqrt of variance_split(D, 0, 1) parts of the noiseless DSNU map, e-",
+            "PRNU1288_*": "100 sqrt(variance_split(P, 0, 1) part) / mean(P), %",
+            "PRNU1288_*_images": "the split of the noiseless expected bright image less that of "
+                                 "the dark image over the signal, % (cross term of P and D "
+                                 "included)",
+            "generating": "the standard deviations the parts were drawn with"},
+    }
 
 
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128, 96),
@@ -216,142 +413,28 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         The truth written to ``truth.json`` (module docstring).
     """
     w, h = (int(size[0]), int(size[1]))
-    _check(w >= 10 and h >= 10, "size", f"{w}x{h} is too small; the spatial split needs at "
-                                        "least 10x10")
-    _check(int(steps) >= 3, "steps", f"need at least 3 exposure times, got {steps}")
-    _check(int(L) >= 3, "L", f"a spatial set needs at least 3 frames, got {L}")
-    _check(8 <= int(bits) <= 16, "bits", f"bit depth must be 8..16, got {bits}")
-    _check(K > 0 and 0 < qe <= 1, "K/qe", "K must be positive and qe in (0, 1]")
-    _check(sigma_d0_e >= 0 and dark_current_e >= 0 and full_well_e > 0,
-           "sigma_d0_e/dark_current_e/full_well_e",
-           "the noise and the dark current must be >= 0 and the full well positive")
-    _check(0 < exposure_min < exposure_max, "exposure_min/exposure_max",
-           "need 0 < exposure_min < exposure_max")
-    _check(0 < saturation_at and 0 < spatial_fraction < 1, "saturation_at/spatial_fraction",
-           "saturation_at must be positive and spatial_fraction in (0, 1)")
-    _check(image_format in _FORMATS, "image_format", f"choose one of {', '.join(_FORMATS)}")
-    dsnu_std = _three(dsnu_parts, "dsnu_parts")
-    prnu_pc = _three(prnu_parts, "prnu_parts")
-    _check(sum(prnu_pc) < 20.0, "prnu_parts", "the PRNU parts must stay small (sum < 20 %) so "
-                                             "the response map stays positive")
+    dsnu_std, prnu_pc = _checked_parts(w, h, steps, L, bits, K, qe, sigma_d0_e, dark_current_e,
+                                       full_well_e, exposure_min, exposure_max, saturation_at,
+                                       spatial_fraction, dsnu_parts, prnu_parts, image_format)
     steps, L, bits = int(steps), int(L), int(bits)
     shape = (h, w)
-    full_scale = 2 ** bits - 1
-
-    def micro(t: float) -> int:
-        return max(int(round(t * 1e6)), 1)
-
-    def seconds(us: int) -> float:
-        """The exposure as the descriptor's reader has it: nanoseconds / 1e9."""
-        return float(us * 1000) / 1e9
-
     # ---- exposure times and photon counts ----------------------------------------------------
-    t_sat = saturation_at * exposure_max
-    flux_e = (full_well_e - dark_current_e * t_sat) / t_sat        # η Φ, e⁻/s of signal
-    _check(flux_e > 0, "dark_current_e", "the dark current alone fills the well before "
-                                         "saturation_at x exposure_max")
-    flux_p = flux_e / qe                                            # Φ, photons/pixel/s
-    exposures_us = [micro(t) for t in np.linspace(exposure_min, exposure_max, steps)]
-    _check(len(set(exposures_us)) == steps, "steps", "exposure times closer than 1 µs")
-    spatial_us = micro(spatial_fraction * t_sat)
-
-    def photons(us: int) -> float:
-        return float(f"{flux_p * seconds(us):.3f}")                 # what the descriptor holds
-
+    series = _series(steps, qe, dark_current_e, full_well_e, exposure_min, exposure_max,
+                     saturation_at, spatial_fraction)
     # ---- the camera's patterns ----------------------------------------------------------------
     D = _pattern(shape, dsnu_std, seed, "dsnu")                                 # e⁻
     P = 1.0 + _pattern(shape, tuple(p / 100.0 for p in prnu_pc), seed, "prnu")  # relative
-    rng = child_rng(seed, "frames")
-
-    def frame(mu_p: float, t: float) -> np.ndarray:
-        charge = rng.poisson(dark_current_e * t, shape).astype(np.float64)
-        if mu_p > 0:
-            charge += rng.poisson(np.maximum(qe * mu_p * P, 0.0))
-        np.minimum(charge, full_well_e, out=charge)
-        e = charge + dark_offset_e + D + sigma_d0_e * rng.standard_normal(shape)
-        y = np.rint(e * K + black_offset_dn)
-        np.clip(y, 0, full_scale, out=y)
-        return y.astype(np.uint16)
-
+    cam = _Camera(shape, K, qe, sigma_d0_e, dark_current_e, dark_offset_e, black_offset_dn,
+                  full_well_e, 2 ** bits - 1, D, P, child_rng(seed, "frames"))
+    # ---- frames and descriptor ----------------------------------------------------------------
     writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": bits,
                                             "layout": "mono"})
-    lines = ["v 4.0", f"n {bits} {w} {h}"]
-    count = 0
-    level = 0
-
-    def point(mu_p: float | None, us: int, n: int) -> None:
-        nonlocal count, level
-        t = seconds(us)
-        if mu_p is None:
-            lines.append(f"d {us * 1000:.1f}")
-        else:
-            level += 1
-            lines.append(f"b {us * 1000:.1f} {mu_p:.3f}")
-        for _ in range(n):
-            name = f"image{count:04d}.{image_format}"
-            count += 1
-            lines.append(f"i images\\{name}")
-            meta: dict[str, Any] = ({"role": "dark", "photons": 0.0} if mu_p is None else
-                                    {"role": "ptc", "level": level, "photons": mu_p})
-            writer.add_frame(f"images/{name}", frame(mu_p or 0.0, t), exposure=t, **meta)
-
-    for us in exposures_us:
-        point(photons(us), us, 2)
-        point(None, us, 2)
-    point(photons(spatial_us), spatial_us, L)
-    point(None, spatial_us, L)
+    lines = _shoot(writer, cam, series, L, image_format, bits, w, h)
     atomic_write_text(Path(out_dir) / DESCRIPTOR_NAME, "\n".join(lines) + "\n")
 
     writer.add_map("truth/dsnu.exr", D, name="dsnu")
     writer.add_map("truth/prnu.exr", P, name="prnu")
-
     # ---- truth --------------------------------------------------------------------------------
-    P_mean = float(P.mean())
-    dsnu = _parts(variance_split(D, 0.0, 1), 1.0)
-    prnu = _parts(variance_split(P, 0.0, 1), 100.0 / P_mean)
-    # the definition applied to the noiseless expected spatial images (module docstring)
-    t_sp = seconds(spatial_us)
-    dark_img = K * (dark_current_e * t_sp + dark_offset_e + D) + black_offset_dn
-    bright_img = K * qe * photons(spatial_us) * P + dark_img
-    sb, sd = variance_split(bright_img, 0.0, 1), variance_split(dark_img, 0.0, 1)
-    signal = float(bright_img.mean() - dark_img.mean())
-    images = {}
-    for part in ("row", "col", "pixel", "total"):
-        v = sb.part(part)[0] - sd.part(part)[0]
-        images[part] = 100.0 * float(np.sqrt(v)) / signal if v > 0 else None
-    sigma2_y_dark = K * K * sigma_d0_e ** 2 + 1.0 / 12.0
-
-    truth: dict[str, Any] = {
-        "preset": "emva1288", "seed": int(seed), "size": [w, h], "bits": bits,
-        "K": float(K), "QE": 100.0 * qe * P_mean, "qe": float(qe),
-        "sigma_d": float(sigma_d0_e), "sigma_y_dark": float(np.sqrt(sigma2_y_dark)),
-        "u_I_mean": float(dark_current_e), "u_I_var": float(dark_current_e),
-        "DSNU1288": dsnu["total"], "PRNU1288": prnu["total"],
-        **{f"DSNU1288_{p}": dsnu[p] for p in ("row", "col", "pixel")},
-        **{f"PRNU1288_{p}": prnu[p] for p in ("row", "col", "pixel")},
-        "PRNU1288_images": images["total"],
-        **{f"PRNU1288_{p}_images": images[p] for p in ("row", "col", "pixel")},
-        "generating": {"dsnu_row_e": dsnu_std[0], "dsnu_col_e": dsnu_std[1],
-                       "dsnu_pixel_e": dsnu_std[2], "prnu_row_percent": prnu_pc[0],
-                       "prnu_col_percent": prnu_pc[1], "prnu_pixel_percent": prnu_pc[2]},
-        "P_mean": P_mean, "D_mean_e": float(D.mean()),
-        "dark_offset_e": float(dark_offset_e), "black_offset_dn": float(black_offset_dn),
-        "full_well_e": float(full_well_e), "full_scale": full_scale,
-        "photon_flux": flux_p, "saturation_exposure": t_sat,
-        "exposures": [seconds(us) for us in exposures_us],
-        "photons": [photons(us) for us in exposures_us],
-        "spatial": {"exposure": t_sp, "photons": photons(spatial_us), "L": L},
-        "steps": steps, "L": L, "descriptor": DESCRIPTOR_NAME,
-        "notes": {
-            "QE": "100 qe mean(P): the camera's responsivity over K",
-            "sigma_d": "read noise sigma_d0; the ADC rounds without dither, its rounding is the "
-                       "standard's 1/12 DN2",
-            "DSNU1288_*": "sqrt of variance_split(D, 0, 1) parts of the noiseless DSNU map, e-",
-            "PRNU1288_*": "100 sqrt(variance_split(P, 0, 1) part) / mean(P), %",
-            "PRNU1288_*_images": "the split of the noiseless expected bright image less that of "
-                                 "the dark image over the signal, % (cross term of P and D "
-                                 "included)",
-            "generating": "the standard deviations the parts were drawn with"},
-    }
+    truth = _truth(cam, series, seed, w, h, bits, steps, L, dsnu_std, prnu_pc)
     return writer.finish(truth, note=f"ccdcore simulate emva1288 --seed {int(seed)} "
                                      f"--size {w}x{h}\nthe same frames: {DESCRIPTOR_NAME}")

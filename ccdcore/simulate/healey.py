@@ -218,6 +218,94 @@ def _max_intensity(rig: _Rig, seed: int, level: float, illumination_std: float
             "fraction_changed_gt_2q": float(np.mean(change > 2 * model.q))}
 
 
+def _check_args(w: int, h: int, n_dark: int, ptc_frames: int, n1: int, n2: int, bits: int,
+                A: float, read_noise_e: float, sigma_K: float, scene_margin: int,
+                scene_levels: Sequence[float]) -> None:
+    """Check :func:`simulate`'s arguments (the PTC levels are checked by
+    :func:`_ptc_fractions`)."""
+    _check(w >= 8 and h >= 8, "size", f"{w}x{h} is too small; use at least 8x8")
+    _check(n_dark >= 1, "n_dark", "need at least one dark frame")
+    _check(ptc_frames >= 2, "ptc_frames", "need at least 2 frames per PTC level")
+    _check(ptc_frames <= 26, "ptc_frames", "at most 26 frames per PTC level")
+    _check(n1 >= 1 and n2 >= 1, "n1/n2", "need at least one configuration and one frame")
+    _check(1 <= int(bits) <= 16, "bits", f"bit depth must be 1..16, got {bits}")
+    _check(A > 0 and read_noise_e >= 0 and sigma_K >= 0, "A/read_noise_e/sigma_K",
+           "A must be positive and the noise parameters non-negative")
+    _check(2 * scene_margin < min(w, h) - 2, "scene_margin", "margin leaves no ROI")
+    _check(len(scene_levels) >= 1 and all(0 < f < 1.5 for f in scene_levels), "scene_levels",
+           "give at least one scene level as a fraction of the usable range in (0, 1.5)")
+
+
+def _camera(out_dir: str | Path, seed: int, shape: tuple[int, int], A: float,
+            read_noise_e: float, sigma_K: float, bits: int, black_level_dn: float,
+            dark_current_dn: float, dark_std_dn: float, full_well_e: float | None,
+            exposure: float) -> tuple[SessionWriter, _Rig, np.ndarray]:
+    """The camera: its sensor model, drawn K and dark maps and usable range; the session
+    writer, the rig the capture steps use and the expected dark frame (DN)."""
+    model = SensorModel(A=float(A), read_noise_e=float(read_noise_e),
+                        dark_current_e=float(dark_current_dn) / float(A),
+                        dark_spatial_std=(float(dark_std_dn) / float(dark_current_dn)
+                                          if dark_current_dn > 0 else 0.0),
+                        sigma_K=float(sigma_K), bits=int(bits), black_level_dn=float(black_level_dn),
+                        full_well_e=None if full_well_e is None else float(full_well_e),
+                        q=1.0, exposure_ref=float(exposure))
+    fs = model.full_scale
+    K = model.draw_K(shape, child_rng(seed, "K"))
+    dark_e = model.dark_electrons(model.draw_dark_map(shape, child_rng(seed, "dark_map")), exposure)
+    dark_dn_map = dark_e * model.A + model.black_level_dn
+    # usable range: the ADC's full scale, or the full well if that is reached first
+    range_dn = float(fs) if model.full_well_e is None else min(
+        float(fs), model.full_well_e * model.A + model.black_level_dn)
+    # the simulated camera's electronic offset is known, so the manifest states it ([camera]
+    # black_level, DN): the photon-transfer fit then needs no dark-frame estimate of it
+    writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits),
+                                            "layout": "mono",
+                                            "black_level": float(model.black_level_dn)})
+    rig = _Rig(model, K, dark_e, child_rng(seed, "frame_noise"), range_dn,
+               float(dark_dn_map.mean()), shape, float(exposure), writer.add_frame)
+    return writer, rig, dark_dn_map
+
+
+def _truth(rig: _Rig, dark_dn_map: np.ndarray, seed: int, w: int, h: int, n_dark: int,
+           n1: int, n2: int, ptc_truth: list[dict[str, Any]], fp_means: list[float],
+           patch_truth: list[dict[str, Any]], max_truth: dict[str, Any] | None,
+           card_reflectance_std: float, outlier_fraction: float, outlier_contrast: float,
+           illumination_std: float) -> dict[str, Any]:
+    """The truth dictionary (module docstring)."""
+    model, K, dark_e = rig.model, rig.K, rig.dark_e
+    return {
+        "preset": "healey94", "seed": int(seed), "size": [w, h],
+        "A": model.A, "sigma_c2": model.sigma_c2, "read_noise_e": model.read_noise_e,
+        "conversion_gain_e_per_dn": 1.0 / model.A, "q": model.q, "bits": model.bits,
+        "full_scale": model.full_scale, "usable_range_dn": rig.range_dn,
+        "black_level_dn": model.black_level_dn,
+        "full_well_e": model.full_well_e,
+        "exposure": rig.exposure,
+        "dark_mean_dn": rig.dark_mean_dn, "dark_std_dn": float(dark_dn_map.std()),
+        "dark_current_e": float(dark_e.mean()),
+        "dark_sigma2_dn": float(model.expected_variance(0.0, K, dark_e).mean()),
+        "sigma_K": model.sigma_K, "K_mean": float(K.mean()), "K_std": float(K.std(ddof=1)),
+        "s": int(n_dark), "n_dark": int(n_dark), "n1": int(n1), "n2": int(n2),
+        "ptc": ptc_truth,
+        "fixed_pattern": {"n1": int(n1), "n2": int(n2), "mean_dn": fp_means,
+                          "card_reflectance_std": float(card_reflectance_std),
+                          "outlier_fraction": float(outlier_fraction),
+                          "outlier_contrast": float(outlier_contrast),
+                          "illumination_std": float(illumination_std)},
+        "scene": {"layout": "one frame per (patch, level); the patch fills the frame; roi in the "
+                            "manifest and here; manifest key patch = 'NAME'",
+                  "patches": patch_truth},
+        "max_intensity": max_truth,
+        "K_map": "truth/K.exr", "dark_map": "truth/dark.exr",
+        "sensor": model.to_dict(),
+        "notes": {"mu": "eq. 36: pixel mean of A(K I + E_DC) + black level",
+                  "sigma2_N": "eqs. 35/28: pixel mean of A^2(K I + E_DC) + sigma_c2 "
+                              "= A(mu - black) + sigma_c2",
+                  "V_S": "eq. 57: sample variance / mean^2 of the ideal irradiance I over the ROI",
+                  "dark_map": "expected dark frame E_DC A + black level, DN"},
+    }
+
+
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128, 96),
              n_dark: int = 16, levels: int | Sequence[float] = 8, ptc_frames: int = 2,
              ptc_range: tuple[float, float] = (0.05, 0.90), n1: int = 12, n2: int = 4,
@@ -290,42 +378,12 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         The truth written to ``truth.json`` (see the module docstring).
     """
     w, h = (int(size[0]), int(size[1]))
-    _check(w >= 8 and h >= 8, "size", f"{w}x{h} is too small; use at least 8x8")
-    _check(n_dark >= 1, "n_dark", "need at least one dark frame")
-    _check(ptc_frames >= 2, "ptc_frames", "need at least 2 frames per PTC level")
-    _check(ptc_frames <= 26, "ptc_frames", "at most 26 frames per PTC level")
-    _check(n1 >= 1 and n2 >= 1, "n1/n2", "need at least one configuration and one frame")
-    _check(1 <= int(bits) <= 16, "bits", f"bit depth must be 1..16, got {bits}")
-    _check(A > 0 and read_noise_e >= 0 and sigma_K >= 0, "A/read_noise_e/sigma_K",
-           "A must be positive and the noise parameters non-negative")
-    _check(2 * scene_margin < min(w, h) - 2, "scene_margin", "margin leaves no ROI")
-    _check(len(scene_levels) >= 1 and all(0 < f < 1.5 for f in scene_levels), "scene_levels",
-           "give at least one scene level as a fraction of the usable range in (0, 1.5)")
+    _check_args(w, h, n_dark, ptc_frames, n1, n2, bits, A, read_noise_e, sigma_K, scene_margin,
+                scene_levels)
     fractions = _ptc_fractions(levels, ptc_range)
-    shape = (h, w)
-    model = SensorModel(A=float(A), read_noise_e=float(read_noise_e),
-                        dark_current_e=float(dark_current_dn) / float(A),
-                        dark_spatial_std=(float(dark_std_dn) / float(dark_current_dn)
-                                          if dark_current_dn > 0 else 0.0),
-                        sigma_K=float(sigma_K), bits=int(bits), black_level_dn=float(black_level_dn),
-                        full_well_e=None if full_well_e is None else float(full_well_e),
-                        q=1.0, exposure_ref=float(exposure))
-    fs = model.full_scale
-    K = model.draw_K(shape, child_rng(seed, "K"))
-    dark_e = model.dark_electrons(model.draw_dark_map(shape, child_rng(seed, "dark_map")), exposure)
-    dark_dn_map = dark_e * model.A + model.black_level_dn
-    # usable range: the ADC's full scale, or the full well if that is reached first
-    range_dn = float(fs) if model.full_well_e is None else min(
-        float(fs), model.full_well_e * model.A + model.black_level_dn)
-    # the simulated camera's electronic offset is known, so the manifest states it ([camera]
-    # black_level, DN): the photon-transfer fit then needs no dark-frame estimate of it
-    writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": int(bits),
-                                            "layout": "mono",
-                                            "black_level": float(model.black_level_dn)})
-    rig = _Rig(model, K, dark_e, child_rng(seed, "frame_noise"), range_dn,
-               float(dark_dn_map.mean()), shape, float(exposure), writer.add_frame)
-    dark_mean_dn = rig.dark_mean_dn
-
+    writer, rig, dark_dn_map = _camera(out_dir, seed, (h, w), A, read_noise_e, sigma_K, bits,
+                                       black_level_dn, dark_current_dn, dark_std_dn,
+                                       full_well_e, exposure)
     for i in range(n_dark):                     # dark frames (sec. V-A, eq. 43)
         rig.add(f"dark/dark_{i:03d}.tif", rig.expose(0.0), role="dark", exposure=exposure)
     ptc_truth = _ptc_levels(rig, seed, fractions, ptc_frames, illumination_std,
@@ -339,37 +397,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     max_truth = (None if max_intensity is None else
                  _max_intensity(rig, seed, float(max_intensity), illumination_std))
 
-    writer.add_map("truth/K.exr", K, name="K")
+    writer.add_map("truth/K.exr", rig.K, name="K")
     writer.add_map("truth/dark.exr", dark_dn_map, name="dark")
-
-    truth: dict[str, Any] = {
-        "preset": "healey94", "seed": int(seed), "size": [w, h],
-        "A": model.A, "sigma_c2": model.sigma_c2, "read_noise_e": model.read_noise_e,
-        "conversion_gain_e_per_dn": 1.0 / model.A, "q": model.q, "bits": model.bits,
-        "full_scale": fs, "usable_range_dn": range_dn, "black_level_dn": model.black_level_dn,
-        "full_well_e": model.full_well_e,
-        "exposure": float(exposure),
-        "dark_mean_dn": dark_mean_dn, "dark_std_dn": float(dark_dn_map.std()),
-        "dark_current_e": float(dark_e.mean()),
-        "dark_sigma2_dn": float(model.expected_variance(0.0, K, dark_e).mean()),
-        "sigma_K": model.sigma_K, "K_mean": float(K.mean()), "K_std": float(K.std(ddof=1)),
-        "s": int(n_dark), "n_dark": int(n_dark), "n1": int(n1), "n2": int(n2),
-        "ptc": ptc_truth,
-        "fixed_pattern": {"n1": int(n1), "n2": int(n2), "mean_dn": fp_means,
-                          "card_reflectance_std": float(card_reflectance_std),
-                          "outlier_fraction": float(outlier_fraction),
-                          "outlier_contrast": float(outlier_contrast),
-                          "illumination_std": float(illumination_std)},
-        "scene": {"layout": "one frame per (patch, level); the patch fills the frame; roi in the "
-                            "manifest and here; manifest key patch = 'NAME'",
-                  "patches": patch_truth},
-        "max_intensity": max_truth,
-        "K_map": "truth/K.exr", "dark_map": "truth/dark.exr",
-        "sensor": model.to_dict(),
-        "notes": {"mu": "eq. 36: pixel mean of A(K I + E_DC) + black level",
-                  "sigma2_N": "eqs. 35/28: pixel mean of A^2(K I + E_DC) + sigma_c2 "
-                              "= A(mu - black) + sigma_c2",
-                  "V_S": "eq. 57: sample variance / mean^2 of the ideal irradiance I over the ROI",
-                  "dark_map": "expected dark frame E_DC A + black level, DN"},
-    }
+    truth = _truth(rig, dark_dn_map, seed, w, h, n_dark, n1, n2, ptc_truth, fp_means,
+                   patch_truth, max_truth, card_reflectance_std, outlier_fraction,
+                   outlier_contrast, illumination_std)
     return writer.finish(truth, note=f"ccdcore simulate healey94 --seed {int(seed)} --size {w}x{h}")

@@ -129,7 +129,7 @@ simulate(out_dir, *, seed, size, **options)
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -478,6 +478,163 @@ def _options(options: dict[str, Any]) -> dict[str, Any]:
     return {**DEFAULTS, **_cam.CAMERAS[bundle], **options}
 
 
+def _scene(opts: dict[str, Any], rng: np.random.Generator, seed: int, shape: tuple[int, ...],
+           n_channels: int) -> tuple[NDArray[np.float32], dict[str, Any], NDArray | None, float]:
+    """The radiance E the camera sees (given, uniform or structured, times the vignetting),
+    the scene's description, the vignetting map (``None`` without) and its strength."""
+    scene: dict[str, Any] = {"kind": "uniform"}
+    if opts["radiance"] is not None:
+        E = np.asarray(opts["radiance"], dtype=np.float32)
+        if E.shape != shape:
+            raise CcdError("radiance", f"expected shape {shape}, got {E.shape}")
+        scene = {"kind": "given"}
+    elif opts["scene"] == "uniform":
+        E = uniform_radiance(rng, shape)
+    else:
+        # its own stream: the main generator's draws (white balance, noise) stay where they are
+        E, scene = _cam.structured_scene(np.random.default_rng([int(seed), 1]), shape)
+    vignetting = float(opts["vignetting"])
+    V = None
+    if vignetting > 0.0:
+        V = _cam.vignetting_map(shape, vignetting)
+        E = np.asarray(E, dtype=np.float64) * (V if n_channels == 1 else V[..., None])
+    E = np.asarray(E, dtype=np.float32)        # what is simulated is what truth/E.exr holds
+    return E, scene, V, vignetting
+
+
+def _camera_name(opts: dict[str, Any], camera_model: bool, jpeg: int | None) -> str:
+    """The manifest's camera name: the Bayer pattern and the camera model's main options."""
+    bayer = opts["bayer"]
+    name = "tsin01 simulated camera" + (f" (Bayer {bayer}, bilinear)" if bayer else "")
+    if camera_model:
+        name += "; " + ", ".join([f"{opts['tone']} tone", f"{opts['scene']} scene"]
+                                 + ([f"JPEG q{jpeg}"] if jpeg is not None else []))
+    return name
+
+
+@dataclass
+class _Shots:
+    """What the brackets were shot with, per stack: a_k, b_k, the exposure factors, the
+    frames' truth entries and the bloom masks' paths."""
+
+    a: list[Any] = field(default_factory=list)
+    b: list[Any] = field(default_factory=list)
+    eps: list[Any] = field(default_factory=list)
+    frames: list[dict[str, Any]] = field(default_factory=list)
+    bloom_paths: list[list[str]] = field(default_factory=list)
+
+
+def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDArray,
+                  rng: np.random.Generator, seed: int, opts: dict[str, Any], n_channels: int,
+                  camera_model: bool, gamma: float, noise: dict[str, float],
+                  engine: dict[str, Any]) -> _Shots:
+    """Every stack's bracket (sec. 4.1): its white balance, exposure errors and black level,
+    then one frame per exposure time (with its bloom mask when blooming)."""
+    bayer = opts["bayer"]
+    rnd = np.vectorize(round_sig, otypes=[np.float64])
+    eps_rng = np.random.default_rng([int(seed), 2])
+    shots = _Shots()
+    for j in range(int(opts["n_stacks"])):
+        a, b = white_balance(t, rng, enabled=bool(opts["white_balance"]), channels=n_channels,
+                             wb_sigma=float(opts["wb_sigma"]),
+                             offset_sigma=float(opts["offset_sigma"]))
+        eps = np.ones(t.size)
+        if float(opts["exposure_error"]) > 0.0:
+            eps = _cam.exposure_factors(eps_rng, t.size, float(opts["exposure_error"]))
+            a = rnd(a * (eps if n_channels == 1 else eps[:, None]))
+        if float(opts["black_level"]) > 0.0:
+            b = rnd(b + float(opts["black_level"]))
+        shots.a.append(a)
+        shots.b.append(b)
+        shots.eps.append(eps)
+        stack_blooms = []
+        for k in range(t.size):
+            shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
+                          blooming=bool(opts["blooming"]), bloom_radius=int(opts["bloom_radius"]),
+                          bloom_strength=float(opts["bloom_strength"]), **noise, **engine)
+            rel = f"bracket/s{j}_k{k:02d}.tif"
+            writer.add_frame(rel, shot.z, role="bracket", exposure=float(t[k]), stack=j)
+            entry = {"path": rel, "stack": j, "index": k, "exposure": float(t[k]),
+                     "a": a[k], "b": b[k]}
+            if camera_model:
+                entry["exposure_factor"] = float(eps[k])
+            shots.frames.append(entry)
+            if shot.bloom is not None:
+                mask_rel = f"truth/bloom_s{j}_k{k:02d}.png"
+                write_image(Path(out_dir) / mask_rel, shot.bloom)
+                stack_blooms.append(mask_rel)
+        shots.bloom_paths.append(stack_blooms)
+    return shots
+
+
+def _truth(opts: dict[str, Any], seed: int, width: int, height: int, tone: Any, gamma: float,
+           t: NDArray, noise: dict[str, float], shots: _Shots) -> dict[str, Any]:
+    """The truth of the sec. 4.1 protocol (with the bloom masks when blooming)."""
+    bayer = opts["bayer"]
+    truth: dict[str, Any] = {
+        "preset": "tsin01",
+        "paper": "Tsin, Ramesh & Kanade 2001, eq. 3 and sec. 4.1",
+        "seed": int(seed),
+        "size": [width, height],
+        "layout": opts["layout"],
+        "bayer": bayer,
+        "g": tone.table(),
+        "gamma": gamma if opts["tone"] == "gamma" else None,
+        "f": tone.describe(),
+        "t": t,
+        "ratio": float(opts["ratio"]),
+        "a": shots.a,
+        "b": shots.b,
+        "white_balance": bool(opts["white_balance"]),
+        "wb_sigma": float(opts["wb_sigma"]) if opts["white_balance"] else 0.0,
+        **noise,
+        "noise_model": "sigma^2(a, z) = sigma_s^2 a E + sigma_c1^2 + g'(z)^2 sigma_c2^2 (eq. 7)",
+        "shot_noise": SHOT_NOISE_NOTE,
+        "quantisation": QUANTISATION_NOTE,
+        "radiance_map": "E_effective" if bayer else "E",
+        "n_stacks": int(opts["n_stacks"]),
+        "frames": shots.frames,
+    }
+    if opts["blooming"]:
+        truth["blooming"] = {"radius": int(opts["bloom_radius"]),
+                             "strength": float(opts["bloom_strength"]),
+                             "labels": {"0": "clean", "1": "contaminated", "2": "saturated"},
+                             "masks": shots.bloom_paths}
+    return truth
+
+
+def _camera_model_truth(truth: dict[str, Any], opts: dict[str, Any], tone: Any,
+                        scene: dict[str, Any], vignetting: float, V: NDArray | None,
+                        shots: _Shots, jpeg: int | None) -> None:
+    """Add the camera model's keys to ``truth`` (module notes)."""
+    truth["camera_model"] = {
+        "bundle": opts["camera"],
+        "options": {k: opts[k] for k in DEFAULTS if k != "radiance"},
+        "pipeline": CAMERA_PIPELINE_NOTE,
+    }
+    truth["tone"] = tone.params()
+    truth["scene"] = scene
+    truth["vignetting"] = {"strength": vignetting,
+                           "law": "E = E_scene / (1 + s rho^2)^2, rho = 1 at the corners",
+                           "map": "truth/vignetting.exr" if V is not None else None}
+    truth["exposure_error"] = float(opts["exposure_error"])
+    truth["exposure_factor"] = shots.eps
+    truth["black_level"] = float(opts["black_level"])
+    truth["sharpen"] = {"amount": float(opts["sharpen"]), "sigma": _cam.SHARPEN_SIGMA}
+    truth["jpeg"] = None if jpeg is None else {"quality": jpeg, "model": _cam.JPEG_NOTE}
+
+
+def _note(opts: dict[str, Any], seed: int, camera_model: bool) -> str:
+    """The manifest's note."""
+    note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
+            "Truth in truth.json.")
+    if camera_model:
+        note = ("tsin01 simulation with a camera model"
+                + (f" (camera={opts['camera']!r})" if opts["camera"] else "")
+                + f", seed {int(seed)}.\nTruth in truth.json (camera_model, tone, scene ...).")
+    return note
+
+
 def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None = None,
              **options: Any) -> dict[str, Any]:
     """Write the ``tsin01`` session (sec. 4.1 of Tsin et al. 2001) and return its truth.
@@ -514,25 +671,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
     _check_options(opts, (width, height))
     camera_model = any(_differs(opts[k], DEFAULTS[k]) for k in CAMERA_OPTIONS)
     rng = np.random.default_rng(int(seed))
-    channels = 3 if opts["layout"] == "rgb" else 1
-    shape = (height, width) if channels == 1 else (height, width, 3)
-    scene: dict[str, Any] = {"kind": "uniform"}
-    if opts["radiance"] is not None:
-        E = np.asarray(opts["radiance"], dtype=np.float32)
-        if E.shape != shape:
-            raise CcdError("radiance", f"expected shape {shape}, got {E.shape}")
-        scene = {"kind": "given"}
-    elif opts["scene"] == "uniform":
-        E = uniform_radiance(rng, shape)
-    else:
-        # its own stream: the main generator's draws (white balance, noise) stay where they are
-        E, scene = _cam.structured_scene(np.random.default_rng([int(seed), 1]), shape)
-    vignetting = float(opts["vignetting"])
-    V = None
-    if vignetting > 0.0:
-        V = _cam.vignetting_map(shape, vignetting)
-        E = np.asarray(E, dtype=np.float64) * (V if channels == 1 else V[..., None])
-    E = np.asarray(E, dtype=np.float32)        # what is simulated is what truth/E.exr holds
+    n_channels = 3 if opts["layout"] == "rgb" else 1
+    shape = (height, width) if n_channels == 1 else (height, width, 3)
+    E, scene, V, vignetting = _scene(opts, rng, seed, shape, n_channels)
     bayer = opts["bayer"]
     t = exposure_times(opts["n_exposures"], opts["ratio"], opts["t_max"])
     gamma = float(opts["gamma"])
@@ -544,103 +685,20 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
     engine = {"tone": None if opts["tone"] == "gamma" else tone,
               "sharpen": float(opts["sharpen"]), "jpeg_quality": jpeg}
 
-    name = "tsin01 simulated camera" + (f" (Bayer {bayer}, bilinear)" if bayer else "")
-    if camera_model:
-        name += "; " + ", ".join([f"{opts['tone']} tone", f"{opts['scene']} scene"]
-                                 + ([f"JPEG q{jpeg}"] if jpeg is not None else []))
-    camera = {"name": name, "bits": 8, "layout": opts["layout"]}
+    camera = {"name": _camera_name(opts, camera_model, jpeg), "bits": 8,
+              "layout": opts["layout"]}
     writer = SessionWriter(out_dir, camera)
     writer.add_map("truth/E.exr", E)
     if bayer:
         writer.add_map("truth/E_effective.exr", effective_radiance(E, bayer))
     if V is not None:
         writer.add_map("truth/vignetting.exr", V)
-    rnd = np.vectorize(round_sig, otypes=[np.float64])
-    eps_rng = np.random.default_rng([int(seed), 2])
-    a_all, b_all, eps_all, frames, bloom_paths = [], [], [], [], []
-    for j in range(int(opts["n_stacks"])):
-        a, b = white_balance(t, rng, enabled=bool(opts["white_balance"]), channels=channels,
-                             wb_sigma=float(opts["wb_sigma"]),
-                             offset_sigma=float(opts["offset_sigma"]))
-        eps = np.ones(t.size)
-        if float(opts["exposure_error"]) > 0.0:
-            eps = _cam.exposure_factors(eps_rng, t.size, float(opts["exposure_error"]))
-            a = rnd(a * (eps if channels == 1 else eps[:, None]))
-        if float(opts["black_level"]) > 0.0:
-            b = rnd(b + float(opts["black_level"]))
-        a_all.append(a)
-        b_all.append(b)
-        eps_all.append(eps)
-        stack_blooms = []
-        for k in range(t.size):
-            shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
-                          blooming=bool(opts["blooming"]), bloom_radius=int(opts["bloom_radius"]),
-                          bloom_strength=float(opts["bloom_strength"]), **noise, **engine)
-            rel = f"bracket/s{j}_k{k:02d}.tif"
-            writer.add_frame(rel, shot.z, role="bracket", exposure=float(t[k]), stack=j)
-            entry = {"path": rel, "stack": j, "index": k, "exposure": float(t[k]),
-                     "a": a[k], "b": b[k]}
-            if camera_model:
-                entry["exposure_factor"] = float(eps[k])
-            frames.append(entry)
-            if shot.bloom is not None:
-                mask_rel = f"truth/bloom_s{j}_k{k:02d}.png"
-                write_image(Path(out_dir) / mask_rel, shot.bloom)
-                stack_blooms.append(mask_rel)
-        bloom_paths.append(stack_blooms)
-
-    truth: dict[str, Any] = {
-        "preset": "tsin01",
-        "paper": "Tsin, Ramesh & Kanade 2001, eq. 3 and sec. 4.1",
-        "seed": int(seed),
-        "size": [width, height],
-        "layout": opts["layout"],
-        "bayer": bayer,
-        "g": tone.table(),
-        "gamma": gamma if opts["tone"] == "gamma" else None,
-        "f": tone.describe(),
-        "t": t,
-        "ratio": float(opts["ratio"]),
-        "a": a_all,
-        "b": b_all,
-        "white_balance": bool(opts["white_balance"]),
-        "wb_sigma": float(opts["wb_sigma"]) if opts["white_balance"] else 0.0,
-        **noise,
-        "noise_model": "sigma^2(a, z) = sigma_s^2 a E + sigma_c1^2 + g'(z)^2 sigma_c2^2 (eq. 7)",
-        "shot_noise": SHOT_NOISE_NOTE,
-        "quantisation": QUANTISATION_NOTE,
-        "radiance_map": "E_effective" if bayer else "E",
-        "n_stacks": int(opts["n_stacks"]),
-        "frames": frames,
-    }
-    if opts["blooming"]:
-        truth["blooming"] = {"radius": int(opts["bloom_radius"]),
-                             "strength": float(opts["bloom_strength"]),
-                             "labels": {"0": "clean", "1": "contaminated", "2": "saturated"},
-                             "masks": bloom_paths}
+    shots = _shoot_stacks(writer, out_dir, E, t, rng, seed, opts, n_channels, camera_model,
+                          gamma, noise, engine)
+    truth = _truth(opts, seed, width, height, tone, gamma, t, noise, shots)
     if camera_model:
-        truth["camera_model"] = {
-            "bundle": opts["camera"],
-            "options": {k: opts[k] for k in DEFAULTS if k != "radiance"},
-            "pipeline": CAMERA_PIPELINE_NOTE,
-        }
-        truth["tone"] = tone.params()
-        truth["scene"] = scene
-        truth["vignetting"] = {"strength": vignetting,
-                               "law": "E = E_scene / (1 + s rho^2)^2, rho = 1 at the corners",
-                               "map": "truth/vignetting.exr" if V is not None else None}
-        truth["exposure_error"] = float(opts["exposure_error"])
-        truth["exposure_factor"] = eps_all
-        truth["black_level"] = float(opts["black_level"])
-        truth["sharpen"] = {"amount": float(opts["sharpen"]), "sigma": _cam.SHARPEN_SIGMA}
-        truth["jpeg"] = None if jpeg is None else {"quality": jpeg, "model": _cam.JPEG_NOTE}
-    note = (f"tsin01 simulation (Tsin, Ramesh & Kanade 2001, sec. 4.1), seed {int(seed)}.\n"
-            "Truth in truth.json.")
-    if camera_model:
-        note = ("tsin01 simulation with a camera model"
-                + (f" (camera={opts['camera']!r})" if opts["camera"] else "")
-                + f", seed {int(seed)}.\nTruth in truth.json (camera_model, tone, scene ...).")
-    return writer.finish(truth, note=note, exact=("g",))
+        _camera_model_truth(truth, opts, tone, scene, vignetting, V, shots, jpeg)
+    return writer.finish(truth, note=_note(opts, seed, camera_model), exact=("g",))
 
 
 def _differs(value: Any, default: Any) -> bool:

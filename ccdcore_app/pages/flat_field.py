@@ -224,6 +224,13 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     # ================================================================ building the widgets ====
     def _build_widgets(self) -> None:
+        self._build_setup_widgets()
+        self._build_pair_widgets()
+        self._build_analysis_widgets()
+        self._build_content()
+
+    def _build_setup_widgets(self) -> None:
+        """The alerts, the setting, base image and channel choices, the correction's tables."""
         self._build_alerts("flat")
         self.zero_alert = pn.pane.Alert("", alert_type="warning", visible=False,
                                         sizing_mode="stretch_width",
@@ -245,7 +252,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.flag_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
 
-        # before / after
+    def _build_pair_widgets(self) -> None:
+        """Before and after: the frame choice, the SNUP table, the two linked views."""
         self.frame_select = pn.widgets.Select.from_param(
             self.param.frame, label="Frame (any flat of the setting)", sizing_mode="stretch_width")
         self.snup_title = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
@@ -267,6 +275,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                                         "before and after correction.",
                                         sizing_mode="stretch_width", css_classes=["ccd-readout"])
 
+    def _build_analysis_widgets(self) -> None:
+        """The analyses: the G and O maps, averaging, linearity, study, settings, K̂."""
         # maps
         self.g_view = _image_view("viridis", "G", "ccd-flat-gmap")
         self.o_view = _image_view("magma", "O (DN)", "ccd-flat-omap", link=self.g_view)
@@ -301,6 +311,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.kmap_alert = pn.pane.Alert("", alert_type="info", visible=False,
                                         sizing_mode="stretch_width")
 
+    def _build_content(self) -> None:
+        """The page's content: the correction, before and after, the analyses' tabs, notes."""
         setup = pn.Card(
             pn.FlexBox(self.setting_select, self.base_select, self.channel_select,
                        sizing_mode="stretch_width"),

@@ -26,15 +26,14 @@ for a fit it still shows the levels measured by ``ptc_points``. The fit and the 
 through ``state.results.ptc`` and ``state.results.ptc_points``; the measured levels at an ROI
 are kept on disk (``AppState.cached_compute``, keyed by the session's content and the ROI), so a
 session opened again shows them without reading its frames. The plots come from
-:mod:`ccdcore_report.ptc` (shared with the report) and :mod:`ccdcore_app.plots`.
+:mod:`ccdcore_report.ptc` (shared with the report) and :mod:`ccdcore_app.plots`; the frame preview
+under the ROI is :class:`ccdcore_app.frame_preview.FramePreview` (shared with the Session page).
 """
 from __future__ import annotations
 
-import asyncio
 import dataclasses
 import logging
 import math
-import traceback
 from typing import Any, Sequence
 
 import numpy as np
@@ -50,11 +49,10 @@ from ccdcore.session import FrameRecord, Session
 
 from ccdcore_report import ptc as ptc_plots
 
-from .. import plots, tiles
+from .. import plots
 from ..cache import photon_transfer_entry
-from ..image_view import ImageView
-from ..latest import Latest
-from ..tiles import FramePyramid, TiledPlane
+from ..frame_preview import FramePreview
+from ..tiles import TiledPlane
 from ..state import AppState
 from ..batch import batched
 from ._choices import set_choices
@@ -194,7 +192,6 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.error = ""          # the page's current problem ('' when none)
         self._session: Session | None = None   # the session the page shows
         self._fit_error = ""     # why the measured points have no fit (shown by the next fit)
-        self._previews = Latest()               # frame preview requests (newest wins)
         self._records: dict[str, FrameRecord] = {}
         self._build_widgets()
         self.state.param.watch(self._on_session, "session")
@@ -267,15 +264,14 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         self.full_frame_button = pn.widgets.Button(label="Full frame", color="light")
         self.full_frame_button.on_click(self._on_full_frame)
         self.roi_status = pn.pane.Markdown("", sizing_mode="stretch_width")
-        self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                           sizing_mode="stretch_width")
-        # built once (plain Bokeh): another frame replaces its data; a drawn box fills the
-        # inputs, the inputs move the outline
-        self.preview_view = ImageView(frame_width=560, max_frame_height=560, select=True,
-                                      css_classes=["ccd-ptc-preview"])
-        self.preview_view.on_box = self._on_bounds
-        self.preview_pane = pn.Column(pn.pane.Bokeh(self.preview_view.figure), margin=0,
-                                      visible=False)   # (see the Session page's image_pane)
+        # the frame preview (ccdcore_app.frame_preview), built once (plain Bokeh): another
+        # frame replaces its data; a drawn box fills the inputs, the inputs move the outline
+        self.preview = FramePreview(frame_width=560, max_frame_height=560,
+                                    css_class="ccd-ptc-preview", select=True,
+                                    on_box=self._on_bounds)
+        self.preview_alert = self.preview.alert
+        self.preview_view = self.preview.view
+        self.preview_pane = self.preview.image_pane
         for widget in (self.x_input, self.y_input, self.w_input, self.h_input):
             widget.param.watch(self._on_roi_inputs, "value")
 
@@ -571,63 +567,38 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         bottom = min(max(int(math.floor(max(y0, y1))) + 1, top + 1), h_img)
         self._reset_roi_inputs((left, top, right - left, bottom - top))
 
-    @staticmethod
-    def _read(session: Session, rec: FrameRecord
-              ) -> tuple[np.ndarray | TiledPlane | None, str]:
-        """The frame's own pixel grid to preview (a raw mosaic as it is, the luminance of
-        colour): read whole, or for a large frame its pyramid (:mod:`ccdcore_app.tiles`: read by the
-        region)."""
-        try:
-            if tiles.needs_tiles(session.header_or_none(rec), None):
-                return FramePyramid.open(rec.path, None).plane(), ""
-            return plots.channel_data(session.read(rec)), ""
-        except CcdError as err:
-            return None, str(err)
-        except Exception as err:  # unforeseen: still an alert, not a crash
-            log.error("reading %s failed:\n%s", rec.path, traceback.format_exc())
-            return None, f"{rec.relpath}: unexpected error: {type(err).__name__}: {err}"
-
     async def _on_frame(self, event: Any = None) -> None:
-        """Show the chosen ptc frame with the ROI box (read in a worker thread)."""
+        """Show the chosen ptc frame with the ROI box (read in a worker thread): its own pixel
+        grid (a raw mosaic as it is, the luminance of colour), read whole or, for a large
+        frame, from its pyramid (:mod:`ccdcore_app.tiles`: read by the region)."""
         session, rec = self.state.session, self._records.get(self.frame)
         if session is None or rec is None:
-            self._clear_preview()
+            self.preview.clear()
             return
-        request = self._previews.next()
-        self.preview_pane.loading = True
-        try:
-            array, error = await asyncio.to_thread(self._read, session, rec)
-        finally:
-            if self._previews.is_current(request):
-                self.preview_pane.loading = False
-        if not self._previews.is_current(request) or session is not self.state.session:
+        read = await self.preview.fetch(session, rec, plane=True, spinner=self.preview_pane)
+        if read is None or session is not self.state.session:
             return
-        if array is None:
-            self._clear_preview()
-            self.preview_alert.param.update(object=f"**Cannot preview the frame:** {error}",
-                                            visible=True)
+        plane, error = read
+        if plane is None:
+            self.preview.clear()
+            self.preview.fail(error)
             return
-        self._show_preview(array, rec.relpath)
+        self._show_preview(plane, rec.relpath)
 
     @batched
     def _show_preview(self, plane: np.ndarray | TiledPlane, title: str) -> None:
         """The frame's own pixel grid (luminance of colour), the ROI outlined on it."""
-        self.preview_alert.visible = False
+        self.preview.hide_error()
         clim = plots.auto_clim(plane.coarse() if isinstance(plane, TiledPlane) else plane)
-        self.preview_view.show(plane, clim=clim, title=title, how="mean")
-        self.preview_view.set_box(self._pending_roi())
-        self.preview_pane.visible = True
-
-    def _clear_preview(self) -> None:
-        self.preview_view.show(None)
-        self.preview_pane.visible = False
+        self.preview.show(plane, clim, title)
+        self.preview.set_box(self._pending_roi())
 
     def release(self) -> None:
         """The browser session ended: drop the frame shown (no redraw)."""
-        self.preview_view.release()
+        self.preview.release()
 
     def _on_roi_inputs(self, event: Any = None) -> None:
-        self.preview_view.set_box(self._pending_roi())
+        self.preview.set_box(self._pending_roi())
 
 
 def create_page(state: AppState) -> PhotonTransferPage:

@@ -23,7 +23,8 @@ inferred_summary(session)
     Which metadata keys were inferred, from what, for how many frames.
 
 Widgets call ccdcore (``open_session``, ``Session.read``, ``draft_manifest``); the plots come from
-:mod:`ccdcore_app.plots`. A mono or colour frame larger than :func:`ccdcore_app.tiles.tile_threshold` pixels is
+:mod:`ccdcore_app.plots`; the frame preview's figures, error alert and reading are
+:class:`ccdcore_app.frame_preview.FramePreview` (shared with the Photon transfer page). A mono or colour frame larger than :func:`ccdcore_app.tiles.tile_threshold` pixels is
 not read whole: it is previewed from a pyramid of block means on disk (:mod:`ccdcore_app.tiles`, built
 once per file in bands of rows), each zoom reading only the visible region of the level that
 fits it, and its histogram and automatic colour range come from a level of about a megapixel. Long work (opening a session, reading a frame) runs in a worker thread from
@@ -31,9 +32,7 @@ async callbacks, so the page stays responsive, with a progress bar or loading sp
 """
 from __future__ import annotations
 
-import asyncio
 import logging
-import traceback
 from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -48,8 +47,8 @@ from ccdcore.common import format_size
 from ccdcore.errors import CcdError
 from ccdcore.session import DRAFT_NAME, FrameRecord, Session, draft_manifest
 
-from .. import plots, tiles
-from ..latest import Latest
+from .. import plots
+from ..frame_preview import FramePreview
 from ..image_view import HistogramView, ImageView
 from ..tiles import FramePyramid, TiledPlane
 from ..state import AppState, assets_dir, demo_sessions
@@ -246,10 +245,8 @@ class SessionPage(pn.viewable.Viewer):
         self._planes: dict[str, np.ndarray] = {}  # its channel choices (none when mono)
         self._plane: np.ndarray | TiledPlane | None = None   # its shown channel (2-D)
         self._tiled: FramePyramid | None = None   # the previewed frame, when large (ccdcore_app.tiles)
-        self._frames = Latest()                   # preview requests (older ones drop)
         self._layout: pn.Column | None = None
         self._preview_holder: pn.Column | None = None   # the preview card's body (deferred)
-        self._pending_draw: tuple | None = None   # what the figures show once built
         self._build_open_widgets()
         self._build_session_widgets()
         self._build_preview_widgets()
@@ -373,69 +370,54 @@ class SessionPage(pn.viewable.Viewer):
         self.frame_info = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.readout = pn.pane.Markdown("Move the cursor over the image to read pixel values.",
                                         css_classes=["ccd-readout"], sizing_mode="stretch_width")
-        self.preview_alert = pn.pane.Alert("", alert_type="danger", visible=False,
-                                           sizing_mode="stretch_width",
-                                           css_classes=["ccd-preview-error"])
         self.clim_slider.param.watch(self._on_clim, "value")
-        # the figures and the preview's layout: built when first needed (the first frame shown,
-        # after the first view's HTML went out), then kept
-        self._views: tuple[ImageView, HistogramView, pn.Column, pn.Column, pn.Column] | None = \
-            None
-
-    def _build_preview_views(self) -> tuple[ImageView, HistogramView, pn.Column, pn.Column,
-                                            pn.Column]:
-        if self._views is not None:
-            return self._views
-        # built once (plain Bokeh): another frame or channel replaces their data
-        image_view = ImageView(frame_width=760, max_frame_height=640,
-                                    css_classes=["ccd-image"])
-        image_view.on_pointer = lambda x, y: self._on_pointer(x=x, y=y)
-        hist_view = HistogramView(height=240, css_classes=["ccd-histogram"])
-        # (shown with a frame; visibility goes on a Column around a Bokeh pane: setting it on
-        # the pane makes Panel copy the figure's stylesheets into the pane, which fails)
-        image_pane = pn.Column(pn.pane.Bokeh(image_view.figure), margin=0, visible=False)
-        hist_pane = pn.Column(pn.pane.Bokeh(hist_view.figure, height=240,
-                                            sizing_mode="stretch_width"),
-                              sizing_mode="stretch_width", margin=0, visible=False)
-        body = pn.Column(
-            self.frame_select, self.channel_select,
-            pn.Row(self.clim_slider, self.auto_button, sizing_mode="stretch_width"),
-            self.preview_alert, self.frame_info, image_pane, self.readout, hist_pane,
-            sizing_mode="stretch_width")
-        self._views = (image_view, hist_view, image_pane, hist_pane, body)
-        if self._pending_draw is not None:   # a frame chosen before the preview was shown
-            plane, _, title, hist, hist_title = self._pending_draw
-            self._draw(plane, tuple(self.clim_slider.value), title, hist, hist_title)
-        return self._views
+        # the figures (image and histogram, built once: another frame or channel replaces
+        # their data), the error alert and the reading (ccdcore_app.frame_preview); the figures
+        # and the preview's layout are built when first needed (the first frame shown, after
+        # the first view's HTML went out), then kept
+        self.preview = FramePreview(
+            frame_width=760, max_frame_height=640, css_class="ccd-image",
+            histogram="ccd-histogram", error_css_classes=["ccd-preview-error"],
+            on_pointer=lambda x, y: self._on_pointer(x=x, y=y), lazy=True)
+        self.preview_alert = self.preview.alert
+        self._body: pn.Column | None = None
 
     @property
     def image_view(self) -> ImageView:
         """The previewed frame's figure (built on first use)."""
-        return self._build_preview_views()[0]
+        return self.preview.view
 
     @property
     def hist_view(self) -> HistogramView:
         """The previewed frame's histogram (built on first use)."""
-        return self._build_preview_views()[1]
+        return self.preview.hist_view  # type: ignore[return-value]
 
     @property
     def image_pane(self) -> pn.Column:
-        return self._build_preview_views()[2]
+        return self.preview.image_pane
 
     @property
     def hist_pane(self) -> pn.Column:
-        return self._build_preview_views()[3]
+        return self.preview.hist_pane  # type: ignore[return-value]
 
     @property
     def preview_body(self) -> pn.Column:
         """The Frame preview card's content (built on first use)."""
-        return self._build_preview_views()[4]
+        if self._body is None:
+            self._body = pn.Column(
+                self.frame_select, self.channel_select,
+                pn.Row(self.clim_slider, self.auto_button, sizing_mode="stretch_width"),
+                self.preview_alert, self.frame_info, self.preview.image_pane, self.readout,
+                self.preview.hist_pane, sizing_mode="stretch_width")
+        return self._body
 
     # ================================================================== layout =============
     def __panel__(self) -> pn.viewable.Viewable:
         """The page layout (built once, so leaving and revisiting the page keeps it as is)."""
         if self._layout is None:
             self._layout = self._build_layout()
+            # the preview is below the fold: what it shows waits until it is built
+            self.preview.deferred = True
         return self._layout
 
     def _build_layout(self) -> pn.Column:
@@ -653,51 +635,25 @@ class SessionPage(pn.viewable.Viewer):
     def _clear_preview(self, message: str = "") -> None:
         self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
-        self._pending_draw = None
-        if self._views is not None:
-            self.image_view.show(None)
-            self.hist_view.show(None)
-            self.image_pane.visible = self.hist_pane.visible = False
+        self.preview.clear()
         self.frame_info.object = message
         self.channel_select.visible = False
-
-    @staticmethod
-    def _read(session: Session, rec: FrameRecord
-              ) -> tuple[np.ndarray | FramePyramid | None, str]:
-        """Read a frame, or open the pyramid of a large one (worker thread); the error message
-        instead of raising."""
-        try:
-            layout = session.camera.layout
-            if tiles.needs_tiles(session.header_or_none(rec), layout):
-                return FramePyramid.open(rec.path, layout), ""
-            return session.read(rec), ""
-        except CcdError as err:
-            return None, str(err)
-        except Exception as err:  # unreadable in an unforeseen way: still an alert, not a crash
-            log.error("reading %s failed:\n%s", rec.path, traceback.format_exc())
-            return None, f"{rec.relpath}: unexpected error: {type(err).__name__}: {err}"
 
     async def _on_frame(self, event: Any = None) -> None:
         session, rec = self.state.session, self._records.get(self.frame)
         if session is None or rec is None:
             self._clear_preview()
             return
-        request = self._frames.next()
-        if self._views is not None:
-            self.preview_body.loading = True
-        try:
-            array, error = await asyncio.to_thread(self._read, session, rec)
-        finally:
-            if self._frames.is_current(request) and self._views is not None:
-                self.preview_body.loading = False
-        if not self._frames.is_current(request):  # a newer frame was chosen meanwhile
+        read = await self.preview.fetch(
+            session, rec, spinner=self.preview_body if self.preview.built else None)
+        if read is None:  # a newer frame was chosen meanwhile
             return
+        array, error = read
         if array is None:
             self._clear_preview()
-            self.preview_alert.object = f"**Cannot preview the frame:** {error}"
-            self.preview_alert.visible = True
+            self.preview.fail(error)
             return
-        self.preview_alert.visible = False
+        self.preview.hide_error()
         if isinstance(array, FramePyramid):
             self._show_pyramid(array, rec)
             return
@@ -705,8 +661,7 @@ class SessionPage(pn.viewable.Viewer):
             planes = plots.channel_planes(array, session.camera.layout)
         except ValueError as err:
             self._clear_preview()
-            self.preview_alert.object = f"**Cannot preview the frame:** {rec.relpath}: {err}"
-            self.preview_alert.visible = True
+            self.preview.fail(f"{rec.relpath}: {err}")
             return
         if planes:
             channel = self.channel if self.channel in planes else \
@@ -759,20 +714,8 @@ class SessionPage(pn.viewable.Viewer):
             + f", {_size(array.shape)} px {array.dtype}{channel}; "
             f"min {lo:g}, max {hi:g}, mean {float(np.mean(finite)) if finite.size else 0:g} DN")
         clim = self.clim_slider.value
-        self._draw(plane, clim, Path(rec.relpath).name, plane, "Histogram")
+        self.preview.show(plane, clim, Path(rec.relpath).name, plane, "Histogram")
         self.readout.object = "Move the cursor over the image to read pixel values."
-
-    def _draw(self, plane: Any, clim: Any, title: str, hist: Any, hist_title: str) -> None:
-        """Show ``plane`` and the histogram of ``hist`` in the figures; while the preview is not
-        in the page yet (the first view), only remember them: the figures are built and drawn
-        when it comes into view (:meth:`show_preview`)."""
-        if self._views is None and self._layout is not None:
-            self._pending_draw = (plane, clim, title, hist, hist_title)
-            return
-        self._pending_draw = None
-        self.image_view.show(plane, clim=clim, title=title, how="mean")
-        self.hist_view.show(hist, clim, title=hist_title)
-        self.image_pane.visible = self.hist_pane.visible = True
 
     def _show_tiled(self, rec: FrameRecord, pyramid: FramePyramid) -> None:
         """:meth:`_show_plane` for a large frame: the view reads its pyramid by the region; the
@@ -803,8 +746,8 @@ class SessionPage(pn.viewable.Viewer):
             f"each zoom reading only what it shows; histogram and automatic range of the "
             f"{f}×{f} px block means.")
         clim = self.clim_slider.value
-        self._draw(plane, clim, Path(rec.relpath).name, coarse,
-                   f"Histogram of {f}×{f} px block means")
+        self.preview.show(plane, clim, Path(rec.relpath).name, coarse,
+                          f"Histogram of {f}×{f} px block means")
         self.readout.object = "Move the cursor over the image to read pixel values."
 
     def _on_pointer(self, x: float | None = None, y: float | None = None) -> None:
@@ -827,18 +770,14 @@ class SessionPage(pn.viewable.Viewer):
 
     def release(self) -> None:
         """The browser session ended: drop the frame shown (no redraw)."""
-        if self._views is not None:
-            self.image_view.release()
-        self._pending_draw = None
+        self.preview.release()
         self._array = self._plane = self._shown = self._tiled = None
         self._planes = {}
         if self._product_panel is not None:
             self._product_panel.release()
 
     def _on_clim(self, event: Any) -> None:
-        if self._views is not None:   # (else the first show draws it with this range)
-            self.image_view.set_clim(event.new)
-            self.hist_view.set_band(event.new)
+        self.preview.set_clim(event.new)   # (not built: the first show draws with this range)
 
     def _set_clim(self, clim: tuple[float, float]) -> None:
         """Set the colour range in two steps, widening first.

@@ -1,0 +1,143 @@
+"""FITS through :mod:`astropy.io.fits` for :mod:`ccdcore.io`: the header, the pixels whole or a
+region's rows, and the HDU a write stores.
+
+FITS goes through astropy rather than OpenImageIO because OpenImageIO's FITS plugin ignores
+``BZERO``/``BSCALE``: the standard unsigned 16-bit FITS frame of astronomical cameras
+(``BITPIX = 16``, ``BZERO = 32768``) would be read as signed and wrong.
+"""
+from __future__ import annotations
+
+import contextlib
+import warnings
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import CcdError, ImageReadError, ImageWriteError
+from .io_base import LAYOUTS, ImageHeader, float_or_none, int_or, one_line
+
+__all__ = ["fits_header", "read_fits", "read_fits_region", "fits_to_write"]
+
+
+# ---- reading --------------------------------------------------------------------------------
+def _fits_hdu(path: Path):
+    """Open a FITS file and return ``(hdul, hdu)`` for the first HDU holding an image."""
+    from astropy.io import fits
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            hdul = fits.open(path, memmap=False, lazy_load_hdus=False)
+    except Exception as exc:  # astropy raises OSError/ValueError/TypeError for bad files
+        raise ImageReadError(path, f"cannot read FITS file: {one_line(str(exc))}") from None
+    for hdu in hdul:
+        if getattr(hdu, "is_image", False) and int_or(hdu.header.get("NAXIS"), 0) >= 2:
+            return hdul, hdu
+    hdul.close()
+    raise ImageReadError(path, "FITS file holds no 2-D image")
+
+
+def _fits_dtype(header, path: Path | None = None) -> np.dtype:
+    bitpix = int_or(header.get("BITPIX"), 0)
+    bzero = header.get("BZERO", 0)
+    bscale = header.get("BSCALE", 1)
+    if bscale == 1 and bitpix == 16 and bzero == 32768:
+        return np.dtype("uint16")
+    if bscale == 1 and bitpix == 32 and bzero == 2**31:
+        return np.dtype("uint32")
+    if bscale == 1 and bitpix == 8:
+        return np.dtype("uint8")
+    table = {16: "int16", 32: "int32", 64: "int64", -32: "float32", -64: "float64"}
+    if bitpix not in table and bitpix != 8:
+        raise ImageReadError(path, f"FITS BITPIX = {header.get('BITPIX')!r} is not a FITS "
+                                   "sample type")
+    if bscale != 1 or bzero != 0:
+        return np.dtype("float32")
+    return np.dtype(table[bitpix])
+
+
+def fits_header(path: Path) -> ImageHeader:
+    hdul, hdu = _fits_hdu(path)
+    try:
+        h = hdu.header
+        naxis = int_or(h.get("NAXIS"), 0)
+        width, height = int_or(h.get("NAXIS1"), 0), int_or(h.get("NAXIS2"), 0)
+        channels = int_or(h.get("NAXIS3"), 0) if naxis >= 3 else 1
+        dtype = _fits_dtype(h, path)
+        exposure = float_or_none(h.get("EXPTIME", h.get("EXPOSURE")))
+        bits = int_or(h.get("BITDEPTH", h.get("ADCBITS")), dtype.itemsize * 8)
+        attrs = {k: v for k, v in h.items() if isinstance(v, (str, int, float)) and k}
+        return ImageHeader(path=path, width=width, height=height, channels=channels, dtype=dtype,
+                           bits=bits, layout=LAYOUTS.get(channels, f"{channels}-channel"),
+                           exposure=exposure, gain=float_or_none(h.get("GAIN", h.get("EGAIN"))),
+                           temperature=float_or_none(h.get("CCD-TEMP", h.get("CCDTEMP"))),
+                           format="fits", attributes=attrs)
+    finally:
+        hdul.close()
+
+
+@contextlib.contextmanager
+def _fits_data(path: Path) -> Iterator[None]:
+    """Quietly read FITS pixels: any failure becomes one :class:`ImageReadError` naming ``path``."""
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            yield
+    except CcdError:
+        raise
+    except Exception as exc:  # astropy/numpy raise many kinds for short or corrupt data
+        raise ImageReadError(path, f"truncated or corrupt FITS data ({one_line(str(exc))})"
+                             ) from None
+
+
+def _fits_to_hwc(data, header: ImageHeader) -> np.ndarray:
+    data = np.asarray(data)
+    if data.ndim == 3:  # FITS cubes are (C, H, W)
+        data = np.moveaxis(data, 0, -1)
+    return np.ascontiguousarray(data).astype(header.dtype, copy=False)
+
+
+def read_fits(path: Path, header: ImageHeader) -> np.ndarray:
+    hdul, hdu = _fits_hdu(path)
+    try:
+        with _fits_data(path):
+            return _fits_to_hwc(hdu.data, header)
+    finally:
+        hdul.close()
+
+
+def read_fits_region(path: Path, header: ImageHeader, box) -> np.ndarray:
+    """Read ``box`` through astropy's ``section``, which reads only the rows it needs."""
+    x, y, w, h = box
+    hdul, hdu = _fits_hdu(path)
+    try:
+        lead = (slice(None),) * (int_or(hdu.header.get("NAXIS"), 2) - 2)
+        with _fits_data(path):
+            return _fits_to_hwc(hdu.section[lead + (slice(y, y + h), slice(x, x + w))], header)
+    finally:
+        hdul.close()
+
+
+# ---- writing --------------------------------------------------------------------------------
+def fits_to_write(path: Path, a: np.ndarray, *, exposure, bits, attributes):
+    """The FITS HDU for ``a`` and its keywords, or :class:`ImageWriteError`."""
+    from astropy.io import fits
+
+    data = a[:, :, 0] if a.shape[2] == 1 else np.moveaxis(a, -1, 0)
+    if data.dtype == np.float16:
+        data = data.astype(np.float32)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            hdu = fits.PrimaryHDU(np.ascontiguousarray(data))
+            if exposure is not None:
+                hdu.header["EXPTIME"] = (float(exposure), "exposure time [s]")
+            if bits is not None:
+                hdu.header["BITDEPTH"] = (int(bits), "significant ADC bits")
+            for key, value in (attributes or {}).items():
+                hdu.header[str(key)[:8].upper()] = value
+    except Exception as exc:  # astropy raises ValueError/TypeError/KeyError for bad keywords
+        raise ImageWriteError(path, f"cannot make the FITS header: {one_line(str(exc))}"
+                              ) from None
+    return hdu
