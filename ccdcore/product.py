@@ -30,7 +30,7 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Union
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping, Union
 
 import numpy as np
 
@@ -52,6 +52,9 @@ from .progress import Progress, Steps
 from .reduce import STREAMED, Reducer
 from .scene import SceneVariation
 from .session import MAX_INTENSITY, Camera, Session, open_session
+
+if TYPE_CHECKING:      # imported where a response is estimated (numba's kernels load then)
+    from .response.methods import ResponseResult
 
 __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
@@ -618,7 +621,7 @@ class Estimates:
     scene: dict[str, SceneVariation] | None = None
     correction_check: CorrectionCheck | None = None
     flat: FlatField | None = None
-    response: Any = None
+    response: ResponseResult | None = None
     skipped: tuple[Skipped, ...] = ()
     emva1288: EmvaFigures | None = None
 
