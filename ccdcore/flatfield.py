@@ -75,11 +75,15 @@ KMapComparison, compare_with_k_map(session, ...)
     G/O against Healey–Kondepudy's K̂ on the same uniform-field data.
 NOISE_LIMIT, WINDOW, ZERO_LIMIT
     Defaults of the flag rule and of the zero-dark warning.
+
+The results (FlatChannel, FlatField, BaseRecommendation, BaseStudy, ZeroDark, SettingsComparison,
+KMapComparison), correct and the three defaults are defined in :mod:`ccdcore.flatfield_results`
+and re-exported here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -90,7 +94,9 @@ from .channels import channel_names, channel_slices, check_layout, split_channel
 from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
-from .map_names import MapName
+from .flatfield_results import (NOISE_LIMIT, WINDOW, ZERO_LIMIT, BaseRecommendation, BaseStudy,
+                                FlatChannel, FlatField, KMapComparison, SettingsComparison,
+                                ZeroDark, correct)
 from .reduce import STREAMED, Reducer
 from .stats import MomentsResult, PixelMoments
 from .uniformity import Linearity, linearity, snup
@@ -100,141 +106,10 @@ __all__ = ["FlatChannel", "FlatField", "flat_field", "flat_field_from_session", 
            "zero_dark", "SettingsComparison", "compare_dark_settings", "KMapComparison",
            "compare_with_k_map", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
 
-#: c of the flag rule Δ <= c·σ_Δ
-NOISE_LIMIT = 5.0
-#: side of the neighbourhood giving G at flagged pixels
-WINDOW = 9
-#: fraction of zero dark pixels above which the dark image counts as clipped at zero
-ZERO_LIMIT = 0.01
-
-
-# --------------------------------------------------------------------------------------------
-# results
-# --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class FlatChannel:
-    """One channel of a :class:`FlatField`: k, ⟨DL_0⟩, ⟨DL_B⟩ (DN), flags and zero-dark pixels."""
-
-    name: str
-    k: float
-    dark_level: float
-    base_level: float
-    n_flagged: int
-    n_pixels: int
-    dark_zero_fraction: float | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "k": self.k, "dark_level": self.dark_level,
-                "base_level": self.base_level, "n_flagged": self.n_flagged,
-                "n_pixels": self.n_pixels, "dark_zero_fraction": self.dark_zero_fraction}
-
-
-@dataclass(frozen=True, eq=False)
-class FlatField:
-    """Gain and offset maps G, O (eqs. 3–4) and what they were made from.
-
-    Attributes
-    ----------
-    G, O
-        float32 maps of the frames' shape ((H, W) or (H, W, 3); Bayer: the full mosaic).
-    flags
-        bool map: Δ = DL_B − DL_0 not positive or noise dominated (module docstring).
-    dark, base
-        :class:`~ccdcore.stats.MomentsResult` of DL_0 and DL_B (per-pixel mean, variance, n).
-    layout
-        ``"mono"``, ``"rgb"`` or ``"bayer-rggb"`` ...
-    channels
-        :class:`FlatChannel` per channel.
-    noise_limit, window
-        c and the neighbourhood of the flag rule.
-    base_key, setting, dark_exposure
-        The base group ``(level, exposure)``, offset setting and dark exposure when known.
-    notes
-        Decisions taken (setting chosen, zero-clipped dark image ...).
-    """
-
-    G: NDArray[np.float32]
-    O: NDArray[np.float32]
-    flags: NDArray[np.bool_]
-    dark: MomentsResult
-    base: MomentsResult
-    layout: str
-    channels: tuple[FlatChannel, ...]
-    noise_limit: float = NOISE_LIMIT
-    window: int = WINDOW
-    base_key: tuple | None = None
-    setting: str | None = None
-    dark_exposure: float | None = None
-    notes: tuple[str, ...] = ()
-
-    flag_rule = ("flagged where DL_B − DL_0 <= c·sqrt(s²_B/n_B + s²_0/n_0); there "
-                 "G = k / (mean DL_B − DL_0 of the unflagged pixels of the channel in a "
-                 "window x window neighbourhood), O = ⟨DL_0⟩ − G·DL_0")
-
-    @property
-    def shape(self) -> tuple[int, ...]:
-        return self.G.shape
-
-    def channel(self, name: str) -> FlatChannel:
-        for c in self.channels:
-            if c.name == name:
-                return c
-        raise KeyError(name)
-
-    @property
-    def G_rel_err(self) -> NDArray[np.float64]:
-        """Per-pixel relative standard error of G from the temporal noise of DL_B and DL_0:
-        σ_G/G = σ_Δ/Δ (NaN where flagged or where one frame gives no variance)."""
-        sd = np.sqrt(self.base.var / self.base.n + self.dark.var / self.dark.n)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out = sd / (self.base.mean - self.dark.mean)
-        out[self.flags] = np.nan
-        return out
-
-    def correct(self, frame: ArrayLike, *, where: Any = "frame") -> NDArray[np.float32]:
-        """DL_c = O + G·DL (eq. 2), float32."""
-        return correct(frame, self.G, self.O, where=where)
-
-    def maps(self) -> dict[str, NDArray[np.float32]]:
-        """float32 maps for a calibration product: ``flat_G``, ``flat_O``, ``flat_flags`` (0/1),
-        ``flat_dark`` (DL_0), ``flat_base`` (DL_B)."""
-        return {MapName.FLAT_G: self.G, MapName.FLAT_O: self.O,
-                MapName.FLAT_FLAGS: self.flags.astype(np.float32),
-                MapName.FLAT_DARK: self.dark.mean.astype(np.float32),
-                MapName.FLAT_BASE: self.base.mean.astype(np.float32)}
-
-    def to_dict(self) -> dict[str, Any]:
-        """Summary (no maps), JSON-friendly."""
-        return {"layout": self.layout, "shape": list(self.shape), "n_dark": self.dark.n,
-                "n_base": self.base.n, "channels": [c.to_dict() for c in self.channels],
-                "n_flagged": int(self.flags.sum()), "noise_limit": self.noise_limit,
-                "window": self.window, "flag_rule": self.flag_rule,
-                "base": None if self.base_key is None else list(self.base_key),
-                "setting": self.setting, "dark_exposure": self.dark_exposure,
-                "notes": list(self.notes)}
-
 
 # --------------------------------------------------------------------------------------------
 # G and O
 # --------------------------------------------------------------------------------------------
-def correct(frame: ArrayLike, G: ArrayLike, O: ArrayLike, *,
-            where: Any = "frame") -> NDArray[np.float32]:
-    """DL_c = O + G·DL (eq. 2 of de Lasarte et al. 2007), computed in float64, returned float32.
-
-    Raises
-    ------
-    CcdError
-        The frame's shape differs from the maps' (``where`` names the frame), or it holds NaN.
-    """
-    D = np.asarray(frame)
-    if D.shape != np.shape(G) or D.shape != np.shape(O):
-        raise CcdError(where, f"frame shape {D.shape} differs from the flat-field maps' "
-                              f"{np.shape(G)} (another camera mode or layout?)")
-    out = np.multiply(G, D, dtype=np.float64)
-    out += O
-    return out.astype(np.float32)
-
-
 def _moments(reducer: Reducer, src: Any, what: str, counts: dict | None,
              layout: str | None, session: Any = None) -> tuple[MomentsResult, str]:
     """The frames' per-pixel moments by ``reducer`` (a MomentsResult or DarkReference is taken
@@ -459,26 +334,6 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
 # --------------------------------------------------------------------------------------------
 # base image (item 5)
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class BaseRecommendation:
-    """The recommended base correction image and every candidate's numbers.
-
-    ``candidates``: one dict per flat group: ``key``, ``n_frames``, ``mean_dn`` and
-    ``p_high_dn`` per channel, ``in_linear_range``, ``distance`` (to the middle of the range,
-    in range widths; None outside).
-    """
-
-    key: tuple[Any, Any]
-    reason: str
-    rule: str
-    candidates: tuple[dict, ...]
-    linearity: Linearity
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"base": list(self.key), "reason": self.reason, "rule": self.rule,
-                "candidates": [dict(c, key=list(c["key"])) for c in self.candidates]}
-
-
 _BASE_RULE = ("among the flat groups inside the linear range (linear in every channel, pixels "
               "between the range's low end and the lowest non-linear level), the one whose mean "
               "level is closest to the middle of the range (mean over channels of |mean − mid| "
@@ -548,36 +403,6 @@ def recommend_base(session: Any, *, setting: str | None = None, gain: float | No
             r["distance"] = None
     return BaseRecommendation(key=pick["key"], reason=reason, rule=_BASE_RULE,
                               candidates=tuple(rows), linearity=lin)
-
-
-@dataclass(frozen=True)
-class BaseStudy:
-    """SNUP after correction of every image group with every candidate base (Fig. 3, Tables 3–5).
-
-    ``rows``: dicts ``base`` (``(level, exposure)``, None = uncorrected), ``image``, ``channel``,
-    ``snup_mean``, ``snup_std`` (over the group's frames), ``n``, ``image_mean_dn``,
-    ``base_mean_dn``, ``self`` (the image group is the base: optimistic, its noise is in G).
-    """
-
-    rows: tuple[dict, ...]
-    setting: str | None
-    nearest: bool
-    recommended: tuple[Any, Any] | None
-
-    def table(self, channel: str) -> dict[tuple, dict[tuple, float]]:
-        """``{base: {image: snup_mean}}`` for one channel."""
-        out: dict[tuple, dict[tuple, float]] = {}
-        for r in self.rows:
-            if r["channel"] == channel:
-                out.setdefault(r["base"], {})[r["image"]] = r["snup_mean"]
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        def k(v):
-            return None if v is None else list(v)
-        return {"setting": self.setting, "nearest": self.nearest,
-                "recommended": k(self.recommended),
-                "rows": [dict(r, base=k(r["base"]), image=k(r["image"])) for r in self.rows]}
 
 
 def _base_maps(session, setting, gain, keys, groups, **options
@@ -675,28 +500,6 @@ def base_image_study(session: Any, *, setting: str | None = None, gain: float | 
 # --------------------------------------------------------------------------------------------
 # zero dark image and settings (item 6)
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class ZeroDark:
-    """Fraction of dark pixel values equal to zero, per channel; ``clipped`` above ``limit``."""
-
-    fractions: dict[str, float]
-    limit: float
-    clipped: bool
-    warning: str | None
-
-    @staticmethod
-    def warning_text(fraction: float) -> str:
-        return (f"{100 * fraction:.1f} % of the dark pixel values are 0: the dark image is "
-                "clipped at zero (a 'zero dark image' offset setting). The negative half of the "
-                "dark noise and the true dark level are lost, so DL_0 is biased and the "
-                "correction is worse (de Lasarte et al., Table 2); raise the camera offset "
-                "until no dark pixel reads 0")
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"fractions": dict(self.fractions), "limit": self.limit, "clipped": self.clipped,
-                "warning": self.warning}
-
-
 def zero_dark(darks: Any, *, layout: str | None = None, limit: float = ZERO_LIMIT) -> ZeroDark:
     """Detect a dark image clipped at zero: the fraction of zero values per channel.
 
@@ -745,22 +548,6 @@ def zero_dark(darks: Any, *, layout: str | None = None, limit: float = ZERO_LIMI
                     warning=ZeroDark.warning_text(worst) if clipped else None)
 
 
-@dataclass(frozen=True)
-class SettingsComparison:
-    """Table 2: mean SNUP after correction of the images in the linear range, per setting.
-
-    ``rows``: dicts ``setting``, ``channel``, ``snup_mean``, ``snup_std`` (over images), ``n``,
-    ``zero_fraction``, ``base``; ``zero_dark``: :class:`ZeroDark` per setting.
-    """
-
-    rows: tuple[dict, ...]
-    zero_dark: dict[str, ZeroDark]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"rows": [dict(r, base=list(r["base"])) for r in self.rows],
-                "zero_dark": {s: z.to_dict() for s, z in self.zero_dark.items()}}
-
-
 def compare_dark_settings(session: Any, *, settings: Sequence[str] | None = None,
                           gain: float | None = None, roi: Sequence[int] | None = None,
                           **options: Any) -> SettingsComparison:
@@ -805,32 +592,6 @@ def compare_dark_settings(session: Any, *, settings: Sequence[str] | None = None
 # --------------------------------------------------------------------------------------------
 # K̂ against G (item 7)
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class KMapComparison:
-    """G/O against K̂ on the same held-out uniform-field frames (module docstring).
-
-    ``rows``: per channel ``snup_raw``, ``snup_G``, ``snup_K`` (mean over the held-out frames;
-    the K̂-corrected frame (D − D̂_D)/K̂ gets the channel's mean dark level added back, as eq. 2
-    keeps it, so that all three SNUPs divide by comparable means),
-    ``snup_limit`` (the shot-noise limit of one frame, from its temporal variance: 100·σ_t/mean),
-    and with a true flat field ``residual_G_pct`` / ``residual_K_pct`` (100·std of the estimated
-    flat field divided by the truth, normalised) and ``residual_hf_G_pct`` / ``residual_hf_K_pct``
-    (the same after dividing out the local mean in the K̂ window: the PRNU part).
-    """
-
-    rows: tuple[dict, ...]
-    evaluate: tuple[Any, Any]
-    base: tuple[Any, Any]
-    configurations: tuple[tuple, ...]
-    window: int
-    conclusion: str
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"rows": list(self.rows), "evaluate": list(self.evaluate), "base": list(self.base),
-                "configurations": [list(c) for c in self.configurations], "window": self.window,
-                "conclusion": self.conclusion}
-
-
 _K_CONCLUSION = ("K̂ (Healey & Kondepudy) is normalised by its local window mean, so it corrects "
                  "the pixel-to-pixel gain (PRNU) but leaves the low-frequency vignetting in the "
                  "image; G (de Lasarte) is normalised by the global mean and corrects both. On a "

@@ -73,6 +73,9 @@ goodness_of_fit(chi2, dof)
     Q (eq. 67).
 CLIP_LIMIT, LINEARITY_Z, LINEARITY_TOLERANCE, ROBUST_Z, QUANTISATION_STEP
     The thresholds of the exclusion rules and q.
+
+PtcPoint, LineFit, weighted_line_fit, goodness_of_fit, CLIP_LIMIT and LINEARITY_Z are defined in
+:mod:`ccdcore.ptc_fit`, with the exclusion rules, and re-exported here.
 """
 from __future__ import annotations
 
@@ -86,6 +89,8 @@ from numpy.typing import ArrayLike
 
 from .common import check_roi, crop, json_safe
 from .errors import CcdError
+from .ptc_fit import (CLIP_LIMIT, LINEARITY_Z, LineFit, PtcPoint, data_reason, goodness_of_fit,
+                      linearity_reasons, range_reasons, saturation_reasons, weighted_line_fit)
 from .reduce import STREAMED, Reducer, stand_in
 from .session import FrameRecord, Session, open_session
 from .stats import pair_statistics
@@ -95,18 +100,12 @@ __all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_poin
            "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP",
            "EXCLUSIONS", "USER_EXCLUDED", "EMVA_FIT_FRACTION"]
 
-#: a level is clipped when more than this fraction of its ROI pixel values is at 0 or full scale
-CLIP_LIMIT = 1e-4
-#: standardized σ̂²_N residual beyond which a top-10 % level counts as beyond the linear range
-LINEARITY_Z = 5.0
 #: default relative deviation from linearity tolerated (μ̂ vs light, or σ̂²_N vs the line)
 LINEARITY_TOLERANCE = 0.05
 #: robust mode drops a level whose |residual| / σ exceeds this
 ROBUST_Z = 3.0
 #: quantisation step q of integer data, DN (eq. 4)
 QUANTISATION_STEP = 1.0
-#: the fraction of the μ̂ range where the variance-based linearity rule looks
-_TOP_FRACTION = 0.10
 
 
 #: the kinds of photon-transfer exclusion (:attr:`PtcPoint.exclusion`), each with its rule in the
@@ -124,88 +123,6 @@ USER_EXCLUDED = "excluded by user"
 # --------------------------------------------------------------------------------------------
 # results
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class PtcPoint:
-    """One photon-transfer light level.
-
-    Attributes
-    ----------
-    level
-        The ``level`` id of the session.
-    mu
-        μ̂ − b₀: the mean of eq. 37 minus the black level, DN (the fit's abscissa).
-    var
-        σ̂²_N (eq. 38), DN²; with several pairs, the average of the pairs' estimates.
-    var_err
-        Standard error of ``var``: √(eq. 40), i.e. √(2(σ̂²_N)²/(n_pairs·(M − 1))) for the average
-        of ``n_pairs`` independent pair estimates.
-    n_pairs, n_pixels
-        Number of disjoint pairs (frames 0-1, 2-3, ...) and pixels M per frame (the ROI).
-    used, reason, exclusion
-        Whether the fit used the level, why not for a person (``None`` when used), and the kind
-        of exclusion for programs (:data:`EXCLUSIONS`; ``None`` when used).
-    exposure
-        The level's exposure time (s), when known.
-    mu_raw
-        μ̂ as measured (eq. 37), DN.
-    clipped_fraction
-        Fraction of the ROI pixel values of the level's frames at 0 or at 2^bits − 1.
-    photons
-        Mean photons per pixel (EMVA1288 descriptors), when known.
-    """
-
-    level: int
-    mu: float
-    var: float
-    var_err: float
-    n_pairs: int
-    n_pixels: int
-    used: bool
-    reason: str | None
-    exposure: float | None
-    mu_raw: float
-    clipped_fraction: float
-    photons: float | None = None
-    exclusion: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {k: json_safe(getattr(self, k)) for k in (
-            "level", "mu", "var", "var_err", "used", "reason", "exclusion", "n_pairs",
-            "n_pixels", "exposure", "mu_raw", "clipped_fraction", "photons")}
-
-
-@dataclass(frozen=True)
-class LineFit:
-    """The weighted line σ²_N = A·μ + σ²_C (eqs. 59–67).
-
-    ``cov`` is the 2×2 covariance of (A, σ²_C) (eq. 66); ``Q`` the probability that χ² would exceed
-    the value found if the model is right (eq. 67), NaN when ``dof`` = 0.
-    """
-
-    A: float
-    sigma_c2: float
-    cov: np.ndarray
-    chi2: float
-    dof: int
-    Q: float
-
-    def predict(self, mu: ArrayLike) -> tuple[np.ndarray | float, np.ndarray | float]:
-        """The line at ``mu`` and its 1-σ band from the covariance:
-        ``std² = μ²·C₀₀ + 2μ·C₀₁ + C₁₁``."""
-        m = np.asarray(mu, dtype=np.float64)
-        value = self.A * m + self.sigma_c2
-        var = m * m * self.cov[0, 0] + 2.0 * m * self.cov[0, 1] + self.cov[1, 1]
-        std = np.sqrt(np.maximum(var, 0.0))
-        if m.ndim == 0:
-            return float(value), float(std)
-        return value, std
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"A": json_safe(self.A), "sigma_c2": json_safe(self.sigma_c2),
-                "cov": json_safe(self.cov.tolist()), "chi2": json_safe(self.chi2),
-                "dof": self.dof, "Q": json_safe(self.Q)}
-
-
 @dataclass(frozen=True)
 class PhotonTransfer:
     """The photon-transfer result: noise model, its uncertainty, the points and diagnostics.
@@ -338,70 +255,6 @@ class PhotonTransfer:
                    linearity_tolerance=self.linearity_tolerance, source=self.source,
                    fit_fraction=self.fit_fraction, fit_range=self.fit_range)
         return out
-
-
-# --------------------------------------------------------------------------------------------
-# the estimators
-# --------------------------------------------------------------------------------------------
-def goodness_of_fit(chi2: float, dof: int) -> float:
-    """Q(χ²_M | ν) = ∫_{χ²_M}^∞ f_ν(x) dx, the chi-square survival function (eq. 67).
-
-    Returns NaN when ``dof`` < 1.  The paper's fit (χ² = 4.3496, P = 6 pairs, ν = 4) gives 0.3607.
-    """
-    if dof < 1:
-        return float("nan")
-    from scipy import stats  # here: scipy.stats costs ~0.5 s to import (the app starts faster)
-
-    return float(stats.chi2.sf(float(chi2), int(dof)))
-
-
-def weighted_line_fit(mu: ArrayLike, var: ArrayLike, var_var: ArrayLike) -> LineFit:
-    """Fit σ̂²_N = A·μ̂ + σ²_C minimising χ² (eq. 42) in the closed form of the appendix.
-
-    Parameters
-    ----------
-    mu, var, var_var
-        μ̂_i, σ̂²_N,i and var[σ̂²_N,i] (eqs. 37, 38, 40) of P ≥ 2 points; ``var_var`` > 0.
-
-    Returns
-    -------
-    LineFit
-        Â (eq. 59), σ̂²_C (eq. 60) from the sums S₁…S₅ (eqs. 61–65), the covariance of (A, σ²_C)
-        (eq. 66), χ² at the minimum, ν = P − 2 and Q (eq. 67).
-
-    Raises
-    ------
-    CcdError
-        Fewer than two points, non-positive or non-finite weights, or all μ̂ equal.
-    """
-    x = np.asarray(mu, dtype=np.float64).ravel()
-    y = np.asarray(var, dtype=np.float64).ravel()
-    v = np.asarray(var_var, dtype=np.float64).ravel()
-    if not (x.size == y.size == v.size):
-        raise CcdError("weighted_line_fit", f"mu, var and var_var differ in length "
-                                            f"({x.size}, {y.size}, {v.size})")
-    if x.size < 2:
-        raise CcdError("weighted_line_fit", f"need at least 2 points, got {x.size}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y)) and np.all(np.isfinite(v))
-            and np.all(v > 0)):
-        raise CcdError("weighted_line_fit", "mu, var must be finite and var_var finite and > 0")
-    w = 1.0 / v
-    s1 = w.sum()                 # eq. 61
-    s2 = (w * x).sum()           # eq. 62
-    s3 = (w * y).sum()           # eq. 63
-    s4 = (w * x * x).sum()       # eq. 64
-    s5 = (w * x * y).sum()       # eq. 65
-    delta = s1 * s4 - s2 * s2
-    if not delta > 0 or delta <= 1e-12 * s1 * s4:
-        raise CcdError("weighted_line_fit", "all points have the same mean: the slope is "
-                                            "undetermined")
-    a = (s1 * s5 - s2 * s3) / delta          # eq. 59
-    c = (s3 * s4 - s2 * s5) / delta          # eq. 60
-    cov = np.array([[s1, -s2], [-s2, s4]]) / delta  # eq. 66, order (A, σ²_C)
-    chi2 = float(np.sum((y - (a * x + c)) ** 2 * w))  # eq. 42
-    dof = int(x.size - 2)
-    return LineFit(A=float(a), sigma_c2=float(c), cov=cov, chi2=chi2, dof=dof,
-                   Q=goodness_of_fit(chi2, dof))
 
 
 # --------------------------------------------------------------------------------------------
@@ -560,7 +413,7 @@ def _measure(session: Session, roi: Sequence[int] | None, black_level: float | N
                       exposure=recs[0].exposure, mu_raw=mu_raw,
                       clipped_fraction=clipped / count if count else 0.0,
                       photons=recs[0].photons)
-        why = _data_reason(pt, bits)
+        why = data_reason(pt, bits)
         points.append(replace(pt, used=why is None, exclusion=why and why[0],
                               reason=why and why[1]))
     context = {"bits": bits, "black_level_dn": b0, "black_level_source": source,
@@ -601,119 +454,6 @@ def ptc_points(session: Session | str | PathLike, *, roi: Sequence[int] | None =
 # --------------------------------------------------------------------------------------------
 # exclusions and the fit
 # --------------------------------------------------------------------------------------------
-def _data_reason(p: PtcPoint, bits: int | None) -> tuple[str, str] | None:
-    """Why the data of a level cannot be used (clipping, zero variance): (code, text), or None."""
-    if p.clipped_fraction > CLIP_LIMIT:
-        top = f"{2 ** bits - 1}" if bits is not None else "full scale"
-        return "clipped", (f"clipped: {100 * p.clipped_fraction:.3g}% of the ROI pixel values at "
-                           f"0 or {top} (limit {100 * CLIP_LIMIT:g}%)")
-    if not (p.var > 0 and math.isfinite(p.var)):
-        return "zero-variance", "zero variance: the frames of the pair are identical"
-    return None
-
-
-def _light_quantity(points: Sequence[PtcPoint]) -> tuple[str, np.ndarray] | None:
-    """The known light level per point: photons when all have them, else the exposure time when
-    every level has its own, else None."""
-    if all(p.photons is not None and p.photons > 0 for p in points):
-        return "photons", np.array([p.photons for p in points], dtype=np.float64)
-    exps = [p.exposure for p in points]
-    if all(e is not None and e > 0 for e in exps) and len(
-            {round(math.log(e), 9) for e in exps}) == len(exps):
-        return "exposure", np.array(exps, dtype=np.float64)
-    return None
-
-
-def _saturation_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tuple[str, str]]:
-    """Levels past saturation: the saturation point is the level of largest σ̂²_N (the EMVA 1288
-    convention: the photon-transfer curve turns down there); a level of higher μ̂ whose σ̂²_N is
-    below that peak by more than :data:`LINEARITY_Z` combined standard errors and by more than
-    ``tol`` (relative) is beyond it."""
-    out: dict[int, str] = {}
-    if len(points) < 2:
-        return out
-    peak = max(points, key=lambda p: p.var)
-    for p in points:
-        if p.mu <= peak.mu:
-            continue
-        drop = peak.var - p.var
-        z = drop / math.hypot(peak.var_err, p.var_err)
-        if z > LINEARITY_Z and drop > tol * peak.var:
-            out[p.level] = "saturation", (
-                f"beyond the linear range (saturation): variance {p.var:.4g} DN² is "
-                f"{100 * drop / peak.var:.3g}% ({z:.0f} sigma) below the peak "
-                f"{peak.var:.4g} DN² of level {peak.level} at a lower mean")
-    return out
-
-
-def _range_reasons(points: Sequence[PtcPoint], reasons: dict[int, tuple[str, str]],
-                   fraction: float) -> dict[int, tuple[str, str]]:
-    """Levels above ``fraction`` of the saturation signal (the EMVA 1288 fit range, release 3.1
-    sec. 6.6): the saturation point is the level of largest σ̂²_N among the measured ones (the
-    standard's rule, as :func:`_saturation_reasons`), its signal μ̂ − b₀ the saturation signal;
-    a level not excluded already whose signal is above ``fraction`` of it is out of range."""
-    out: dict[int, tuple[str, str]] = {}
-    if not points:
-        return out
-    peak = max(points, key=lambda p: p.var)
-    limit = fraction * peak.mu
-    for p in points:
-        if p.level not in reasons and p.mu > limit:
-            out[p.level] = "range", (
-                f"outside the EMVA 1288 fit range: mean {p.mu:.4g} DN is above "
-                f"{100 * fraction:g} % of the saturation signal {peak.mu:.4g} DN (level "
-                f"{peak.level}, the largest variance)")
-    return out
-
-
-def _linearity_reasons(points: Sequence[PtcPoint], tol: float) -> dict[int, tuple[str, str]]:
-    """Levels beyond the linear range (see the module docstring), level -> (code, reason)."""
-    out: dict[int, tuple[str, str]] = {}
-    if len(points) < 3:
-        return out
-    light = _light_quantity(points)
-    if light is not None:
-        name, x = light
-        order = np.argsort(x, kind="stable")
-        n_fit = max(2, (len(points) + 1) // 2)
-        fit_idx, test_idx = order[:n_fit], order[n_fit:]
-        if len(np.unique(x[fit_idx])) < 2:
-            return out
-        mu = np.array([p.mu_raw for p in points])
-        a, c = np.polyfit(x[fit_idx], mu[fit_idx], 1)
-        unit = "photons" if name == "photons" else "exposure"
-        for i in test_idx:
-            signal = a * x[i]
-            dev = mu[i] - (signal + c)
-            if signal != 0 and abs(dev) > tol * abs(signal):
-                out[points[i].level] = "nonlinear", (
-                    f"beyond the linear range: mean {mu[i]:.4g} DN is {100 * dev / signal:+.3g}% "
-                    f"off the line of mean against {unit} fitted on the lower "
-                    f"{n_fit} levels (tolerance {100 * tol:g}%)")
-        return out
-    mus = np.array([p.mu for p in points])
-    lo, hi = mus.min(), mus.max()
-    top = mus >= lo + (1.0 - _TOP_FRACTION) * (hi - lo)
-    lower = [p for p, t in zip(points, top) if not t]
-    if len(lower) < 2 or len({p.mu for p in lower}) < 2:
-        return out
-    fit = weighted_line_fit([p.mu for p in lower], [p.var for p in lower],
-                            [p.var_err ** 2 for p in lower])
-    for p, t in zip(points, top):
-        if not t:
-            continue
-        pred, pred_std = fit.predict(p.mu)
-        z = (p.var - pred) / math.hypot(p.var_err, pred_std)
-        rel = (p.var - pred) / pred if pred > 0 else float("inf")
-        if abs(z) > LINEARITY_Z and abs(rel) > tol:
-            out[p.level] = "nonlinear", (
-                f"beyond the linear range: variance {p.var:.4g} DN² is {z:+.1f} sigma "
-                f"({100 * rel:+.3g}%) from the line fitted on the {len(lower)} lower "
-                f"levels, and its mean is in the top {100 * _TOP_FRACTION:g}% of the "
-                "range (no exposure or photon counts to test linearity directly)")
-    return out
-
-
 def _verdict(q: float) -> str:
     if not math.isfinite(q):
         return "untested (no degrees of freedom)"
@@ -735,6 +475,11 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
     Each point's ``used``/``reason`` is recomputed from scratch (clipping and zero variance from
     its data, then ``exclude_levels``, the linearity rule and the robust mode), so the app can
     toggle levels and refit at once without reading frames.
+
+    The steps, each a function: the exclusions of the data and the user
+    (:func:`_data_exclusions`), the linearity rules (:func:`_linearity_exclusions`), the
+    weighted fit with the robust mode (:func:`_weighted_fit`) and the result
+    (:func:`_result`).
 
     Parameters
     ----------
@@ -770,6 +515,20 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         raise CcdError("photon transfer", "no ptc levels to fit")
     if not (linearity_tolerance > 0):
         raise CcdError("linearity_tolerance", f"must be > 0, got {linearity_tolerance!r}")
+    reasons = _data_exclusions(pts, exclude_levels, bits)
+    _linearity_exclusions(pts, reasons, bits, float(linearity_tolerance), fit_fraction)
+    fit, dropped = _weighted_fit(pts, reasons, robust, source)
+    return _result(pts, reasons, fit, dropped, bits=bits, black_level_dn=black_level_dn,
+                   black_level_source=black_level_source, roi=roi, notes=notes,
+                   linearity_tolerance=linearity_tolerance, source=source,
+                   fit_fraction=fit_fraction)
+
+
+def _data_exclusions(pts: list[PtcPoint], exclude_levels: Iterable[int],
+                     bits: int | None) -> dict[int, tuple[str, str]]:
+    """Level -> (exclusion code, reason) of the levels whose data cannot be used (clipping, zero
+    variance) and of those the user excludes; an unknown level in ``exclude_levels`` is an
+    error."""
     known = {p.level for p in pts}
     user = set()
     for lv in exclude_levels:
@@ -779,21 +538,35 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
         user.add(lv)
     reasons: dict[int, tuple[str, str]] = {}   # level -> (exclusion code, reason)
     for p in pts:
-        why = _data_reason(p, bits)
+        why = data_reason(p, bits)
         if why is not None:
             reasons[p.level] = why
         elif p.level in user:
             reasons[p.level] = "user", USER_EXCLUDED
+    return reasons
+
+
+def _linearity_exclusions(pts: list[PtcPoint], reasons: dict[int, tuple[str, str]],
+                          bits: int | None, tol: float, fit_fraction: float | None) -> None:
+    """Add to ``reasons`` the levels past saturation, beyond the linear range and (with
+    ``fit_fraction``) outside the fit range, each rule seeing the levels the earlier ones
+    kept (the range rule: every level with usable data)."""
     candidates = [p for p in pts if p.level not in reasons]
-    reasons.update(_saturation_reasons(candidates, float(linearity_tolerance)))
+    reasons.update(saturation_reasons(candidates, tol))
     candidates = [p for p in pts if p.level not in reasons]
-    reasons.update(_linearity_reasons(candidates, float(linearity_tolerance)))
+    reasons.update(linearity_reasons(candidates, tol))
     if fit_fraction is not None:
         if not 0.0 < fit_fraction <= 1.0:
             raise CcdError("fit_fraction", f"must be in (0, 1], got {fit_fraction!r}")
-        reasons.update(_range_reasons([p for p in pts if _data_reason(p, bits) is None],
-                                      reasons, float(fit_fraction)))
+        reasons.update(range_reasons([p for p in pts if data_reason(p, bits) is None],
+                                     reasons, float(fit_fraction)))
 
+
+def _weighted_fit(pts: list[PtcPoint], reasons: dict[int, tuple[str, str]], robust: bool,
+                  source: str | None) -> tuple[LineFit, list[int]]:
+    """The weighted line (eqs. 59–67) through the levels not in ``reasons`` and, in robust mode,
+    the levels dropped one at a time (added to ``reasons``); fewer than three usable levels is
+    an error naming why the others were excluded."""
     def usable() -> list[PtcPoint]:
         return [p for p in pts if p.level not in reasons]
 
@@ -825,7 +598,17 @@ def fit_points(points: Sequence[PtcPoint], *, exclude_levels: Iterable[int] = ()
             dropped.append(lv)
             used = usable()
             fit = fit_of(used)
+    return fit, dropped
 
+
+def _result(pts: list[PtcPoint], reasons: dict[int, tuple[str, str]], fit: LineFit,
+            dropped: list[int], *, bits: int | None, black_level_dn: float | None,
+            black_level_source: str, roi: Sequence[int] | None, notes: Sequence[str],
+            linearity_tolerance: float, source: str | None,
+            fit_fraction: float | None) -> PhotonTransfer:
+    """The :class:`PhotonTransfer` of a fit: the points with their exclusions, the errors of A
+    and σ²_C, the conversion gain and the read noise (eq. 27) with their errors, and the
+    notes."""
     b0 = (float(np.median([p.mu_raw - p.mu for p in pts])) if black_level_dn is None
           else float(black_level_dn))
     out_points = tuple(replace(p, used=p.level not in reasons,

@@ -32,6 +32,7 @@ stand_in(header)
 """
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 from typing import Any, Callable, Iterable, Iterator, Mapping, Sequence
@@ -94,16 +95,18 @@ class Reducer:
         acc = PixelMoments()
         first = None
         lay = layout
-        for nm, arr in self._named(frames, what, session, name):
-            if check is not None:
-                check(nm, arr)
-            first = first or nm
-            acc.add(arr, name=nm)
-            if zeros is not None:
-                lay = chan.check_layout(arr.shape, lay, nm)
-                for c, v in chan.split_channels(arr, lay).items():
-                    z, n = zeros.get(c, (0, 0))
-                    zeros[c] = (z + int(np.count_nonzero(v == 0)), n + v.size)
+        # closed on an error too: the read-ahead threads of a session's stream stop at once
+        with contextlib.closing(self._named(frames, what, session, name)) as named:
+            for nm, arr in named:
+                if check is not None:
+                    check(nm, arr)
+                first = first or nm
+                acc.add(arr, name=nm)
+                if zeros is not None:
+                    lay = chan.check_layout(arr.shape, lay, nm)
+                    for c, v in chan.split_channels(arr, lay).items():
+                        z, n = zeros.get(c, (0, 0))
+                        zeros[c] = (z + int(np.count_nonzero(v == 0)), n + v.size)
         if acc.n == 0:
             raise CcdError(what, empty or f"no {what} frames")
         return acc.result(in_place=True), str(first)
@@ -116,12 +119,13 @@ class Reducer:
         if (session is not None and isinstance(items, list) and items
                 and hasattr(items[0], "relpath") and not isinstance(items[0], tuple)):
             items = session.iter_frames(items, read_ahead=READ_AHEAD)
-        if name is None:
-            yield from named_frames(items, what)
-            return
-        for k, item in enumerate(items):
-            rec, arr = item if isinstance(item, tuple) else (None, item)
-            yield getattr(rec, "relpath", None) or name(k), np.asarray(arr)
+        with contextlib.closing(items) if hasattr(items, "close") else contextlib.nullcontext():
+            if name is None:
+                yield from named_frames(items, what)
+                return
+            for k, item in enumerate(items):
+                rec, arr = item if isinstance(item, tuple) else (None, item)
+                yield getattr(rec, "relpath", None) or name(k), np.asarray(arr)
 
     # ---------------------------------------------------------------------------- frame sums --
     def frame_sums(self, session: Any, records: Sequence[Any], *,

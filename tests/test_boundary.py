@@ -113,7 +113,7 @@ def test_sigterm_during_save_leaves_no_temporary_folder(h94, tmp_path):
         def slow(*a, **k):
             print("writing", flush=True)
             time.sleep(30)
-        import ccdcore.product as prod
+        import ccdcore.product_file as prod
         prod.write_map = slow
         product.save({str(tmp_path / "out")!r})
     """)

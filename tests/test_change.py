@@ -24,6 +24,7 @@ import pytest
 from scipy import stats
 
 from ccdcore import change as CH
+from ccdcore import change_kernels as CK
 from ccdcore.cli import main
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image, write_image
@@ -128,7 +129,7 @@ def test_d2_against_a_direct_computation():
         var, var_t = rng.uniform(1e-5, 1e-4, (2, n, C))
         A = 1e-3 * rng.standard_normal((C * C, C * C))
         Mc = A @ A.T
-        d2, P = CH._d2(E, Et, var, var_t, M, Mc)
+        d2, P = CK.error_d2(E, Et, var, var_t, M, Mc)
         for i in range(0, n, 97):
             J = np.kron(E[i][:, None], np.eye(C)).T        # ∂e_j/∂M_kj = E_k, vec M row-major
             S = M.T @ np.diag(var[i]) @ M + np.diag(var_t[i]) + J @ Mc @ J.T

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 
+from ccdcore import dask_bands  # noqa: E402
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.distributed import DaskReducer  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
@@ -55,7 +56,7 @@ def band_rows(request, monkeypatch):
     if request.param == "7-row bands":
         # 7 rows of healey94's 256 px (three float64 accumulators); delasarte07's 96 × 3 px
         # frames get 6-row bands
-        monkeypatch.setattr(ccd_dist, "BAND_BYTES", 7 * 3 * 8 * 256)
+        monkeypatch.setattr(dask_bands, "BAND_BYTES", 7 * 3 * 8 * 256)
         return 7
     return None
 
@@ -241,7 +242,7 @@ class _KillOnFirstBand(Tracker):
 
 def test_worker_killed_mid_run(client, healey, monkeypatch):
     recs = [r for recs in healey.fixed_pattern_configs().values() for r in recs]
-    monkeypatch.setattr(ccd_dist, "BAND_BYTES", 2 * 3 * 8 * 256)    # 2-row bands: 96 tasks
+    monkeypatch.setattr(dask_bands, "BAND_BYTES", 2 * 3 * 8 * 256)    # 2-row bands: 96 tasks
     expected = pixel_moments(healey.iter_frames(recs))
     pids = client.run(os.getpid)
     victim = sorted(pids.values())[0]
@@ -260,7 +261,7 @@ class _CancelOnFirstBand(Tracker):
 
 
 def test_cancel_stops_and_cancels_the_tasks(client, healey, monkeypatch):
-    monkeypatch.setattr(ccd_dist, "BAND_BYTES", 2 * 3 * 8 * 256)
+    monkeypatch.setattr(dask_bands, "BAND_BYTES", 2 * 3 * 8 * 256)
     recs = [r for recs in healey.fixed_pattern_configs().values() for r in recs]
     tracker = _CancelOnFirstBand()
     with tracking(tracker), pytest.raises(Cancelled) as info:
@@ -334,7 +335,7 @@ def test_nonfinite_pixels_same_message(client, tmp_path):
     streamed = _message(lambda: photon_transfer(s))
     assert "2 NaN or infinite pixel values" in streamed[1] and bad.relpath in streamed[1]
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(ccd_dist, "BAND_BYTES", 7 * 3 * 8 * 64)
+        mp.setattr(dask_bands, "BAND_BYTES", 7 * 3 * 8 * 64)
         assert _message(lambda: photon_transfer(s, reducer=DaskReducer(client))) == streamed
     dark = s.dark_frames()[1]
     frame = read_image(dark.path)
@@ -377,7 +378,7 @@ def test_first_unreadable_frame_is_reported(client, damaged, monkeypatch):
     damaged.dark_frames()[1].path.write_bytes(bytes(data))
     streamed = _message(lambda: dark_reference(damaged))
     assert "dark_001.tif" in streamed[1]
-    monkeypatch.setattr(ccd_dist, "BAND_BYTES", 7 * 3 * 8 * 256)
+    monkeypatch.setattr(dask_bands, "BAND_BYTES", 7 * 3 * 8 * 256)
     assert _message(lambda: dark_reference(damaged, reducer=DaskReducer(client))) == streamed
 
 

@@ -12,6 +12,7 @@ from typing import Iterator
 
 import pytest
 
+from ccdcore import dask_bands
 from ccdcore import distributed as ccd_dist
 from ccdcore.cli import main
 from ccdcore.errors import CcdError, ImageReadError
@@ -205,7 +206,7 @@ def test_cluster_readers_refuse_a_bomb_before_submitting(tmp_path, monkeypatch):
             call()
     # a worker checks each file's header too (a frame larger than the first one declared)
     with pytest.raises(ImageReadError, match="40000x40000"):
-        ccd_dist._read_band(ccd_dist.Frame(str(bombs[1]), "b1.tif"), 0, 0, 10, 10)
+        dask_bands.read_band(ccd_dist.Frame(str(bombs[1]), "b1.tif"), 0, 0, 10, 10)
     monkeypatch.setenv("CCDCORE_MAX_PIXELS", str(40000 * 40000))
     ccd_dist.check_pixels(bombs[0], shape)        # the same override as the streamed reader
 

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 
+from ccdcore import dask_bands  # noqa: E402
+from ccdcore import dask_kmap  # noqa: E402
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.distributed import DaskReducer  # noqa: E402
 from ccdcore.darkframe import dark_reference  # noqa: E402
@@ -103,11 +105,11 @@ def test_fixed_pattern_map_uses_the_bands(client, healey, dark, monkeypatch):
     streamed = fixed_pattern_map(healey, dark)
     _assert_same(streamed, fixed_pattern_map(healey, dark, reducer=DaskReducer(client)))
     calls = []
-    real = ccd_dist.bands
-    monkeypatch.setattr(ccd_dist, "bands", lambda *a, **k: calls.append(real(*a, **k)) or
+    real = dask_bands.bands
+    monkeypatch.setattr(dask_bands, "bands", lambda *a, **k: calls.append(real(*a, **k)) or
                         calls[-1])
     n1 = len(healey.fixed_pattern_configs())
-    monkeypatch.setattr(ccd_dist, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
+    monkeypatch.setattr(dask_bands, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
     _assert_same(streamed, fixed_pattern_map(healey, reducer=DaskReducer(client)))
     assert len(calls[-1]) == 12 and {rows for _, rows in calls[-1]} == {16}
 
@@ -136,7 +138,7 @@ def test_bad_frame_same_message(client, healey, tmp_path, monkeypatch):
     streamed = _message(lambda: fixed_pattern_map(s, zeros))
     assert "C03_F01.tif" in streamed[1]
     n1 = len(s.fixed_pattern_configs())
-    monkeypatch.setattr(ccd_dist, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
+    monkeypatch.setattr(dask_bands, "BAND_BYTES", 16 * 3 * 8 * 256 * (n1 // 2 + 1))
     assert _message(lambda: fixed_pattern_map(s, zeros, reducer=DaskReducer(client))) == streamed
 
 
@@ -208,8 +210,8 @@ def test_slope_chain_carries_the_column_sums(tmp_path):
     tmp = None
     for y0, rows in ccd_dist.bands(h, w, band_rows=8):
         top, bottom = min(s1 + 1, y0), min(s1, h - y0 - rows)
-        p1 = ccd_dist._kmap_average_task(groups, dark[y0 - top:y0 + rows + bottom], y0, rows,
-                                         top, bottom, w, h)
-        out = ccd_dist._kmap_slopes_task(p1, tmp, y0, rows, top, h, window, False)
-        tmp = ccd_dist._kmap_pick(out, "tmp")
+        p1 = dask_kmap._kmap_average_task(groups, dark[y0 - top:y0 + rows + bottom], y0, rows,
+                                          top, bottom, w, h)
+        out = dask_kmap._kmap_slopes_task(p1, tmp, y0, rows, top, h, window, False)
+        tmp = dask_kmap._kmap_pick(out, "tmp")
     assert np.array_equal(tmp[1], np.array(want))

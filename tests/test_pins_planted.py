@@ -25,6 +25,7 @@ import pytest
 from scipy import stats
 
 from ccdcore import change as ch
+from ccdcore import change_kernels
 from ccdcore.planning import plan_acquisition
 from ccdcore.response import classic
 from ccdcore.response import tsin as T
@@ -288,7 +289,7 @@ def test_transform_covariance_against_monte_carlo():
     for _ in range(200):
         E = E0 + sr * rng.standard_normal((n, 3))
         Et = E0 @ Mt + st * rng.standard_normal((n, 3))
-        M, _ = ch._gls(E, Et, var, var_t, w, Mt, iters=3, corrected=True)
+        M, _ = change_kernels.gls(E, Et, var, var_t, w, Mt, iters=3, corrected=True)
         Ms.append(M.ravel())
         reported.append(np.diag(ch._m_covariance(E, Et, var, var_t, M, w)))
     Ms = np.array(Ms)

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ccdcore.cli as cli
+import ccdcore.cli_common as cli_common
+import ccdcore.cli_response as cli_response
 from ccdcore.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,7 +107,7 @@ def test_white_balance_prints_gains_and_offsets_with_errors(capsys):
                         t=t, notes=())
     res = SimpleNamespace(levels=256, method="tsin", files=["a", "b", "c"], t=t,
                           channels=["R"], responses=[r], agreement=None, warnings=lambda: [])
-    cli._print_response(res)
+    cli_response.print_response(res)
     out = capsys.readouterr().out
     assert "offset b_k (units of g" in " ".join(out.split())
     for a, a_err, b, b_err, tk in zip(r.a, r.a_err, r.b, r.b_err, r.t):
@@ -164,21 +165,21 @@ def test_ptc_poor_fit_gets_advice(capsys, monkeypatch):
 
 
 def test_workers_note_on_a_small_session(capsys, monkeypatch):
-    monkeypatch.setattr(cli, "_cores", lambda: 2)
-    cli._workers_note(2, 16, 786_432)
+    monkeypatch.setattr(cli_common, "cpu_cores", lambda: 2)
+    cli_common.workers_note(2, 16, 786_432)
     err = " ".join(capsys.readouterr().err.split())
     assert err == ("note: --workers 2: this machine has 2 CPU cores and the session is small "
                    "(16 frames, 0.786 megapixels in all); starting a local cluster of 2 worker "
                    "processes takes seconds, so the streamed default (no --workers) is likely "
                    "faster here")
-    monkeypatch.setattr(cli, "_cores", lambda: 32)
-    cli._workers_note(8, 4000, 4000 * 4_000_000)          # a big session on a big machine
-    cli._workers_note(None, 16, 10)                       # streamed: nothing to say
+    monkeypatch.setattr(cli_common, "cpu_cores", lambda: 32)
+    cli_common.workers_note(8, 4000, 4000 * 4_000_000)          # a big session on a big machine
+    cli_common.workers_note(None, 16, 10)                       # streamed: nothing to say
     assert capsys.readouterr().err == ""
 
 
 def test_ptc_workers_note_goes_to_stderr(capsys, monkeypatch):
-    monkeypatch.setattr(cli, "_cores", lambda: 2)
+    monkeypatch.setattr(cli_common, "cpu_cores", lambda: 2)
     code, out, err = run(capsys, "ptc", ASSETS / "healey94", "--workers", "1", "--json")
     assert code == 0
     json.loads(out)                                       # stdout stays one JSON object
@@ -188,7 +189,7 @@ def test_ptc_workers_note_goes_to_stderr(capsys, monkeypatch):
 
 def test_hdr_workers_note_counts_the_bracket(capsys, monkeypatch, tmp_path):
     """hdr says it too, with the bracket's frames and pixels from their headers."""
-    monkeypatch.setattr(cli, "_cores", lambda: 2)
+    monkeypatch.setattr(cli_common, "cpu_cores", lambda: 2)
     code, out, err = run(capsys, "hdr", ASSETS / "tsin01", "-o", tmp_path / "h", "--workers", "1")
     assert code == 0, err
     from ccdcore.response.brackets import bracket_records

@@ -1,0 +1,507 @@
+"""The calibration verbs of the command line: ``ptc``, ``calibrate``, ``datasheet``, ``apply`` and
+``snup`` (the contract is in ``docs/cli.md``; :mod:`ccdcore.cli` runs them)."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import textwrap
+from pathlib import Path
+from typing import Any, Sequence
+
+from .channels import LAYOUTS, is_bayer
+from .cli_common import (SESSION_HELP, WIDTH, add_verb, channel_name, cluster_args, json_flag,
+                         print_json, reducer_of, say, workers_note, workers_note_for)
+from .common import Roi, format_pm
+from .errors import CcdError, require_extra
+
+
+def _seconds(text: str) -> float:
+    """A positive exposure time in seconds."""
+    try:
+        t = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number of seconds") from None
+    if not (math.isfinite(t) and t > 0):
+        raise argparse.ArgumentTypeError(f"'{text}' must be a positive number of seconds")
+    return t
+
+
+def _roi(text: str) -> Roi:
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"ROI '{text}' is not X,Y,W,H, e.g. 10,10,100,100") from None
+    if w < 1 or h < 1 or x < 0 or y < 0:
+        raise argparse.ArgumentTypeError(f"ROI '{text}' needs X, Y >= 0 and W, H >= 1")
+    return Roi(x, y, w, h)
+
+
+def _get(d: dict, key: str) -> float:
+    """A number of a JSON summary (``None`` -> NaN so the formatter says n/a)."""
+    v = d.get(key)
+    return float("nan") if v is None else v
+
+
+# --------------------------------------------------------------------------------------------
+# verbs
+# --------------------------------------------------------------------------------------------
+def _cmd_ptc(args: argparse.Namespace) -> int:
+    from .noise import EMVA_FIT_FRACTION, photon_transfer
+
+    with reducer_of(args) as reducer:
+        res = photon_transfer(args.session, roi=args.roi, robust=args.robust,
+                              exclude_levels=tuple(args.exclude or ()), reducer=reducer,
+                              fit_fraction=EMVA_FIT_FRACTION if args.emva_range else None)
+    workers_note(args.workers, sum(2 * p.n_pairs for p in res.points),
+                 sum(2 * p.n_pairs * p.n_pixels for p in res.points))
+    if args.json:
+        print_json(res.to_dict())
+        return 0
+    print(f"photon transfer of {res.source or args.session}, "
+          + (f"ROI {Roi(*res.roi)} (X,Y,W,H)" if res.roi else "whole frame"))
+    print(f"{'level':>5} {'mean [DN]':>10} {'var [DN²]':>11} {'± err':>9}  used")
+    for p in res.points:
+        used = "yes" if p.used else f"no ({p.exclusion})"
+        print(f"{p.level:>5} {p.mu:>10.3f} {p.var:>11.4f} {p.var_err:>9.4f}  {used}")
+    say("fit range", res.fit_range + ("" if args.emva_range else
+                                      "; --emva-range fits only the levels up to 70 % of the "
+                                      "saturation signal (the EMVA 1288 range)"), indent="")
+    print(f"gain        A = {format_pm(res.A, res.A_err, unit='DN/e⁻')} (DN per electron; "
+          f"conversion gain {format_pm(res.conversion_gain_e_per_dn, res.conversion_gain_e_per_dn_err, unit='e⁻/DN')})")
+    print(f"signal-independent noise σ²_C = {format_pm(res.sigma_c2, res.sigma_c2_err, unit='DN²')}"
+          f" (read noise {format_pm(res.read_noise_dn, res.read_noise_dn_err, unit='DN')} = "
+          f"{format_pm(res.read_noise_e, res.read_noise_e_err, unit='e⁻')}; quantisation "
+          f"q²/12 = {res.quantisation_dn2:.4g} DN²)")
+    print(f"fit         χ² = {res.chi2:.4g} with {res.dof} degrees of freedom, Q = {res.Q:.3g} "
+          f"(chance of so large a χ² if the line fits): {res.verdict}")
+    print(f"black level b0 = {res.black_level_dn:.4g} DN ({res.black_level_source})")
+    if args.robust:
+        dropped = res.robust_dropped
+        print("robust mode  on: a level more than 3 σ off the line is dropped and the line "
+              "refitted, one at a time; " + (
+                  f"dropped level{'s' if len(dropped) != 1 else ''} "
+                  f"{', '.join(map(str, dropped))}" if dropped else "no level dropped"))
+    advice = _ptc_advice(res, robust=bool(args.robust))
+    if advice:
+        say("advice", advice, indent="")
+    for note in res.notes:
+        say("note", note, indent="")
+    return 0
+
+
+def _ptc_advice(res: Any, *, robust: bool) -> str:
+    """What to do when the photon-transfer line does not fit its points (verdict poor or
+    model rejected), naming the worst levels; empty when the fit is acceptable."""
+    if res.verdict not in ("poor", "model rejected"):
+        return ""
+    named = ", ".join(f"level {level} ({z:+.1f} σ)" for level, z in res.worst_levels(2))
+    top = max((p.mu for p in res.points if p.used and p.var_err > 0), default=float("nan"))
+    steps = [f"the fit is {res.verdict}: the points scatter about the line more than their "
+             f"errors allow (largest residuals: {named or 'none'})",
+             f"leave out levels near saturation (--exclude LEVEL; the brightest used level has "
+             f"a mean of {top:.4g} DN above b0) and levels in the dark floor",
+             "check the fit range with a region of uniform light (--roi X,Y,W,H)"]
+    if not robust:
+        steps.append("or try --robust, which drops levels more than 3 σ off the line")
+    return "; ".join(steps)
+
+
+def _print_product(product: Any, folder: Path) -> None:
+    est = product.estimates
+    print(f"calibration product written to {folder}")
+    if "noise" in est:
+        n = est["noise"]
+        print(f"  noise model    A = {format_pm(_get(n, 'A'), _get(n, 'A_err'), unit='DN/e⁻')}, "
+              f"σ²_C = {format_pm(_get(n, 'sigma_c2'), _get(n, 'sigma_c2_err'), unit='DN²')}, "
+              f"fit Q = {_get(n, 'Q'):.3g} ({n['verdict']})")
+    if "dark" in est:
+        d = est["dark"]
+        print(f"  dark D̂_D       {d['s']} frames, mean {format_pm(_get(d, 'mean'), _get(d, 'mean_sem'), unit='DN')}, "
+              f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels "
+              "(D̂_D: the mean dark frame)")
+        for note in d.get("notes") or ():
+            say("dark note", note, indent="    ")
+    if "fixed_pattern" in est:
+        k = est["fixed_pattern"]
+        bound = "infinite" if k["var_bound"] is None else format(k["var_bound"], ".3g")
+        print(f"  fixed pattern  K̂ (each pixel's relative gain, no unit) from n1 = {k['n1']} "
+              f"card/lamp positions × n2 = {k['n2']} frames: mean {_get(k, 'mean'):.6g}, "
+              f"spatial std {_get(k, 'spatial_std'):.4g}, mean error variance "
+              f"{_get(k, 'K_var_mean'):.3g} (eq. 50 bound {bound})")
+    if "correction_check" in est:
+        c = est["correction_check"]
+        print(f"  correction     eq. 51 on the max-intensity frame changes "
+              f"{100 * c['frac_gt_1q']:.1f} % of pixels by more than 1 quantisation step q "
+              f"(1 DN), {100 * c['frac_gt_2q']:.1f} % by more than 2 q; the largest change is "
+              f"{c['max_change_q']:.2f} q")
+    if "flat_field" in est:
+        ff = est["flat_field"]
+        ks = ", ".join(f"{channel_name(c['name'])} {c['k']:.4g} DN" for c in ff["channels"])
+        base = ff.get("base")
+        if isinstance(base, (list, tuple)) and len(base) == 2:
+            level, t = base
+            where = ("level " + ("–" if level is None else f"{level:g}" if isinstance(
+                level, (int, float)) else str(level)) + ", exposure "
+                     + ("–" if t is None else f"{t:g} s"))
+        else:
+            where = str(base)
+        print(f"  flat field     gain and offset maps G, O (corrected = O + G·raw) from the "
+              f"recommended base flat: {where} ({ff['n_base']} frames), and {ff['n_dark']} "
+              f"dark frames; target level k per channel: {ks}; {ff['n_flagged']} pixels "
+              "flagged")
+    if "plan" in est:
+        pl = est["plan"]
+        print(f"  plan           n1 = {pl['n1_required']} card/lamp positions needed, "
+              f"n2 = {pl['n2_required']} frames per position")
+    if "response" in est:
+        r = est["response"]
+        noise = "; ".join(
+            f"{channel_name(c)}: shot σ_s {_fmt(r['sigma_s'][i])} (√g), dark/input σ_c1 "
+            f"{_fmt(r['sigma_c1'][i])} (g), output/read σ_c2 {_fmt(r['sigma_c2'][i])} DN"
+            for i, c in enumerate(r["channels"]))
+        print(f"  response       inverse response g (code -> relative exposure) per channel "
+              f"({', '.join(channel_name(c) for c in r['channels'])}, {r['levels']} codes) by "
+              f"{r['method']}; noise {noise}")
+        ag = r.get("agreement")
+        if isinstance(ag, dict) and ag.get("rms") is not None:
+            print(f"                 predicts its images within {ag['rms']:.2f} DN RMS from a "
+                  f"neighbour ({_fmt(ag.get('rms_fitted'))} DN with fitted ratios; sec. 4.2)")
+        for w in r.get("warnings") or ():
+            say("warning", f"response: {w}")
+    for name, sv in est.get("scene", {}).items():
+        print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
+              "(relative variance of the surface, no unit)")
+    if product.emva1288 is not None:
+        _print_emva(product.emva1288)
+    print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
+    for warning in product.warnings:
+        say("warning", warning)
+    for note in product.notes:
+        say("note", note)
+
+
+#: the datasheet's sections as the calibrate summary labels them (15 characters at most)
+_EMVA_SECTION_LABELS = {"Spatial nonuniformity": "nonuniformity"}
+
+
+def _print_emva(e: dict) -> None:
+    """The EMVA 1288 block of ``calibrate``: the datasheet's rows
+    (:func:`ccdcore.emva_sheet.datasheet_rows`), one line per section, then the notes."""
+    from .emva_sheet import datasheet_rows
+
+    print("  EMVA 1288      (release 3.1, with release 4.0's DSNU/PRNU parts; as emva1288 "
+          "computes them)")
+    sections: dict[str, list[str]] = {}
+    for r in datasheet_rows(e):
+        if r.value is None and r.key == "sigma_d_ptc":
+            continue                                 # photon transfer not run: nothing to say
+        text = (format_pm(r.value, r.error, unit=r.unit) if r.value is not None
+                else "not determined (see the notes)")
+        name = f"{r.symbol} from photon transfer" if r.key == "sigma_d_ptc" else r.symbol
+        # no line break inside a figure: only between them
+        sections.setdefault(r.section, []).append(f"{name} = {text}".replace(" ", "\u00a0"))
+    for section, items in sections.items():
+        label = _EMVA_SECTION_LABELS.get(section, section.lower())
+        lines = textwrap.wrap(f"{label:<15}" + "; ".join(items), width=WIDTH,
+                              initial_indent="    ", subsequent_indent="        ",
+                              break_long_words=False, break_on_hyphens=False)
+        print("\n".join(lines).replace("\u00a0", " "))
+    for note in e.get("notes", ()):
+        say("EMVA note", note, indent="    ")
+
+
+def _fmt(v: Any) -> str:
+    return "–" if v is None else f"{float(v):.4g}"
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .io import check_outputs
+    from .product import PRODUCT_FILE, calibrate, session_inputs
+    from .session import open_session
+
+    session = open_session(args.session)
+    inputs = session_inputs(session)
+    # before the work: the product's files must not be (or hold) the session's
+    check_outputs(args.out, {PRODUCT_FILE: False, "maps": True}, inputs)
+    earlier = (Path(args.out) / PRODUCT_FILE).is_file()
+    try:
+        workers_note_for(args.workers, session, session.frames)
+        with reducer_of(args) as reducer:
+            product = calibrate(session, roi=args.roi, reducer=reducer,
+                                dark_exposure=args.dark_exposure)
+        folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
+    except KeyboardInterrupt:
+        print("ccdcore calibrate: interrupted: nothing was written" + (
+            f"; the earlier product in {args.out} is kept as it was" if earlier else ""),
+              file=sys.stderr)
+        return 130
+    if args.json:
+        out = product.to_dict()
+        out["folder"] = str(folder)
+        print_json(out)
+    else:
+        _print_product(product, folder)
+    for skip in product.skipped:  # on stderr, so --json stays one object on stdout
+        say(f"skipped {skip.estimate}", skip.reason, file=sys.stderr)
+    return 0
+
+
+def _product_manifest(path: Path) -> Path | None:
+    """``calibration.json`` of a calibration product folder (or the file itself), else None."""
+    from .product import PRODUCT_FILE
+
+    if path.is_dir() and (path / PRODUCT_FILE).is_file():
+        return path / PRODUCT_FILE
+    if path.is_file() and path.name == PRODUCT_FILE:
+        return path
+    return None
+
+
+def _product_emva(manifest: Path) -> dict:
+    """The EMVA 1288 figures a product holds, or one line saying why there are none and how
+    to get them."""
+    from .product import load_product
+
+    product = load_product(manifest.parent)
+    if product.emva1288 is not None:
+        return product.emva1288
+    skip = {s.estimate: s for s in product.skipped}.get("emva1288")
+    why = f" (calibrate skipped them: {skip.reason})" if skip is not None else ""
+    raise CcdError(manifest, f"the product holds no EMVA 1288 figures{why}; they are made from "
+                             "a session whose ptc frames carry photon counts (an EMVA1288 "
+                             "descriptor, or photons = N in the manifest): run ccdcore "
+                             "datasheet on that session, or calibrate it again")
+
+
+def _cmd_datasheet(args: argparse.Namespace) -> int:
+    require_extra("matplotlib", "datasheet", "the datasheet")   # before any work
+    from .common import json_safe
+    from .datasheet_files import OUTPUTS, plot_plan, write_datasheet
+    from .emva_sheet import datasheet_rows
+    from .io import check_outputs
+
+    source = Path(args.source)
+    manifest = _product_manifest(source)
+    if manifest is not None:
+        inputs = [manifest, manifest.parent / "maps"]
+        check_outputs(args.out, OUTPUTS, inputs)
+        emva = _product_emva(manifest)
+        where = str(manifest)
+    else:
+        from .datasheet import emva_figures
+        from .product import session_inputs
+        from .session import open_session
+
+        session = open_session(source)
+        inputs = session_inputs(session)
+        check_outputs(args.out, OUTPUTS, inputs)   # before the work
+        emva = json_safe(emva_figures(session).to_dict())
+        where = session.label
+    plan = plot_plan(emva)
+    paths = write_datasheet(emva, args.out, inputs=inputs, where=where)
+    rows = datasheet_rows(emva)
+    used = {r.note for r in rows if r.note}
+    notes = [n for n in emva.get("notes") or () if isinstance(n, str) and n not in used]
+    if args.json:
+        print_json({"source": where, "out": str(args.out), "files": [str(p) for p in paths],
+                    "rows": [r.to_dict() for r in rows], "notes": notes,
+                    "plots": plan.to_dict()})
+    else:
+        _print_datasheet(where, rows, notes, Path(args.out), paths)
+    for name, reason in plan.skipped:   # on stderr, so --json stays one object on stdout
+        say(f"skipped plot {name}", reason, file=sys.stderr)
+    return 0
+
+
+def _print_datasheet(source: str, rows: Sequence[Any], notes: Sequence[str], out: Path,
+                     paths: Sequence[Path]) -> None:
+    """The rows as a table (name, symbol, value ± error unit, or why there is none), the other
+    notes, then the files."""
+    print(f"EMVA 1288 datasheet of {source} (release 3.1; DSNU and PRNU parts of release 4.0)")
+    name_w = max(len(r.name) for r in rows)
+    sym_w = max(len(r.symbol) for r in rows)
+    section = None
+    for r in rows:
+        if r.section != section:
+            section = r.section
+            print(f"  {section}")
+        head = f"    {r.name:<{name_w}}  {r.symbol:<{sym_w}}  "
+        if r.value is not None:
+            print(head + format_pm(r.value, r.error, unit=r.unit))
+        else:   # the reason below the row, at full width
+            print(head + "not determined")
+            say("", r.note or "", indent="      ")
+    for note in notes:
+        say("note", note)
+    from .datasheet_files import PLOTS_FOLDER
+
+    plots = [p for p in paths if p.parent.name == PLOTS_FOLDER]
+    print(f"written to {out}:")
+    for p in paths:
+        if p not in plots:
+            print(f"  {p}")
+    if plots:
+        stems = list(dict.fromkeys(p.stem for p in plots))
+        kinds = " and ".join(dict.fromkeys(p.suffix[1:].upper() for p in plots))
+        say(f"  {plots[0].parent}/ ({len(stems)} plots, {kinds} each)", ", ".join(stems),
+            indent="")
+
+
+def _cmd_snup(args: argparse.Namespace) -> int:
+    from .common import check_roi
+    from .io import read_header, read_image, read_region
+    from .uniformity import snup
+
+    images = []
+    for path in args.images:
+        header = read_header(path)
+        layout = args.layout or header.layout
+        if args.roi is None:
+            data = read_image(path)
+        else:  # decode only the region: a huge frame need not fit the pixel limit
+            roi = check_roi(args.roi, header.shape, path, even=is_bayer(layout))
+            data = read_region(path, *roi)
+        res = snup(data, layout=layout, where=str(path))
+        images.append({"path": str(path), "layout": layout,
+                       "channels": res.to_dict()["channels"]})
+    if args.json:
+        print_json({"images": images})
+        return 0
+    for img in images:
+        print(f"{img['path']} ({img['layout']})" + (f", ROI {args.roi}" if args.roi else ""))
+        for ch in img["channels"]:
+            print(f"  {ch['name']:<3} mean {_get(ch, 'mean'):10.3f} DN   SNUP "
+                  f"{format_pm(_get(ch, 'snup'), _get(ch, 'snup_err'), unit='%')}")
+    return 0
+
+
+def _cmd_apply(args: argparse.Namespace) -> int:
+    from .product import apply_product
+
+    written = apply_product(args.calib, args.images, args.out_dir, compression=args.compression,
+                            linearise=args.linearise)
+    for path in written:
+        print(path)
+    say("", _applied_text(args.calib, linearise=args.linearise, n=len(written)), indent="")
+    return 0
+
+
+def _applied_text(calib: Any, *, linearise: bool, n: int) -> str:
+    """What ``apply`` did to each image, from the product's maps (read from its description,
+    not its maps): dark subtracted, fixed pattern divided, flat-field gain/offset, or the
+    response; the product named."""
+    from .product import PRODUCT_FILE, MapName
+
+    try:
+        doc = json.loads((Path(calib) / PRODUCT_FILE).read_text())
+        maps = set(doc.get("maps") or ())
+        channels = (doc.get("estimates", {}).get("response") or {}).get("channels") or []
+    except (OSError, ValueError, AttributeError):
+        maps, channels = set(), []
+    images = f"{n} image{'s' if n != 1 else ''}"
+    if linearise:
+        what = ("codes mapped through the inverse response g"
+                + (f" of channel{'s' if len(channels) != 1 else ''} "
+                   f"{', '.join(channel_name(c) for c in channels)}" if channels else "")
+                + " (values linear in exposure, g's scale)")
+    elif MapName.FLAT_G in maps:
+        what = ("flat-field corrected with the gain and offset maps flat_G, flat_O: "
+                "corrected = O + G·raw (dark image, PRNU and vignetting removed; de Lasarte et "
+                "al. 2007)")
+    elif MapName.K in maps:
+        what = ("dark reference subtracted and the fixed pattern divided out with the maps "
+                "dark, K: corrected = (raw − D̂_D)/K̂ (eq. 51)")
+    elif MapName.DARK in maps:
+        what = ("dark reference subtracted with the map dark: corrected = raw − D̂_D (no "
+                "fixed-pattern map K in the product)")
+    else:
+        what = "corrected"
+    return f"applied to {images} (listed above, float32): {what}; product {Path(calib)}"
+
+
+# --------------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------------
+_ROI_HELP = "region of interest X,Y,W,H in pixels (left, top, width, height), e.g. 10,10,100,80"
+
+
+def add_ptc(sub: Any) -> None:
+    p = add_verb(sub, "ptc", "photon transfer: noise model A, sigma_C^2 (Healey & Kondepudy 1994)",
+                 _cmd_ptc, needs="ptc frames at 3 or more light levels (two or more frames each); "
+                                 "dark frames give the black level")
+    p.add_argument("session", type=Path, help=SESSION_HELP)
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP)
+    p.add_argument("--robust", action="store_true",
+                   help="drop levels whose residual is beyond 3 sigma, one at a time")
+    p.add_argument("--exclude", type=int, action="append", metavar="LEVEL",
+                   help="exclude a light level from the fit (repeatable)")
+    p.add_argument("--emva-range", action="store_true",
+                   help="fit only the levels up to 70 %% of the saturation signal (that of the "
+                        "level of largest variance), the EMVA 1288 range; the others are "
+                        "listed as excluded (range)")
+    cluster_args(p)
+    json_flag(p)
+
+
+def add_calibrate(sub: Any) -> None:
+    p = add_verb(sub, "calibrate",
+                 "every estimate the session allows, saved as a calibration product",
+                 _cmd_calibrate, needs="any of: ptc frames (noise model), dark frames (dark "
+                                       "reference), fixed_pattern and dark frames (K map), "
+                                       "flat and dark frames (flat field); what cannot be made "
+                                       "is listed")
+    p.add_argument("session", type=Path, help=SESSION_HELP)
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help="ROI X,Y,W,H for the photon-transfer statistics")
+    p.add_argument("--dark-exposure", type=_seconds, metavar="SECONDS", default=None,
+                   help="with dark frames at several exposures, make the dark reference and "
+                        "its hot and dead pixel maps from those at this exposure (default: the "
+                        "one nearest the fixed-pattern, flat or ptc frames' median exposure)")
+    p.add_argument("-o", "--out", type=Path, required=True,
+                   help="product folder to write (new, empty, or an earlier product, which "
+                        "is replaced whole: its calibration.json and maps/, so maps this "
+                        "calibration does not make are removed; other files are left alone)")
+    cluster_args(p)
+    json_flag(p)
+
+
+def add_datasheet(sub: Any) -> None:
+    p = add_verb(sub, "datasheet", "the EMVA 1288 datasheet as files: datasheet.csv, "
+                              "datasheet.json and its plots (PNG and SVG)", _cmd_datasheet,
+                 needs="a session whose ptc frames carry photon counts (an EMVA1288 descriptor) "
+                       "and its dark frames, or a calibration product with EMVA 1288 figures; "
+                       "matplotlib (pip install 'ccdcore[datasheet]')")
+    p.add_argument("source", type=Path,
+                   help=SESSION_HELP + "; or a calibration product folder (ccdcore calibrate) "
+                                       "with EMVA 1288 figures")
+    p.add_argument("-o", "--out", type=Path, required=True, metavar="OUT_DIR",
+                   help="folder to write datasheet.csv, datasheet.json and plots/ into (an "
+                        "earlier datasheet there is replaced whole; other files are left alone)")
+    json_flag(p)
+
+
+def add_apply(sub: Any) -> None:
+    p = add_verb(sub, "apply", "correct images with a calibration product, float32 out", _cmd_apply,
+                 needs="a product with a flat field (de Lasarte: O + G·DL) or a dark map "
+                       "(Healey & Kondepudy eq. 51: (D − D̂_D)/K̂)")
+    p.add_argument("calib", type=Path, help="a calibration product folder (ccdcore calibrate)")
+    p.add_argument("images", type=Path, nargs="+", help="images of the calibrated camera")
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for the corrected images (same base names)")
+    p.add_argument("--compression", choices=["none", "zip"], default="none",
+                   help="TIFF/EXR compression of the float32 outputs (default none: about six "
+                        "times faster to write than zip, a quarter larger)")
+    p.add_argument("--linearise", action="store_true",
+                   help="map the codes through the product's inverse response g instead "
+                        "(values linear in exposure)")
+
+
+def add_snup(sub: Any) -> None:
+    p = add_verb(sub, "snup", "spatial nonuniformity percentage SNUP = 100 sigma/mean per channel "
+                         "(de Lasarte et al. 2007)", _cmd_snup, needs="images of a uniform field")
+    p.add_argument("images", type=Path, nargs="+", help="image files")
+    p.add_argument("--roi", type=_roi, metavar="X,Y,W,H", help=_ROI_HELP + " (even values on Bayer data)")
+    p.add_argument("--layout", choices=list(LAYOUTS),
+                   help="channel layout (default: from the file; give it for mosaicked raw data)")
+    json_flag(p)

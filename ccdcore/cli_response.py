@@ -1,0 +1,318 @@
+"""The exposure-bracket verbs of the command line: ``response``, ``hdr`` and ``change`` (the
+contract is in ``docs/cli.md``; :mod:`ccdcore.cli` runs them)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .cli_common import (SESSION_HELP, add_verb, channel_name, cluster_args, json_flag,
+                         print_json, reducer_of, say, workers_note, workers_note_for)
+from .common import format_pm
+from .errors import CcdError
+from .reduce import STREAMED_NAME
+
+
+def _bloom_radius(text: str) -> int:
+    """0 .. MAX_BLOOM_RADIUS: the blooming disk's cost grows with its area (3000 would ask
+    hundreds of GiB), and a halo wider than that is lens flare, not blooming."""
+    from .response.brackets import MAX_BLOOM_RADIUS
+
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number of pixels") from None
+    if not 0 <= n <= MAX_BLOOM_RADIUS:
+        raise argparse.ArgumentTypeError(
+            f"must be in 0..{MAX_BLOOM_RADIUS} pixels, got {n} (blooming spills a few pixels; "
+            "a halo wider than that is lens flare, not blooming)")
+    return n
+
+
+# --------------------------------------------------------------------------------------------
+# verbs
+# --------------------------------------------------------------------------------------------
+def print_response(res: Any) -> None:
+    from .response.methods import METHODS
+    from .response.scale import reference_codes
+
+    _, z_hi = reference_codes(res.levels)
+    top = res.levels - 1
+    print(f"inverse response by {METHODS[res.method].label} from {len(res.files)} exposures "
+          f"({', '.join(f'{t:.4g}' for t in res.t)} s), {res.levels} codes")
+    say("", f"g(z) is the inverse response: the relative exposure (light × time) that gives "
+            f"the code z, on a scale of its own: g({z_hi}) = {z_hi}/{top} = "
+            f"{z_hi / top:.4g} (the code 90 % up the range maps to 0.9; no unit)")
+    codes = sorted({round(top * f) for f in (0.05, 0.1, 0.25, 0.5, 0.75, 0.95)})
+    names = [channel_name(c) for c in res.channels]
+    print(f"  {'code z':>7} " + " ".join(f"{'g, ' + c:>20}" for c in names))
+    for z in codes:
+        print(f"  {z:>7} " + " ".join(
+            f"{format_pm(float(r.g[z]), float(r.g_err[z])):>20}" for r in res.responses))
+    for ch, r in zip(res.channels, res.responses):
+        noise = ", ".join(f"{label} = {format_pm(v, e, unit=u)}" for label, v, e, u in (
+            ("shot noise σ_s", r.sigma_s, r.sigma_s_err, "√g"),
+            ("dark/input noise σ_c1", r.sigma_c1, r.sigma_c1_err, "g"),
+            ("output/read noise σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
+        state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
+                 + ("" if r.converged else ", not converged"))
+        say(channel_name(ch), f"noise (eq. 7: σ² = σ_s²·(g − b) + σ_c1² + g'²·σ_c2²) "
+                              f"{noise or 'not estimated'}; {state}")
+        if r.white_balance:
+            say(channel_name(ch), "white balance, per exposure: gain a_k/t_k (relative to the "
+                                  "nominal time; gauge: zero mean and trend of the logs) and "
+                                  "offset b_k (units of g; the smallest-norm choice)")
+            print(f"    {'t_k [s]':>10} {'a_k/t_k':>20} {'b_k':>22}")
+            for a, a_err, b, b_err, t in zip(r.a, r.a_err, r.b, r.b_err, r.t):
+                print(f"    {t:>10.4g} {format_pm(a / t, a_err / t):>20} "
+                      f"{format_pm(float(b), float(b_err)):>22}")
+        for note in r.notes:
+            say("note", note, indent="    ")
+    ag = res.agreement
+    if ag is not None:
+        print(f"  agreement (sec. 4.2): {ag.summary()}")
+        for c in ag.channels:
+            worst = c.worst_pair()
+            tail = (f"; worst pair {res.t[worst.j]:.4g} s -> {res.t[worst.k]:.4g} s: "
+                    f"{worst.rms:.2f} DN ({worst.rms_fitted:.2f} fitted, ratio "
+                    f"{worst.ratio_fitted / worst.ratio:.3f} x nominal)") if worst else ""
+            print(f"    {c.channel}: {c.rms:.2f} DN, {c.rms_fitted:.2f} DN fitted, "
+                  f"{c.rms_blend:.2f} DN from the blend{tail}")
+    for w in res.warnings():
+        say("warning", w)
+
+
+def _cmd_response(args: argparse.Namespace) -> int:
+    from .response.methods import session_response
+
+    res = session_response(args.session, args.method, stack=args.stack,
+                           bloom_radius=args.bloom_radius, white_balance=args.white_balance)
+    if args.json:
+        print_json(res.to_dict())
+    else:
+        print_response(res)
+    return 0
+
+
+def _out_folder(out_dir: Path, names: Sequence[str], session: Any,
+                calib: Path | None = None) -> Path:
+    """The output folder, checked before any work (:func:`ccdcore.io.check_outputs`): a clear
+    error when an output would be (or be inside) an input of the run -- the session's files,
+    the product folder -- or is a FIFO or a device. The files are then written as one set
+    (:func:`ccdcore.io.output_set`), which creates the folder."""
+    from .io import check_outputs
+    from .product import session_inputs
+
+    inputs = session_inputs(session) + ([Path(calib)] if calib is not None else [])
+    check_outputs(out_dir, names, inputs)
+    return Path(out_dir)
+
+
+def _cmd_change(args: argparse.Namespace) -> int:
+    from .change import ChangeOptions, session_change
+    from .io import write_image, write_map, write_outputs
+    from .product import session_inputs
+    from .response.brackets import bracket_records
+    from .session import open_session
+
+    session = open_session(args.session)
+    session.raise_if_invalid()
+    opts = ChangeOptions(pfa=args.pfa)
+    opts.check()
+    names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
+    records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
+    folder = _out_folder(args.out_dir, names, session, args.calib)
+    with reducer_of(args) as reducer:
+        res, inputs = session_change(session, opts, calib=args.calib,
+                                     bloom_radius=args.bloom_radius, reducer=reducer)
+        scheduler = reducer.description
+    workers_note(args.workers, len(records), len(records) * int(res.labels.size))
+    change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
+    d2 = np.where(res.valid, res.d2_best, np.nan).astype(np.float32)
+    paths = write_outputs(folder, {   # as one set: never new and old files mixed
+        names[0]: lambda p: write_image(p, change),
+        names[1]: lambda p: write_image(p, res.labels),
+        names[2]: lambda p: write_map(p, d2),
+        names[3]: lambda p: write_map(p, res.predicted.astype(np.float32))},
+        inputs=session_inputs(session) + ([args.calib] if args.calib else []))
+    summary = res.to_dict()
+    if args.json:
+        print_json({"source": inputs["source"], "channels": list(inputs["channels"]),
+                    **summary, "files": [str(p) for p in paths], "scheduler": scheduler})
+        return 0
+    print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
+    channels = [str(c) for c in inputs["channels"]]
+    if scheduler != STREAMED_NAME:
+        print(f"  brackets merged on {scheduler}")
+    print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "
+          f"(χ²_{res.dof}: {summary['threshold_chi2']:.3g}; observed on the background "
+          f"{summary['pfa_observed']:.3g}, {summary['pfa_observed_at_chi2_threshold']:.3g} at "
+          "the χ² threshold)")
+    if res.clusters and len(channels) != res.clusters[0].M.shape[0]:
+        channels = [str(i + 1) for i in range(res.clusters[0].M.shape[0])]
+    if res.clusters:
+        say("", "each cluster's colour transform M (eq. 20) maps a pixel's reference radiance "
+                "to its target radiance, E_target = E_reference · M (row vectors): row k = "
+                "reference channel k, column j = target channel j, so M[k, j] is how much of "
+                "reference channel k goes into target channel j (no unit; 1 on the diagonal "
+                "means unchanged light)")
+    for c in res.clusters:
+        what = "background" if c.label == 0 else f"shadow {c.label}"
+        print(f"  cluster {c.label} ({what}): {c.pixels} pixels, median d² {c.d2_median:.2f}")
+        print(f"    {'M':<9}" + "".join(f"{'target ' + j:>18}" for j in channels))
+        for k, row, err in zip(channels, c.M, np.sqrt(np.diag(c.M_cov)).reshape(c.M.shape)):
+            print(f"    {'ref ' + k:<9}" + "".join(f"{f'{v:.4f} ± {e:.4f}':>18}"
+                                                   for v, e in zip(row, err)))
+    print(f"  changed pixels {summary['changed_pixels']}, undetermined "
+          f"{summary['undetermined_pixels']}; background mean d² "
+          f"{summary['background_d2_mean']:.2f}")
+    for n in res.notes:
+        print(f"  note: {n}")
+    say("written", "change mask (255 = changed), labels (0 background, 1.. shadows, 255 "
+                   "changed, 254 undetermined), d² under the best cluster, predicted target "
+                   "radiance")
+    for p in paths:
+        print(f"  {p}")
+    return 0
+
+
+def _cmd_hdr(args: argparse.Namespace) -> int:
+    from .io import write_image, write_map, write_outputs
+    from .product import load_product, session_inputs
+    from .response.brackets import check_times, bracket_records, load_bracket
+    from .response.hdr import merge_bracket
+    from .response.methods import response_of
+    from .session import open_session
+
+    session = open_session(args.session)
+    session.raise_if_invalid()
+    records = bracket_records(session, args.stack)
+    names = ("radiance.exr", "sigma.exr", "flags.png")
+    workers_note_for(args.workers, session, records)
+    folder = _out_folder(args.out_dir, names, session, args.calib)
+    with reducer_of(args) as reducer:
+        # read once here for the traces and the merge; with a calibration only when the
+        # merge wants the frames as read (streamed)
+        frames = (reducer.preload(session, records) if args.calib is not None
+                  else [session.read(r) for r in records])
+        if frames is None:
+            # the workers read the frames: only what the calibration's models need here
+            files = [r.relpath for r in records]
+            if session.camera.bits is None:
+                raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] "
+                                         "bits in the manifest (the response has 2**bits "
+                                         "values)")
+            levels = 2 ** int(session.camera.bits)
+            times = np.sort(check_times([r.exposure for r in records], files), kind="stable")
+        else:
+            brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,
+                                    frames=frames)
+            first = next(iter(brackets.values()))
+            levels, times = first.levels, first.t
+        if args.calib is not None:
+            models = load_product(args.calib).response_models(args.calib)
+            for ch, m in models.items():
+                if m.levels != levels:
+                    raise CcdError(args.calib, f"its response has {m.levels} codes, the "
+                                               f"bracket's camera {levels}: another camera?")
+                # the product's a, b were its own bracket's nominal times: take this one's
+                models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s,
+                                     m.sigma_c1, m.sigma_c2)
+            source = f"response of {args.calib}"
+        else:
+            res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius,
+                              white_balance=args.white_balance)
+            models = res.models()
+            source = "response estimated from this bracket (sec. 3.2)"
+        out = merge_bracket(records, models, layout=session.camera.layout,
+                            bloom_radius=args.bloom_radius, frames=frames, reducer=reducer,
+                            session=session)
+        scheduler = reducer.description
+    paths = write_outputs(folder, {   # as one set: never new and old files mixed
+        names[0]: lambda p: write_map(p, out.radiance),
+        names[1]: lambda p: write_map(p, out.sigma),
+        names[2]: lambda p: write_image(p, out.flag_image())},
+        inputs=session_inputs(session) + ([args.calib] if args.calib else []))
+    if args.json:
+        print_json({"source": source, "channels": list(out.channels),
+                    "files": [str(p) for p in paths],
+                    "flags": {"ok": int(np.sum(out.flag_image() == 0)),
+                              "flagged": int(np.sum(out.flag_image() != 0))},
+                    "scheduler": scheduler})
+    else:
+        print(f"HDR radiance of {len(records)} exposures ({source}), channels "
+              f"{', '.join(out.channels)}")
+        if scheduler != STREAMED_NAME:
+            print(f"  merged on {scheduler}")
+        for p in paths:
+            print(f"  {p}")
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------------
+def _bloom_arg(p: argparse.ArgumentParser) -> None:
+    from .response.brackets import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
+
+    p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
+                   metavar="R", help="pixels within R of a saturated pixel are dropped as "
+                                     f"blooming (default {DEFAULT_BLOOM_RADIUS}; 0 keeps them; "
+                                     f"at most {MAX_BLOOM_RADIUS})")
+
+
+def _bracket_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("session", type=Path, help=SESSION_HELP)
+    p.add_argument("--stack", type=int, default=None,
+                   help="which bracket of the session (its 'stack'; default the first)")
+    _bloom_arg(p)
+
+
+def add_response(sub: Any) -> None:
+    from .response.methods import METHODS
+
+    p = add_verb(sub, "response", "inverse camera response g per channel, with its band and the "
+                             "noise terms (Tsin et al. 2001 and classic methods)", _cmd_response,
+                 needs="an exposure bracket (role = bracket, one exposure per frame)")
+    _bracket_args(p)
+    p.add_argument("--method", choices=list(METHODS), default="tsin",
+                   help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
+    p.add_argument("--white-balance", action="store_true",
+                   help="estimate each image's gain a_k and offset b_k too (tsin; up to a common "
+                        "factor and a trend in the exposure, which no bracket fixes)")
+    json_flag(p)
+
+
+def add_hdr(sub: Any) -> None:
+    p = add_verb(sub, "hdr",
+                 "HDR radiance map and its per-pixel sigma (Tsin et al. eqs. 9, 18, 19)",
+                 _cmd_hdr, needs="an exposure bracket; a product's response with --calib")
+    _bracket_args(p)
+    p.add_argument("--calib", type=Path,
+                   help="a calibration product with a response (default: estimate it from "
+                        "this bracket)")
+    p.add_argument("--white-balance", action="store_true",
+                   help="without --calib: estimate the gains and offsets too (see response)")
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for radiance.exr, sigma.exr and flags.png")
+    cluster_args(p)
+    json_flag(p)
+
+
+def add_change(sub: Any) -> None:
+    p = add_verb(sub, "change",
+                 "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
+                 _cmd_change, needs="reference and target brackets (roles reference, target)")
+    p.add_argument("session", type=Path, help=SESSION_HELP)
+    p.add_argument("--pfa", type=float, default=0.01,
+                   help="false-alarm probability per background pixel (default 0.01)")
+    p.add_argument("--calib", type=Path,
+                   help="a calibration product with a response (default: estimate it from "
+                        "the reference bracket)")
+    _bloom_arg(p)
+    p.add_argument("-o", "--out-dir", type=Path, required=True,
+                   help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")
+    cluster_args(p)
+    json_flag(p)

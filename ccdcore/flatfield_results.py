@@ -1,0 +1,288 @@
+"""The results of the flat-field correction of :mod:`ccdcore.flatfield` (de Lasarte et al. 2007):
+the gain and offset maps G, O with what they were made from (:class:`FlatField`, one
+:class:`FlatChannel` per channel) and the correction DL_c = O + G·DL they apply (eq. 2,
+:func:`correct`); the frozen results of the base-image recommendation, the base-image study, the
+zero-dark check, the comparison of offset settings and that of G/O with K̂; the defaults of the
+flag rule and of the zero-dark warning (the rules are stated in the docstring of
+:mod:`ccdcore.flatfield`).
+
+Every name here is re-exported by :mod:`ccdcore.flatfield`.
+
+Public objects
+--------------
+FlatChannel, FlatField
+    Per-channel summary; the result with G, O, flags, DL_0/DL_B moments, ``correct()``, ``maps()``.
+correct(frame, G, O)
+    DL_c = O + G·DL as float32 (for saved maps).
+BaseRecommendation, BaseStudy, ZeroDark, SettingsComparison, KMapComparison
+    The results of :func:`~ccdcore.flatfield.recommend_base`,
+    :func:`~ccdcore.flatfield.base_image_study`, :func:`~ccdcore.flatfield.zero_dark`,
+    :func:`~ccdcore.flatfield.compare_dark_settings` and
+    :func:`~ccdcore.flatfield.compare_with_k_map`.
+NOISE_LIMIT, WINDOW, ZERO_LIMIT
+    Defaults of the flag rule and of the zero-dark warning.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import CcdError
+from .map_names import MapName
+from .stats import MomentsResult
+from .uniformity import Linearity
+
+__all__ = ["FlatChannel", "FlatField", "correct", "BaseRecommendation", "BaseStudy", "ZeroDark",
+           "SettingsComparison", "KMapComparison", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
+
+#: c of the flag rule Δ <= c·σ_Δ
+NOISE_LIMIT = 5.0
+#: side of the neighbourhood giving G at flagged pixels
+WINDOW = 9
+#: fraction of zero dark pixels above which the dark image counts as clipped at zero
+ZERO_LIMIT = 0.01
+
+
+# --------------------------------------------------------------------------------------------
+# G and O
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FlatChannel:
+    """One channel of a :class:`FlatField`: k, ⟨DL_0⟩, ⟨DL_B⟩ (DN), flags and zero-dark pixels."""
+
+    name: str
+    k: float
+    dark_level: float
+    base_level: float
+    n_flagged: int
+    n_pixels: int
+    dark_zero_fraction: float | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "k": self.k, "dark_level": self.dark_level,
+                "base_level": self.base_level, "n_flagged": self.n_flagged,
+                "n_pixels": self.n_pixels, "dark_zero_fraction": self.dark_zero_fraction}
+
+
+@dataclass(frozen=True, eq=False)
+class FlatField:
+    """Gain and offset maps G, O (eqs. 3–4) and what they were made from.
+
+    Attributes
+    ----------
+    G, O
+        float32 maps of the frames' shape ((H, W) or (H, W, 3); Bayer: the full mosaic).
+    flags
+        bool map: Δ = DL_B − DL_0 not positive or noise dominated (the flag rule of
+        :mod:`ccdcore.flatfield`).
+    dark, base
+        :class:`~ccdcore.stats.MomentsResult` of DL_0 and DL_B (per-pixel mean, variance, n).
+    layout
+        ``"mono"``, ``"rgb"`` or ``"bayer-rggb"`` ...
+    channels
+        :class:`FlatChannel` per channel.
+    noise_limit, window
+        c and the neighbourhood of the flag rule.
+    base_key, setting, dark_exposure
+        The base group ``(level, exposure)``, offset setting and dark exposure when known.
+    notes
+        Decisions taken (setting chosen, zero-clipped dark image ...).
+    """
+
+    G: NDArray[np.float32]
+    O: NDArray[np.float32]
+    flags: NDArray[np.bool_]
+    dark: MomentsResult
+    base: MomentsResult
+    layout: str
+    channels: tuple[FlatChannel, ...]
+    noise_limit: float = NOISE_LIMIT
+    window: int = WINDOW
+    base_key: tuple | None = None
+    setting: str | None = None
+    dark_exposure: float | None = None
+    notes: tuple[str, ...] = ()
+
+    flag_rule = ("flagged where DL_B − DL_0 <= c·sqrt(s²_B/n_B + s²_0/n_0); there "
+                 "G = k / (mean DL_B − DL_0 of the unflagged pixels of the channel in a "
+                 "window x window neighbourhood), O = ⟨DL_0⟩ − G·DL_0")
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return self.G.shape
+
+    def channel(self, name: str) -> FlatChannel:
+        for c in self.channels:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    @property
+    def G_rel_err(self) -> NDArray[np.float64]:
+        """Per-pixel relative standard error of G from the temporal noise of DL_B and DL_0:
+        σ_G/G = σ_Δ/Δ (NaN where flagged or where one frame gives no variance)."""
+        sd = np.sqrt(self.base.var / self.base.n + self.dark.var / self.dark.n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = sd / (self.base.mean - self.dark.mean)
+        out[self.flags] = np.nan
+        return out
+
+    def correct(self, frame: ArrayLike, *, where: Any = "frame") -> NDArray[np.float32]:
+        """DL_c = O + G·DL (eq. 2), float32."""
+        return correct(frame, self.G, self.O, where=where)
+
+    def maps(self) -> dict[str, NDArray[np.float32]]:
+        """float32 maps for a calibration product: ``flat_G``, ``flat_O``, ``flat_flags`` (0/1),
+        ``flat_dark`` (DL_0), ``flat_base`` (DL_B)."""
+        return {MapName.FLAT_G: self.G, MapName.FLAT_O: self.O,
+                MapName.FLAT_FLAGS: self.flags.astype(np.float32),
+                MapName.FLAT_DARK: self.dark.mean.astype(np.float32),
+                MapName.FLAT_BASE: self.base.mean.astype(np.float32)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary (no maps), JSON-friendly."""
+        return {"layout": self.layout, "shape": list(self.shape), "n_dark": self.dark.n,
+                "n_base": self.base.n, "channels": [c.to_dict() for c in self.channels],
+                "n_flagged": int(self.flags.sum()), "noise_limit": self.noise_limit,
+                "window": self.window, "flag_rule": self.flag_rule,
+                "base": None if self.base_key is None else list(self.base_key),
+                "setting": self.setting, "dark_exposure": self.dark_exposure,
+                "notes": list(self.notes)}
+
+
+def correct(frame: ArrayLike, G: ArrayLike, O: ArrayLike, *,
+            where: Any = "frame") -> NDArray[np.float32]:
+    """DL_c = O + G·DL (eq. 2 of de Lasarte et al. 2007), computed in float64, returned float32.
+
+    Raises
+    ------
+    CcdError
+        The frame's shape differs from the maps' (``where`` names the frame), or it holds NaN.
+    """
+    D = np.asarray(frame)
+    if D.shape != np.shape(G) or D.shape != np.shape(O):
+        raise CcdError(where, f"frame shape {D.shape} differs from the flat-field maps' "
+                              f"{np.shape(G)} (another camera mode or layout?)")
+    out = np.multiply(G, D, dtype=np.float64)
+    out += O
+    return out.astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------
+# the studies (items 5-7)
+# --------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class BaseRecommendation:
+    """The recommended base correction image and every candidate's numbers.
+
+    ``candidates``: one dict per flat group: ``key``, ``n_frames``, ``mean_dn`` and
+    ``p_high_dn`` per channel, ``in_linear_range``, ``distance`` (to the middle of the range,
+    in range widths; None outside).
+    """
+
+    key: tuple[Any, Any]
+    reason: str
+    rule: str
+    candidates: tuple[dict, ...]
+    linearity: Linearity
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"base": list(self.key), "reason": self.reason, "rule": self.rule,
+                "candidates": [dict(c, key=list(c["key"])) for c in self.candidates]}
+
+
+@dataclass(frozen=True)
+class BaseStudy:
+    """SNUP after correction of every image group with every candidate base (Fig. 3, Tables 3–5).
+
+    ``rows``: dicts ``base`` (``(level, exposure)``, None = uncorrected), ``image``, ``channel``,
+    ``snup_mean``, ``snup_std`` (over the group's frames), ``n``, ``image_mean_dn``,
+    ``base_mean_dn``, ``self`` (the image group is the base: optimistic, its noise is in G).
+    """
+
+    rows: tuple[dict, ...]
+    setting: str | None
+    nearest: bool
+    recommended: tuple[Any, Any] | None
+
+    def table(self, channel: str) -> dict[tuple, dict[tuple, float]]:
+        """``{base: {image: snup_mean}}`` for one channel."""
+        out: dict[tuple, dict[tuple, float]] = {}
+        for r in self.rows:
+            if r["channel"] == channel:
+                out.setdefault(r["base"], {})[r["image"]] = r["snup_mean"]
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        def k(v):
+            return None if v is None else list(v)
+        return {"setting": self.setting, "nearest": self.nearest,
+                "recommended": k(self.recommended),
+                "rows": [dict(r, base=k(r["base"]), image=k(r["image"])) for r in self.rows]}
+
+
+@dataclass(frozen=True)
+class ZeroDark:
+    """Fraction of dark pixel values equal to zero, per channel; ``clipped`` above ``limit``."""
+
+    fractions: dict[str, float]
+    limit: float
+    clipped: bool
+    warning: str | None
+
+    @staticmethod
+    def warning_text(fraction: float) -> str:
+        return (f"{100 * fraction:.1f} % of the dark pixel values are 0: the dark image is "
+                "clipped at zero (a 'zero dark image' offset setting). The negative half of the "
+                "dark noise and the true dark level are lost, so DL_0 is biased and the "
+                "correction is worse (de Lasarte et al., Table 2); raise the camera offset "
+                "until no dark pixel reads 0")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"fractions": dict(self.fractions), "limit": self.limit, "clipped": self.clipped,
+                "warning": self.warning}
+
+
+@dataclass(frozen=True)
+class SettingsComparison:
+    """Table 2: mean SNUP after correction of the images in the linear range, per setting.
+
+    ``rows``: dicts ``setting``, ``channel``, ``snup_mean``, ``snup_std`` (over images), ``n``,
+    ``zero_fraction``, ``base``; ``zero_dark``: :class:`ZeroDark` per setting.
+    """
+
+    rows: tuple[dict, ...]
+    zero_dark: dict[str, ZeroDark]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": [dict(r, base=list(r["base"])) for r in self.rows],
+                "zero_dark": {s: z.to_dict() for s, z in self.zero_dark.items()}}
+
+
+@dataclass(frozen=True)
+class KMapComparison:
+    """G/O against K̂ on the same held-out uniform-field frames (:mod:`ccdcore.flatfield`).
+
+    ``rows``: per channel ``snup_raw``, ``snup_G``, ``snup_K`` (mean over the held-out frames;
+    the K̂-corrected frame (D − D̂_D)/K̂ gets the channel's mean dark level added back, as eq. 2
+    keeps it, so that all three SNUPs divide by comparable means),
+    ``snup_limit`` (the shot-noise limit of one frame, from its temporal variance: 100·σ_t/mean),
+    and with a true flat field ``residual_G_pct`` / ``residual_K_pct`` (100·std of the estimated
+    flat field divided by the truth, normalised) and ``residual_hf_G_pct`` / ``residual_hf_K_pct``
+    (the same after dividing out the local mean in the K̂ window: the PRNU part).
+    """
+
+    rows: tuple[dict, ...]
+    evaluate: tuple[Any, Any]
+    base: tuple[Any, Any]
+    configurations: tuple[tuple, ...]
+    window: int
+    conclusion: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"rows": list(self.rows), "evaluate": list(self.evaluate), "base": list(self.base),
+                "configurations": [list(c) for c in self.configurations], "window": self.window,
+                "conclusion": self.conclusion}
