@@ -132,3 +132,84 @@ def test_the_checks_see_imports_inside_functions(tmp_path):
     assert _find_cycle(_import_graph(imports)) == ["ccdcore.a", "ccdcore.b", "ccdcore.sub.c",
                                                    "ccdcore.a"]
     assert _private_imports(imports) == ["ccdcore.sub.c imports _hidden from ccdcore.a"]
+
+
+#: the modules that run reductions over frames: they take a ``reducer`` (ccdcore.reduce)
+ESTIMATORS = ("ccdcore.darkframe", "ccdcore.noise", "ccdcore.fixedpattern", "ccdcore.flatfield",
+              "ccdcore.response.hdr", "ccdcore.change", "ccdcore.product", "ccdcore.reduce")
+
+
+def _all_imports(path: Path) -> set[str]:
+    """Every module an import statement of ``path`` names, anywhere in the file."""
+    import ast
+
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            found.add(("." * node.level) + (node.module or ""))
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names)
+    return found
+
+
+def test_estimators_take_a_reducer_and_never_see_dask():
+    """No estimator imports Dask or ccdcore.distributed, even inside a function, and none has a
+    parameter named ``client``: where the reductions run is the reducer's business."""
+    import ast
+
+    for name in ESTIMATORS:
+        path = ROOT.parent / (name.replace(".", "/") + ".py")
+        mods = _all_imports(path)
+        bad = sorted(m for m in mods if m.lstrip(".").split(".")[0] in ("dask", "distributed")
+                     or m.endswith("distributed") or "dask_" in m)
+        assert bad == [], f"{name} imports {bad}"
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                params = [a.arg for a in node.args.args + node.args.kwonlyargs]
+                assert "client" not in params, f"{name}.{node.name} takes a client"
+
+
+def test_an_estimator_runs_on_the_reducer_it_is_given():
+    """A reducer of one's own (here one that counts and then streams) is the one the dark
+    reference, the photon transfer and K̂ use, for every frame."""
+    from ccdcore.darkframe import dark_reference
+    from ccdcore.fixedpattern import fixed_pattern_map
+    from ccdcore.noise import photon_transfer
+    from ccdcore.reduce import STREAMED, Reducer
+
+    calls: list[str] = []
+
+    class Counting(Reducer):
+        def moments(self, frames, **kw):
+            calls.append("moments")
+            return super().moments(frames, **kw)
+
+        def pair_stats(self, session, paired, **kw):
+            calls.append("pairs")
+            return super().pair_stats(session, paired, **kw)
+
+        def frame_sums(self, session, records, **kw):
+            calls.append("sums")
+            return super().frame_sums(session, records, **kw)
+
+        def fixed_pattern(self, source, **kw):
+            calls.append("kmap")
+            return super().fixed_pattern(source, **kw)
+
+    healey = ROOT.parent / "assets" / "healey94"
+    counting = Counting()
+    a, b = dark_reference(healey_session(healey)), dark_reference(healey_session(healey),
+                                                                  reducer=counting)
+    assert a.mean_map.tobytes() == b.mean_map.tobytes() and calls == ["moments"]
+    pt = photon_transfer(healey, reducer=counting)
+    # (the manifest gives the black level: no dark sums)
+    assert pt.A == photon_transfer(healey, reducer=STREAMED).A and calls[1:] == ["pairs"]
+    k = fixed_pattern_map(healey_session(healey), reducer=counting)
+    # K̂ asks its reducer for the dark reference too
+    assert calls[2:] == ["kmap", "moments"] and k.K.shape == a.mean_map.shape
+
+
+def healey_session(path):
+    from ccdcore.session import open_session
+
+    return open_session(path)
