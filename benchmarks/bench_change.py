@@ -147,7 +147,7 @@ def run_ours(scene: Scene) -> tuple[Any, dict[str, Any], dict[str, float]]:
     result, inputs = session_change(open_session(scene.folder), opts)
     t_all = time.perf_counter() - t0
     t0 = time.perf_counter()
-    again = detect(inputs["E_ref"], inputs["sigma_ref"], inputs["E_tgt"], inputs["sigma_tgt"],
+    again = detect(inputs.E_ref, inputs.sigma_ref, inputs.E_tgt, inputs.sigma_tgt,
                    ChangeOptions(pfa=PFA))
     t_det = time.perf_counter() - t0
     if not np.array_equal(again.labels, result.labels):
@@ -200,8 +200,8 @@ def ours_extra(scene: Scene, result: Any) -> dict[str, Any]:
 
 # -- the ratio detector -----------------------------------------------------------------------
 def ratio_score(inputs: dict[str, Any]) -> np.ndarray:
-    E, Et = inputs["E_ref"], inputs["E_tgt"]
-    ok = np.all(np.isfinite(inputs["sigma_ref"]) & np.isfinite(inputs["sigma_tgt"])
+    E, Et = inputs.E_ref, inputs.E_tgt
+    ok = np.all(np.isfinite(inputs.sigma_ref) & np.isfinite(inputs.sigma_tgt)
                 & (E > 0) & (Et > 0), axis=-1)
     logr = np.log(np.where(ok[..., None], Et, 1.0)) - np.log(np.where(ok[..., None], E, 1.0))
     logr -= np.median(logr[ok], axis=0)

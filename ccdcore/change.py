@@ -51,9 +51,9 @@ detect(E_ref, sigma_ref, E_tgt, sigma_tgt, options)
     Sec. 5 on two radiance maps with their sigmas.
 prediction_d2(E_ref, sigma_ref, E_tgt, sigma_tgt, M, M_cov)
     d² of every pixel under one transform.
-session_change(session, options, calib=None, reducer=None)
+session_change(session, options, calib=None, reducer=None), ChangeInputs
     Both brackets of a session turned into radiance (the response estimated from the reference
-    bracket or taken from a calibration product) and :func:`detect`.
+    bracket or taken from a calibration product) and :func:`detect`; what it gave detect.
 
 The numerical kernels (d² and its compiled RGB pass, generalised least squares, the FAST-LTS
 search) are in :mod:`ccdcore.change_kernels`.
@@ -74,7 +74,7 @@ from .errors import CcdError
 from .progress import Progress, silent, within
 from .reduce import STREAMED, Reducer
 
-__all__ = ["ChangeOptions", "Cluster", "ChangeResult", "detect", "prediction_d2",
+__all__ = ["ChangeOptions", "Cluster", "ChangeResult", "ChangeInputs", "detect", "prediction_d2",
            "session_change", "LABEL_CHANGE", "LABEL_UNDETERMINED"]
 
 LABEL_CHANGE = 255
@@ -154,6 +154,21 @@ class Cluster:
                 "M": self.M.tolist(), "M_err": np.sqrt(np.diag(self.M_cov)).reshape(
                     self.M.shape).tolist(), "M_cov": self.M_cov.tolist(),
                 "d2_median": float(self.d2_median)}
+
+
+@dataclass(frozen=True, eq=False)
+class ChangeInputs:
+    """What :func:`session_change` gave :func:`detect`: both brackets' radiance maps E and
+    their sigma (eqs. 9, 19; H×W×channels, float64), the ``channels``, where the response came
+    from (``source``) and the frames of both brackets (``files``, reference first)."""
+
+    E_ref: NDArray[np.float64]
+    sigma_ref: NDArray[np.float64]
+    E_tgt: NDArray[np.float64]
+    sigma_tgt: NDArray[np.float64]
+    channels: tuple[str, ...]
+    source: str
+    files: tuple[str, ...]
 
 
 @dataclass
@@ -598,13 +613,13 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
 def session_change(session: Any, options: ChangeOptions | None = None, *,
                    calib: str | Path | None = None, bloom_radius: int | None = None,
                    progress: Progress | None = None, reducer: Reducer | None = None,
-                   band_rows: int | None = None) -> tuple[ChangeResult, dict[str, Any]]:
+                   band_rows: int | None = None) -> tuple[ChangeResult, ChangeInputs]:
     """Sec. 5 on a session's ``reference`` and ``target`` brackets.
 
     The response (g and the noise terms) comes from ``calib`` (a calibration product) or is
     estimated from the reference bracket (sec. 3.2); both brackets are merged with it at their
-    nominal times (eqs. 9, 18, 19). Returns the result and the inputs: ``E_ref``, ``sigma_ref``,
-    ``E_tgt``, ``sigma_tgt``, ``channels``, ``files`` (both brackets'), ``source``.
+    nominal times (eqs. 9, 18, 19). Returns the result and its :class:`ChangeInputs` (both
+    radiance maps with their sigma, the channels, the response's source, the frames).
     ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
     half (without ``calib``), :func:`detect` the rest.
 
@@ -679,11 +694,11 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
                                   frames=frames[role], reducer=red, session=session,
                                   band_rows=band_rows)
         frames[role] = None
-    inputs = {"E_ref": out["reference"].radiance, "sigma_ref": out["reference"].sigma,
-              "E_tgt": out["target"].radiance, "sigma_tgt": out["target"].sigma,
-              "channels": out["reference"].channels, "source": source,
-              "files": [r.relpath for role in recs for r in recs[role]]}
-    result = detect(inputs["E_ref"], inputs["sigma_ref"], inputs["E_tgt"], inputs["sigma_tgt"],
+    inputs = ChangeInputs(out["reference"].radiance, out["reference"].sigma,
+                          out["target"].radiance, out["target"].sigma,
+                          tuple(out["reference"].channels), source,
+                          tuple(r.relpath for role in recs for r in recs[role]))
+    result = detect(inputs.E_ref, inputs.sigma_ref, inputs.E_tgt, inputs.sigma_tgt,
                     options, names=(first["reference"], first["target"]),
                     progress=within(progress, 0.5 if calib is None else 0.1, 1.0))
     return result, inputs

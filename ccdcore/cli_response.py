@@ -139,11 +139,11 @@ def _cmd_change(args: argparse.Namespace) -> int:
         inputs=session_inputs(session) + ([args.calib] if args.calib else []))
     summary = res.to_dict()
     if args.json:
-        print_json({"source": inputs["source"], "channels": list(inputs["channels"]),
+        print_json({"source": inputs.source, "channels": list(inputs.channels),
                     **summary, "files": [str(p) for p in paths], "scheduler": scheduler})
         return 0
-    print(f"change detection (Tsin et al. 2001, sec. 5), {inputs['source']}")
-    channels = [str(c) for c in inputs["channels"]]
+    print(f"change detection (Tsin et al. 2001, sec. 5), {inputs.source}")
+    channels = [str(c) for c in inputs.channels]
     if scheduler != STREAMED_NAME:
         print(f"  brackets merged on {scheduler}")
     print(f"  threshold d² {res.threshold:.3g} for a false-alarm rate of {res.pfa:g} "

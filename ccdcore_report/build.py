@@ -17,7 +17,7 @@ import datetime
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any
 
 from ccdcore import __version__
 from ccdcore.errors import CcdError
@@ -25,6 +25,9 @@ from ccdcore.product import (PRODUCT_FILE, REQUIREMENTS, CalibrationProduct, cal
                              estimate_all, load_product, missing_frames)
 from ccdcore.progress import Progress, silent, within
 from ccdcore.session import Session, open_session
+
+if TYPE_CHECKING:     # the change detector is imported where it runs
+    from ccdcore.change import ChangeInputs
 
 from . import sections
 from .figures import MAX_MAP_SIDE
@@ -89,7 +92,7 @@ class _Inputs:
     product: CalibrationProduct
     session: Session | None
     change: Any
-    change_inputs: Mapping[str, Any] | None
+    change_inputs: ChangeInputs | None
     origin: str
 
 

@@ -9,7 +9,7 @@ maps_section, change_section
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,6 +17,9 @@ from numpy.typing import NDArray
 from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
 from ccdcore.product import CalibrationProduct, MapName
+
+if TYPE_CHECKING:     # the change detector is imported where it runs
+    from ccdcore.change import ChangeInputs
 
 from . import figures
 from .figures import MAP_SPECS, MapSpec
@@ -183,7 +186,7 @@ def _change_maps(doc: Doc, change: Any) -> None:
     doc.add("</div>")
 
 
-def change_section(doc: Doc, change: Any, inputs: Mapping[str, Any] | None) -> None:
+def change_section(doc: Doc, change: Any, inputs: ChangeInputs | None) -> None:
     """Change detection (Tsin et al. sec. 5): the response used, the thresholds, each cluster
     with its transform M, then the label and d² maps."""
     summary = change.to_dict()
@@ -193,9 +196,9 @@ def change_section(doc: Doc, change: Any, inputs: Mapping[str, Any] | None) -> N
                      "(background, each shade of shadow), d\u00b2 of each pixel under it, and "
                      "the threshold calibrated on the background for the requested false-alarm "
                      "rate."))
-        if inputs:
-            doc.add(para(f"Response: {inputs.get('source', 'n/a')}; channels "
-                         f"{', '.join(map(str, inputs.get('channels', ())))}."))
+        if inputs is not None:
+            doc.add(para(f"Response: {inputs.source or 'n/a'}; channels "
+                         f"{', '.join(map(str, inputs.channels))}."))
         doc.add(_change_facts(summary))
         doc.add(_clusters_table(summary))
         doc.add(bullets(summary.get("notes") or ()))

@@ -97,7 +97,7 @@ def test_empirical_threshold_corrects_a_wrong_noise_scale(scene):
     """Sigmas 30 % too small make d² about twice χ²: the χ² threshold would call several
     times P of the background changed, the calibrated threshold keeps it near P."""
     _, _, changed, shadow, _, inp = scene
-    r = CH.detect(inp["E_ref"], 0.7 * inp["sigma_ref"], inp["E_tgt"], 0.7 * inp["sigma_tgt"],
+    r = CH.detect(inp.E_ref, 0.7 * inp.sigma_ref, inp.E_tgt, 0.7 * inp.sigma_tgt,
                   CH.ChangeOptions(pfa=0.01))
     background = ~changed & (shadow == 0)
     assert r.scale == pytest.approx(1 / 0.49, rel=0.15)
@@ -110,10 +110,10 @@ def test_empirical_threshold_corrects_a_wrong_noise_scale(scene):
 def test_prediction_d2_matches_the_clusters_map(scene):
     _, _, _, _, r, inp = scene
     c = r.clusters[0]
-    d2 = CH.prediction_d2(inp["E_ref"], inp["sigma_ref"], inp["E_tgt"], inp["sigma_tgt"], c.M,
+    d2 = CH.prediction_d2(inp.E_ref, inp.sigma_ref, inp.E_tgt, inp.sigma_tgt, c.M,
                           c.M_cov)
     np.testing.assert_allclose(d2[r.valid], r.d2[..., 0][r.valid], rtol=1e-9)
-    np.testing.assert_allclose(r.predicted, inp["E_ref"] @ c.M, rtol=1e-12)
+    np.testing.assert_allclose(r.predicted, inp.E_ref @ c.M, rtol=1e-12)
 
 
 def test_d2_against_a_direct_computation():
@@ -174,9 +174,9 @@ def test_bad_input_is_named():
 
 def test_undetermined_pixels_are_labelled_and_noted(scene):
     _, _, _, _, _, inp = scene
-    s = inp["sigma_ref"].copy()
+    s = inp.sigma_ref.copy()
     s[:30, :, :] = np.inf                                  # saturated in every exposure
-    r = CH.detect(inp["E_ref"], s, inp["E_tgt"], inp["sigma_tgt"])
+    r = CH.detect(inp.E_ref, s, inp.E_tgt, inp.sigma_tgt)
     assert np.all(r.labels[:30] == CH.LABEL_UNDETERMINED)
     assert not np.any(r.labels[30:] == CH.LABEL_UNDETERMINED)
     assert any("label 254" in n for n in r.notes)

@@ -230,10 +230,11 @@ def test_session_change_with_client_equals_streamed(client):
     s = open_session(CHANGE)
     opts = ChangeOptions(pfa=0.01)
     streamed, s_in = session_change(s, opts)
-    cluster, c_in = session_change(open_session(CHANGE), opts, reducer=DaskReducer(client), band_rows=11)
+    cluster, c_in = session_change(open_session(CHANGE), opts, reducer=DaskReducer(client),
+                                   band_rows=11)
     for key in ("E_ref", "sigma_ref", "E_tgt", "sigma_tgt"):
-        np.testing.assert_array_equal(c_in[key], s_in[key], err_msg=key)
-    assert c_in["channels"] == s_in["channels"] and c_in["files"] == s_in["files"]
+        np.testing.assert_array_equal(getattr(c_in, key), getattr(s_in, key), err_msg=key)
+    assert c_in.channels == s_in.channels and c_in.files == s_in.files
     np.testing.assert_array_equal(cluster.labels, streamed.labels)
     np.testing.assert_array_equal(cluster.d2, streamed.d2)
     np.testing.assert_array_equal(cluster.valid, streamed.valid)

@@ -40,8 +40,8 @@ import pandas as pd
 import panel as pn
 import param
 
-from ccdcore.change import (LABEL_CHANGE, LABEL_UNDETERMINED, ChangeOptions, ChangeResult,
-                            session_change)
+from ccdcore.change import (LABEL_CHANGE, LABEL_UNDETERMINED, ChangeInputs, ChangeOptions,
+                            ChangeResult, session_change)
 from ccdcore.common import format_pm
 from ccdcore.progress import Progress
 from ccdcore.session import Session
@@ -121,7 +121,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
         self._session: Session | None = None
         self._computing = False
         self.result: ChangeResult | None = None
-        self.inputs: dict[str, Any] | None = None
+        self.inputs: ChangeInputs | None = None
         self.labels: np.ndarray | None = None
         self.threshold: float = float("nan")
         self.counts: dict[int, int] = {}
@@ -352,7 +352,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
                            thr_low, res.chi2_threshold(min(PFA_STEPS.values())))
         self.hist.show(res.background, res.dof, res.scale, x_max, res.threshold,
                        res.chi2_threshold())
-        ch = list(inputs.get("channels") or [])
+        ch = list(inputs.channels)
         self.pictures_note.object = (
             "The pictures are tone-mapped for display only (gamma 2.2, one white point for all "
             "three). The predicted target is the reference under the background's new light "
@@ -366,8 +366,8 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
             "scaled by s, the background's median d² over χ²'s. The threshold (solid orange "
             "line) is the sample's 1 - P quantile; the bars beyond it are the background's "
             "false alarms. The dotted line is the plain χ² quantile.")
-        notes = [(f"- Radiance: {inputs.get('source', '')} "
-                  f"({len(inputs.get('files', []))} frames)"),
+        notes = [(f"- Radiance: {inputs.source} "
+                  f"({len(inputs.files)} frames)"),
                  (f"- The clusters were fitted at P = {res.pfa:g}; the slider re-thresholds "
                   "the same clusters (`ChangeResult.at`), it does not fit M again.")]
         notes += [f"- {n}" for n in res.notes]
@@ -379,10 +379,10 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
         res, inputs = self.result, self.inputs
         if res is None or inputs is None:
             return
-        white = white_point(inputs["E_ref"], inputs["E_tgt"])
+        white = white_point(inputs.E_ref, inputs.E_tgt)
         self._pictures = {
-            "reference": tone_map_rgb(inputs["E_ref"], white, self.stops),
-            "target": tone_map_rgb(inputs["E_tgt"], white, self.stops),
+            "reference": tone_map_rgb(inputs.E_ref, white, self.stops),
+            "target": tone_map_rgb(inputs.E_tgt, white, self.stops),
             "predicted": tone_map_rgb(res.predicted, white, self.stops)}
         for view, name in ((self.ref_view, "reference"), (self.tgt_view, "target"),
                            (self.pred_view, "predicted")):
@@ -462,7 +462,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
 
     def _cluster_frame(self, counts: dict[int, int]) -> pd.DataFrame:
         res, inputs = self.result, self.inputs
-        names = list((inputs or {}).get("channels") or [])
+        names = list(inputs.channels) if inputs is not None else []
         rows = []
         for c in res.clusters:
             C = c.M.shape[0]
@@ -501,8 +501,8 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
                    + (f", best {float(d2[best]):.4g} ({label_name(res.clusters[best].label)})"
                       if best else ""))
         self.readout.object = (
-            f"pixel (row {row}, col {col}): reference E = {vec(inputs['E_ref'][row, col])}, "
-            f"target E′ = {vec(inputs['E_tgt'][row, col])}, predicted E M = "
+            f"pixel (row {row}, col {col}): reference E = {vec(inputs.E_ref[row, col])}, "
+            f"target E′ = {vec(inputs.E_tgt[row, col])}, predicted E M = "
             f"{vec(res.predicted[row, col])}; d² = {d2_text}; label: **{label_name(lab)}**")
 
 

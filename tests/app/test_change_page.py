@@ -79,8 +79,8 @@ def test_result_is_computed_cached_and_shown(shown):
 def test_pictures_are_the_radiance_tone_mapped(shown):
     _, page, _ = shown
     res, inputs = page.result, page.inputs
-    white = change_plots.white_point(inputs["E_ref"], inputs["E_tgt"])
-    for view, E in ((page.ref_view, inputs["E_ref"]), (page.tgt_view, inputs["E_tgt"]),
+    white = change_plots.white_point(inputs.E_ref, inputs.E_tgt)
+    for view, E in ((page.ref_view, inputs.E_ref), (page.tgt_view, inputs.E_tgt),
                     (page.pred_view, res.predicted)):
         expected = change_plots.tone_map_rgb(E, white, 0.0)
         np.testing.assert_array_equal(view.rgb, expected)
@@ -174,7 +174,7 @@ def test_cluster_table_shows_m_with_its_uncertainty(at_default):
 
 def test_overlay_and_exposure_change_the_display_only(at_default):
     _, page, _ = at_default
-    E = page.inputs["E_tgt"].copy()
+    E = page.inputs.E_tgt.copy()
     page.overlay = False
     labels = page.labels
     rgba = page.labels_view.shown_rgba().view(np.uint8).reshape(labels.shape + (4,))
@@ -185,7 +185,7 @@ def test_overlay_and_exposure_change_the_display_only(at_default):
     before = page.ref_view.shown_rgba().copy()
     page.stops = 1.0
     assert not np.array_equal(page.ref_view.shown_rgba(), before)
-    np.testing.assert_array_equal(page.inputs["E_tgt"], E)
+    np.testing.assert_array_equal(page.inputs.E_tgt, E)
 
 
 def test_pointer_reads_radiance_d2_and_label(at_default):
@@ -195,7 +195,7 @@ def test_pointer_reads_radiance_d2_and_label(at_default):
     page._on_pointer(float(col) + 0.2, float(row) - 0.3)
     text = page.readout.object
     assert f"row {row}, col {col}" in text and "**change**" in text
-    assert f"{inputs['E_tgt'][row, col, 0]:.4g}" in text
+    assert f"{inputs.E_tgt[row, col, 0]:.4g}" in text
     assert f"{res.d2[row, col, 0]:.4g}" in text
     page._on_pointer(float("nan"), 2.0)                      # off the frame: ignored
     page._on_pointer(1e6, 2.0)
