@@ -59,15 +59,13 @@ def reducer_of(args: argparse.Namespace) -> Iterator[Any]:
     its errors naming the flag rather than the parameter."""
     from .distributed import open_reducer
 
-    try:
-        cm = open_reducer(args.scheduler, args.workers)
-        reducer = cm.__enter__()
-    except CcdError as err:
-        if err.where in ("scheduler", "workers"):
-            raise CcdError(f"--{err.where}", err.problem) from None
-        raise
     with contextlib.ExitStack() as stack:
-        stack.push(cm)
+        try:
+            reducer = stack.enter_context(open_reducer(args.scheduler, args.workers))
+        except CcdError as err:
+            if err.where in ("scheduler", "workers"):
+                raise CcdError(f"--{err.where}", err.problem) from None
+            raise
         yield reducer
 
 
