@@ -7,14 +7,16 @@ import json
 import math
 import sys
 import textwrap
+import unicodedata
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterable, Sequence
 
 from .channels import LAYOUTS, is_bayer
 from .cli_common import (SESSION_HELP, WIDTH, add_verb, channel_name, cluster_args, json_flag,
                          print_json, reducer_of, say, workers_note, workers_note_for)
 from .common import Roi, format_pm
 from .errors import CcdError, require_extra
+from .records import Row
 
 
 def _seconds(text: str) -> float:
@@ -38,9 +40,8 @@ def _roi(text: str) -> Roi:
     return Roi(x, y, w, h)
 
 
-def _get(d: dict, key: str) -> float:
-    """A number of a JSON summary (``None`` -> NaN so the formatter says n/a)."""
-    v = d.get(key)
+def _num(v: float | None) -> float:
+    """A figure of a summary (``None``, not measured, -> NaN so the formatter says n/a)."""
     return float("nan") if v is None else v
 
 
@@ -108,71 +109,60 @@ def _ptc_advice(res: Any, *, robust: bool) -> str:
     return "; ".join(steps)
 
 
+#: how the calibrate summary names each estimate
+_TITLES = {"noise": "noise model (photon transfer)", "dark": "dark reference D̂_D",
+           "fixed_pattern": "fixed pattern K̂", "plan": "acquisition plan",
+           "correction_check": "correction check", "flat_field": "flat field",
+           "response": "response"}
+#: the widest the label and the value columns of a row grow (columns: label, value, meaning)
+_LABEL_WIDTH, _VALUE_WIDTH = 32, 28
+
+
+def _print_rows(title: str, rows: Iterable[Row]) -> None:
+    """One estimate's rows (``summary.rows()``, the same rows the app's product panel shows)
+    under its title: the label, the value with its error and unit, what it means (wrapped)."""
+    rows = tuple(rows)
+    label_w = min(max((_width(r.label) for r in rows), default=0), _LABEL_WIDTH)
+    value_w = min(max((_width(r.shown) for r in rows), default=0), _VALUE_WIDTH)
+    print(f"  {title}")
+    for r in rows:
+        head = f"    {_padded(r.label, label_w)}  {_padded(r.shown, value_w)}"
+        if not r.meaning:
+            print(head.rstrip())
+            continue
+        print("\n".join(textwrap.wrap(
+            r.meaning, width=WIDTH, initial_indent=head + "  ",
+            subsequent_indent=" " * (8 + label_w + value_w),
+            break_long_words=False, break_on_hyphens=False)))
+
+
+def _width(text: str) -> int:
+    """The columns ``text`` takes (a combining accent, as in D̂, takes none)."""
+    return sum(1 for c in text if not unicodedata.combining(c))
+
+
+def _padded(text: str, width: int) -> str:
+    """``text`` padded to ``width`` columns."""
+    return text + " " * max(width - _width(text), 0)
+
+
 def _print_product(product: Any, folder: Path) -> None:
+    """What ``calibrate`` made: each estimate's rows (the same rows the app's product panel
+    shows), the notes and warnings of each, the EMVA 1288 block, the maps."""
     est = product.estimates
     print(f"calibration product written to {folder}")
-    if "noise" in est:
-        n = est["noise"]
-        print(f"  noise model    A = {format_pm(_get(n, 'A'), _get(n, 'A_err'), unit='DN/e⁻')}, "
-              f"σ²_C = {format_pm(_get(n, 'sigma_c2'), _get(n, 'sigma_c2_err'), unit='DN²')}, "
-              f"fit Q = {_get(n, 'Q'):.3g} ({n['verdict']})")
-    if "dark" in est:
-        d = est["dark"]
-        print(f"  dark D̂_D       {d['s']} frames, mean {format_pm(_get(d, 'mean'), _get(d, 'mean_sem'), unit='DN')}, "
-              f"spatial std {_get(d, 'spatial_std'):.4g} DN, {d['n_hot']} hot and {d['n_dead']} dead pixels "
-              "(D̂_D: the mean dark frame)")
-        for note in d.get("notes") or ():
-            say("dark note", note, indent="    ")
-    if "fixed_pattern" in est:
-        k = est["fixed_pattern"]
-        bound = "infinite" if k["var_bound"] is None else format(k["var_bound"], ".3g")
-        print(f"  fixed pattern  K̂ (each pixel's relative gain, no unit) from n1 = {k['n1']} "
-              f"card/lamp positions × n2 = {k['n2']} frames: mean {_get(k, 'mean'):.6g}, "
-              f"spatial std {_get(k, 'spatial_std'):.4g}, mean error variance "
-              f"{_get(k, 'K_var_mean'):.3g} (eq. 50 bound {bound})")
-    if "correction_check" in est:
-        c = est["correction_check"]
-        print(f"  correction     eq. 51 on the max-intensity frame changes "
-              f"{100 * c['frac_gt_1q']:.1f} % of pixels by more than 1 quantisation step q "
-              f"(1 DN), {100 * c['frac_gt_2q']:.1f} % by more than 2 q; the largest change is "
-              f"{c['max_change_q']:.2f} q")
-    if "flat_field" in est:
-        ff = est["flat_field"]
-        ks = ", ".join(f"{channel_name(c['name'])} {c['k']:.4g} DN" for c in ff["channels"])
-        base = ff.get("base")
-        if isinstance(base, (list, tuple)) and len(base) == 2:
-            level, t = base
-            where = ("level " + ("–" if level is None else f"{level:g}" if isinstance(
-                level, (int, float)) else str(level)) + ", exposure "
-                     + ("–" if t is None else f"{t:g} s"))
-        else:
-            where = str(base)
-        print(f"  flat field     gain and offset maps G, O (corrected = O + G·raw) from the "
-              f"recommended base flat: {where} ({ff['n_base']} frames), and {ff['n_dark']} "
-              f"dark frames; target level k per channel: {ks}; {ff['n_flagged']} pixels "
-              "flagged")
-    if "plan" in est:
-        pl = est["plan"]
-        print(f"  plan           n1 = {pl['n1_required']} card/lamp positions needed, "
-              f"n2 = {pl['n2_required']} frames per position")
-    if "response" in est:
-        r = est["response"]
-        noise = "; ".join(
-            f"{channel_name(c)}: shot σ_s {_fmt(r['sigma_s'][i])} (√g), dark/input σ_c1 "
-            f"{_fmt(r['sigma_c1'][i])} (g), output/read σ_c2 {_fmt(r['sigma_c2'][i])} DN"
-            for i, c in enumerate(r["channels"]))
-        print(f"  response       inverse response g (code -> relative exposure) per channel "
-              f"({', '.join(channel_name(c) for c in r['channels'])}, {r['levels']} codes) by "
-              f"{r['method']}; noise {noise}")
-        ag = r.get("agreement")
-        if isinstance(ag, dict) and ag.get("rms") is not None:
-            print(f"                 predicts its images within {ag['rms']:.2f} DN RMS from a "
-                  f"neighbour ({_fmt(ag.get('rms_fitted'))} DN with fitted ratios; sec. 4.2)")
-        for w in r.get("warnings") or ():
-            say("warning", f"response: {w}")
-    for name, sv in est.get("scene", {}).items():
-        print(f"  scene {name:<8} V_S = {format_pm(_get(sv, 'V_S'), _get(sv, 'V_S_err'))} "
-              "(relative variance of the surface, no unit)")
+    for name, summary in est.items():
+        if name == "scene":
+            for patch, sv in summary.items():
+                _print_rows(f"scene variation of {patch}", sv.rows())
+            continue
+        _print_rows(_TITLES.get(name, name), summary.rows())
+        if name == "dark":
+            for note in summary.notes:
+                say("dark note", note, indent="    ")
+        elif name == "response":
+            for w in summary.warnings:
+                say("warning", f"response: {w}")
     if product.emva1288 is not None:
         _print_emva(product.emva1288)
     print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
@@ -186,8 +176,9 @@ def _print_product(product: Any, folder: Path) -> None:
 _EMVA_SECTION_LABELS = {"Spatial nonuniformity": "nonuniformity"}
 
 
-def _print_emva(e: dict) -> None:
-    """The EMVA 1288 block of ``calibrate``: the datasheet's rows
+def _print_emva(e: Any) -> None:
+    """The EMVA 1288 block of ``calibrate`` for the figures ``e`` (an
+    :class:`~ccdcore.emva_results.EmvaSummary`): the datasheet's rows
     (:func:`ccdcore.emva_sheet.datasheet_rows`), one line per section, then the notes."""
     from .emva_sheet import datasheet_rows
 
@@ -208,7 +199,7 @@ def _print_emva(e: dict) -> None:
                               initial_indent="    ", subsequent_indent="        ",
                               break_long_words=False, break_on_hyphens=False)
         print("\n".join(lines).replace("\u00a0", " "))
-    for note in e.get("notes", ()):
+    for note in e.notes:
         say("EMVA note", note, indent="    ")
 
 
@@ -259,9 +250,10 @@ def _product_manifest(path: Path) -> Path | None:
     return None
 
 
-def _product_emva(manifest: Path) -> dict:
-    """The EMVA 1288 figures a product holds, or one line saying why there are none and how
-    to get them."""
+def _product_emva(manifest: Path) -> Any:
+    """The EMVA 1288 figures a product holds (an :class:`~ccdcore.emva_results.EmvaSummary`,
+    checked when the product is loaded), or one line saying why there are none and how to get
+    them."""
     from .product import load_product
 
     product = load_product(manifest.parent)
@@ -277,7 +269,6 @@ def _product_emva(manifest: Path) -> dict:
 
 def _cmd_datasheet(args: argparse.Namespace) -> int:
     require_extra("matplotlib", "datasheet", "the datasheet")   # before any work
-    from .common import json_safe
     from .datasheet_files import OUTPUTS, plot_plan, write_datasheet
     from .emva_sheet import datasheet_rows
     from .io import check_outputs
@@ -297,13 +288,13 @@ def _cmd_datasheet(args: argparse.Namespace) -> int:
         session = open_session(source)
         inputs = session_inputs(session)
         check_outputs(args.out, OUTPUTS, inputs)   # before the work
-        emva = json_safe(emva_figures(session).to_dict())
+        emva = emva_figures(session).summary()
         where = session.label
     plan = plot_plan(emva)
-    paths = write_datasheet(emva, args.out, inputs=inputs, where=where)
+    paths = write_datasheet(emva, args.out, inputs=inputs)
     rows = datasheet_rows(emva)
     used = {r.note for r in rows if r.note}
-    notes = [n for n in emva.get("notes") or () if isinstance(n, str) and n not in used]
+    notes = [n for n in emva.notes if n not in used]
     if args.json:
         print_json({"source": where, "out": str(args.out), "files": [str(p) for p in paths],
                     "rows": [r.to_dict() for r in rows], "notes": notes,
@@ -372,8 +363,8 @@ def _cmd_snup(args: argparse.Namespace) -> int:
     for img in images:
         print(f"{img['path']} ({img['layout']})" + (f", ROI {args.roi}" if args.roi else ""))
         for ch in img["channels"]:
-            print(f"  {ch['name']:<3} mean {_get(ch, 'mean'):10.3f} DN   SNUP "
-                  f"{format_pm(_get(ch, 'snup'), _get(ch, 'snup_err'), unit='%')}")
+            print(f"  {ch['name']:<3} mean {_num(ch.get('mean')):10.3f} DN   SNUP "
+                  f"{format_pm(_num(ch.get('snup')), _num(ch.get('snup_err')), unit='%')}")
     return 0
 
 

@@ -10,6 +10,9 @@ Public objects
 --------------
 DarkReference
     Frozen result: mean map D̂_D, variance map, s, mean, spatial std, hot/dead masks and rules.
+DarkSummary
+    The record a calibration product stores of it (:meth:`DarkReference.summary`; no maps),
+    with its displayable ``rows()``.
 as_dark_map(dark, where="dark")
     D̂_D as a float64 array from a :class:`DarkReference`, an array or a scalar.
 """
@@ -21,9 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from .common import json_safe
 from .errors import CcdError
+from .records import Record, Row
 
-__all__ = ["DarkReference", "as_dark_map"]
+__all__ = ["DarkReference", "DarkSummary", "as_dark_map"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,22 +90,78 @@ class DarkReference:
             return float("nan")
         return math.sqrt(max(self.spatial_std ** 2 - self.noise_var / self.s, 0.0))
 
-    def to_dict(self) -> dict[str, Any]:
-        """Summary statistics only (no maps), JSON-friendly."""
+    def summary(self) -> DarkSummary:
+        """The summary statistics (no maps) as the record a product stores
+        (``estimates["dark"]``): plain numbers, NaN as ``None``."""
         good = ~(self.hot_mask | self.dead_mask)
-        return {
-            "s": int(self.s), "shape": list(self.mean_map.shape),
-            "mean": float(self.mean), "spatial_std": float(self.spatial_std),
-            "spatial_std_signal": self.spatial_std_signal,
-            "mean_sem": float(np.sqrt(self.noise_var / self.s / self.mean_map.size))
-            if self.s > 1 else None,
-            "noise_var": self.noise_var if self.s > 1 else None,
-            "mean_good": float(self.mean_map[good].mean()) if good.any() else None,
-            "spatial_std_good": float(self.mean_map[good].std()) if good.any() else None,
-            "n_hot": int(self.hot_mask.sum()), "n_dead": int(self.dead_mask.sum()),
-            "hot_rule": self.hot_rule, "dead_rule": self.dead_rule,
-            "exposure": self.exposure, "notes": list(self.notes),
-        }
+        several = self.s > 1
+        return DarkSummary(
+            s=int(self.s), shape=tuple(int(n) for n in self.mean_map.shape),
+            mean=json_safe(float(self.mean)), spatial_std=json_safe(float(self.spatial_std)),
+            spatial_std_signal=json_safe(self.spatial_std_signal),
+            mean_sem=json_safe(float(np.sqrt(self.noise_var / self.s / self.mean_map.size)))
+            if several else None,
+            noise_var=json_safe(self.noise_var) if several else None,
+            mean_good=json_safe(float(self.mean_map[good].mean())) if good.any() else None,
+            spatial_std_good=json_safe(float(self.mean_map[good].std())) if good.any() else None,
+            n_hot=int(self.hot_mask.sum()), n_dead=int(self.dead_mask.sum()),
+            hot_rule=self.hot_rule, dead_rule=self.dead_rule,
+            exposure=json_safe(self.exposure), notes=tuple(self.notes))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary statistics only (no maps), JSON-friendly: :meth:`summary` as its JSON
+        object."""
+        return self.summary().to_dict()
+
+
+@dataclass(frozen=True)
+class DarkSummary(Record):
+    """The dark reference D̂_D of sec. V-A as a product stores it (``estimates["dark"]``,
+    :meth:`DarkReference.summary`): its statistics, hot and dead pixels and their rules; the
+    maps are stored apart."""
+
+    #: number of dark frames averaged, and the shape (H, W) of D̂_D
+    s: int
+    shape: tuple[int, int]
+    #: mean and spatial standard deviation (ddof = 0) of D̂_D (paper, sec. VII-A: 10.74 and
+    #: 0.555), DN
+    mean: float
+    spatial_std: float
+    #: the spatial std without the noise of the average σ²_N/s, DN (``None`` when s < 2)
+    spatial_std_signal: float | None
+    #: standard error of the mean level, DN, and the mean temporal variance σ²_N of a dark
+    #: pixel (eq. 43), DN² (``None`` for one frame)
+    mean_sem: float | None
+    noise_var: float | None
+    #: mean and spatial std of D̂_D over the pixels neither hot nor dead, DN (``None``: none)
+    mean_good: float | None
+    spatial_std_good: float | None
+    #: hot and dead pixels flagged, and their rules in words
+    n_hot: int
+    n_dead: int
+    hot_rule: str
+    dead_rule: str
+    #: exposure time of the dark frames (s), when known and common
+    exposure: float | None = None
+    #: diagnostics (rules skipped, frames of several exposures ...)
+    notes: tuple[str, ...] = ()
+
+    def rows(self) -> tuple[Row, ...]:
+        """The headline figures: frames, exposure, mean level, spatial spread, temporal noise,
+        hot and dead pixels."""
+        return (
+            Row("frames s", self.s, meaning="dark frames averaged into D̂_D (sec. V-A)"),
+            Row("exposure", self.exposure, None, "s", "exposure time of the dark frames"),
+            Row("mean level", self.mean, self.mean_sem, "DN",
+                "mean of D̂_D ± its standard error"),
+            Row("spatial std", self.spatial_std, None, "DN", "of D̂_D"),
+            Row("spatial std of the signal", self.spatial_std_signal, None, "DN",
+                "without the averaging noise σ²_N/s"),
+            Row("temporal noise σ²_N", self.noise_var, None, "DN²",
+                "mean per-pixel variance (eq. 43)"),
+            Row("hot pixels", self.n_hot, meaning=self.hot_rule),
+            Row("dead pixels", self.n_dead, meaning=self.dead_rule),
+        )
 
 
 def as_dark_map(dark: DarkReference | np.ndarray | float, where: str = "dark") -> np.ndarray:

@@ -2,9 +2,10 @@
 PNG and SVG (``ccdcore datasheet``).
 
 The figures are those of :func:`ccdcore.datasheet.emva_figures` (EMVA Standard 1288 release 3.1,
-with release 4.0's row, column and pixel parts of DSNU and PRNU), given as their JSON-safe dict
-(:meth:`~ccdcore.datasheet.EmvaFigures.to_dict`, or the ``emva1288`` entry of a calibration
-product). The rows are :func:`ccdcore.emva_sheet.datasheet_rows`, in the standard's order.
+with release 4.0's row, column and pixel parts of DSNU and PRNU), given as their record
+(:class:`ccdcore.emva_results.EmvaSummary`: :meth:`~ccdcore.datasheet.EmvaFigures.summary`, or
+the ``emva1288`` entry of a calibration product, checked when it was loaded). The rows are
+:func:`ccdcore.emva_sheet.datasheet_rows`, in the standard's order.
 
 Files (written as one set into a folder, :func:`ccdcore.io.output_set`)
 ------------------------------------------------------------------------
@@ -14,8 +15,8 @@ Files (written as one set into a folder, :func:`ccdcore.io.output_set`)
     back to the same float, so the file round-trips exactly; an empty value is a figure not
     determined, with its reason in ``note``.
 ``datasheet.json``
-    ``{"emva1288": <the figures' dict>, "rows": [<one object per row>], "plots": {"drawn":
-    [...], "skipped": [{"plot", "reason"}]}}``.
+    ``{"emva1288": <the figures' JSON object, emva.to_dict()>, "rows": [<one object per
+    row>], "plots": {"drawn": [...], "skipped": [{"plot", "reason"}]}}``.
 ``plots/<name>.png``, ``plots/<name>.svg``
     The plots of release 3.1 (sec. 6.6 photon transfer and SNR, sec. 6.7 linearity and its
     deviation, sec. 7 dark signal and dark variance against the exposure time, sec. 8.2
@@ -25,7 +26,7 @@ Files (written as one set into a folder, :func:`ccdcore.io.output_set`)
 
 Public objects
 --------------
-write_datasheet(emva, out_dir, inputs=(), plots=True, where="emva1288")
+write_datasheet(emva, out_dir, inputs=(), plots=True)
     Write the files; the paths written.
 datasheet_csv(emva), datasheet_document(emva, plan=None)
     The CSV text and the JSON document (no plotting package needed).
@@ -42,13 +43,15 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable, Mapping, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
 from .common import format_pm, json_safe
+from .emva_results import EmvaPointSummary, EmvaSummary
 from .emva_sheet import datasheet_rows, linearity_deviation
-from .errors import CcdError, require_extra
+from .emva_spatial import SpatialPlotsSummary
+from .errors import require_extra
 
 __all__ = ["write_datasheet", "datasheet_csv", "datasheet_document", "plot_plan", "PlotPlan",
            "PLOTS", "CSV_FILE", "JSON_FILE", "PLOTS_FOLDER", "CSV_COLUMNS", "PLOT_FORMATS",
@@ -80,7 +83,7 @@ def _cell(v: Any) -> str:
     return str(v)
 
 
-def datasheet_csv(emva: Mapping[str, Any]) -> str:
+def datasheet_csv(emva: EmvaSummary) -> str:
     """``datasheet.csv`` of the figures ``emva``: a header of :data:`CSV_COLUMNS`, then one line
     per :func:`~ccdcore.emva_sheet.datasheet_rows` row; floats as ``repr`` (exact round trip),
     an undetermined value (and its error) empty."""
@@ -93,10 +96,10 @@ def datasheet_csv(emva: Mapping[str, Any]) -> str:
     return buf.getvalue()
 
 
-def datasheet_document(emva: Mapping[str, Any], plan: PlotPlan | None = None) -> dict[str, Any]:
-    """``datasheet.json``: the figures ``emva`` whole, the rows, and (with ``plan``) the plots
-    drawn and skipped. JSON-safe (NaN written as ``None``)."""
-    doc: dict[str, Any] = {"emva1288": json_safe(dict(emva)),
+def datasheet_document(emva: EmvaSummary, plan: PlotPlan | None = None) -> dict[str, Any]:
+    """``datasheet.json``: the figures ``emva`` whole (``emva.to_dict()``), the rows, and (with
+    ``plan``) the plots drawn and skipped. JSON-safe (NaN written as ``None``)."""
+    doc: dict[str, Any] = {"emva1288": emva.to_dict(),
                            "rows": [json_safe(r.to_dict()) for r in datasheet_rows(emva)]}
     if plan is not None:
         doc["plots"] = plan.to_dict()
@@ -106,91 +109,40 @@ def datasheet_document(emva: Mapping[str, Any], plan: PlotPlan | None = None) ->
 # --------------------------------------------------------------------------------------------
 # plot data
 # --------------------------------------------------------------------------------------------
-def _number(v: Any) -> float | None:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        return None
-    return float(v) if math.isfinite(v) else None
+def _floats(values: Sequence[float | None]) -> np.ndarray:
+    """A curve of the figures (``None`` for a value not finite) as float64 with NaN."""
+    return np.array([math.nan if x is None else x for x in values], dtype=np.float64)
 
 
-def _floats(v: Any, key: str, where: str) -> np.ndarray:
-    """A list of numbers (``None`` for a missing one) as float64 with NaN, or a clear error."""
-    try:
-        a = np.array([math.nan if x is None else x for x in v], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CcdError(where, f"emva1288 '{key}' is not a list of numbers") from None
-    if a.ndim != 1:
-        raise CcdError(where, f"emva1288 '{key}' is not a list of numbers")
-    return a
+def _column(points: Sequence[Any], name: str) -> np.ndarray:
+    return _floats([getattr(p, name) for p in points])
 
 
-def _records(emva: Mapping[str, Any], key: str, where: str) -> list[Mapping[str, Any]]:
-    rows = emva.get(key) or []
-    if not isinstance(rows, list) or not all(isinstance(r, Mapping) for r in rows):
-        raise CcdError(where, f"emva1288 '{key}' is not a list of objects")
-    return rows
-
-
-def _column(rows: Sequence[Mapping[str, Any]], name: str, key: str, where: str) -> np.ndarray:
-    return _floats([r.get(name) for r in rows], f"{key}.{name}", where)
-
-
-def _flags(rows: Sequence[Mapping[str, Any]], name: str) -> np.ndarray:
-    return np.array([bool(r.get(name)) for r in rows], dtype=bool)
-
-
-def _section(emva: Mapping[str, Any], key: str, where: str, *path: str) -> Mapping[str, Any]:
-    """``emva[key][path...]`` as a mapping, or a clear error naming the key."""
-    node: Any = emva.get(key)
-    name = key
-    for part in path:
-        if not isinstance(node, Mapping):
-            raise CcdError(where, f"emva1288 '{name}' is not an object")
-        node, name = node.get(part), f"{name}.{part}"
-    if not isinstance(node, Mapping):
-        raise CcdError(where, f"emva1288 '{name}' is not an object")
-    return node
+def _flags(points: Sequence[EmvaPointSummary], name: str) -> np.ndarray:
+    return np.array([bool(getattr(p, name)) for p in points], dtype=bool)
 
 
 # --------------------------------------------------------------------------------------------
 # what each plot needs
 # --------------------------------------------------------------------------------------------
-_OLD = ("the figures were made by an earlier ccdcore without the data of this plot; calibrate "
-        "the session again (or run ccdcore datasheet on the session)")
 _NO_SPATIAL = ("no spatial sets (L bright and L dark frames at one operating point, EMVA 1288 "
                "sec. 8) in the session")
 
 
-def _needs_points(emva: Mapping[str, Any]) -> str | None:
-    if not emva.get("points"):
+def _needs_points(emva: EmvaSummary) -> str | None:
+    if not emva.points:
         return "no bright points in the figures"
     return None
 
 
-def _needs_ptc(emva: Mapping[str, Any]) -> str | None:
-    if _number(emva.get("K")) is None:
-        return "no system gain K in the figures"
-    return _needs_points(emva)
-
-
-def _needs_snr(emva: Mapping[str, Any]) -> str | None:
-    curve = emva.get("snr_curve")
-    if not isinstance(curve, Mapping) or not curve.get("u_p"):
+def _needs_snr(emva: EmvaSummary) -> str | None:
+    if not emva.snr_curve.u_p:
         return "no SNR curve in the figures"
     return None
 
 
-def _needs_linearity(emva: Mapping[str, Any]) -> str | None:
-    if _number(emva.get("linearity_slope")) is None or \
-            _number(emva.get("linearity_offset")) is None:
-        return "no linearity fit in the figures"
-    return _needs_points(emva)
-
-
-def _needs_dark(emva: Mapping[str, Any]) -> str | None:
-    if "dark_points" not in emva:
-        return _OLD
-    times = {_number(d.get("exposure")) for d in emva.get("dark_points") or ()
-             if isinstance(d, Mapping)} - {None}
+def _needs_dark(emva: EmvaSummary) -> str | None:
+    times = {d.exposure for d in emva.dark_points} - {None}
     if len(times) < 2:
         return (f"the dark points are at {len(times)} known exposure time"
                 f"{'s' if len(times) != 1 else ''}; a plot against the exposure time needs "
@@ -198,10 +150,8 @@ def _needs_dark(emva: Mapping[str, Any]) -> str | None:
     return None
 
 
-def _needs_spatial(emva: Mapping[str, Any]) -> str | None:
-    if "spatial_plots" not in emva:
-        return _OLD
-    if emva.get("spatial_plots") is None:
+def _needs_spatial(emva: EmvaSummary) -> str | None:
+    if emva.spatial_plots is None:
         return _NO_SPATIAL
     return None
 
@@ -244,12 +194,12 @@ def _log(ax: Any, which: str) -> None:
     axis.set_minor_formatter(FuncFormatter(minor))
 
 
-def _draw_ptc(fig: Any, emva: Mapping[str, Any], where: str) -> None:
+def _draw_ptc(fig: Any, emva: EmvaSummary) -> None:
     """Release 3.1 sec. 6.6: σ²_y − σ²_y.dark against μ_y − μ_y.dark, the fit of K through the
     origin over the points up to 70 % of saturation."""
-    pts = _records(emva, "points", where)
-    x = _column(pts, "u_y", "points", where) - _column(pts, "u_y_dark", "points", where)
-    y = _column(pts, "s2_y", "points", where) - _column(pts, "s2_y_dark", "points", where)
+    pts = emva.points
+    x = _column(pts, "u_y") - _column(pts, "u_y_dark")
+    y = _column(pts, "s2_y") - _column(pts, "s2_y_dark")
     fit, sat = _flags(pts, "in_sensitivity_fit"), _flags(pts, "saturation")
     ax = _axes(fig, "Photon transfer", "μ_y − μ_y.dark [DN]", "σ²_y − σ²_y.dark [DN²]")
     ax.plot(x[fit], y[fit], label="points of the fit (to 70 % of saturation)", **_FIT)
@@ -257,38 +207,39 @@ def _draw_ptc(fig: Any, emva: Mapping[str, Any], where: str) -> None:
     if sat.any():
         ax.plot(x[sat], y[sat], marker="x", linestyle="none", color="k", markersize=9,
                 label="saturation")
-    K = float(emva["K"])
+    K = float(emva.K)
     top = float(np.nanmax(x[fit])) if fit.any() and np.isfinite(x[fit]).any() else \
         float(np.nanmax(x))
     xs = np.array([0.0, top])
-    ax.plot(xs, K * xs, label=f"K = {format_pm(K, emva.get('K_err'), unit='DN/e⁻')}", **_LINE)
+    ax.plot(xs, K * xs, label=f"K = {format_pm(K, emva.K_err, unit='DN/e⁻')}", **_LINE)
     ax.legend(loc="best", fontsize="small")
 
 
-def _draw_snr(fig: Any, emva: Mapping[str, Any], where: str) -> None:
+def _draw_snr(fig: Any, emva: EmvaSummary) -> None:
     """Release 3.1 sec. 2.3 and 6.6: the measured SNR against μ_p (log-log) with the model of
     eq. 11, and with DSNU1288 and PRNU1288 when the spatial sets gave them."""
-    curve = _section(emva, "snr_curve", where)
-    u_p = _floats(curve.get("u_p") or [], "snr_curve.u_p", where)
+    curve = emva.snr_curve
+    u_p = _floats(curve.u_p)
     ax = _axes(fig, "Signal-to-noise ratio", "μ_p [photons per pixel]", "SNR")
     _log(ax, "x")
     _log(ax, "y")
     good = u_p > 0
-    snr = _floats(curve.get("snr") or [], "snr_curve.snr", where)
+    snr = _floats(curve.snr)
     if snr.size == u_p.size:
         ok = good & (snr > 0)
         ax.plot(u_p[ok], snr[ok], label="measured", **_FIT)
     for key, label, style in (("snr_model", "model (eq. 11)", "-"),
                               ("snr_total", "model with DSNU1288 and PRNU1288", "--")):
-        if curve.get(key):
-            m = _floats(curve[key], f"snr_curve.{key}", where)
+        values = getattr(curve, key)
+        if values:
+            m = _floats(values)
             if m.size == u_p.size:
                 ok = good & (m > 0)
                 ax.plot(u_p[ok], m[ok], linestyle=style, label=label,
                         color="C3" if key == "snr_model" else "C2")
-    for key, label, side in (("u_p_min", "μ_p.min", 1), ("u_p_sat", "μ_p.sat", -1)):
-        v = _number(emva.get(key))
-        if v is not None and v > 0:
+    for v, label, side in ((emva.u_p_min, "μ_p.min", 1), (emva.u_p_sat, "μ_p.sat", -1)):
+        if v > 0:
+            v = float(v)
             ax.axvline(v, color="0.4", linestyle=":", linewidth=1)
             ax.annotate(label, (v, 1.0), xycoords=("data", "axes fraction"),
                         xytext=(3 * side, -12), textcoords="offset points",
@@ -296,19 +247,14 @@ def _draw_snr(fig: Any, emva: Mapping[str, Any], where: str) -> None:
     ax.legend(loc="lower right", fontsize="small")
 
 
-def _linearity_data(emva: Mapping[str, Any], where: str
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
-    pts = _records(emva, "points", where)
-    u_p = _column(pts, "u_p", "points", where)
-    Y = _column(pts, "u_y", "points", where) - _column(pts, "u_y_dark", "points", where)
-    return (u_p, Y, _flags(pts, "in_linearity_fit"), _flags(pts, "saturation"),
-            float(emva["linearity_slope"]), float(emva["linearity_offset"]))
-
-
-def _draw_linearity(fig: Any, emva: Mapping[str, Any], where: str) -> None:
+def _draw_linearity(fig: Any, emva: EmvaSummary) -> None:
     """Release 3.1 sec. 6.7: μ_y − μ_y.dark against μ_p with the line a·μ_p + b fitted over
     5–95 % of the saturation signal."""
-    u_p, Y, fit, sat, a, b = _linearity_data(emva, where)
+    pts = emva.points
+    u_p = _column(pts, "u_p")
+    Y = _column(pts, "u_y") - _column(pts, "u_y_dark")
+    fit, sat = _flags(pts, "in_linearity_fit"), _flags(pts, "saturation")
+    a, b = float(emva.linearity_slope), float(emva.linearity_offset)
     ax = _axes(fig, "Linearity", "μ_p [photons per pixel]", "μ_y − μ_y.dark [DN]")
     ax.plot(u_p[fit], Y[fit], label="points of the fit (5–95 % of saturation)", **_FIT)
     ax.plot(u_p[~fit], Y[~fit], label="other points", **_OUT)
@@ -320,57 +266,57 @@ def _draw_linearity(fig: Any, emva: Mapping[str, Any], where: str) -> None:
     ax.legend(loc="best", fontsize="small")
 
 
-def _draw_deviation(fig: Any, emva: Mapping[str, Any], where: str) -> None:
+def _draw_deviation(fig: Any, emva: EmvaSummary) -> None:
     """Release 3.1 sec. 6.7: the deviation 100·(Y − (a·μ_p + b))/(a·μ_p + b) of the points of
     the linearity fit (5–95 % of the saturation signal), with LE_min and LE_max, its extremes.
     The points outside that range are not drawn: near zero signal a small offset is a large
     relative deviation, which would hide the range the standard rates."""
-    _linearity_data(emva, where)                  # the points and the line are sound
     d = linearity_deviation(emva)
+    assert d is not None                          # plot_plan: the figures have points
     u_p, dev, fit = d["u_p"], d["deviation"], d["in_fit"]
     ax = _axes(fig, "Deviation from linearity (the points of the fit, 5–95 % of saturation)",
                "μ_p [photons per pixel]", "100·(Y − (a·μ_p + b))/(a·μ_p + b) [%]")
     ax.plot(u_p[fit], dev[fit], label="points of the fit", **_FIT)
     ax.axhline(0.0, color="0.5", linewidth=0.8)
-    for key, label in (("LE_min", "LE_min"), ("LE_max", "LE_max")):
-        v = _number(emva.get(key))
-        if v is not None:
-            ax.axhline(v, color="C3", linestyle=":", linewidth=1,
-                       label=f"{label} = {format_pm(v, emva.get(f'{key}_err'), unit='%')}")
+    for label, v, err in (("LE_min", emva.LE_min, emva.LE_min_err),
+                          ("LE_max", emva.LE_max, emva.LE_max_err)):
+        v = float(v)
+        ax.axhline(v, color="C3", linestyle=":", linewidth=1,
+                   label=f"{label} = {format_pm(v, err, unit='%')}")
     ax.legend(loc="best", fontsize="small")
 
 
-def _draw_dark(fig: Any, emva: Mapping[str, Any], where: str, *, variance: bool) -> None:
+def _draw_dark(fig: Any, emva: EmvaSummary, *, variance: bool) -> None:
     """Release 3.1 sec. 3.1 and 7: μ_y.dark (or σ²_y.dark) of the dark points against the
     exposure time with the line offset + slope·t whose slope gives the dark current."""
-    rows = [d for d in _records(emva, "dark_points", where)
-            if _number(d.get("exposure")) is not None]
-    t = _column(rows, "exposure", "dark_points", where)
+    rows = [d for d in emva.dark_points if d.exposure is not None]
+    t = _column(rows, "exposure")
     name = "s2_y_dark" if variance else "u_y_dark"
-    y = _column(rows, name, "dark_points", where)
-    err = _column(rows, f"{name}_err", "dark_points", where)
+    y = _column(rows, name)
+    err = _column(rows, f"{name}_err")
     title, ylabel = (("Dark variance", "σ²_y.dark [DN²]") if variance else
                      ("Dark signal", "μ_y.dark [DN]"))
     ax = _axes(fig, title, "exposure time [s]", ylabel)
     ax.errorbar(t, y, yerr=np.where(np.isfinite(err), err, 0.0), fmt="o", color="C0",
                 markersize=5, capsize=2, label="dark points (± standard error)")
-    dc = emva.get("dark_current")
-    line = dc.get("var_line" if variance else "mean_line") if isinstance(dc, Mapping) else None
-    if isinstance(line, Mapping) and _number(line.get("slope")) is not None \
-            and _number(line.get("offset")) is not None:
+    dc = emva.dark_current
+    line = None if dc is None else dc.var_line if variance else dc.mean_line
+    if dc is not None and line is not None:
         key = "u_I_var" if variance else "u_I_mean"
         symbol = "μ_I.var" if variance else "μ_I.mean"
-        value = _number(dc.get(key))
+        value = getattr(dc, key)
         if value is not None:
-            what = f"{symbol} = {format_pm(value, dc.get(f'{key}_err'), unit='e⁻/s')}"
+            what = (f"{symbol} = "
+                    f"{format_pm(float(value), getattr(dc, f'{key}_err'), unit='e⁻/s')}")
         else:
-            bound = _number(dc.get(f"{key}_bound"))
-            what = f"{symbol} not resolved" + (f" (below {bound:.3g} e⁻/s)"
+            bound = getattr(dc, f"{key}_bound")
+            what = f"{symbol} not resolved" + (f" (below {float(bound):.3g} e⁻/s)"
                                                if bound is not None else "")
         ts = np.array([float(np.nanmin(t)), float(np.nanmax(t))])
         unit = "DN²/s" if variance else "DN/s"
-        ax.plot(ts, float(line["offset"]) + float(line["slope"]) * ts,
-                label=f"line: slope {float(line['slope']):.4g} {unit}; {what}", **_LINE)
+        slope = float(line.slope)
+        ax.plot(ts, float(line.offset) + slope * ts,
+                label=f"line: slope {slope:.4g} {unit}; {what}", **_LINE)
     ax.legend(loc="best", fontsize="small")
 
 
@@ -385,15 +331,19 @@ _SPECTRA = {"DSNU": ("DN", (("DSNU1288_DN", "DSNU1288", "C3", "-"),
 _DIRECTIONS = {"horizontal": "along the rows", "vertical": "along the columns"}
 
 
-def _draw_spectrogram(fig: Any, emva: Mapping[str, Any], where: str, *, what: str,
-                      direction: str) -> None:
+def _spatial(emva: EmvaSummary) -> SpatialPlotsSummary:
+    """The arrays of the spatial plots (:func:`plot_plan` draws them only when there are)."""
+    plots = emva.spatial_plots
+    assert plots is not None, "plot_plan: the figures have the spatial plots"
+    return plots
+
+
+def _draw_spectrogram(fig: Any, emva: EmvaSummary, *, what: str, direction: str) -> None:
     """Release 3.1 sec. 8.2: the spectrogram of the dark (DSNU) or the bright less the dark
     (PRNU) average image, with DSNU1288/PRNU1288 and the temporal noise levels."""
-    key = f"{what}_{direction}"
-    spec = _section(emva, "spatial_plots", where, "spectrograms", key)
-    f = _floats(spec.get("f") or [], f"spatial_plots.spectrograms.{key}.f", where)
-    amp = _floats(spec.get("amplitude") or [], f"spatial_plots.spectrograms.{key}.amplitude",
-                  where)
+    plots = _spatial(emva)
+    spec = getattr(plots.spectrograms, f"{what}_{direction}")
+    f, amp = _floats(spec.f), _floats(spec.amplitude)
     unit, lines = _SPECTRA[what]
     ax = _axes(fig, f"Spectrogram {what}, {direction} ({_DIRECTIONS[direction]})",
                "spatial frequency [cycles/pixel]", f"amplitude [{unit}]")
@@ -401,11 +351,10 @@ def _draw_spectrogram(fig: Any, emva: Mapping[str, Any], where: str, *, what: st
     n = min(f.size, amp.size)
     ok = np.isfinite(amp[:n]) & (amp[:n] > 0)
     ax.plot(f[:n][ok], amp[:n][ok], color="C0", linewidth=1, label="spectrogram")
-    levels = emva["spatial_plots"].get("levels")
-    levels = levels if isinstance(levels, Mapping) else {}
     for name, label, colour, style in lines:
-        v = _number(levels.get(name))
+        v = getattr(plots.levels, name)
         if v is not None and v > 0:
+            v = float(v)
             ax.axhline(v, color=colour, linestyle=style, linewidth=1,
                        label=f"{label} = {v:.3g} {unit}")
     ax.legend(loc="best", fontsize="small")
@@ -420,14 +369,11 @@ def _edges(x: np.ndarray) -> np.ndarray:
     return np.append(x, x[-1] + width)
 
 
-def _draw_histogram(fig: Any, emva: Mapping[str, Any], where: str, *, what: str) -> None:
+def _draw_histogram(fig: Any, emva: EmvaSummary, *, what: str) -> None:
     """Release 3.1 sec. 8.3: the logarithmic histogram of the DSNU (dark) or PRNU image with
     the normal distribution of the same mean and standard deviation."""
-    h = _section(emva, "spatial_plots", where, "histograms", what)
-    base = f"spatial_plots.histograms.{what}"
-    x = _floats(h.get("x") or [], f"{base}.x", where)
-    count = _floats(h.get("count") or [], f"{base}.count", where)
-    model = _floats(h.get("model") or [], f"{base}.model", where)
+    h = getattr(_spatial(emva).histograms, what)
+    x, count, model = _floats(h.x), _floats(h.count), _floats(h.model)
     unit, label = _HIST_UNITS[what]
     ax = _axes(fig, f"Logarithmic histogram {what}", f"{label} [{unit}]",
                "pixels per bin")
@@ -444,13 +390,11 @@ def _draw_histogram(fig: Any, emva: Mapping[str, Any], where: str, *, what: str)
     ax.legend(loc="best", fontsize="small")
 
 
-def _draw_accumulated(fig: Any, emva: Mapping[str, Any], where: str, *, what: str) -> None:
+def _draw_accumulated(fig: Any, emva: EmvaSummary, *, what: str) -> None:
     """Release 3.1 sec. 8.3: the accumulated histogram, the percentage of pixels that deviate
     from the mean by x or more."""
-    h = _section(emva, "spatial_plots", where, "accumulated", what)
-    base = f"spatial_plots.accumulated.{what}"
-    x = _floats(h.get("x") or [], f"{base}.x", where)
-    percent = _floats(h.get("percent") or [], f"{base}.percent", where)
+    h = getattr(_spatial(emva).accumulated, what)
+    x, percent = _floats(h.x), _floats(h.percent)
     unit, label = _HIST_UNITS[what]
     ax = _axes(fig, f"Accumulated histogram {what}", f"|{label}| x [{unit}]",
                "pixels deviating by x or more [%]")
@@ -461,18 +405,17 @@ def _draw_accumulated(fig: Any, emva: Mapping[str, Any], where: str, *, what: st
     ax.legend(loc="best", fontsize="small")
 
 
-def _draw_profiles(fig: Any, emva: Mapping[str, Any], where: str, *, which: str) -> None:
+def _draw_profiles(fig: Any, emva: EmvaSummary, *, which: str) -> None:
     """Release 3.1 sec. 8.4: the horizontal and vertical profiles of the bright less the dark
     (or the dark) average image: mean, minimum, maximum and middle line across each axis."""
+    profiles = _spatial(emva).profiles
     unit = "μ_y − μ_y.dark [DN]" if which == "bright" else "μ_y.dark [DN]"
     title = ("bright average image less the dark one" if which == "bright"
              else "dark average image")
     fig.suptitle(f"Profiles of the {title}")
     for i, (direction, across) in enumerate((("horizontal", "column"), ("vertical", "row"))):
-        key = f"{which}_{direction}"
-        p = _section(emva, "spatial_plots", where, "profiles", key)
-        base = f"spatial_plots.profiles.{key}"
-        index = _floats(p.get("index") or [], f"{base}.index", where)
+        p = getattr(profiles, f"{which}_{direction}")
+        index = _floats(p.index)
         ax = fig.add_subplot(1, 2, i + 1)
         ax.set_title(f"{direction} (each {across})")
         ax.set_xlabel(f"{across} index")
@@ -480,7 +423,7 @@ def _draw_profiles(fig: Any, emva: Mapping[str, Any], where: str, *, which: str)
         ax.grid(True, alpha=0.3)
         for name, label, colour in (("max", "maximum", "C3"), ("mean", "mean", "C0"),
                                     ("mid", "middle line", "C2"), ("min", "minimum", "C1")):
-            v = _floats(p.get(name) or [], f"{base}.{name}", where)
+            v = _floats(getattr(p, name))
             if v.size == index.size and v.size:
                 ax.plot(index, v, color=colour, linewidth=1, label=label)
         ax.legend(loc="best", fontsize="small")
@@ -489,23 +432,22 @@ def _draw_profiles(fig: Any, emva: Mapping[str, Any], where: str, *, which: str)
 @dataclass(frozen=True)
 class _Plot:
     name: str
-    needs: Callable[[Mapping[str, Any]], str | None]
-    draw: Callable[[Any, Mapping[str, Any], str], None]
+    needs: Callable[[EmvaSummary], str | None]
+    draw: Callable[[Any, EmvaSummary], None]
     size: tuple[float, float] = (7.0, 4.8)
 
 
-def _partial(draw: Callable[..., None], **kw: Any) -> Callable[[Any, Mapping[str, Any], str],
-                                                               None]:
-    def bound(fig: Any, emva: Mapping[str, Any], where: str) -> None:
-        draw(fig, emva, where, **kw)
+def _partial(draw: Callable[..., None], **kw: Any) -> Callable[[Any, EmvaSummary], None]:
+    def bound(fig: Any, emva: EmvaSummary) -> None:
+        draw(fig, emva, **kw)
     return bound
 
 
 _ALL: tuple[_Plot, ...] = (
-    _Plot("photon_transfer", _needs_ptc, _draw_ptc),
+    _Plot("photon_transfer", _needs_points, _draw_ptc),
     _Plot("snr", _needs_snr, _draw_snr),
-    _Plot("linearity", _needs_linearity, _draw_linearity),
-    _Plot("linearity_deviation", _needs_linearity, _draw_deviation),
+    _Plot("linearity", _needs_points, _draw_linearity),
+    _Plot("linearity_deviation", _needs_points, _draw_deviation),
     _Plot("dark_signal", _needs_dark, _partial(_draw_dark, variance=False)),
     _Plot("dark_variance", _needs_dark, _partial(_draw_dark, variance=True)),
     *(_Plot(f"spectrogram_{what.lower()}_{direction}", _needs_spatial,
@@ -535,7 +477,7 @@ class PlotPlan:
                 "skipped": [{"plot": n, "reason": r} for n, r in self.skipped]}
 
 
-def plot_plan(emva: Mapping[str, Any]) -> PlotPlan:
+def plot_plan(emva: EmvaSummary) -> PlotPlan:
     """Which plots of :data:`PLOTS` the figures ``emva`` have the data for (no plotting
     package needed)."""
     drawn, skipped = [], []
@@ -548,7 +490,7 @@ def plot_plan(emva: Mapping[str, Any]) -> PlotPlan:
     return PlotPlan(tuple(drawn), tuple(skipped))
 
 
-def _render(plot: _Plot, emva: Mapping[str, Any], folder: Path, where: str) -> list[Path]:
+def _render(plot: _Plot, emva: EmvaSummary, folder: Path) -> list[Path]:
     """Draw one plot and save it in every format of :data:`PLOT_FORMATS`."""
     from matplotlib import rc_context, style
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -558,7 +500,7 @@ def _render(plot: _Plot, emva: Mapping[str, Any], folder: Path, where: str) -> l
     with style.context("default"), rc_context({"svg.hashsalt": _SVG_SALT, "font.size": 9}):
         fig = Figure(figsize=plot.size, dpi=_DPI, layout="constrained")
         FigureCanvasAgg(fig)
-        plot.draw(fig, emva, where)
+        plot.draw(fig, emva)
         out = []
         for fmt in PLOT_FORMATS:
             path = folder / f"{plot.name}.{fmt}"
@@ -572,24 +514,22 @@ def _render(plot: _Plot, emva: Mapping[str, Any], folder: Path, where: str) -> l
 # --------------------------------------------------------------------------------------------
 # the set of files
 # --------------------------------------------------------------------------------------------
-def write_datasheet(emva: Mapping[str, Any], out_dir: str | os.PathLike, *,
-                    inputs: Iterable[str | os.PathLike] = (), plots: bool = True,
-                    where: str = "emva1288") -> list[Path]:
+def write_datasheet(emva: EmvaSummary, out_dir: str | os.PathLike, *,
+                    inputs: Iterable[str | os.PathLike] = (), plots: bool = True) -> list[Path]:
     """Write ``datasheet.csv``, ``datasheet.json`` and (with ``plots``) ``plots/*.png`` and
     ``plots/*.svg`` of the EMVA 1288 figures ``emva`` (module docstring) into ``out_dir`` as
     one set: an earlier datasheet there is replaced whole (its plots folder too, so no plot of
     it is left beside the new ones), other files are left alone, and a failure leaves the
     earlier set untouched. ``inputs`` (the files the figures were read from) must not be
-    overwritten; ``where`` names the figures' source in errors about their data. Returns the
-    paths written (in ``out_dir``): the CSV, the JSON, then the plots in :data:`PLOTS` order.
+    overwritten. Returns the paths written (in ``out_dir``): the CSV, the JSON, then the plots
+    in :data:`PLOTS` order.
 
     Raises
     ------
     MissingExtra
         ``plots`` and matplotlib is not installed (``pip install 'ccdcore[datasheet]'``).
     CcdError
-        An output is (or is inside) an input, or not writable; the figures' plot data are
-        damaged (not lists of numbers).
+        An output is (or is inside) an input, or not writable.
     """
     from .io import atomic_write_text, output_set
 
@@ -608,6 +548,6 @@ def write_datasheet(emva: Mapping[str, Any], out_dir: str | os.PathLike, *,
         if plots and plan.drawn:
             (tmp / PLOTS_FOLDER).mkdir()
             for name in plan.drawn:
-                written += _render(by_name[name], emva, tmp / PLOTS_FOLDER, where)
+                written += _render(by_name[name], emva, tmp / PLOTS_FOLDER)
     return [folder / CSV_FILE, folder / JSON_FILE] + [
         folder / PLOTS_FOLDER / p.name for p in written]

@@ -22,6 +22,9 @@ three exposure times cannot give a current (the package's rule: NaN).
 Public objects
 --------------
 DarkCurrent, dark_current(exposures, u_y_dark, u_y_dark_err, s2_y_dark, s2_y_dark_err, K, K_err)
+DarkCurrentSummary, DarkLineSummary
+    The records of a :class:`DarkCurrent` and of its lines as ``calibration.json`` stores them
+    (``DarkCurrent.summary()``, ``DarkLine.summary()``).
 """
 from __future__ import annotations
 
@@ -34,8 +37,10 @@ from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from .common import json_safe
+from .records import Record, Row
 
-__all__ = ["DarkCurrent", "dark_current", "RESOLVED_Z", "MIN_EXPOSURES", "POOR_FIT_Q"]
+__all__ = ["DarkCurrent", "dark_current", "DarkCurrentSummary", "DarkLineSummary", "RESOLVED_Z",
+           "MIN_EXPOSURES", "POOR_FIT_Q"]
 
 #: a dark current is resolved when it is positive by this many standard errors
 RESOLVED_Z = 2.0
@@ -43,6 +48,45 @@ RESOLVED_Z = 2.0
 MIN_EXPOSURES = 3
 #: a line whose points scatter with a goodness of fit Q below this gets a note
 POOR_FIT_Q = 1e-3
+
+
+#: the unit of the dark current
+_UNIT = "e\u207b/s"
+
+
+@dataclass(frozen=True)
+class DarkLineSummary(Record):
+    """A :class:`DarkLine` as ``calibration.json`` stores it (``dark_current.mean_line`` and
+    ``dark_current.var_line``)."""
+
+    #: the slope of the unweighted line against the exposure time and its standard error
+    #: (DN/s for the mean dark signal, DN²/s for the dark variance)
+    slope: float
+    slope_err: float
+    #: the line at zero exposure (DN or DN²)
+    offset: float
+    #: χ²/ν of the points about the weighted line (``None``: no degrees of freedom, or a point
+    #: without an error) and ν = n − 2
+    chi2_dof: float | None
+    dof: int
+
+    def q(self) -> float | None:
+        """The goodness of fit Q = P(χ² ≥ χ²_observed) for ν degrees of freedom; ``None``
+        without χ²/ν."""
+        if self.chi2_dof is None or self.dof <= 0:
+            return None
+        return float(chi2.sf(self.chi2_dof * self.dof, self.dof))
+
+    def rows(self) -> tuple[Row, ...]:
+        """The slope, the offset and the fit's goodness (χ²/ν, ν, Q)."""
+        return (Row("slope", self.slope, self.slope_err, "",
+                    "change of the dark signal per second of exposure"),
+                Row("offset", self.offset, None, "", "the line at zero exposure time"),
+                Row("chi2/dof", self.chi2_dof, None, "",
+                    "scatter of the dark points about the line relative to their errors"),
+                Row("dof", self.dof, None, "", "degrees of freedom of the line"),
+                Row("Q", self.q(), None, "",
+                    "probability of a scatter this large by chance (goodness of fit)"))
 
 
 @dataclass(frozen=True)
@@ -57,8 +101,14 @@ class DarkLine:
     chi2_dof: float
     dof: int
 
+    def summary(self) -> DarkLineSummary:
+        """The record ``calibration.json`` stores (NaN χ²/ν as ``None``)."""
+        return DarkLineSummary(slope=json_safe(self.slope), slope_err=json_safe(self.slope_err),
+                               offset=json_safe(self.offset), chi2_dof=json_safe(self.chi2_dof),
+                               dof=json_safe(self.dof))
+
     def to_dict(self) -> dict[str, Any]:
-        return {k: json_safe(v) for k, v in self.__dict__.items()}
+        return self.summary().to_dict()
 
 
 def _line(t: np.ndarray, y: np.ndarray, var_y: np.ndarray) -> DarkLine:
@@ -86,6 +136,59 @@ def _line(t: np.ndarray, y: np.ndarray, var_y: np.ndarray) -> DarkLine:
 
 
 @dataclass(frozen=True)
+class DarkCurrentSummary(Record):
+    """A :class:`DarkCurrent` as ``calibration.json`` stores it (``emva1288.dark_current``)."""
+
+    #: μ_I from the mean dark signal (slope / K) and its standard error, e⁻/s; ``None`` where
+    #: not resolved
+    u_I_mean: float | None
+    u_I_mean_err: float | None
+    #: μ_I from the dark variance (slope / K²) and its standard error, e⁻/s; ``None`` where
+    #: not resolved
+    u_I_var: float | None
+    u_I_var_err: float | None
+    #: the upper bounds of an unresolved μ_I.mean and μ_I.var, e⁻/s (``None``: resolved, or
+    #: too few exposure times)
+    u_I_mean_bound: float | None
+    u_I_var_bound: float | None
+    #: the lines of μ_y.dark (DN) and σ²_y.dark (DN²) against t (s); ``None`` below three
+    #: exposure times
+    mean_line: DarkLineSummary | None
+    var_line: DarkLineSummary | None
+    #: the exposure times of the dark points, s
+    exposures: tuple[float, ...]
+    #: why a figure is missing or doubtful
+    notes: tuple[str, ...]
+
+    def _current(self, name: str, symbol: str, how: str) -> Row:
+        value, err = getattr(self, name), getattr(self, f"{name}_err")
+        bound = getattr(self, f"{name}_bound")
+        text = None
+        if value is None:
+            text = ("not determined" if bound is None
+                    else f"not determined: below {bound:.3g} {_UNIT}")
+        return Row(f"Dark current from the {how}, {symbol}", value, err, _UNIT,
+                   f"thermal electrons per second, from the growth of the dark {how} with "
+                   "the exposure time", text)
+
+    def rows(self) -> tuple[Row, ...]:
+        """Both dark currents (or their bounds), the number of exposure times and the
+        goodness of both lines."""
+        out = [self._current("u_I_mean", "\u03bc_I.mean", "mean"),
+               self._current("u_I_var", "\u03bc_I.var", "variance"),
+               Row("exposure times", len(set(self.exposures)), None, "",
+                   "distinct exposure times of the dark points")]
+        for what, line in (("mean", self.mean_line), ("variance", self.var_line)):
+            if line is not None:
+                q = line.q()
+                out.append(Row(f"{what} line chi2/dof", line.chi2_dof, None, "",
+                               f"scatter of the dark {what} about its line relative to the "
+                               f"errors (\u03bd = {line.dof}"
+                               + ("" if q is None else f", Q = {q:.2g}") + ")"))
+        return tuple(out)
+
+
+@dataclass(frozen=True)
 class DarkCurrent:
     """The dark current from the mean dark signal (``u_I_mean``) and from the dark variance
     (``u_I_var``), e⁻/s, with their standard errors; ``None`` where not resolved (then
@@ -108,14 +211,19 @@ class DarkCurrent:
         return {"u_I_mean": self.u_I_mean, "u_I_mean_err": self.u_I_mean_err,
                 "u_I_var": self.u_I_var, "u_I_var_err": self.u_I_var_err}
 
+    def summary(self) -> DarkCurrentSummary:
+        """The record ``calibration.json`` stores (NaN as ``None``)."""
+        return DarkCurrentSummary(
+            u_I_mean=json_safe(self.u_I_mean), u_I_mean_err=json_safe(self.u_I_mean_err),
+            u_I_var=json_safe(self.u_I_var), u_I_var_err=json_safe(self.u_I_var_err),
+            u_I_mean_bound=json_safe(self.u_I_mean_bound),
+            u_I_var_bound=json_safe(self.u_I_var_bound),
+            mean_line=None if self.mean_line is None else self.mean_line.summary(),
+            var_line=None if self.var_line is None else self.var_line.summary(),
+            exposures=tuple(json_safe(list(self.exposures))), notes=tuple(self.notes))
+
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {k: json_safe(v) for k, v in self.figures().items()}
-        out.update(u_I_mean_bound=json_safe(self.u_I_mean_bound),
-                   u_I_var_bound=json_safe(self.u_I_var_bound),
-                   mean_line=None if self.mean_line is None else self.mean_line.to_dict(),
-                   var_line=None if self.var_line is None else self.var_line.to_dict(),
-                   exposures=json_safe(list(self.exposures)), notes=list(self.notes))
-        return out
+        return self.summary().to_dict()
 
 
 def _resolve(name: str, what: str, slope: float, slope_err: float, scale: float,

@@ -56,23 +56,32 @@ profiles(image, vertical=False, points=1024)
     Mean, minimum, maximum and middle line of an image across one axis.
 SpatialPlots, spatial_plots(bright_avg, dark_avg, ...)
     Every array of the section's plots, JSON-safe through ``to_dict()``.
+VarianceSplitSummary, NonuniformitySplitSummary, SpatialPlotsSummary
+    The records ``calibration.json`` stores (``summary()`` of the three results), with the
+    records nested in the plots: SpectrogramsSummary, SpectrogramSummary, SpatialLevelsSummary,
+    HistogramsSummary, HistogramSummary, AccumulatedSummary, AccumulatedHistogramSummary,
+    ProfilesSummary, ProfileSummary.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, fields
+from typing import Any, Callable, Mapping, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter
 
 from .common import json_safe
+from .records import Record, Row
 
 __all__ = ["VarianceSplit", "variance_split", "NonuniformitySplit", "nonuniformity_split",
            "spectrogram", "high_pass", "defect_histogram", "accumulated_histogram", "profiles",
            "SpatialPlots", "spatial_plots", "PARTS", "HIGH_PASS_SIZE", "HISTOGRAM_BINS",
-           "DETERMINABLE_Z"]
+           "DETERMINABLE_Z", "VarianceSplitSummary", "NonuniformitySplitSummary",
+           "SpatialPlotsSummary", "SpectrogramsSummary", "SpectrogramSummary",
+           "SpatialLevelsSummary", "HistogramsSummary", "HistogramSummary", "AccumulatedSummary",
+           "AccumulatedHistogramSummary", "ProfilesSummary", "ProfileSummary"]
 
 #: the parts of the split, in the standard's order
 PARTS = ("row", "col", "pixel")
@@ -87,6 +96,51 @@ DETERMINABLE_Z = 2.0
 # --------------------------------------------------------------------------------------------
 # the split of one average image
 # --------------------------------------------------------------------------------------------
+_DN2 = "DN\u00b2"
+
+
+@dataclass(frozen=True)
+class VarianceSplitSummary(Record):
+    """A :class:`VarianceSplit` as ``calibration.json`` stores it
+    (``emva1288.nonuniformity_split.dark`` and ``.bright``)."""
+
+    #: rows and columns of the average image, and the frames L averaged in it
+    M: int
+    N: int
+    L: int
+    #: μ_y, the mean of the average image, DN
+    mean: float
+    #: s²_y = var(⟨y⟩) − σ²_y.stack/L (release 3.1 eq. 36) and its standard error, DN²
+    s2: float
+    s2_err: float
+    #: s²_y.cav and s²_y.rav, the variances of the column and of the row averages, DN²
+    s2_cav: float
+    s2_rav: float
+    #: the row, column and pixel parts s²_y.row, s²_y.col, s²_y.pixel (release 4.0) with their
+    #: standard errors, DN²
+    s2_row: float
+    s2_row_err: float
+    s2_col: float
+    s2_col_err: float
+    s2_pixel: float
+    s2_pixel_err: float
+
+    def rows(self) -> tuple[Row, ...]:
+        """The image, its mean, the spatial variance and its three parts."""
+        return (Row("average image", None, None, "",
+                    "rows \u00d7 columns of the average image, and the frames averaged",
+                    f"{self.M} \u00d7 {self.N}, L = {self.L}"),
+                Row("mean, \u03bc_y", self.mean, None, "DN", "mean of the average image"),
+                Row("spatial variance, s\u00b2_y", self.s2, self.s2_err, _DN2,
+                    "spatial variance of the average image less its temporal noise"),
+                Row("row part, s\u00b2_y.row", self.s2_row, self.s2_row_err, _DN2,
+                    "variance of the pattern common to each row"),
+                Row("column part, s\u00b2_y.col", self.s2_col, self.s2_col_err, _DN2,
+                    "variance of the pattern common to each column"),
+                Row("pixel part, s\u00b2_y.pixel", self.s2_pixel, self.s2_pixel_err, _DN2,
+                    "variance of the pattern of single pixels"))
+
+
 @dataclass(frozen=True)
 class VarianceSplit:
     """The spatial variance of one average image and its row, column and pixel parts (DN²),
@@ -113,8 +167,13 @@ class VarianceSplit:
             return self.s2, self.s2_err
         return getattr(self, f"s2_{name}"), getattr(self, f"s2_{name}_err")
 
+    def summary(self) -> VarianceSplitSummary:
+        """The record ``calibration.json`` stores."""
+        return VarianceSplitSummary(**{f.name: json_safe(getattr(self, f.name))
+                                       for f in fields(VarianceSplitSummary)})
+
     def to_dict(self) -> dict[str, Any]:
-        return {k: json_safe(v) for k, v in self.__dict__.items()}
+        return self.summary().to_dict()
 
 
 def _combinations(M: int, N: int) -> dict[str, NDArray[np.float64]]:
@@ -175,6 +234,60 @@ def variance_split(avg: NDArray, s2_stack: float, L: int) -> VarianceSplit:
 _PART_WORDS = {"row": "row", "col": "column", "pixel": "pixel", "total": "total"}
 
 
+#: the units of DSNU1288 and PRNU1288
+_UNITS = {"DSNU1288": "e\u207b", "PRNU1288": "%"}
+
+
+@dataclass(frozen=True)
+class NonuniformitySplitSummary(Record):
+    """A :class:`NonuniformitySplit` as ``calibration.json`` stores it
+    (``emva1288.nonuniformity_split``)."""
+
+    #: DSNU1288.row, .col, .pixel = s_y.part.dark / K with their standard errors, e⁻ (release
+    #: 4.0); ``None`` where not determinable
+    DSNU1288_row: float | None
+    DSNU1288_row_err: float | None
+    DSNU1288_col: float | None
+    DSNU1288_col_err: float | None
+    DSNU1288_pixel: float | None
+    DSNU1288_pixel_err: float | None
+    #: PRNU1288.row, .col, .pixel = 100 √(s²_y.part − s²_y.part.dark) / (μ_y − μ_y.dark) with
+    #: their standard errors, %; ``None`` where not determinable
+    PRNU1288_row: float | None
+    PRNU1288_row_err: float | None
+    PRNU1288_col: float | None
+    PRNU1288_col_err: float | None
+    PRNU1288_pixel: float | None
+    PRNU1288_pixel_err: float | None
+    #: the upper bound of each part not determinable, keyed like the figures (e⁻ or %)
+    bounds: dict[str, float]
+    #: the splits of the dark and of the bright average image
+    dark: VarianceSplitSummary
+    bright: VarianceSplitSummary
+    #: why a part is not determinable
+    notes: tuple[str, ...]
+
+    def rows(self) -> tuple[Row, ...]:
+        """The six parts (DSNU1288 and PRNU1288 by row, column and pixel) with the datasheet's
+        labels (:data:`ccdcore.emva_sheet.DATASHEET`); a part not determinable gives its
+        bound as text."""
+        out = []
+        for what, signal in (("DSNU1288", "dark signal"), ("PRNU1288", "photo response")):
+            for part in PARTS:
+                key = f"{what}_{part}"
+                value, unit = getattr(self, key), _UNITS[what]
+                bound = self.bounds.get(key)
+                text = None if value is not None else (
+                    "not determinable" if bound is None
+                    else f"not determinable: below {bound:.3g} {unit}")
+                where = ("of single pixels" if part == "pixel"
+                         else f"common to each {_PART_WORDS[part]}")
+                out.append(Row(f"{what[:4]}, {_PART_WORDS[part]} part, {what}.{part}", value,
+                               getattr(self, f"{key}_err"), unit,
+                               f"{signal} nonuniformity {where}", text))
+        return tuple(out)
+
+
 @dataclass(frozen=True)
 class NonuniformitySplit:
     """DSNU1288 (e⁻) and PRNU1288 (%) as row, column and pixel parts (release 4.0) with their
@@ -208,13 +321,16 @@ class NonuniformitySplit:
                 out[f"{key}_err"] = getattr(self, f"{key}_err")
         return out
 
+    def summary(self) -> NonuniformitySplitSummary:
+        """The record ``calibration.json`` stores (the bounds as an object keyed like the
+        figures)."""
+        return NonuniformitySplitSummary(
+            **{k: json_safe(v) for k, v in self.figures().items()},
+            bounds={k: json_safe(v) for k, v in self.bounds}, dark=self.dark.summary(),
+            bright=self.bright.summary(), notes=tuple(self.notes))
+
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {k: json_safe(v) for k, v in self.figures().items()}
-        out["bounds"] = {k: json_safe(v) for k, v in self.bounds}
-        out["dark"] = self.dark.to_dict()
-        out["bright"] = self.bright.to_dict()
-        out["notes"] = list(self.notes)
-        return out
+        return self.summary().to_dict()
 
 
 def _dsnu_part(dark: VarianceSplit, part: str, K: float, K_err: float, notes: list[str],
@@ -381,6 +497,147 @@ def profiles(image: NDArray, vertical: bool = False, points: int = 1024
             "mid": _blocks(a[a.shape[0] // 2], points, "mean")}
 
 
+#: a plotted curve: its values in order, ``None`` where not finite
+_Curve = tuple[float | None, ...]
+
+
+@dataclass(frozen=True)
+class SpectrogramSummary(Record):
+    """One spectrogram (sec. 8.2): frequency ``f`` (cycles per pixel) and ``amplitude`` (DN for
+    DSNU, % of the mean signal for PRNU)."""
+
+    f: _Curve
+    amplitude: _Curve
+
+
+@dataclass(frozen=True)
+class SpectrogramsSummary(Record):
+    """The four spectrograms of sec. 8.2: of the dark image (DSNU) and of the signal image
+    (PRNU), along the rows (horizontal) and along the columns (vertical)."""
+
+    DSNU_horizontal: SpectrogramSummary
+    PRNU_horizontal: SpectrogramSummary
+    DSNU_vertical: SpectrogramSummary
+    PRNU_vertical: SpectrogramSummary
+
+
+@dataclass(frozen=True)
+class SpatialLevelsSummary(Record):
+    """The levels drawn on the spectrograms."""
+
+    #: DSNU1288 in DN (DSNU1288 · K) and PRNU1288 in %; ``None`` when not determined
+    DSNU1288_DN: float | None
+    PRNU1288: float | None
+    #: σ_y.stack.dark, the temporal noise of one dark frame, and σ_y.stack.dark/√L, the
+    #: white-noise floor of the average of the L dark frames, DN
+    sigma_y_stack_dark: float
+    sigma_y_stack_dark_avg: float
+    #: σ_y.stack and σ_y.stack/√L of the bright set, % of the mean signal (``None`` without a
+    #: signal)
+    sigma_y_stack_percent: float | None
+    sigma_y_stack_avg_percent: float | None
+
+
+@dataclass(frozen=True)
+class HistogramSummary(Record):
+    """One logarithmic histogram of sec. 8.3: the bins' lower edges ``x``, the pixel
+    ``count`` of each and the normal distribution of the same mean and deviation (``model``,
+    counts per bin)."""
+
+    x: _Curve
+    count: tuple[int, ...]
+    model: _Curve
+
+
+@dataclass(frozen=True)
+class HistogramsSummary(Record):
+    """The histograms of sec. 8.3: DSNU in e⁻ from the mean dark level, PRNU in % of the mean
+    signal of the high-pass filtered signal image."""
+
+    DSNU: HistogramSummary
+    PRNU: HistogramSummary
+
+
+@dataclass(frozen=True)
+class AccumulatedHistogramSummary(Record):
+    """One accumulated histogram of sec. 8.3: the percentage of pixels (``percent``) deviating
+    from the mean by ``x`` or more."""
+
+    x: _Curve
+    percent: _Curve
+
+
+@dataclass(frozen=True)
+class AccumulatedSummary(Record):
+    """The accumulated histograms of sec. 8.3, of the same values as the histograms."""
+
+    DSNU: AccumulatedHistogramSummary
+    PRNU: AccumulatedHistogramSummary
+
+
+@dataclass(frozen=True)
+class ProfileSummary(Record):
+    """One profile of sec. 8.4: the first column (row) ``index`` of each block and the mean,
+    minimum, maximum and middle line across the other axis, DN."""
+
+    index: _Curve
+    mean: _Curve
+    min: _Curve
+    max: _Curve
+    mid: _Curve
+
+
+@dataclass(frozen=True)
+class ProfilesSummary(Record):
+    """The profiles of sec. 8.4 of the signal image (bright less dark) and of the dark image,
+    across the columns (horizontal) and across the rows (vertical)."""
+
+    bright_horizontal: ProfileSummary
+    bright_vertical: ProfileSummary
+    dark_horizontal: ProfileSummary
+    dark_vertical: ProfileSummary
+
+
+@dataclass(frozen=True)
+class SpatialPlotsSummary(Record):
+    """A :class:`SpatialPlots` as ``calibration.json`` stores it (``emva1288.spatial_plots``)."""
+
+    spectrograms: SpectrogramsSummary
+    levels: SpatialLevelsSummary
+    histograms: HistogramsSummary
+    accumulated: AccumulatedSummary
+    profiles: ProfilesSummary
+
+    def rows(self) -> tuple[Row, ...]:
+        """The levels drawn on the spectrograms (sec. 8.2)."""
+        lv = self.levels
+        return (Row("DSNU1288 in DN", lv.DSNU1288_DN, None, "DN",
+                    "dark signal nonuniformity in digital numbers"),
+                Row("PRNU1288", lv.PRNU1288, None, "%",
+                    "photo response nonuniformity, % of the mean signal"),
+                Row("\u03c3_y.stack.dark", lv.sigma_y_stack_dark, None, "DN",
+                    "temporal noise of one dark frame"),
+                Row("\u03c3_y.stack.dark/\u221aL", lv.sigma_y_stack_dark_avg, None, "DN",
+                    "white-noise floor of the average of the dark frames"),
+                Row("\u03c3_y.stack", lv.sigma_y_stack_percent, None, "%",
+                    "temporal noise of one bright frame, % of the mean signal"),
+                Row("\u03c3_y.stack/\u221aL", lv.sigma_y_stack_avg_percent, None, "%",
+                    "white-noise floor of the average of the bright frames"))
+
+
+def _curve(values: Any) -> tuple[Any, ...]:
+    """A plotted array as plain numbers, NaN and infinities as ``None``."""
+    return tuple(json_safe(np.asarray(values).tolist()))
+
+
+_R = TypeVar("_R", bound=Record)
+
+
+def _record(cls: type[_R], values: Mapping[str, Any], convert: Callable[[Any], Any]) -> _R:
+    """The record ``cls`` of the entries of ``values`` named like its fields, each converted."""
+    return cls(**{f.name: convert(values[f.name]) for f in fields(cls)})   # type: ignore
+
+
 @dataclass(frozen=True)
 class SpatialPlots:
     """Every array of the spatial section's plots (sec. 8) of one camera.
@@ -399,10 +656,20 @@ class SpatialPlots:
     accumulated: dict[str, dict[str, NDArray]]
     profiles: dict[str, dict[str, NDArray]]
 
+    def summary(self) -> SpatialPlotsSummary:
+        """The record ``calibration.json`` stores: every array as a tuple of plain numbers."""
+        def group(cls: type[_R], curves: type[Record], values: Mapping[str, Any]) -> _R:
+            return _record(cls, values, lambda v: _record(curves, v, _curve))
+
+        return SpatialPlotsSummary(
+            spectrograms=group(SpectrogramsSummary, SpectrogramSummary, self.spectrograms),
+            levels=_record(SpatialLevelsSummary, self.levels, json_safe),
+            histograms=group(HistogramsSummary, HistogramSummary, self.histograms),
+            accumulated=group(AccumulatedSummary, AccumulatedHistogramSummary, self.accumulated),
+            profiles=group(ProfilesSummary, ProfileSummary, self.profiles))
+
     def to_dict(self) -> dict[str, Any]:
-        return json_safe({"spectrograms": self.spectrograms, "levels": self.levels,
-                          "histograms": self.histograms, "accumulated": self.accumulated,
-                          "profiles": self.profiles})
+        return self.summary().to_dict()
 
 
 def spatial_plots(bright_avg: NDArray, dark_avg: NDArray, *, L: int, L_dark: int,

@@ -73,6 +73,7 @@ from .darkframe import DarkReference, as_dark_map, dark_reference
 from .errors import CcdError
 from .kmap_kernels import FixedPattern, fixed_pattern_of
 from .reduce import STREAMED, Reducer
+from .scene_summary import CorrectionCheckSummary
 
 __all__ = ["FixedPattern", "fixed_pattern_map", "fixed_pattern_of", "correct", "CorrectionCheck",
            "correction_check"]
@@ -207,9 +208,12 @@ class CorrectionCheck:
     n_pixels: int
     q: float = 1.0
 
+    def summary(self) -> CorrectionCheckSummary:
+        """The figures as the calibration product stores them."""
+        return CorrectionCheckSummary.of(self)
+
     def to_dict(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in ("frac_gt_1q", "frac_gt_2q", "frac_gt_2q_of_gt_1q",
-                                              "max_change_q", "mean_level", "n_pixels", "q")}
+        return self.summary().to_dict()
 
 
 def correction_check(frame: np.ndarray, dark: DarkReference | np.ndarray,

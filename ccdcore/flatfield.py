@@ -57,6 +57,8 @@ Public objects
 --------------
 FlatChannel, FlatField
     Per-channel summary; the result with G, O, flags, DL_0/DL_B moments, ``correct()``, ``maps()``.
+FlatChannelSummary, FlatFieldSummary
+    Their records as ``calibration.json`` stores them (``summary()``), with ``rows()``.
 flat_field(dark_frames, base_frames, ...)
     G and O from dark and base frames (eqs. 1–4).
 flat_field_from_session(session, ...)
@@ -76,9 +78,9 @@ KMapComparison, compare_with_k_map(session, ...)
 NOISE_LIMIT, WINDOW, ZERO_LIMIT
     Defaults of the flag rule and of the zero-dark warning.
 
-The results (FlatChannel, FlatField, BaseRecommendation, BaseStudy, ZeroDark, SettingsComparison,
-KMapComparison), correct and the three defaults are defined in :mod:`ccdcore.flatfield_results`
-and re-exported here.
+The results (FlatChannel, FlatField, their summaries, BaseRecommendation, BaseStudy, ZeroDark,
+SettingsComparison, KMapComparison), correct and the three defaults are defined in
+:mod:`ccdcore.flatfield_results` and re-exported here.
 """
 from __future__ import annotations
 
@@ -95,16 +97,17 @@ from .common import named_frames, sort_key
 from .darkframe import DarkReference
 from .errors import CcdError
 from .flatfield_results import (NOISE_LIMIT, WINDOW, ZERO_LIMIT, BaseRecommendation, BaseStudy,
-                                FlatChannel, FlatField, KMapComparison, SettingsComparison,
-                                ZeroDark, correct)
+                                FlatChannel, FlatChannelSummary, FlatField, FlatFieldSummary,
+                                KMapComparison, SettingsComparison, ZeroDark, correct)
 from .reduce import STREAMED, Reducer
 from .stats import MomentsResult, PixelMoments
 from .uniformity import Linearity, linearity, snup
 
-__all__ = ["FlatChannel", "FlatField", "flat_field", "flat_field_from_session", "correct",
-           "BaseRecommendation", "recommend_base", "BaseStudy", "base_image_study", "ZeroDark",
-           "zero_dark", "SettingsComparison", "compare_dark_settings", "KMapComparison",
-           "compare_with_k_map", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
+__all__ = ["FlatChannel", "FlatField", "FlatChannelSummary", "FlatFieldSummary", "flat_field",
+           "flat_field_from_session", "correct", "BaseRecommendation", "recommend_base",
+           "BaseStudy", "base_image_study", "ZeroDark", "zero_dark", "SettingsComparison",
+           "compare_dark_settings", "KMapComparison", "compare_with_k_map", "NOISE_LIMIT",
+           "WINDOW", "ZERO_LIMIT"]
 
 
 # --------------------------------------------------------------------------------------------

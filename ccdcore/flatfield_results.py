@@ -12,6 +12,9 @@ Public objects
 --------------
 FlatChannel, FlatField
     Per-channel summary; the result with G, O, flags, DL_0/DL_B moments, ``correct()``, ``maps()``.
+FlatChannelSummary, FlatFieldSummary
+    The records ``calibration.json`` stores (``estimates["flat_field"]``): ``summary()`` of a
+    :class:`FlatChannel` and a :class:`FlatField`, with ``rows()``.
 correct(frame, G, O)
     DL_c = O + G·DL as float32 (for saved maps).
 BaseRecommendation, BaseStudy, ZeroDark, SettingsComparison, KMapComparison
@@ -30,13 +33,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .common import json_safe
 from .errors import CcdError
 from .map_names import MapName
+from .records import Record, Row
 from .stats import MomentsResult
 from .uniformity import Linearity
 
-__all__ = ["FlatChannel", "FlatField", "correct", "BaseRecommendation", "BaseStudy", "ZeroDark",
-           "SettingsComparison", "KMapComparison", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
+__all__ = ["FlatChannel", "FlatField", "FlatChannelSummary", "FlatFieldSummary", "correct",
+           "BaseRecommendation", "BaseStudy", "ZeroDark", "SettingsComparison",
+           "KMapComparison", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
 
 #: c of the flag rule Δ <= c·σ_Δ
 NOISE_LIMIT = 5.0
@@ -50,6 +56,40 @@ ZERO_LIMIT = 0.01
 # G and O
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
+class FlatChannelSummary(Record):
+    """A :class:`FlatChannel` as ``calibration.json`` stores it (``flat_field.channels[i]``)."""
+
+    #: the channel's name (``L``, ``R``, ``G``, ``B``, ``Gr`` ...)
+    name: str
+    #: k, the level the channel is corrected to (eq. 3: G = k / (DL_B − DL_0)), DN; ``None``:
+    #: not finite
+    k: float | None
+    #: ⟨DL_0⟩ and ⟨DL_B⟩, the channel's mean dark and base levels, DN
+    dark_level: float | None
+    base_level: float | None
+    #: pixels flagged by the flag rule (G from their neighbourhood) and pixels of the channel
+    n_flagged: int
+    n_pixels: int
+    #: fraction of the dark pixel values equal to 0 (a zero-clipped dark image above
+    #: :data:`ZERO_LIMIT`); ``None``: not counted
+    dark_zero_fraction: float | None = None
+
+    def rows(self) -> tuple[Row, ...]:
+        """k, ⟨DL_0⟩, ⟨DL_B⟩, the flagged pixels and the dark pixels at 0."""
+        zero = self.dark_zero_fraction
+        return (Row("k", self.k, None, "DN", "the level the channel is corrected to "
+                                             "(eq. 3: G = k / (DL_B − DL_0))"),
+                Row("⟨DL_0⟩", self.dark_level, None, "DN", "mean level of the dark image"),
+                Row("⟨DL_B⟩", self.base_level, None, "DN", "mean level of the base image"),
+                Row("flagged", self.n_flagged, None, "pixels",
+                    f"of {self.n_pixels}: DL_B − DL_0 not above the noise, G taken from the "
+                    "neighbourhood"),
+                Row("dark pixels at 0", None if zero is None else 100.0 * zero, None, "%",
+                    "dark pixel values equal to 0: above "
+                    f"{100 * ZERO_LIMIT:g} % the dark image is clipped at zero"))
+
+
+@dataclass(frozen=True)
 class FlatChannel:
     """One channel of a :class:`FlatField`: k, ⟨DL_0⟩, ⟨DL_B⟩ (DN), flags and zero-dark pixels."""
 
@@ -61,10 +101,81 @@ class FlatChannel:
     n_pixels: int
     dark_zero_fraction: float | None = None
 
+    def summary(self) -> FlatChannelSummary:
+        """The record ``calibration.json`` stores (non-finite numbers as ``None``)."""
+        return FlatChannelSummary(
+            name=str(self.name), k=json_safe(self.k), dark_level=json_safe(self.dark_level),
+            base_level=json_safe(self.base_level), n_flagged=int(self.n_flagged),
+            n_pixels=int(self.n_pixels), dark_zero_fraction=json_safe(self.dark_zero_fraction))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "k": self.k, "dark_level": self.dark_level,
-                "base_level": self.base_level, "n_flagged": self.n_flagged,
-                "n_pixels": self.n_pixels, "dark_zero_fraction": self.dark_zero_fraction}
+        return self.summary().to_dict()
+
+
+@dataclass(frozen=True)
+class FlatFieldSummary(Record):
+    """A :class:`FlatField` as ``calibration.json`` stores it (``estimates["flat_field"]``): what
+    the maps G, O (eqs. 3–4 of de Lasarte et al. 2007) were made from, without the maps."""
+
+    #: ``"mono"``, ``"rgb"`` or ``"bayer-rggb"`` ..., and the frames' shape ((H, W) or (H, W, 3))
+    layout: str
+    shape: tuple[int, ...]
+    #: frames averaged into the dark image DL_0 and into the base image DL_B
+    n_dark: int
+    n_base: int
+    #: the per-channel figures, in channel order
+    channels: tuple[FlatChannelSummary, ...]
+    #: pixels flagged by the flag rule, all channels
+    n_flagged: int
+    #: c of the flag rule Δ <= c·σ_Δ, the side of the neighbourhood giving G at flagged pixels
+    #: (pixels), and the rule in words
+    noise_limit: float
+    window: int
+    flag_rule: str
+    #: the base flat group ``(level, exposure in s)`` (``None``: base frames given directly)
+    base: tuple[int | None, float | None] | None
+    #: the offset setting and the dark frames' exposure (s) when known
+    setting: str | None
+    dark_exposure: float | None
+    #: decisions taken (setting chosen, base recommended, zero-clipped dark image ...)
+    notes: tuple[str, ...]
+
+    def base_text(self) -> str:
+        """The base image as the report names it: ``"level 3, exposure 0.04 s"``."""
+        if self.base is None:
+            return "n/a"
+        level, t = self.base
+        return (f"level {'–' if level is None else level}, exposure "
+                + ("–" if t is None else f"{t:g} s"))
+
+    def rows(self) -> tuple[Row, ...]:
+        """The offset setting, the base and dark images, the flagged pixels, k per channel and
+        the largest fraction of dark pixels at 0."""
+        out = [Row("correction", None, None, "", "corrected = O + G·raw, pixel by pixel, which "
+                   "removes the dark image, the PRNU and the vignetting", "DL_c = O + G·DL"),
+               Row("offset setting", None, None, "", "the camera offset setting the maps are for",
+                   self.setting or "none named"),
+               Row("base image", self.n_base, None, "frames",
+                   "the flat group averaged into DL_B",
+                   f"{self.base_text()} ({self.n_base} frames)"),
+               Row("dark image", self.n_dark, None, "frames", "frames averaged into DL_0"
+                   + ("" if self.dark_exposure is None
+                      else f", exposure {self.dark_exposure:g} s")),
+               Row("flagged pixels", self.n_flagged, None, "pixels",
+                   f"DL_B − DL_0 not above {self.noise_limit:g}·σ: G taken from the "
+                   f"{self.window}×{self.window} neighbourhood")]
+        out += [Row(f"k, {c.name}", c.k, None, "DN",
+                    "target level k of the channel (eq. 3: G = k / (DL_B − DL_0))")
+                for c in self.channels]
+        zeros = [c.dark_zero_fraction for c in self.channels if c.dark_zero_fraction is not None]
+        if zeros:
+            worst = max(zeros)
+            out.append(Row("dark pixels at 0", 100.0 * worst, None, "%",
+                           "largest fraction of dark pixel values equal to 0 (a channel's); "
+                           f"above {100 * ZERO_LIMIT:g} % the dark image is clipped at zero",
+                           f"{100.0 * worst:.3g} %: the dark image is clipped at zero"
+                           if worst > ZERO_LIMIT else None))
+        return tuple(out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,15 +253,24 @@ class FlatField:
                 MapName.FLAT_DARK: self.dark.mean.astype(np.float32),
                 MapName.FLAT_BASE: self.base.mean.astype(np.float32)}
 
+    def summary(self) -> FlatFieldSummary:
+        """The record ``calibration.json`` stores (no maps; non-finite numbers as ``None``)."""
+        base = None
+        if self.base_key is not None:
+            level, t = self.base_key
+            base = (None if level is None else int(level), json_safe(t))
+        return FlatFieldSummary(
+            layout=str(self.layout), shape=tuple(int(n) for n in self.shape),
+            n_dark=int(self.dark.n), n_base=int(self.base.n),
+            channels=tuple(c.summary() for c in self.channels),
+            n_flagged=int(self.flags.sum()), noise_limit=json_safe(self.noise_limit),
+            window=int(self.window), flag_rule=self.flag_rule, base=base,
+            setting=self.setting, dark_exposure=json_safe(self.dark_exposure),
+            notes=tuple(str(n) for n in self.notes))
+
     def to_dict(self) -> dict[str, Any]:
-        """Summary (no maps), JSON-friendly."""
-        return {"layout": self.layout, "shape": list(self.shape), "n_dark": self.dark.n,
-                "n_base": self.base.n, "channels": [c.to_dict() for c in self.channels],
-                "n_flagged": int(self.flags.sum()), "noise_limit": self.noise_limit,
-                "window": self.window, "flag_rule": self.flag_rule,
-                "base": None if self.base_key is None else list(self.base_key),
-                "setting": self.setting, "dark_exposure": self.dark_exposure,
-                "notes": list(self.notes)}
+        """Summary (no maps), JSON-friendly: :meth:`summary` as a dict."""
+        return self.summary().to_dict()
 
 
 def correct(frame: ArrayLike, G: ArrayLike, O: ArrayLike, *,

@@ -489,8 +489,8 @@ def held_out_frames(session: Any, product: Any) -> list[Any]:
     rec = session.max_intensity_frame()
     if rec is not None:
         out.append(rec)
-    ff = getattr(product, "estimates", {}).get("flat_field")
-    base = tuple(ff["base"]) if ff and ff.get("base") is not None else None
+    ff = product.estimates.flat_field
+    base = tuple(ff.base) if ff is not None and ff.base is not None else None
     for key, recs in session.flat_groups().items():
         if base is None or tuple(key) != base:
             out.append(recs[0])

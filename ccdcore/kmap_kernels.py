@@ -18,6 +18,9 @@ FixedPattern, fixed_pattern_of(K, used, rejected, m_bar, K_var, ...)
     The result K̂ and its diagnostics, and its assembly from the maps of eqs. 48–49 (notes,
     n̂_1, the bound of eq. 50, the summary statistics); both are re-exported by
     :mod:`ccdcore.fixedpattern`, their usual address.
+FixedPatternSummary
+    The record a calibration product stores of K̂ (:meth:`FixedPattern.summary`; no maps),
+    with its displayable ``rows()``.
 """
 from __future__ import annotations
 
@@ -28,6 +31,9 @@ from typing import Any, Iterable
 import numba
 import numpy as np
 from scipy.ndimage import uniform_filter
+
+from .common import json_safe
+from .records import Record, Row
 
 NOT_LIT = ("configuration {cid} is not above the dark level (mean e_i = {level:.3g} DN): is it "
             "a lit card?")
@@ -461,23 +467,90 @@ class FixedPattern:
         used by :func:`ccdcore.planning.plan_acquisition`."""
         return self.n1 / self.n1_hat if self.n1_hat > 0 else float("inf")
 
-    def to_dict(self) -> dict[str, Any]:
-        """Summary statistics only (no maps), JSON-friendly."""
-        return {
-            "n1": self.n1, "n2": self.n2, "window": self.window, "p": self.p,
-            "shape": list(self.K.shape), "mean": self.mean, "spatial_std": self.spatial_std,
-            "sigma_hat": self.sigma_hat, "n1_hat": self.n1_hat,
+    def summary(self) -> FixedPatternSummary:
+        """The summary statistics (no maps) as the record a product stores
+        (``estimates["fixed_pattern"]``): plain numbers, infinite bounds and NaN as ``None``."""
+        bounded = math.isfinite(self.var_bound)
+        return FixedPatternSummary(
+            n1=json_safe(self.n1), n2=json_safe(self.n2), window=json_safe(self.window),
+            p=json_safe(self.p), shape=tuple(int(n) for n in self.K.shape),
+            mean=json_safe(self.mean), spatial_std=json_safe(self.spatial_std),
+            sigma_hat=json_safe(self.sigma_hat), n1_hat=self.n1_hat,
             # None when some pixel kept no slope (n̂_1 = 0): the bound of eq. 50 is then infinite
-            "var_bound": self.var_bound if math.isfinite(self.var_bound) else None,
-            "sd_bound": math.sqrt(self.var_bound) if math.isfinite(self.var_bound) else None,
-            "worst_ratio": self.worst_ratio if math.isfinite(self.worst_ratio) else None,
-            "fraction_pixels_with_rejection": float(np.mean(self.n1_used < self.n1)),
-            "n_rejected": int(self.rejected.sum()),
-            "config_ids": list(self.config_ids), "config_levels": list(self.config_levels),
-            "noise_var_e": None if math.isnan(self.noise_var_e) else self.noise_var_e,
-            "K_var_mean": float(np.mean(self.K_var)) if self.K_var is not None else None,
-            "notes": list(self.notes),
-        }
+            var_bound=json_safe(self.var_bound),
+            sd_bound=json_safe(math.sqrt(self.var_bound)) if bounded else None,
+            worst_ratio=json_safe(self.worst_ratio),
+            fraction_pixels_with_rejection=float(np.mean(self.n1_used < self.n1)),
+            n_rejected=int(self.rejected.sum()),
+            config_ids=tuple(json_safe(c) for c in self.config_ids),
+            config_levels=tuple(json_safe(v) for v in self.config_levels),
+            noise_var_e=json_safe(self.noise_var_e),
+            K_var_mean=json_safe(float(np.mean(self.K_var))) if self.K_var is not None else None,
+            notes=tuple(self.notes))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Summary statistics only (no maps), JSON-friendly: :meth:`summary` as its JSON
+        object."""
+        return self.summary().to_dict()
+
+
+@dataclass(frozen=True)
+class FixedPatternSummary(Record):
+    """The fixed-pattern map K̂ (eqs. 45–50) as a product stores it
+    (``estimates["fixed_pattern"]``, :meth:`FixedPattern.summary`): its statistics and
+    diagnostics; the maps are stored apart."""
+
+    #: configurations n1 and frames per configuration n2 (the smallest when they differ)
+    n1: int
+    n2: int
+    #: the local window m (pixels) and the rejection width p (in σ̂)
+    window: int
+    p: float
+    #: the shape (H, W) of K̂
+    shape: tuple[int, int]
+    #: mean and std (ddof = 0) of K̂ over the array (paper: 0.99998, 3.72e-3)
+    mean: float
+    spatial_std: float
+    #: σ̂, the per-pixel sample std of the slopes averaged over locations (eq. 48)
+    sigma_hat: float
+    #: n̂_1 = min n'_1, the fewest slopes kept at a pixel (eq. 50)
+    n1_hat: int
+    #: the bound (p·σ̂)²/n̂_1 of eq. 50 on the error variance of K̂ and its square root
+    #: (``None``: infinite, some pixel kept no slope)
+    var_bound: float | None
+    sd_bound: float | None
+    #: n1/n̂_1, configurations captured per configuration kept at the worst pixel (sec. V-B;
+    #: ``None``: infinite)
+    worst_ratio: float | None
+    #: fraction of pixels with a rejected slope, and the slopes rejected in all (eq. 49)
+    fraction_pixels_with_rejection: float
+    n_rejected: int
+    #: configuration ids and the mean of e_i (DN above dark) per configuration
+    config_ids: tuple[int | str, ...]
+    config_levels: tuple[float, ...]
+    #: mean temporal variance σ²_N/n2 of e_i, DN² (``None`` when n2 = 1)
+    noise_var_e: float | None
+    #: mean of the per-pixel error variance of K̂ (``None``: not measured)
+    K_var_mean: float | None
+    #: warnings (few configurations, fallbacks ...)
+    notes: tuple[str, ...] = ()
+
+    def rows(self) -> tuple[Row, ...]:
+        """The headline figures: configurations and frames, the statistics of K̂, σ̂, its
+        measured error and the eq. 50 bound, the pixels with a rejected slope."""
+        k_sd = math.sqrt(self.K_var_mean) if self.K_var_mean is not None else None
+        return (
+            Row("configurations n1", self.n1, meaning="card/lamp positions (sec. V-B)"),
+            Row("frames n2", self.n2, meaning="frames per configuration"),
+            Row("mean of K̂", self.mean, meaning="each pixel's relative gain, no unit"),
+            Row("spatial spread of K̂", self.spatial_std, meaning="standard deviation"),
+            Row("slope spread σ̂", self.sigma_hat, meaning="eq. 48"),
+            Row("error of K̂ (mean)", k_sd, meaning="√ of the mean error variance"),
+            Row("eq. 50 bound", self.var_bound, meaning="error variance bound (p·σ̂)²/n̂_1",
+                text="infinite" if self.var_bound is None else None),
+            Row("pixels with a rejected slope", 100.0 * self.fraction_pixels_with_rejection,
+                None, "%", f"{self.n_rejected} slopes rejected in all (eq. 49)"),
+        )
 
 
 def fixed_pattern_of(K: np.ndarray, used: np.ndarray, rejected: np.ndarray, m_bar: np.ndarray,

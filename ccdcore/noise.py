@@ -59,6 +59,10 @@ Public objects
 --------------
 PtcPoint, LineFit, PhotonTransfer
     Frozen results: one light level; the weighted line; the photon-transfer result.
+PtcPointSummary, PhotonTransferSummary
+    The records a calibration product stores of a level and of the result
+    (:meth:`PhotonTransfer.summary`; back with :meth:`PhotonTransfer.from_summary`), with their
+    displayable ``rows()``.
 photon_transfer(session_or_path, ...)
     Measure every PTC level of a session and fit the noise model.
 ptc_points(session, ...)
@@ -74,8 +78,9 @@ goodness_of_fit(chi2, dof)
 CLIP_LIMIT, LINEARITY_Z, LINEARITY_TOLERANCE, ROBUST_Z, QUANTISATION_STEP
     The thresholds of the exclusion rules and q.
 
-PtcPoint, LineFit, weighted_line_fit, goodness_of_fit, CLIP_LIMIT and LINEARITY_Z are defined in
-:mod:`ccdcore.ptc_fit`, with the exclusion rules, and re-exported here.
+PtcPoint, LineFit, the two summaries, weighted_line_fit, goodness_of_fit, CLIP_LIMIT and
+LINEARITY_Z are defined in :mod:`ccdcore.ptc_fit`, with the exclusion rules, and re-exported
+here.
 """
 from __future__ import annotations
 
@@ -89,16 +94,17 @@ from numpy.typing import ArrayLike
 
 from .common import check_roi, crop, json_safe
 from .errors import CcdError
-from .ptc_fit import (CLIP_LIMIT, LINEARITY_Z, LineFit, PtcPoint, data_reason, goodness_of_fit,
-                      linearity_reasons, range_reasons, saturation_reasons, weighted_line_fit)
+from .ptc_fit import (CLIP_LIMIT, LINEARITY_Z, LineFit, PhotonTransferSummary, PtcPoint,
+                      PtcPointSummary, data_reason, goodness_of_fit, linearity_reasons,
+                      range_reasons, saturation_reasons, weighted_line_fit)
 from .reduce import STREAMED, Reducer, stand_in
 from .session import FrameRecord, Session, open_session
 from .stats import pair_statistics
 
-__all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "photon_transfer", "ptc_points",
-           "fit_points", "pair_statistics", "weighted_line_fit", "goodness_of_fit",
-           "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z", "QUANTISATION_STEP",
-           "EXCLUSIONS", "USER_EXCLUDED", "EMVA_FIT_FRACTION"]
+__all__ = ["PtcPoint", "LineFit", "PhotonTransfer", "PtcPointSummary", "PhotonTransferSummary",
+           "photon_transfer", "ptc_points", "fit_points", "pair_statistics", "weighted_line_fit",
+           "goodness_of_fit", "CLIP_LIMIT", "LINEARITY_Z", "LINEARITY_TOLERANCE", "ROBUST_Z",
+           "QUANTISATION_STEP", "EXCLUSIONS", "USER_EXCLUDED", "EMVA_FIT_FRACTION"]
 
 #: default relative deviation from linearity tolerated (μ̂ vs light, or σ̂²_N vs the line)
 LINEARITY_TOLERANCE = 0.05
@@ -235,26 +241,66 @@ class PhotonTransfer:
                           fit_fraction=(self.fit_fraction if fit_fraction == "same"
                                         else fit_fraction))
 
+    def summary(self) -> PhotonTransferSummary:
+        """The result as the record a product stores (``estimates["noise"]``): plain numbers,
+        NaN as ``None``, the points as :class:`PtcPointSummary`."""
+        return PhotonTransferSummary(
+            A=json_safe(self.A), A_err=json_safe(self.A_err), sigma_c2=json_safe(self.sigma_c2),
+            sigma_c2_err=json_safe(self.sigma_c2_err),
+            cov=tuple(tuple(json_safe(v) for v in row) for row in self.cov.tolist()),
+            chi2=json_safe(self.chi2), dof=json_safe(self.dof), Q=json_safe(self.Q),
+            verdict=self.verdict, points=tuple(p.summary() for p in self.points),
+            conversion_gain_e_per_dn=json_safe(self.conversion_gain_e_per_dn),
+            conversion_gain_e_per_dn_err=json_safe(self.conversion_gain_e_per_dn_err),
+            read_noise_e=json_safe(self.read_noise_e),
+            read_noise_e_err=json_safe(self.read_noise_e_err),
+            read_noise_dn=json_safe(self.read_noise_dn),
+            read_noise_dn_err=json_safe(self.read_noise_dn_err),
+            quantisation_dn2=json_safe(self.quantisation_dn2),
+            black_level_dn=json_safe(self.black_level_dn),
+            black_level_source=self.black_level_source,
+            roi=None if self.roi is None else tuple(json_safe(v) for v in self.roi),
+            bits=json_safe(self.bits), robust_dropped=tuple(json_safe(self.robust_dropped)),
+            notes=tuple(self.notes), linearity_tolerance=json_safe(self.linearity_tolerance),
+            source=self.source, fit_fraction=json_safe(self.fit_fraction),
+            fit_range=self.fit_range)
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly values (NaN becomes ``None``); the keys of the ``ptc`` verb in docs/cli.md
-        (``A``, ``sigma_c2``, ``cov``, ``chi2``, ``dof``, ``Q``, ``points``,
-        ``conversion_gain_e_per_dn``, ``read_noise_e``) plus errors and diagnostics."""
-        out: dict[str, Any] = {}
-        for key in ("A", "A_err", "sigma_c2", "sigma_c2_err"):
-            out[key] = json_safe(getattr(self, key))
-        out["cov"] = json_safe(self.cov.tolist())
-        out.update(chi2=json_safe(self.chi2), dof=self.dof, Q=json_safe(self.Q),
-                   verdict=self.verdict, points=[p.to_dict() for p in self.points])
-        for key in ("conversion_gain_e_per_dn", "conversion_gain_e_per_dn_err", "read_noise_e",
-                    "read_noise_e_err", "read_noise_dn", "read_noise_dn_err", "quantisation_dn2",
-                    "black_level_dn"):
-            out[key] = json_safe(getattr(self, key))
-        out.update(black_level_source=self.black_level_source,
-                   roi=None if self.roi is None else list(self.roi), bits=self.bits,
-                   robust_dropped=list(self.robust_dropped), notes=list(self.notes),
-                   linearity_tolerance=self.linearity_tolerance, source=self.source,
-                   fit_fraction=self.fit_fraction, fit_range=self.fit_range)
-        return out
+        """JSON-friendly values (NaN becomes ``None``): :meth:`summary` as its JSON object; the
+        keys of the ``ptc`` verb in docs/cli.md (``A``, ``sigma_c2``, ``cov``, ``chi2``,
+        ``dof``, ``Q``, ``points``, ``conversion_gain_e_per_dn``, ``read_noise_e``) plus errors
+        and diagnostics."""
+        return self.summary().to_dict()
+
+    @classmethod
+    def from_summary(cls, s: PhotonTransferSummary) -> PhotonTransfer:
+        """The result a product stored (``estimates.noise``), e.g. to draw its plots: the
+        inverse of :meth:`summary` (``None`` written for NaN is NaN again, the points are
+        :meth:`PtcPoint.from_summary`), so ``PhotonTransfer.from_summary(s).summary() == s``.
+
+        The product does not keep which notes the measurement made: :attr:`measure_notes` is
+        empty, and :meth:`refit` of the result gives only the notes of the fit."""
+        return cls(
+            A=_nan(s.A), A_err=_nan(s.A_err), sigma_c2=_nan(s.sigma_c2),
+            sigma_c2_err=_nan(s.sigma_c2_err),
+            cov=np.array([[_nan(v) for v in row] for row in s.cov], np.float64),
+            chi2=_nan(s.chi2), dof=int(s.dof), Q=_nan(s.Q),
+            points=tuple(PtcPoint.from_summary(p) for p in s.points),
+            conversion_gain_e_per_dn=_nan(s.conversion_gain_e_per_dn),
+            conversion_gain_e_per_dn_err=_nan(s.conversion_gain_e_per_dn_err),
+            read_noise_e=_nan(s.read_noise_e), read_noise_e_err=_nan(s.read_noise_e_err),
+            read_noise_dn=_nan(s.read_noise_dn), read_noise_dn_err=_nan(s.read_noise_dn_err),
+            quantisation_dn2=_nan(s.quantisation_dn2), black_level_dn=_nan(s.black_level_dn),
+            black_level_source=s.black_level_source,
+            roi=None if s.roi is None else tuple(int(v) for v in s.roi), bits=s.bits,
+            robust_dropped=tuple(s.robust_dropped), notes=tuple(s.notes), verdict=s.verdict,
+            linearity_tolerance=_nan(s.linearity_tolerance), source=s.source,
+            fit_fraction=s.fit_fraction)
+
+
+def _nan(v: float | None) -> float:
+    """A stored number as a float: ``None`` (written for NaN) is NaN again."""
+    return math.nan if v is None else float(v)
 
 
 # --------------------------------------------------------------------------------------------

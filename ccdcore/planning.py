@@ -38,6 +38,9 @@ Public objects
 --------------
 AcquisitionPlan
     Frozen result: required n1, n2, n̂_1, the formulas, inputs, alternatives and notes.
+PlanSummary, PlanInputsSummary, PlanAlternatives
+    The record a calibration product stores of a plan (:meth:`AcquisitionPlan.summary`, with
+    the session's shortfalls), with its displayable ``rows()``; its inputs; n2 per reading.
 plan_acquisition(A, sigma_c2, bits, ...)
     The plan from the noise model (or a PhotonTransfer-like object) and the bit depth.
 check_session_plan(session, plan)
@@ -47,12 +50,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterable
 
+from .common import json_safe
 from .errors import CcdError
+from .records import OMIT_NONE, Record, Row
 
-__all__ = ["AcquisitionPlan", "plan_acquisition", "check_session_plan", "DEFAULT_WORST_RATIO",
-           "N2_READINGS"]
+__all__ = ["AcquisitionPlan", "PlanSummary", "PlanInputsSummary", "PlanAlternatives",
+           "plan_acquisition", "check_session_plan", "DEFAULT_WORST_RATIO", "N2_READINGS"]
 
 #: n1/n̂_1 assumed when no fixed-pattern result measured it
 DEFAULT_WORST_RATIO = 1.25
@@ -104,14 +109,122 @@ class AcquisitionPlan:
     inputs: dict[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
 
+    def summary(self, warnings: Iterable[str] = ()) -> PlanSummary:
+        """The plan as the record a product stores (``estimates["plan"]``), with ``warnings``:
+        what the session lacks against it (:func:`check_session_plan`)."""
+        alt = {k: json_safe(v) for k, v in self.n2_alternatives.items()}
+        inp = self.inputs
+        s = inp.get("s")
+        return PlanSummary(
+            n1_required=json_safe(self.n1_required), n2_required=json_safe(self.n2_required),
+            n1_hat=json_safe(self.n1_hat), n1_hat_exact=json_safe(self.n1_hat_exact),
+            worst_ratio=json_safe(self.worst_ratio), sigma2_n_max=json_safe(self.sigma2_n_max),
+            n2_exact=json_safe(self.n2_exact), n1_formula=self.n1_formula,
+            n2_formula=self.n2_formula, n2_reading=self.n2_reading,
+            n2_alternatives=PlanAlternatives(
+                paper=alt["paper"], difference=alt["difference"],
+                requantised=alt.get("requantised"), with_dark=alt.get("with_dark")),
+            inputs=PlanInputsSummary(
+                **{k: json_safe(inp[k]) for k in _INPUT_NUMBERS},
+                s=None if s is None else int(s), sigma2_n_dark=json_safe(inp["sigma2_n_dark"])),
+            notes=tuple(self.notes), warnings=tuple(str(w) for w in warnings))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"n1_required": self.n1_required, "n2_required": self.n2_required,
-                "n1_hat": self.n1_hat, "n1_hat_exact": self.n1_hat_exact,
-                "worst_ratio": self.worst_ratio, "sigma2_n_max": self.sigma2_n_max,
-                "n2_exact": self.n2_exact, "n1_formula": self.n1_formula,
-                "n2_formula": self.n2_formula, "n2_reading": self.n2_reading,
-                "n2_alternatives": dict(self.n2_alternatives), "inputs": dict(self.inputs),
-                "notes": list(self.notes)}
+        """JSON-friendly values: :meth:`summary` as its JSON object, without ``warnings``."""
+        out = self.summary().to_dict()
+        del out["warnings"]
+        return out
+
+
+#: the inputs of a plan that are always numbers (:class:`PlanInputsSummary`), in order
+_INPUT_NUMBERS = ("A", "sigma_c2", "bits", "sigma_hat", "p", "mu_max", "n2_var_limit",
+                  "black_level", "q")
+
+
+@dataclass(frozen=True)
+class PlanAlternatives(Record):
+    """n2 under each reading of the rule of sec. V-B (:data:`N2_READINGS`, the module
+    docstring) that the plan's inputs allow; ``None`` (key absent) where they do not."""
+
+    #: σ²_N(μ_max)/n2 ≤ limit, the literal reading; 2σ²_N (eq. 31) in place of σ²_N
+    paper: int
+    difference: int
+    #: an average stored as integer DN adds q²/12 (``None`` when the limit is ≤ q²/12)
+    requantised: int | None = field(default=None, metadata=OMIT_NONE)
+    #: with the dark reference's error σ²_N(dark)/s (``None`` without s, or s too small)
+    with_dark: int | None = field(default=None, metadata=OMIT_NONE)
+
+
+@dataclass(frozen=True)
+class PlanInputsSummary(Record):
+    """The inputs of a plan (:attr:`AcquisitionPlan.inputs`)."""
+
+    #: the noise model σ²_N = A·(μ − b0) + σ²_C (eq. 41): A (DN/e⁻), σ²_C (DN²)
+    A: float
+    sigma_c2: float
+    #: the ADC bit depth b
+    bits: int
+    #: σ̂, the std of the slopes over configurations (sec. V-B), and the rejection width p
+    sigma_hat: float
+    p: float
+    #: the intensity μ_max (raw DN) where σ²_N is evaluated for n2, and the variance limit of
+    #: e_i (in q², the paper's 2/10)
+    mu_max: float
+    n2_var_limit: float
+    #: the black level b0 (DN) and the quantisation step q (DN)
+    black_level: float
+    q: float
+    #: dark frames s and σ²_N at the dark level (DN²) of the ``with_dark`` reading (``None``
+    #: when s was not given)
+    s: int | None = None
+    sigma2_n_dark: float | None = None
+
+
+@dataclass(frozen=True)
+class PlanSummary(Record):
+    """The acquisition plan of sec. V-B as a product stores it (``estimates["plan"]``,
+    :meth:`AcquisitionPlan.summary`), with the session's shortfalls against it."""
+
+    #: configurations n1 and frames per configuration n2 to capture
+    n1_required: int
+    n2_required: int
+    #: n̂_1 = ceil(10·2^(2b)·(p σ̂)²), slopes needed at the worst pixel, and before rounding
+    n1_hat: int
+    n1_hat_exact: float
+    #: n1/n̂_1 used (measured or :data:`DEFAULT_WORST_RATIO`)
+    worst_ratio: float
+    #: σ²_N at μ_max (eq. 41, black level removed), DN², and n2 before rounding up
+    sigma2_n_max: float
+    n2_exact: float
+    #: the formulas, as text with the numbers substituted
+    n1_formula: str
+    n2_formula: str
+    #: the n2 reading used (:data:`N2_READINGS`) and n2 under each reading
+    n2_reading: str
+    n2_alternatives: PlanAlternatives
+    #: the inputs
+    inputs: PlanInputsSummary
+    #: assumptions and warnings of the plan
+    notes: tuple[str, ...] = ()
+    #: what the session lacks against the plan (:func:`check_session_plan`)
+    warnings: tuple[str, ...] = ()
+
+    def rows(self) -> tuple[Row, ...]:
+        """The headline figures: n1 and n2 with their formulas, n̂_1, the worst-case ratio,
+        σ²_N at μ_max, the reading of the n2 rule and the session's shortfalls."""
+        alternatives = "; ".join(f"{k}: {v}" for k, v in self.n2_alternatives.to_dict().items())
+        return (
+            Row("n1 (configurations)", self.n1_required, meaning=self.n1_formula),
+            Row("n2 (frames each)", self.n2_required, meaning=self.n2_formula),
+            Row("n̂_1", self.n1_hat, meaning="slopes needed at the worst pixel (eq. 50)"),
+            Row("worst-case ratio n1/n̂_1", self.worst_ratio,
+                meaning="configurations captured per configuration kept"),
+            Row("σ²_N at μ_max", self.sigma2_n_max, None, "DN²",
+                f"noise variance at μ_max = {self.inputs.mu_max:g} DN (eq. 41)"),
+            Row("reading of the n2 rule", meaning=alternatives, text=self.n2_reading),
+            Row("shortfalls", len(self.warnings),
+                meaning="what the session lacks against the plan"),
+        )
 
 
 def _ceil(x: float) -> int:

@@ -6,10 +6,11 @@ The product as a file (:class:`CalibrationProduct`, :func:`load_product`) lives 
 Public objects
 --------------
 :class:`CalibrationProduct`
-    Float32 maps (dark reference, its variance, K̂, n'_1, hot/dead flags ...) plus the JSON
-    summaries of each estimate (noise model, dark reference, fixed pattern, acquisition plan, scene
-    variation), the EMVA 1288 figures when the session has photon counts, and the provenance
-    (which step, which parameters, which session: its content hash, and when).
+    Float32 maps (dark reference, its variance, K̂, n'_1, hot/dead flags ...) plus the summary
+    record of each estimate (:class:`ProductEstimates`: noise model, dark reference, fixed
+    pattern, acquisition plan, scene variation ...), the EMVA 1288 figures when the session has
+    photon counts, and the :class:`Provenance` (which step, which parameters, which session:
+    its content hash, and when).
 :func:`calibrate`
     Runs every estimate the session's frames allow and returns the product.
 :class:`MapName`
@@ -39,7 +40,6 @@ import numpy as np
 
 from . import __version__
 from .channels import Layout
-from .common import json_safe
 from .darkframe import DarkReference
 from .datasheet import EmvaFigures
 from .errors import CcdError
@@ -52,8 +52,10 @@ from .planning import AcquisitionPlan
 from .progress import Progress, Steps
 from .reduce import STREAMED, Reducer
 from .scene import SceneVariation
-from .product_file import (PRODUCT_FILE, CalibrationProduct, JsonDict, Skipped, load_product,
-                           map_problem)
+from .product_file import PRODUCT_FILE, CalibrationProduct, Skipped, load_product, map_problem
+from .product_records import (DarkStep, EmvaStep, FixedPatternStep, FlatFieldStep, NoiseStep,
+                              ProductEstimates, ProductSteps, Provenance, ResponseStep,
+                              SceneStep)
 from .session import MAX_INTENSITY, Session, open_session
 
 if TYPE_CHECKING:      # imported where a response is estimated (numba's kernels load then)
@@ -62,7 +64,8 @@ if TYPE_CHECKING:      # imported where a response is estimated (numba's kernels
 __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIREMENTS",
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
            "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE",
-           "ESTIMATE_STEPS", "session_inputs", "map_problem", "MapName"]
+           "ESTIMATE_STEPS", "session_inputs", "map_problem", "MapName", "ProductEstimates",
+           "Provenance"]
 
 #: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
 #: (its ``progress`` receives ``progress(start, name)`` at each, :class:`ccdcore.progress.Steps`;
@@ -542,68 +545,75 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
             "the session has none of the frames an estimate needs: " + "; ".join(
                 f"{req.estimate} needs {'/'.join(req.roles)}" for req in REQUIREMENTS))
         raise CcdError(session.label, f"nothing to calibrate ({why})")
-    maps: dict[str, np.ndarray] = {}
-    est: dict[str, JsonDict] = {}
-    steps: dict[str, JsonDict] = {}
+    maps, estimates, steps = _assembled(e, roi=roi, window=window, p=p)
+    provenance = Provenance(
+        ccdcore=__version__, session=session.label, source=session.source,
+        n_frames=len(session.frames), session_hash=session.content_hash(),
+        date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        scheduler=(reducer or STREAMED).description, steps=steps)
+    return CalibrationProduct(
+        maps=maps, estimates=estimates, camera=session.camera, provenance=provenance,
+        skipped=e.skipped, warnings=e.plan_warnings,
+        emva1288=None if e.emva1288 is None else e.emva1288.summary())
+
+
+def _assembled(e: Estimates, *, roi: tuple[int, int, int, int] | None, window: int,
+               p: float) -> tuple[dict[MapName, np.ndarray], ProductEstimates, ProductSteps]:
+    """The maps (float32), the summary of each estimate made and each step's parameters."""
+    maps: dict[MapName, np.ndarray] = {}
+    est: dict[str, Any] = {}
+    steps: dict[str, Any] = {}
     if e.noise is not None:
-        est["noise"] = e.noise.to_dict()
-        steps["noise"] = {"method": "photon transfer, Healey & Kondepudy 1994 eqs. 37-42, 59-67",
-                          "roi": list(roi) if roi else None}
+        est["noise"] = e.noise.summary()
+        steps["noise"] = NoiseStep(
+            method="photon transfer, Healey & Kondepudy 1994 eqs. 37-42, 59-67",
+            roi=None if roi is None else tuple(int(v) for v in roi))
     if e.dark is not None:
         dark = e.dark
         maps[MapName.DARK] = dark.mean_map.astype(np.float32)
         maps[MapName.DARK_VAR] = dark.var_map.astype(np.float32)
         maps[MapName.HOT] = dark.hot_mask.astype(np.float32)
         maps[MapName.DEAD] = dark.dead_mask.astype(np.float32)
-        est["dark"] = dark.to_dict()
-        steps["dark"] = {"method": "streamed average, sec. V-A", "s": dark.s,
-                         "hot_rule": dark.hot_rule, "dead_rule": dark.dead_rule}
+        est["dark"] = dark.summary()
+        steps["dark"] = DarkStep(method="streamed average, sec. V-A", s=int(dark.s),
+                                 hot_rule=dark.hot_rule, dead_rule=dark.dead_rule)
     if e.fixed_pattern is not None:
         fp = e.fixed_pattern
         maps[MapName.K] = fp.K.astype(np.float32)
         maps[MapName.K_VAR] = fp.K_var.astype(np.float32)
         maps[MapName.N1_USED] = fp.n1_used.astype(np.float32)
-        est["fixed_pattern"] = fp.to_dict()
-        steps["fixed_pattern"] = {"method": "eqs. 45-50, sec. V-B", "window": window, "p": p}
+        est["fixed_pattern"] = fp.summary()
+        steps["fixed_pattern"] = FixedPatternStep(method="eqs. 45-50, sec. V-B",
+                                                  window=window, p=p)
     if e.plan is not None:
-        est["plan"] = e.plan.to_dict()
-        est["plan"]["warnings"] = list(e.plan_warnings)
+        est["plan"] = e.plan.summary(warnings=e.plan_warnings)
     if e.correction_check is not None:
-        est["correction_check"] = e.correction_check.to_dict()
+        est["correction_check"] = e.correction_check.summary()
     if e.flat is not None:
         maps.update(e.flat.maps())
-        est["flat_field"] = e.flat.to_dict()
-        steps["flat_field"] = {"method": "gain/offset maps, de Lasarte et al. 2007",
-                               "base": est["flat_field"]["base"],
-                               "flag_rule": e.flat.flag_rule}
+        est["flat_field"] = e.flat.summary()
+        steps["flat_field"] = FlatFieldStep(method="gain/offset maps, de Lasarte et al. 2007",
+                                            base=est["flat_field"].base,
+                                            flag_rule=e.flat.flag_rule)
     if e.response is not None:
-        est["response"] = {k: v for k, v in e.response.to_dict().items() if k != "files"}
-        steps["response"] = {"method": "Tsin, Ramesh & Kanade 2001 sec. 3.2 (instrumented "
-                                       "pools), nominal exposures",
-                             "bloom_radius": e.response.bloom_radius,
-                             "files": list(e.response.files)}
+        est["response"] = e.response.summary()
+        steps["response"] = ResponseStep(
+            method="Tsin, Ramesh & Kanade 2001 sec. 3.2 (instrumented pools), nominal "
+                   "exposures", bloom_radius=int(e.response.bloom_radius),
+            files=tuple(str(f) for f in e.response.files))
     if e.scene is not None:
-        est["scene"] = {name: v.to_dict() for name, v in e.scene.items()}
-        steps["scene"] = {"method": "eqs. 53-58, sec. VI, with the calibration maps' errors"}
-    emva = None
+        est["scene"] = {name: v.summary() for name, v in e.scene.items()}
+        steps["scene"] = SceneStep(
+            method="eqs. 53-58, sec. VI, with the calibration maps' errors")
     if e.emva1288 is not None:
         from .datasheet import LINEARITY_RANGE, SENSITIVITY_FRACTION, SIGMA2_Y_DARK_FLOOR
 
-        emva = json_safe(e.emva1288.to_dict())
-        steps["emva1288"] = {"method": "EMVA 1288 release 3.1 as the emva1288 1.0.2 package "
-                                       "computes it (Results1288); errors and sigma_d_ptc by "
-                                       "ccdcore", "sensitivity_fraction": SENSITIVITY_FRACTION,
-                             "linearity_range": list(LINEARITY_RANGE),
-                             "sigma2_y_dark_floor": SIGMA2_Y_DARK_FLOOR}
-    provenance = {"ccdcore": __version__, "session": session.label,
-                  "source": session.source, "n_frames": len(session.frames),
-                  "session_hash": session.content_hash(),
-                  "date": datetime.datetime.now(datetime.timezone.utc).isoformat(
-                      timespec="seconds"),
-                  "scheduler": (reducer or STREAMED).description, "steps": steps}
-    return CalibrationProduct(maps=maps, estimates=json_safe(est), camera=session.camera,
-                              provenance=json_safe(provenance), skipped=e.skipped,
-                              warnings=e.plan_warnings, emva1288=emva)
+        steps["emva1288"] = EmvaStep(
+            method="EMVA 1288 release 3.1 as the emva1288 1.0.2 package computes it "
+                   "(Results1288); errors and sigma_d_ptc by ccdcore",
+            sensitivity_fraction=SENSITIVITY_FRACTION,
+            linearity_range=tuple(LINEARITY_RANGE), sigma2_y_dark_floor=SIGMA2_Y_DARK_FLOOR)
+    return maps, ProductEstimates(**est), ProductSteps(**steps)
 
 
 def session_inputs(session: Session) -> list[Path]:

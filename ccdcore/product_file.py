@@ -21,14 +21,19 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Union
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Union
 
 import numpy as np
 
 from .errors import CcdError
 from .io import atomic_write_text, output_set, read_image, remove_stale_temporaries, write_map
+from .emva_results import EmvaSummary
 from .map_names import MapName
+from .product_records import ProductEstimates, Provenance
 from .session import Camera
+
+if TYPE_CHECKING:
+    from .response.hdr import ResponseModel
 
 __all__ = ["CalibrationProduct", "Skipped", "load_product", "map_problem", "PRODUCT_FILE",
            "PRODUCT_SCHEMA", "JsonDict", "JsonValue"]
@@ -83,15 +88,17 @@ class CalibrationProduct:
         per-pixel error variance), ``n1_used`` (n'_1); flat field (frame-shaped, colour or
         mosaic): ``flat_G``, ``flat_O``, ``flat_flags``, ``flat_dark`` (DL_0), ``flat_base`` (DL_B).
     estimates
-        Name -> JSON summary of each estimate made: ``noise`` (photon transfer), ``dark``,
-        ``fixed_pattern``, ``plan``, ``correction_check``, ``scene``, ``flat_field``.
+        The summary record of each estimate made (:class:`ProductEstimates`): ``noise``
+        (photon transfer), ``dark``, ``fixed_pattern``, ``plan``, ``correction_check``,
+        ``flat_field``, ``response``, ``scene``; ``None`` where not made.
     camera
         The session's camera.
     provenance
-        ``ccdcore`` version, the session (its label, ``source``, ``n_frames`` and
-        ``session_hash``, the SHA-256 of :meth:`~ccdcore.session.Session.content_hash`), the
-        ``date`` of the calibration (UTC, ISO 8601), and per step its parameters.  Products of
-        earlier releases have no ``session_hash`` nor ``date``.
+        :class:`Provenance`: the ``ccdcore`` version, the session (its label, ``source``,
+        ``n_frames`` and ``session_hash``, the SHA-256 of
+        :meth:`~ccdcore.session.Session.content_hash`), the ``date`` of the calibration (UTC,
+        ISO 8601), the ``scheduler``, and per step its parameters (:class:`ProductSteps`).  Products
+        of earlier releases have no ``session_hash`` nor ``date``.
     skipped
         Every estimate that was not made, with its reason.
     warnings
@@ -100,30 +107,32 @@ class CalibrationProduct:
         Remarks on the product as a whole; each estimate keeps its own notes (products of the
         first release kept their skip reasons and plan warnings here).
     emva1288
-        The EMVA 1288 figures (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, the top-level key
+        The EMVA 1288 figures (:class:`ccdcore.emva_results.EmvaSummary`, the top-level key
         ``"emva1288"`` of ``calibration.json``), or ``None`` when the session has no photon
         counts (the key is then absent).
+
+    Every field is typed: JSON happens only in :meth:`to_dict` and :func:`load_product`.
     """
 
-    maps: dict[str, np.ndarray]
-    estimates: dict[str, JsonDict]
+    maps: dict[MapName, np.ndarray]
+    estimates: ProductEstimates = field(default_factory=ProductEstimates)
     camera: Camera = field(default_factory=Camera)
-    provenance: JsonDict = field(default_factory=dict)
+    provenance: Provenance = field(default_factory=Provenance)
     skipped: tuple[Skipped, ...] = ()
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
-    emva1288: JsonDict | None = None
+    emva1288: EmvaSummary | None = None
 
     # -------------------------------------------------------------------------------------
     def to_dict(self) -> JsonDict:
         """The content of ``calibration.json`` (maps by file name; ``emva1288`` when made)."""
         out: JsonDict = {"schema": PRODUCT_SCHEMA, "camera": self.camera.to_dict(),
                          "maps": {name: f"maps/{name}.exr" for name in sorted(self.maps)},
-                         "estimates": self.estimates}
+                         "estimates": self.estimates.to_dict()}
         if self.emva1288 is not None:
-            out["emva1288"] = self.emva1288
+            out["emva1288"] = self.emva1288.to_dict()
         out.update({"skipped": [s.to_dict() for s in self.skipped],
-                    "provenance": self.provenance, "warnings": list(self.warnings),
+                    "provenance": self.provenance.to_dict(), "warnings": list(self.warnings),
                     "notes": list(self.notes)})
         return out
 
@@ -173,34 +182,14 @@ class CalibrationProduct:
             return "flat_field"
         return "fixed_pattern" if MapName.K in self.maps else "dark"
 
-    def response_models(self, where: Any = PRODUCT_FILE) -> dict[str, Any]:
+    def response_models(self, where: Any = PRODUCT_FILE) -> dict[str, ResponseModel]:
         """Channel -> :class:`ccdcore.response.hdr.ResponseModel` from the ``response``
         estimate (g per code, nominal a_k, b_k, noise terms), checked: a clear error names
         ``where`` when the product has no response or a damaged one."""
-        from .response.hdr import ResponseModel
-
-        r = self.estimates.get("response")
-        if not isinstance(r, dict):
+        if self.estimates.response is None:
             raise CcdError(where, "the calibration product has no response curve: calibrate "
                                   "a session with an exposure bracket (role = bracket)")
-        try:
-            names = [str(c) for c in r["channels"]]
-            out = {}
-            for i, c in enumerate(names):
-                g = np.asarray(r["g"][i], np.float64)
-                a = np.asarray(r["a"][i], np.float64)
-                b = np.asarray(r["b"][i], np.float64)
-                if g.ndim != 1 or g.size < 2 or not np.all(np.isfinite(g)) \
-                        or np.any(np.diff(g) < 0):
-                    raise ValueError(f"g of channel {c} is not a finite non-decreasing curve")
-                if a.shape != b.shape or not np.all(a > 0):
-                    raise ValueError(f"a, b of channel {c} do not match or a is not positive")
-                out[c] = ResponseModel(g, a, b, float(r["sigma_s"][i] or 0.0),
-                                       float(r["sigma_c1"][i] or 0.0),
-                                       float(r["sigma_c2"][i] or 0.0))
-        except (KeyError, IndexError, TypeError, ValueError) as exc:
-            raise CcdError(where, f"damaged response estimate: {exc}") from None
-        return out
+        return self.estimates.response.models(where)
 
     def linearise(self, frame: np.ndarray, *, name: str | None = None) -> np.ndarray:
         """Codes mapped through the inverse response g of each channel (float32, on g's
@@ -301,114 +290,6 @@ def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
             raise CcdError(manifest, f"{problem}; the product is damaged")
 
 
-# the types of the estimates' fields that readers (``report``, ``calibrate``'s summary, the
-# app, ``apply --linearise``) use, checked on load so a damaged field is one line naming it
-# rather than a traceback: "number" is a number or null (NaN is stored as null), "text" a
-# string, "flag" a boolean, "list"/"object" any list/object; [spec] a list of spec,
-# {key: spec} an object whose keys present match ("*": every key)
-_NUMBERS = ["number"]
-_CURVES = [_NUMBERS]
-_ESTIMATE_FIELDS: dict[str, Any] = {
-    "noise": {"A": "number", "A_err": "number", "sigma_c2": "number", "sigma_c2_err": "number",
-              "cov": _CURVES, "chi2": "number", "dof": "number", "Q": "number",
-              "verdict": "text", "black_level_dn": "number", "black_level_source": "text",
-              "conversion_gain_e_per_dn": "number", "read_noise_e": "number",
-              "read_noise_dn": "number", "quantisation_dn2": "number", "bits": "number",
-              "robust_dropped": _NUMBERS, "notes": ["text"], "source": "text",
-              "points": [{"level": "number", "mu": "number", "var": "number",
-                          "var_err": "number", "used": "flag", "exposure": "number",
-                          "n_pairs": "number", "n_pixels": "number"}]},
-    "dark": {"s": "number", "shape": _NUMBERS, "mean": "number", "mean_sem": "number",
-             "spatial_std": "number", "spatial_std_signal": "number", "noise_var": "number",
-             "n_hot": "number", "n_dead": "number", "hot_rule": "text", "dead_rule": "text",
-             "exposure": "number", "notes": ["text"]},
-    "fixed_pattern": {"n1": "number", "n2": "number", "window": "number", "p": "number",
-                      "shape": _NUMBERS, "mean": "number", "spatial_std": "number",
-                      "sigma_hat": "number", "var_bound": "number", "sd_bound": "number",
-                      "K_var_mean": "number", "config_ids": "list",
-                      "config_levels": _NUMBERS, "notes": ["text"]},
-    "plan": {"n1_required": "number", "n2_required": "number", "n1_hat": "number",
-             "n2_exact": "number", "n1_formula": "text", "n2_formula": "text",
-             "n2_reading": "text", "n2_alternatives": {"*": "number"},
-             "inputs": {"*": "number"}, "notes": ["text"], "warnings": ["text"]},
-    "correction_check": {"*": "number"},
-    "scene": {"*": {"name": "text", "V_S": "number", "V_S_err": "number", "chi2": "number",
-                    "dof": "number", "Q": "number", "measurements": ["object"],
-                    "excluded": "list", "notes": ["text"]}},
-    "flat_field": {"layout": "text", "shape": _NUMBERS, "n_dark": "number",
-                   "n_base": "number", "n_flagged": "number", "noise_limit": "number",
-                   "window": "number", "flag_rule": "text", "base": _NUMBERS,
-                   "setting": "text", "dark_exposure": "number", "notes": ["text"],
-                   "channels": [{"name": "text", "k": "number", "dark_level": "number",
-                                 "base_level": "number", "n_flagged": "number",
-                                 "n_pixels": "number"}]},
-    "response": {"method": "text", "channels": ["text"], "levels": "number",
-                 "scale": {"fixed_code": "number", "g_at_fixed_code": "number",
-                           "offset": "flag"}, "exposure_times": _NUMBERS, "g": _CURVES,
-                 "g_err": _CURVES, "a": _CURVES, "b": _CURVES, "a_err": _CURVES,
-                 "b_err": _CURVES, "sigma_s": _NUMBERS, "sigma_c1": _NUMBERS,
-                 "sigma_c2": _NUMBERS, "sigma_s_err": _NUMBERS, "sigma_c1_err": _NUMBERS,
-                 "sigma_c2_err": _NUMBERS, "iterations": _NUMBERS, "converged": ["flag"],
-                 "bloom_radius": "number", "white_balance": ["flag"],
-                 "notes": {"*": ["text"]}, "warnings": ["text"],
-                 "agreement": {"rms": "number", "rms_fitted": "number", "rms_blend": "number",
-                               "code_range": _NUMBERS,
-                               "channels": [{"channel": "text", "rms": "number",
-                                             "rms_fitted": "number", "rms_blend": "number",
-                                             "pairs": ["object"]}]}},
-}
-_PROVENANCE_FIELDS: dict[str, Any] = {
-    "ccdcore": "text", "session": "text", "source": "text", "n_frames": "number",
-    "session_hash": "text", "date": "text", "scheduler": "text", "steps": {"*": "object"}}
-
-
-def _type_problem(value: Any, spec: Any, where: str) -> str | None:
-    """Where ``value`` does not have the type ``spec`` says (see ``_ESTIMATE_FIELDS``)."""
-    if isinstance(spec, str):
-        ok = {"number": (value is None or (isinstance(value, (int, float))
-                                           and not isinstance(value, bool))),
-              "text": isinstance(value, str), "flag": isinstance(value, bool),
-              "list": isinstance(value, list), "object": isinstance(value, dict)}[spec]
-        word = {"number": "a number", "text": "a string", "flag": "true or false",
-                "list": "a list", "object": "an object"}[spec]
-        return None if ok else f"'{where}' must be {word}, got {_json_kind(value)}"
-    if isinstance(spec, list):
-        if not isinstance(value, list):
-            return f"'{where}' must be a list, got {_json_kind(value)}"
-        for i, item in enumerate(value):
-            problem = _type_problem(item, spec[0], f"{where}[{i}]")
-            if problem:
-                return problem
-        return None
-    if not isinstance(value, dict):
-        return f"'{where}' must be an object, got {_json_kind(value)}"
-    for key, item in value.items():
-        sub = spec.get(key, spec.get("*"))
-        problem = None if sub is None else _type_problem(item, sub, f"{where}.{key}")
-        if problem:
-            return problem
-    return None
-
-
-def _json_kind(value: Any) -> str:
-    if value is None:
-        return "null"
-    name = {bool: "true/false", int: "a number", float: "a number", str: "a string",
-            list: "a list", dict: "an object"}.get(type(value), type(value).__name__)
-    return f"{name} ({json.dumps(value)[:40]})" if isinstance(value, (str, int, float)) \
-        and not isinstance(value, bool) else name
-
-
-def _check_fields(estimates: Mapping[str, Any], provenance: Mapping[str, Any],
-                  manifest: Path) -> None:
-    """The fields of the estimates and the provenance that readers use have their types."""
-    problem = _type_problem(dict(estimates), {k: v for k, v in _ESTIMATE_FIELDS.items()},
-                            "estimates") or _type_problem(dict(provenance), _PROVENANCE_FIELDS,
-                                                          "provenance")
-    if problem:
-        raise CcdError(manifest, f"{problem}; the product is damaged: calibrate again")
-
-
 def _camera_from(doc: Any, manifest: Path) -> Camera:
     if not isinstance(doc, dict):
         raise CcdError(manifest, "'camera' must be an object")
@@ -458,15 +339,17 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     estimates = doc.get("estimates", {})
     if not all(isinstance(v, dict) for v in estimates.values()):
         raise CcdError(manifest, "every entry of 'estimates' must be an object")
-    _check_fields(estimates, doc.get("provenance", {}), manifest)
     emva = doc.get("emva1288")
     if emva is not None and not isinstance(emva, dict):
         raise CcdError(manifest, "'emva1288' must be a JSON object")
+    made = ProductEstimates.from_dict(estimates, manifest, "estimates")
+    provenance = Provenance.from_dict(doc.get("provenance", {}), manifest, "provenance")
+    figures = None if emva is None else EmvaSummary.from_dict(emva, manifest, "emva1288")
     try:
         skipped = tuple(Skipped.from_dict(d) for d in doc.get("skipped", ()))
     except (KeyError, TypeError, AttributeError):
         raise CcdError(manifest, "'skipped' entries need 'estimate' and 'reason'") from None
-    maps: dict[str, np.ndarray] = {}
+    maps: dict[MapName, np.ndarray] = {}
     for raw_name, rel in doc.get("maps", {}).items():
         name = _map_name(raw_name, manifest)
         if not isinstance(rel, str):
@@ -476,8 +359,9 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
             raise CcdError(manifest, f"map '{name}' points outside the product folder: {rel}")
         maps[name] = read_image(path)
     _check_maps(maps, manifest)
-    return CalibrationProduct(maps=maps, estimates=estimates,
+    return CalibrationProduct(maps=maps, estimates=made,
                               camera=_camera_from(doc.get("camera", {}), manifest),
-                              provenance=doc.get("provenance", {}), skipped=skipped,
+                              provenance=provenance, skipped=skipped,
                               warnings=tuple(str(n) for n in doc.get("warnings", ())),
-                              notes=tuple(str(n) for n in doc.get("notes", ())), emva1288=emva)
+                              notes=tuple(str(n) for n in doc.get("notes", ())),
+                              emva1288=figures)

@@ -10,6 +10,11 @@ Public objects
 --------------
 PtcPoint, LineFit
     Frozen results: one light level; the weighted line.
+PtcPointSummary, PhotonTransferSummary
+    The records a calibration product stores (:class:`ccdcore.records.Record`): one light level
+    (:meth:`PtcPoint.summary`, back with :meth:`PtcPoint.from_summary`) and the photon-transfer
+    result (:meth:`ccdcore.noise.PhotonTransfer.summary`, back with
+    :meth:`ccdcore.noise.PhotonTransfer.from_summary`), each with its displayable ``rows()``.
 weighted_line_fit(mu, var, var_var)
     The closed-form weighted line, its covariance, χ², degrees of freedom and Q (eqs. 59–67).
 goodness_of_fit(chi2, dof)
@@ -33,10 +38,11 @@ from numpy.typing import ArrayLike
 
 from .common import json_safe
 from .errors import CcdError
+from .records import Record, Row
 
-__all__ = ["PtcPoint", "LineFit", "weighted_line_fit", "goodness_of_fit", "data_reason",
-           "saturation_reasons", "linearity_reasons", "range_reasons", "CLIP_LIMIT",
-           "LINEARITY_Z"]
+__all__ = ["PtcPoint", "PtcPointSummary", "PhotonTransferSummary", "LineFit",
+           "weighted_line_fit", "goodness_of_fit", "data_reason", "saturation_reasons",
+           "linearity_reasons", "range_reasons", "CLIP_LIMIT", "LINEARITY_Z"]
 
 #: a level is clipped when more than this fraction of its ROI pixel values is at 0 or full scale
 CLIP_LIMIT = 1e-4
@@ -93,10 +99,35 @@ class PtcPoint:
     photons: float | None = None
     exclusion: str | None = None
 
+    def summary(self) -> PtcPointSummary:
+        """The level as the record a product stores (plain numbers, NaN as ``None``)."""
+        return PtcPointSummary(
+            level=json_safe(self.level), mu=json_safe(self.mu), var=json_safe(self.var),
+            var_err=json_safe(self.var_err), used=bool(self.used), reason=self.reason,
+            exclusion=self.exclusion, n_pairs=json_safe(self.n_pairs),
+            n_pixels=json_safe(self.n_pixels), exposure=json_safe(self.exposure),
+            mu_raw=json_safe(self.mu_raw), clipped_fraction=json_safe(self.clipped_fraction),
+            photons=json_safe(self.photons))
+
     def to_dict(self) -> dict[str, Any]:
-        return {k: json_safe(getattr(self, k)) for k in (
-            "level", "mu", "var", "var_err", "used", "reason", "exclusion", "n_pairs",
-            "n_pixels", "exposure", "mu_raw", "clipped_fraction", "photons")}
+        """JSON-friendly values: :meth:`summary` as its JSON object."""
+        return self.summary().to_dict()
+
+    @classmethod
+    def from_summary(cls, s: PtcPointSummary) -> PtcPoint:
+        """The level a product stored (the inverse of :meth:`summary`: ``None`` written for NaN
+        is NaN again, ``PtcPoint.from_summary(s).summary() == s``)."""
+        return cls(level=int(s.level), mu=_nan_if_none(s.mu), var=_nan_if_none(s.var),
+                   var_err=_nan_if_none(s.var_err), n_pairs=int(s.n_pairs),
+                   n_pixels=int(s.n_pixels), used=bool(s.used), reason=s.reason,
+                   exposure=s.exposure, mu_raw=_nan_if_none(s.mu_raw),
+                   clipped_fraction=_nan_if_none(s.clipped_fraction), photons=s.photons,
+                   exclusion=s.exclusion)
+
+
+def _nan_if_none(v: float | None) -> float:
+    """A stored number as a float: ``None`` (written for NaN) is NaN again."""
+    return math.nan if v is None else float(v)
 
 
 @dataclass(frozen=True)
@@ -129,6 +160,141 @@ class LineFit:
         return {"A": json_safe(self.A), "sigma_c2": json_safe(self.sigma_c2),
                 "cov": json_safe(self.cov.tolist()), "chi2": json_safe(self.chi2),
                 "dof": self.dof, "Q": json_safe(self.Q)}
+
+
+# --------------------------------------------------------------------------------------------
+# the records a calibration product stores
+# --------------------------------------------------------------------------------------------
+#: the covariance of (A, σ²_C) (eq. 66) as stored: two rows of two numbers, ``None`` for NaN
+CovRows = tuple[tuple[float | None, float | None], tuple[float | None, float | None]]
+
+#: the plain reading of each verdict of the fit (:attr:`PhotonTransferSummary.verdict`)
+_VERDICTS = {
+    "acceptable": "the line σ²_N = A·μ + σ²_C fits the points within their errors",
+    "poor": "the points scatter more than their errors allow (Q < 0.05)",
+    "model rejected": "the points do not lie on a straight line within their errors "
+                      "(Q < 0.001)",
+}
+
+
+@dataclass(frozen=True)
+class PtcPointSummary(Record):
+    """One photon-transfer light level as a product stores it (:meth:`PtcPoint.summary`);
+    the fields are those of :class:`PtcPoint`."""
+
+    #: the ``level`` id of the session
+    level: int
+    #: μ̂ − b₀, the mean of eq. 37 minus the black level (DN); σ̂²_N (eq. 38, DN²) and its
+    #: standard error √(eq. 40)
+    mu: float
+    var: float
+    var_err: float
+    #: whether the fit used the level; why not, for a person and as a kind of exclusion
+    #: (:data:`ccdcore.noise.EXCLUSIONS`), ``None`` when used
+    used: bool
+    reason: str | None
+    exclusion: str | None
+    #: disjoint pairs and pixels M per frame (the ROI)
+    n_pairs: int
+    n_pixels: int
+    #: exposure time (s), when known
+    exposure: float | None
+    #: μ̂ as measured (eq. 37), DN; the fraction of ROI values at 0 or 2^bits − 1
+    mu_raw: float
+    clipped_fraction: float
+    #: mean photons per pixel (EMVA 1288 descriptors), when known
+    photons: float | None = None
+
+    def rows(self) -> tuple[Row, ...]:
+        """The level as a person reads it: its mean, σ̂²_N with its error, and whether the fit
+        used it."""
+        return (
+            Row("level", self.level, meaning="the light level of the session"),
+            Row("mean μ − b₀", self.mu, None, "DN", "mean signal above the black level "
+                                                    "(eq. 37)"),
+            Row("noise variance σ̂²_N", self.var, self.var_err, "DN²",
+                "from the difference of a frame pair (eq. 38), ± √eq. 40"),
+            Row("pairs", self.n_pairs, meaning=f"frame pairs of {self.n_pixels} pixels"),
+            Row("exposure", self.exposure, None, "s", "exposure time"),
+            Row("fit", meaning="whether the line was fitted through the level",
+                text="used" if self.used else f"excluded: {self.reason or self.exclusion}"),
+        )
+
+
+@dataclass(frozen=True)
+class PhotonTransferSummary(Record):
+    """The photon-transfer result as a product stores it (``estimates["noise"]``,
+    :meth:`ccdcore.noise.PhotonTransfer.summary`): the noise model σ²_N = A·(μ − b₀) + σ²_C
+    (eq. 41), its fit (eqs. 59–67), the levels and the figures derived from it (eq. 27)."""
+
+    #: gain A in DN per electron (slope of eq. 41) and its standard error
+    A: float
+    A_err: float
+    #: σ²_C = A²σ²_R + q²/12 (eq. 27), DN², and its standard error
+    sigma_c2: float
+    sigma_c2_err: float
+    #: covariance of (A, σ²_C) (eq. 66)
+    cov: CovRows
+    #: χ² (eq. 42), P − 2 degrees of freedom, goodness of fit Q (eq. 67, ``None`` without
+    #: degrees of freedom) and its plain reading
+    chi2: float
+    dof: int
+    Q: float | None
+    verdict: str
+    #: every level, used or not (with the reason)
+    points: tuple[PtcPointSummary, ...]
+    #: 1/A, electrons per DN, and its error (``None`` when A ≤ 0)
+    conversion_gain_e_per_dn: float | None
+    conversion_gain_e_per_dn_err: float | None
+    #: read noise σ_R = √(σ²_C − q²/12)/A (eq. 27), electrons, and in DN (A·σ_R), with errors
+    #: (``None`` when σ²_C ≤ q²/12 or A ≤ 0)
+    read_noise_e: float | None
+    read_noise_e_err: float | None
+    read_noise_dn: float | None
+    read_noise_dn_err: float | None
+    #: q²/12, DN²
+    quantisation_dn2: float
+    #: the black level b₀ (DN) and the rule that gave it (:mod:`ccdcore.noise`)
+    black_level_dn: float
+    black_level_source: str
+    #: the region (x, y, w, h), ``None`` for the whole frame; the ADC bit depth
+    roi: tuple[int, int, int, int] | None
+    bits: int | None
+    #: levels dropped by the robust mode, in the order dropped; plain-language remarks
+    robust_dropped: tuple[int, ...]
+    notes: tuple[str, ...]
+    #: relative deviation from linearity tolerated by the exclusion rules
+    linearity_tolerance: float = 0.05
+    #: the session the points came from, when known
+    source: str | None = None
+    #: the fit range as a fraction of the saturation signal (``None``: every level below
+    #: saturation, the paper's range) and in words
+    fit_fraction: float | None = None
+    fit_range: str = "every level below saturation (the paper's range)"
+
+    def rows(self) -> tuple[Row, ...]:
+        """The headline figures: A, the conversion gain, σ²_C, the read noise, b₀, the fit's
+        χ², Q and verdict, and the levels used."""
+        used = sum(1 for p in self.points if p.used)
+        return (
+            Row("gain A", self.A, self.A_err, "DN/e⁻", "DN per electron (slope of eq. 41)"),
+            Row("conversion gain", self.conversion_gain_e_per_dn,
+                self.conversion_gain_e_per_dn_err, "e⁻/DN", "electrons per DN, 1/A"),
+            Row("σ²_C", self.sigma_c2, self.sigma_c2_err, "DN²",
+                "signal-independent noise, A²σ²_R + q²/12 (eq. 27)"),
+            Row("read noise", self.read_noise_e, self.read_noise_e_err, "e⁻",
+                "σ_R = √(σ²_C − q²/12)/A (eq. 27)"),
+            Row("read noise in DN", self.read_noise_dn, self.read_noise_dn_err, "DN", "A·σ_R"),
+            Row("black level b₀", self.black_level_dn, None, "DN",
+                f"offset without shot noise, from: {self.black_level_source}"),
+            Row("χ²", self.chi2, None, "", f"with {self.dof} degrees of freedom (eq. 42)"),
+            Row("goodness of fit Q", self.Q, None, "",
+                "chance of so large a χ² if the line fits (eq. 67)"),
+            Row("verdict", meaning=_VERDICTS.get(self.verdict, "no test of the fit"),
+                text=self.verdict),
+            Row("levels used", used, None, "", f"of {len(self.points)} light levels; "
+                                               f"{self.fit_range}"),
+        )
 
 
 # --------------------------------------------------------------------------------------------

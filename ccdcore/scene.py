@@ -78,6 +78,10 @@ SceneVariation
     One patch across light levels: the eq. 57 fit, χ², dof, Q.
 VarianceBudget
     Components and fractions of the variance of an uncorrected region against intensity (Fig. 4).
+SceneMeasurementSummary, SceneSummary, CorrectionCheckSummary
+    The records a calibration product stores of a measurement, of a patch
+    (:meth:`SceneVariation.summary`) and of the correction check of sec. VII-A; defined in
+    :mod:`ccdcore.scene_summary` and re-exported here.
 scene_measurement(frame, dark_map, K, *, A, sigma_c2, roi, ...)
     Measure one frame (pure arrays and floats).
 fit_scene_variation(measurements, *, noise_cov=None, name="")
@@ -109,8 +113,10 @@ from .channels import Layout
 from .common import Roi, check_roi, json_safe
 from .errors import CcdError
 from .reduce import READ_AHEAD
+from .scene_summary import CorrectionCheckSummary, SceneMeasurementSummary, SceneSummary
 
-__all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "scene_measurement",
+__all__ = ["SceneMeasurement", "SceneVariation", "VarianceBudget", "SceneMeasurementSummary",
+           "SceneSummary", "CorrectionCheckSummary", "scene_measurement",
            "fit_scene_variation", "scene_variation", "scene_variations", "variance_budget",
            "BUDGET_COMPONENTS"]
 
@@ -188,15 +194,25 @@ class SceneMeasurement:
         """σ̂²_D − σ̂²_KN − σ̂²_cal, the left side of eq. 57 (DN²)."""
         return self.var_D - self.sigma_KN2 - self.sigma_cal2
 
+    def summary(self, used: bool = True) -> SceneMeasurementSummary:
+        """The measurement as the record a product stores, with ``used``: whether the eq. 57
+        fit used it."""
+        return SceneMeasurementSummary(
+            path=self.path, level=self.level, roi=tuple(int(v) for v in self.roi),
+            n_pixels=int(self.n_pixels), mu_D=json_safe(self.mu_D),
+            var_D=json_safe(self.var_D), E_invK2=json_safe(self.E_invK2),
+            dark_mean=json_safe(self.dark_mean), black_level=json_safe(self.black_level),
+            sigma_N2=json_safe(self.sigma_N2), sigma_KN2=json_safe(self.sigma_KN2),
+            sigma_cal2=json_safe(self.sigma_cal2), y=json_safe(self.y), V_S=json_safe(self.V_S),
+            V_S_err=json_safe(self.V_S_err),
+            V_S_err_population=json_safe(self.V_S_err_population),
+            n_clipped=int(self.n_clipped), used=bool(used))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path, "level": self.level, "roi": [int(v) for v in self.roi],
-                "n_pixels": int(self.n_pixels), "mu_D": self.mu_D, "var_D": self.var_D,
-                "E_invK2": self.E_invK2, "dark_mean": self.dark_mean,
-                "black_level": self.black_level, "sigma_N2": self.sigma_N2,
-                "sigma_KN2": self.sigma_KN2, "sigma_cal2": self.sigma_cal2, "y": self.y,
-                "V_S": json_safe(self.V_S), "V_S_err": json_safe(self.V_S_err),
-                "V_S_err_population": json_safe(self.V_S_err_population),
-                "n_clipped": int(self.n_clipped)}
+        """JSON-friendly values: :meth:`summary` as its JSON object, without ``used``."""
+        out = self.summary().to_dict()
+        del out["used"]
+        return out
 
 
 @dataclass(frozen=True)
@@ -234,12 +250,18 @@ class SceneVariation:
     excluded: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
 
+    def summary(self) -> SceneSummary:
+        """The patch as the record a product stores (one of ``estimates["scene"]``): plain
+        numbers, NaN as ``None``, each measurement with whether the fit used it."""
+        return SceneSummary(
+            name=self.name, V_S=json_safe(self.V_S), V_S_err=json_safe(self.V_S_err),
+            chi2=json_safe(self.chi2), dof=int(self.dof), Q=json_safe(self.Q),
+            measurements=tuple(m.summary(bool(u)) for m, u in zip(self.measurements, self.used)),
+            excluded=tuple(self.excluded), notes=tuple(self.notes))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "V_S": json_safe(self.V_S), "V_S_err": json_safe(self.V_S_err),
-                "chi2": json_safe(self.chi2), "dof": int(self.dof), "Q": json_safe(self.Q),
-                "measurements": [dict(m.to_dict(), used=bool(u))
-                                 for m, u in zip(self.measurements, self.used)],
-                "excluded": list(self.excluded), "notes": list(self.notes)}
+        """JSON-friendly values: :meth:`summary` as its JSON object."""
+        return self.summary().to_dict()
 
 
 @dataclass(frozen=True)

@@ -347,7 +347,7 @@ class ProductPanel(SaveCard, param.Parameterized):
             return code_span(self.product_path)
         if self.product is None:
             return "nothing"
-        return (f"the product calibrated from {code_span(self.product.provenance.get('session', '?'))}"
+        return (f"the product calibrated from {code_span(self.product.provenance.session or '?')}"
                 " (not saved)")
 
     @param.depends("product", watch=True)
@@ -368,7 +368,7 @@ class ProductPanel(SaveCard, param.Parameterized):
         modes = {}
         if product.shape is not None:
             modes[_MODE_LABELS[product.method]] = CORRECT
-        if "response" in product.estimates:
+        if product.estimates.response is not None:
             modes[_LINEARISE_LABEL] = LINEARISE
         mode = self.mode if self.mode in modes.values() else next(iter(modes.values()), CORRECT)
         self._set_choices("mode", modes or {_MODE_LABELS["dark"]: CORRECT}, mode)
@@ -444,7 +444,7 @@ class ProductPanel(SaveCard, param.Parameterized):
             text = "Open a session (the *Open a session* tab) to apply the product to its frames."
         elif not self._records:
             text = "The session has no frames."
-        elif product.shape is None and "response" not in product.estimates:
+        elif product.shape is None and product.estimates.response is None:
             text = ("This product holds no maps to correct frames with (no dark reference, no "
                     "flat field) and no response curve to linearise them.")
         else:

@@ -11,9 +11,9 @@ tone_map(radiance, stops, curve)
 histogram(values, bins)
     Counts and edges of finite values, for :class:`PoolHistogram`.
 agreement_rows(named), channel_agreement_rows(agreement), pair_rows(agreement, t)
-    The prediction agreement of Tsin et al. sec. 4.2 (:mod:`ccdcore.response.agreement`, in
-    its ``to_dict()`` form) as table rows of text: pooled per method, per channel, per pair
-    of neighbouring images (the page's tables and the report's; from
+    The prediction agreement of Tsin et al. sec. 4.2 (:mod:`ccdcore.response.agreement`, as
+    its records: ``Agreement.summary_record()``) as table rows of text: pooled per method,
+    per channel, per pair of neighbouring images (the page's tables and the report's; from
     :mod:`ccdcore_report.agreement`, with ``AGREEMENT_COLUMNS`` and ``dn``).
 """
 from __future__ import annotations

@@ -23,6 +23,7 @@ from ccdcore import __version__
 from ccdcore.errors import CcdError
 from ccdcore.product import (PRODUCT_FILE, REQUIREMENTS, CalibrationProduct, calibrate,
                              estimate_all, load_product, missing_frames)
+from ccdcore.product_records import ProductSteps, Provenance
 from ccdcore.progress import Progress, silent, within
 from ccdcore.session import Session, open_session
 
@@ -55,15 +56,13 @@ def _skipped_product(session: Session) -> CalibrationProduct:
     """The product of a session that holds only brackets for change detection: no estimate,
     each listed skipped with its reason, and the provenance :func:`calibrate` records."""
     e = estimate_all(session)
-    provenance: dict[str, Any] = {"ccdcore": __version__, "session": session.label,
-                                  "source": session.source, "n_frames": len(session.frames)}
-    content_hash = getattr(session, "content_hash", None)   # as calibrate records it
-    if callable(content_hash):
-        provenance["session_hash"] = content_hash()
-    provenance["date"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
-        timespec="seconds")
-    return CalibrationProduct(maps={}, estimates={}, camera=session.camera,
-                              provenance={**provenance, "steps": {}}, skipped=e.skipped)
+    provenance = Provenance(
+        ccdcore=__version__, session=session.label, source=session.source,
+        n_frames=len(session.frames), session_hash=session.content_hash(),
+        date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        steps=ProductSteps())
+    return CalibrationProduct(maps={}, camera=session.camera, provenance=provenance,
+                              skipped=e.skipped)
 
 
 def _calibrate(session: Session, progress: Progress) -> tuple[CalibrationProduct, Any]:
@@ -103,7 +102,7 @@ def _inputs(source: Any, product: CalibrationProduct | None, change: Any,
     session: Session | None = None
     if isinstance(source, CalibrationProduct):
         product = product or source
-        origin = f"calibration product of {product.provenance.get('session', 'a session')}"
+        origin = f"calibration product of {product.provenance.session or 'a session'}"
     elif isinstance(source, Session):
         session = source
         origin = session.label
@@ -133,25 +132,24 @@ def _inputs(source: Any, product: CalibrationProduct | None, change: Any,
 def _estimate_sections(doc: Doc, p: CalibrationProduct, session: Session | None) -> None:
     """A section per estimate the product holds, in document order."""
     est = p.estimates
-    if isinstance(est.get("noise"), dict):
-        sections.noise_section(doc, est["noise"])
-    emva = getattr(p, "emva1288", None)       # EMVA 1288 data-sheet figures, when made
-    if isinstance(emva, dict) and emva:
-        sections.emva_section(doc, emva)
-    if isinstance(est.get("dark"), dict):
-        sections.dark_section(doc, est["dark"])
-    if isinstance(est.get("fixed_pattern"), dict):
-        sections.fixed_pattern_section(doc, est["fixed_pattern"])
-    if isinstance(est.get("plan"), dict):
-        sections.plan_section(doc, est["plan"])
-    if isinstance(est.get("correction_check"), dict):
-        sections.correction_section(doc, est["correction_check"])
-    if isinstance(est.get("scene"), dict) and est["scene"]:
-        sections.scene_section(doc, est["scene"])
-    if isinstance(est.get("flat_field"), dict):
+    if est.noise is not None:
+        sections.noise_section(doc, est.noise)
+    if p.emva1288 is not None:                 # EMVA 1288 data-sheet figures, when made
+        sections.emva_section(doc, p.emva1288)
+    if est.dark is not None:
+        sections.dark_section(doc, est.dark)
+    if est.fixed_pattern is not None:
+        sections.fixed_pattern_section(doc, est.fixed_pattern)
+    if est.plan is not None:
+        sections.plan_section(doc, est.plan)
+    if est.correction_check is not None:
+        sections.correction_section(doc, est.correction_check)
+    if est.scene:
+        sections.scene_section(doc, est.scene)
+    if est.flat_field is not None:
         sections.flat_section(doc, p, session)
-    if isinstance(est.get("response"), dict):
-        sections.response_section(doc, est["response"])
+    if est.response is not None:
+        sections.response_section(doc, est.response)
 
 
 def _document(src: _Inputs, title: str, now: str) -> Doc:

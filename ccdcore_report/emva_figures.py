@@ -4,13 +4,13 @@ evaluated as sec. 7.1 says) and the spatial nonuniformity (sec. 4 and 8: the spe
 sec. 8.2, the logarithmic and accumulated histograms of sec. 4.3 and 8.3, the profiles of
 sec. 8.4).
 
-Every builder takes the JSON-safe figures of a camera
-(:meth:`ccdcore.datasheet.EmvaFigures.to_dict`, the ``emva1288`` entry of a calibration product)
-and returns a Bokeh model, or ``None`` when the figures lack its data (a product without spatial
-sets, without dark frames at two exposure times, or made before these plots). Nothing is
-estimated here: every number drawn is one the figures hold, or the deviation from linearity
-computed from the points and the fitted line exactly as the figures' LE_min and LE_max are.
-Bokeh is imported inside the builders.
+Every builder takes the figures of a camera as their record,
+:class:`ccdcore.emva_results.EmvaSummary` (the ``emva1288`` entry of a calibration product, or
+:meth:`ccdcore.datasheet.EmvaFigures.summary`), and returns a Bokeh model, or ``None`` when the
+figures lack its data (a product without spatial sets, without dark frames at two exposure
+times, or made before these plots). Nothing is estimated here: every number drawn is one the
+figures hold, or the deviation from linearity computed from the points and the fitted line
+exactly as the figures' LE_min and LE_max are. Bokeh is imported inside the builders.
 
 The glyph renderers carry names (``fig.select(name=...)``): ``dark-points``, ``dark-error``,
 ``dark-line``; ``spectrum`` and ``level-<key>`` (a key of ``spatial_plots.levels``);
@@ -36,16 +36,17 @@ linearity_deviation_figure(emva)
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.common import format_pm
+from ccdcore.emva_results import EmvaSummary
 from ccdcore.emva_sheet import linearity_deviation
 
 from .figures import line_figure
-from .html import finite, json_floats
+from .html import json_floats
 
 __all__ = ["SPECTROGRAMS", "HISTOGRAMS", "PROFILES", "dark_signal_figure",
            "dark_variance_figure", "dark_current_text", "spectrogram_figure",
@@ -68,31 +69,12 @@ _E = "e\u207b"
 # ---------------------------------------------------------------------------------------------
 # reading the figures
 # ---------------------------------------------------------------------------------------------
-def _get(obj: Any, *keys: str) -> Any:
-    """``obj[k1][k2]...`` through mappings, ``None`` where a level is missing or not a mapping."""
-    for key in keys:
-        if not isinstance(obj, Mapping):
-            return None
-        obj = obj.get(key)
-    return obj
-
-
-def _mapping(obj: Any, *keys: str) -> Mapping[str, Any] | None:
-    found = _get(obj, *keys)
-    return found if isinstance(found, Mapping) else None
-
-
-def _columns(data: Mapping[str, Any] | None, *names: str) -> dict[str, NDArray] | None:
-    """The named lists of ``data`` as float arrays of one length, ``None`` when one is missing,
-    is not a list or the lengths differ."""
+def _columns(data: Any, *names: str) -> dict[str, NDArray] | None:
+    """The named curves of the record ``data`` as float arrays of one length, ``None`` when
+    ``data`` is ``None`` or the lengths differ."""
     if data is None:
         return None
-    out = {}
-    for name in names:
-        values = data.get(name)
-        if not isinstance(values, list):
-            return None
-        out[name] = json_floats(values)
+    out: dict[str, NDArray] = {name: json_floats(getattr(data, name)) for name in names}
     return out if len({v.size for v in out.values()}) == 1 else None
 
 
@@ -101,8 +83,8 @@ def _check_which(which: str, allowed: tuple[str, ...]) -> None:
         raise ValueError(f"which must be one of {', '.join(allowed)}, not {which!r}")
 
 
-def _number(v: Any) -> float | None:
-    return float(v) if finite(v) else None
+def _number(v: float | None) -> float | None:
+    return None if v is None else float(v)
 
 
 def _figure(title: str, xlabel: str, ylabel: str, *, y_log: bool = False, height: int = 360,
@@ -143,39 +125,36 @@ _DARK = {"mean": ("u_y_dark", "mean_line", "u_I_mean", "\u03bc_I.mean", "DN", "D
                  "DN\u00b2/s")}
 
 
-def dark_current_text(emva: Mapping[str, Any], which: str) -> str:
+def dark_current_text(e: EmvaSummary, which: str) -> str:
     """The dark current from the mean (``which="mean"``) or the variance (``"var"``) in one
     line: ``"μ_I.mean = 1497 ± 20 e⁻/s"``, or that it is not determined with the bound the
     exposure range gives (sec. 3.1; :mod:`ccdcore.emva_dark`)."""
     _, _, key, symbol, _, _ = _DARK[which]
-    value = _number(emva.get(key))
+    value = _number(getattr(e, key))
     if value is not None:
-        return f"{symbol} = {format_pm(value, emva.get(f'{key}_err'), unit=f'{_E}/s')}"
-    dc = _mapping(emva, "dark_current")
+        return f"{symbol} = {format_pm(value, getattr(e, f'{key}_err'), unit=f'{_E}/s')}"
+    dc = e.dark_current
     if dc is None:
         return f"{symbol} not determined"
-    bound = _number(dc.get(f"{key}_bound"))
+    bound = _number(getattr(dc, f"{key}_bound"))
     if bound is not None:
         return f"{symbol} not determined: below {bound:.3g} {_E}/s"
     return f"{symbol} not determined"
 
 
-def _dark_figure(emva: Mapping[str, Any], which: str) -> Any:
+def _dark_figure(emva: EmvaSummary, which: str) -> Any:
     """The dark points of ``which`` against the exposure time with their standard errors and
     the dark-current line; ``None`` below two exposure times."""
     from bokeh.models import ColumnDataSource
 
+    e = emva
     key, line_key, _, _, unit, slope_unit = _DARK[which]
-    points = emva.get("dark_points")
-    if not isinstance(points, list):
-        return None
-    rows = [p for p in points if isinstance(p, Mapping) and finite(p.get("exposure"))
-            and finite(p.get(key))]
-    t = np.array([p["exposure"] for p in rows], np.float64)
+    rows = [p for p in e.dark_points if p.exposure is not None]
+    t = np.array([p.exposure for p in rows], np.float64)
     if np.unique(t).size < 2:
         return None
-    y = np.array([p[key] for p in rows], np.float64)
-    err = np.nan_to_num(json_floats([p.get(f"{key}_err") for p in rows]))
+    y = np.array([getattr(p, key) for p in rows], np.float64)
+    err = np.nan_to_num(json_floats([getattr(p, f"{key}_err") for p in rows]))
     if which == "mean":
         title = "Mean dark signal against exposure time"
         ylabel = "\u03bc_y.dark (DN)"
@@ -184,26 +163,25 @@ def _dark_figure(emva: Mapping[str, Any], which: str) -> Any:
         title = "Temporal dark variance against exposure time"
         ylabel = "\u03c3\u00b2_y.dark (DN\u00b2)"
         label = "\u03c3\u00b2_y.dark (from the difference of two dark frames)"
-    fig = _figure(f"{title}: {dark_current_text(emva, which)}", "exposure time t (s)", ylabel)
+    fig = _figure(f"{title}: {dark_current_text(e, which)}", "exposure time t (s)", ylabel)
     src = ColumnDataSource({"t": t, "y": y, "err": err, "lo": y - err, "hi": y + err})
     fig.segment("t", "lo", "t", "hi", source=src, line_color=_DATA, name="dark-error")
     dots = fig.scatter("t", "y", source=src, size=7, color=_DATA, legend_label=label,
                        name="dark-points")
-    line = _mapping(emva, "dark_current", line_key)
-    slope, offset = (None, None) if line is None else (_number(line.get("slope")),
-                                                      _number(line.get("offset")))
-    if slope is not None and offset is not None:
+    line = None if e.dark_current is None else getattr(e.dark_current, line_key)
+    if line is not None:
+        slope, offset = float(line.slope), float(line.offset)
         ends = np.array([t.min(), t.max()])
         fig.line(ends, offset + slope * ends, line_color=_FIT, line_width=2, name="dark-line",
                  legend_label=f"fitted line {offset:.4g} {unit} + slope \u00b7 t, slope "
-                              f"{format_pm(slope, line.get('slope_err'), unit=slope_unit)}")
+                              f"{format_pm(slope, line.slope_err, unit=slope_unit)}")
     _hover(fig, [dots], [("t", "@t{0.00000} s"), (ylabel, "@y{0.0000}"),
                          ("\u00b1", "@err{0.0000}")])
     _legend_outside(fig)
     return fig
 
 
-def dark_signal_figure(emva: Mapping[str, Any]) -> Any:
+def dark_signal_figure(emva: EmvaSummary) -> Any:
     """The mean dark signal μ_y.dark (DN) against the exposure time (s) with its standard
     errors and the line μ_y.dark(0) + K μ_I t whose slope gives μ_I.mean (sec. 3.1, 7.1); the
     title states μ_I.mean or why it is not determined. ``None`` without dark points at two
@@ -211,7 +189,7 @@ def dark_signal_figure(emva: Mapping[str, Any]) -> Any:
     return _dark_figure(emva, "mean")
 
 
-def dark_variance_figure(emva: Mapping[str, Any]) -> Any:
+def dark_variance_figure(emva: EmvaSummary) -> Any:
     """The temporal dark variance σ²_y.dark (DN²) against the exposure time with its standard
     errors and the line K²(σ²_d + μ_I t) + σ²_q whose slope gives μ_I.var (sec. 3.1, 7.1).
     ``None`` without dark points at two exposure times or more."""
@@ -221,12 +199,12 @@ def dark_variance_figure(emva: Mapping[str, Any]) -> Any:
 # ---------------------------------------------------------------------------------------------
 # spatial nonuniformity (sec. 4, 8)
 # ---------------------------------------------------------------------------------------------
-def _frames(emva: Mapping[str, Any], set_key: str) -> str:
-    n = _get(emva, set_key, "L")
-    return f"{int(n)}" if finite(n) else "L"
+def _frames(emva: EmvaSummary, set_key: str) -> str:
+    spatial = getattr(emva, set_key)
+    return "L" if spatial is None else f"{int(spatial.L)}"
 
 
-def _levels(emva: Mapping[str, Any], kind: str) -> list[tuple[str, str]]:
+def _levels(emva: EmvaSummary, kind: str) -> list[tuple[str, str]]:
     """(level key, legend) of the horizontal lines of a spectrogram (sec. 8.2)."""
     if kind == "DSNU":
         n = _frames(emva, "spatial_dark")
@@ -241,7 +219,7 @@ def _levels(emva: Mapping[str, Any], kind: str) -> list[tuple[str, str]]:
                                           "frames, \u03c3_y.stack/\u221aL")]
 
 
-def spectrogram_figure(emva: Mapping[str, Any], which: str) -> Any:
+def spectrogram_figure(emva: EmvaSummary, which: str) -> Any:
     """The spectrogram ``which`` (one of :data:`SPECTROGRAMS`) of sec. 8.2: the standard
     deviation of each spatial frequency (DN for DSNU, % of the mean signal for PRNU; log
     scale) against the frequency (cycles per pixel), with DSNU1288 (in DN) or PRNU1288, the
@@ -249,7 +227,11 @@ def spectrogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     temporal noise leaves in the average of the L frames, each as a labelled line.
     ``None`` when the figures have no spatial plots."""
     _check_which(which, SPECTROGRAMS)
-    data = _columns(_mapping(emva, "spatial_plots", "spectrograms", which), "f", "amplitude")
+    e = emva
+    plots = e.spatial_plots
+    if plots is None:
+        return None
+    data = _columns(getattr(plots.spectrograms, which), "f", "amplitude")
     if data is None:
         return None
     f, amp = data["f"], data["amplitude"]
@@ -264,11 +246,10 @@ def spectrogram_figure(emva: Mapping[str, Any], which: str) -> Any:
                   y_log=True)
     spectrum = fig.line(f[ok], amp[ok], line_color=_DATA, line_width=2, name="spectrum",
                         legend_label="spectrogram")
-    levels = _mapping(emva, "spatial_plots", "levels") or {}
     ends = [float(f[ok].min()), float(f[ok].max())]
-    for (key, label), colour, dash in zip(_levels(emva, kind), _LEVEL_COLOURS,
+    for (key, label), colour, dash in zip(_levels(e, kind), _LEVEL_COLOURS,
                                           ("dashed", "dashdot", "dotted")):
-        v = _number(levels.get(key))
+        v = _number(getattr(plots.levels, key))
         if v is not None and v > 0:
             fig.line(ends, [v, v], line_color=colour, line_width=2, line_dash=dash,
                      name=f"level-{key}", legend_label=f"{label} = {v:.3g} {short_unit}")
@@ -283,7 +264,7 @@ def _axis_text(which: str) -> str:
     return "deviation of the high-pass filtered signal (% of the mean signal)"
 
 
-def histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
+def histogram_figure(emva: EmvaSummary, which: str) -> Any:
     """The logarithmic histogram of sec. 4.3.1 and 8.3 (``which`` "DSNU" or "PRNU"): the
     pixel count of each bin at its centre (log scale; empty bins left out) with the normal
     distribution of the same mean and standard deviation as a line. DSNU: the deviation of
@@ -292,7 +273,9 @@ def histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     from bokeh.models import ColumnDataSource, Range1d
 
     _check_which(which, HISTOGRAMS)
-    data = _columns(_mapping(emva, "spatial_plots", "histograms", which), "x", "count", "model")
+    plots = emva.spatial_plots
+    data = None if plots is None else _columns(getattr(plots.histograms, which), "x", "count",
+                                               "model")
     if data is None or not (data["count"] > 0).any():
         return None
     x, count, model = data["x"], data["count"], data["model"]
@@ -314,7 +297,7 @@ def histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     return fig
 
 
-def accumulated_histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
+def accumulated_histogram_figure(emva: EmvaSummary, which: str) -> Any:
     """The accumulated logarithmic histogram of sec. 4.3.2 and 8.3 (``which`` "DSNU" or
     "PRNU"): the percentage of pixels deviating from the mean by x or more (log scale; 0 %
     left out) against x, in e⁻ (DSNU) or % of the mean signal (PRNU). ``None`` when the
@@ -322,7 +305,9 @@ def accumulated_histogram_figure(emva: Mapping[str, Any], which: str) -> Any:
     from bokeh.models import ColumnDataSource
 
     _check_which(which, HISTOGRAMS)
-    data = _columns(_mapping(emva, "spatial_plots", "accumulated", which), "x", "percent")
+    plots = emva.spatial_plots
+    data = None if plots is None else _columns(getattr(plots.accumulated, which), "x",
+                                               "percent")
     if data is None:
         return None
     x, percent = data["x"], data["percent"]
@@ -348,7 +333,7 @@ _PROFILE_LINES = (("max", "maximum", dict(line_color="#E69F00", line_width=1)),
                   ("min", "minimum", dict(line_color="#6f42c1", line_width=1)))
 
 
-def profile_figure(emva: Mapping[str, Any], which: str) -> Any:
+def profile_figure(emva: EmvaSummary, which: str) -> Any:
     """The profiles of sec. 8.4 (``which`` "horizontal" or "vertical"): for each column
     (row), the mean, minimum and maximum over the rows (columns) and the value of the middle
     row (column), in DN; above, the signal (the average bright image less the average dark
@@ -357,13 +342,15 @@ def profile_figure(emva: Mapping[str, Any], which: str) -> Any:
     from bokeh.layouts import column
 
     _check_which(which, PROFILES)
-    profiles = _mapping(emva, "spatial_plots", "profiles")
+    plots = emva.spatial_plots
+    if plots is None:
+        return None
     xlabel = "column index x" if which == "horizontal" else "row index y"
     line = "column" if which == "horizontal" else "row"
     figs: list[Any] = []
     for part, what in (("bright", "signal (bright less dark)"), ("dark", "dark image")):
-        data = _columns(_mapping(profiles, f"{part}_{which}"), "index", "mean", "min", "max",
-                        "mid")
+        data = _columns(getattr(plots.profiles, f"{part}_{which}"), "index", "mean", "min",
+                        "max", "mid")
         if data is None or data["index"].size == 0:
             continue
         kw = {"x_range": figs[0].x_range} if figs else {}
@@ -399,7 +386,7 @@ def _deviation_scale(dev: NDArray, in_fit: NDArray, marks: list[float]
     return lo - pad, hi + pad, on
 
 
-def linearity_deviation_figure(emva: Mapping[str, Any]) -> Any:
+def linearity_deviation_figure(emva: EmvaSummary) -> Any:
     """The deviation from linearity (sec. 6.7, :func:`linearity_deviation`) against μ_p: the
     points of the linearity fit filled and joined, the others hollow grey, LE_min and LE_max
     as labelled lines. Points so far off that they would flatten the fit's range are drawn
@@ -407,11 +394,12 @@ def linearity_deviation_figure(emva: Mapping[str, Any]) -> Any:
     their value). ``None`` without the fitted line or points."""
     from bokeh.models import ColumnDataSource, Range1d
 
-    d = linearity_deviation(emva)
+    e = emva
+    d = linearity_deviation(e)
     if d is None or not np.isfinite(d["deviation"]).any():
         return None
     u_p, dev, in_fit = d["u_p"], d["deviation"], d["in_fit"]
-    le = [(key, _number(emva.get(key))) for key in ("LE_min", "LE_max")]
+    le = [(key, _number(getattr(e, key))) for key in ("LE_min", "LE_max")]
     y0, y1, on = _deviation_scale(dev, in_fit, [v for _, v in le if v is not None])
     fig = _figure("Deviation from linearity", "\u03bc_p (photons per pixel)",
                   "deviation from the fitted line (%)", y_range=Range1d(y0, y1))
@@ -449,7 +437,7 @@ def linearity_deviation_figure(emva: Mapping[str, Any]) -> Any:
         if v is not None:
             fig.line(ends, [v, v], line_color=colour, line_width=2, line_dash="dashed",
                      name=key, legend_label=f"{key} = "
-                     f"{format_pm(v, emva.get(f'{key}_err'), unit='%')}")
+                     f"{format_pm(v, getattr(e, f'{key}_err'), unit='%')}")
     _hover(fig, renderers, [("level", "@level{0}"), ("\u03bc_p", "@u_p{0.0}"),
                             ("deviation", "@deviation{0.0000} %")])
     _legend_outside(fig)

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,8 +43,11 @@ from numpy.typing import NDArray
 from ccdcore.common import format_size
 from ccdcore.map_names import MapName
 
-from .html import json_float
 from .scales import auto_clim
+
+if TYPE_CHECKING:
+    from ccdcore.noise import PhotonTransfer
+    from ccdcore.ptc_fit import PhotonTransferSummary
 
 __all__ = ["MAX_MAP_SIDE", "MapSpec", "MAP_SPECS", "MAP_ORDER", "FLAG_LABELS",
            "FLAT_FLAG_LABELS", "CHANNEL_COLOURS", "SHADOW_COLOURS", "CHANGE_COLOUR",
@@ -261,37 +264,12 @@ def map_figure(plane: NDArray, spec: MapSpec, *, title: str, side: int = 420,
 # ---------------------------------------------------------------------------------------------
 # photon transfer
 # ---------------------------------------------------------------------------------------------
-def photon_transfer_of(noise: Mapping[str, Any]) -> Any:
-    """The photon-transfer result of a product's ``noise`` summary (for the app's plots)."""
-    from ccdcore.noise import PhotonTransfer, PtcPoint
+def photon_transfer_of(noise: PhotonTransferSummary) -> PhotonTransfer:
+    """The photon-transfer result of a product's ``noise`` summary (for the app's plots):
+    :meth:`ccdcore.noise.PhotonTransfer.from_summary`."""
+    from ccdcore.noise import PhotonTransfer
 
-    def f(key: str) -> float:
-        return json_float(noise.get(key))
-
-    points = tuple(PtcPoint(level=int(p["level"]), mu=json_float(p.get("mu")),
-                            var=json_float(p.get("var")), var_err=json_float(p.get("var_err")),
-                            n_pairs=int(p.get("n_pairs") or 0),
-                            n_pixels=int(p.get("n_pixels") or 0), used=bool(p["used"]),
-                            reason=p.get("reason"), exposure=p.get("exposure"),
-                            mu_raw=json_float(p.get("mu_raw")),
-                            clipped_fraction=json_float(p.get("clipped_fraction")),
-                            photons=p.get("photons"), exclusion=p.get("exclusion"))
-                   for p in noise.get("points", ()))
-    roi = noise.get("roi")
-    return PhotonTransfer(
-        A=f("A"), A_err=f("A_err"), sigma_c2=f("sigma_c2"), sigma_c2_err=f("sigma_c2_err"),
-        cov=np.array(noise["cov"], np.float64), chi2=f("chi2"), dof=int(noise.get("dof") or 0),
-        Q=f("Q"), points=points,
-        conversion_gain_e_per_dn=f("conversion_gain_e_per_dn"),
-        conversion_gain_e_per_dn_err=f("conversion_gain_e_per_dn_err"),
-        read_noise_e=f("read_noise_e"), read_noise_e_err=f("read_noise_e_err"),
-        read_noise_dn=f("read_noise_dn"), read_noise_dn_err=f("read_noise_dn_err"),
-        quantisation_dn2=f("quantisation_dn2"), black_level_dn=f("black_level_dn"),
-        black_level_source=str(noise.get("black_level_source", "")),
-        roi=None if roi is None else tuple(roi), bits=noise.get("bits"),
-        robust_dropped=tuple(noise.get("robust_dropped") or ()),
-        notes=tuple(noise.get("notes") or ()), verdict=str(noise.get("verdict", "")),
-        source=noise.get("source"))
+    return PhotonTransfer.from_summary(noise)
 
 
 def ptc_figures(result: Any) -> Any:

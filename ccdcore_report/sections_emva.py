@@ -18,11 +18,12 @@ from numpy.typing import NDArray
 
 from ccdcore.common import format_pm
 from ccdcore.datasheet import LINEARITY_RANGE, SENSITIVITY_FRACTION
+from ccdcore.emva_results import EmvaSummary
 from ccdcore.emva_sheet import SheetRow, datasheet_rows
 from ccdcore.emva_spatial import HIGH_PASS_SIZE
 
 from . import emva_figures, figures
-from .html import Doc, bullets, esc, finite, json_floats, para
+from .html import Doc, bullets, esc, json_floats, para
 from .sections_summary import ESTIMATE_TITLES
 
 __all__ = ["emva_section"]
@@ -30,20 +31,10 @@ __all__ = ["emva_section"]
 # ---------------------------------------------------------------------------------------------
 # EMVA 1288 datasheet
 # ---------------------------------------------------------------------------------------------
-def _columns(obj: Any, wanted: Mapping[str, Sequence[str]]) -> dict[str, NDArray[np.float64]]:
-    """Columns of a dict of lists or a list of dicts: name -> values of the first key of
-    ``wanted[name]`` present (names without any are left out)."""
-    out: dict[str, NDArray[np.float64]] = {}
-    if isinstance(obj, dict):
-        for name, keys in wanted.items():
-            key = next((k for k in keys if k in obj), None)
-            if key is not None and isinstance(obj[key], list):
-                out[name] = json_floats(obj[key])
-    elif isinstance(obj, list) and all(isinstance(p, dict) for p in obj):
-        for name, keys in wanted.items():
-            key = next((k for k in keys if obj and k in obj[0]), None)
-            if key is not None:
-                out[name] = json_floats([p.get(key) for p in obj])
+def _columns(columns: Mapping[str, Sequence[Any] | None]) -> dict[str, NDArray[np.float64]]:
+    """Columns of the same length as float arrays: name -> values (``None`` for NaN), cut to
+    the shortest; a column that is ``None`` is left out."""
+    out = {name: json_floats(values) for name, values in columns.items() if values is not None}
     n = min((v.size for v in out.values()), default=0)
     return {k: v[:n] for k, v in out.items()}
 
@@ -85,16 +76,16 @@ def _sentence(text: str) -> str:
     return text if not text or text.endswith(".") else text + "."
 
 
-def _transfer_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
+def _transfer_plots(doc: Doc, emva: EmvaSummary) -> None:
     """Sensitivity, linearity and noise (sec. 6.6, 2.3, 6.7): the photon transfer, the SNR,
     the linearity and its deviation, each when its data are in the figures."""
     doc.add("<h3>Sensitivity, linearity and noise</h3>")
     drawn = len(doc.roots)
     lo, hi = (round(100 * f) for f in LINEARITY_RANGE)
-    pts = _columns(emva.get("points"), {k: (k,) for k in (
+    pts = _columns({k: [getattr(p, k) for p in emva.points] for k in (
         "u_p", "u_y", "u_y_dark", "s2_y", "s2_y_dark", "u_y_err", "s2_y_err",
         "in_sensitivity_fit", "in_linearity_fit")})
-    if {"u_y", "u_y_dark", "s2_y", "s2_y_dark"} <= set(pts):
+    if emva.points:
         doc.plot(figures.emva_ptc_figure(pts), id_="emva-ptc",
                  caption="Photon transfer (sec. 6.6): the temporal variance of the signal "
                          "against its mean, both less their dark values, with the standard "
@@ -103,9 +94,10 @@ def _transfer_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
                          "gain K; hollow points are outside that fit. Read: a linear camera "
                          "with shot noise puts the points on a straight line through the "
                          "origin; the bend at the top is saturation.")
-    snr = _columns(emva.get("snr_curve"), {"u_p": ("u_p",), "snr": ("snr", "snr_measured"),
-                                           "model": ("snr_model",), "total": ("snr_total",)})
-    if "u_p" in snr and ("snr" in snr or "model" in snr):
+    curve = emva.snr_curve
+    snr = _columns({"u_p": curve.u_p, "snr": curve.snr, "model": curve.snr_model,
+                    "total": curve.snr_total})
+    if curve.u_p:
         doc.plot(figures.emva_snr_figure(snr), id_="emva-snr",
                  caption="Signal-to-noise ratio (sec. 2.3): the measured SNR (eq. 10) against "
                          "the mean number of photons per pixel, with the model of the "
@@ -113,7 +105,7 @@ def _transfer_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
                          "DSNU1288 and PRNU1288 added (log-log). Read: the slope is 1 where "
                          "the dark noise dominates, \u00bd where the photon shot noise does; "
                          "the highest point is SNR_max, at saturation.")
-    if {"u_p", "u_y", "u_y_dark"} <= set(pts):
+    if emva.points:
         doc.plot(figures.emva_linearity_figure(pts), id_="emva-linearity",
                  caption="Linearity (sec. 6.7): the mean signal less the dark signal against "
                          f"the irradiation; filled: the points between {lo} and {hi} % of "
@@ -135,15 +127,15 @@ def _transfer_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
                      "points.", "note"))
 
 
-def _dark_caption(emva: Mapping[str, Any], rows: Sequence[SheetRow], which: str) -> str:
+def _dark_caption(emva: EmvaSummary, rows: Sequence[SheetRow], which: str) -> str:
     """What a dark-current plot shows, the dark current it gives and, when not determined,
     why; then how to read it."""
-    dc = emva.get("dark_current")
-    line = dc.get(f"{which}_line") if isinstance(dc, dict) else None
+    dc = emva.dark_current
+    line = None if dc is None else dc.mean_line if which == "mean" else dc.var_line
     fit = ""
-    if isinstance(line, dict) and finite(line.get("chi2_dof")):
+    if line is not None and line.chi2_dof is not None:
         fit = (f" The points scatter about the line with \u03c7\u00b2/\u03bd = "
-               f"{line['chi2_dof']:.3g} (\u03bd = {line.get('dof')}).")
+               f"{line.chi2_dof:.3g} (\u03bd = {line.dof}).")
     note = _note_of(rows, f"u_I_{which}").strip().rstrip(".")
     result = (f"not determined ({note})." if note
               else emva_figures.dark_current_text(emva, which) + ".")
@@ -165,7 +157,7 @@ def _dark_caption(emva: Mapping[str, Any], rows: Sequence[SheetRow], which: str)
             "(sec. 3.1).")
 
 
-def _dark_plots(doc: Doc, emva: Mapping[str, Any], rows: Sequence[SheetRow]) -> None:
+def _dark_plots(doc: Doc, emva: EmvaSummary, rows: Sequence[SheetRow]) -> None:
     """Dark current (sec. 3.1, 7.1): the dark signal and the dark variance against time."""
     doc.add("<h3>Dark current</h3>")
     drawn = False
@@ -177,8 +169,7 @@ def _dark_plots(doc: Doc, emva: Mapping[str, Any], rows: Sequence[SheetRow]) -> 
             doc.plot(fig, id_=id_, caption=_dark_caption(emva, rows, which))
             drawn = True
     if not drawn:
-        points = emva.get("dark_points")
-        why = (_note_of(rows, "u_I_mean") if isinstance(points, list) and points else
+        why = (_note_of(rows, "u_I_mean") if emva.dark_points else
                "the product holds no dark points (it was made before they were kept)")
         doc.add(para("No dark-current plots: " + _sentence(why), "note"))
 
@@ -241,18 +232,16 @@ def _profile_caption(which: str) -> str:
             "defect pixels.")
 
 
-def _spatial_absent(emva: Mapping[str, Any]) -> str:
+def _spatial_absent(emva: EmvaSummary) -> str:
     """Why the figures hold no spatial plots."""
-    if ("spatial" in emva or "spatial_dark" in emva) and not (
-            emva.get("spatial") and emva.get("spatial_dark")):
+    if emva.spatial is None or emva.spatial_dark is None:
         return ("the session has no spatial sets (L bright frames at one operating point and "
                 "L dark frames at its exposure, sec. 8)")
-    notes = [n for n in emva.get("notes") or () if isinstance(n, str)]
-    return next((n for n in notes if "no spatial plots" in n),
+    return next((n for n in emva.notes if "no spatial plots" in n),
                 "the product holds no spatial plots (it was made before ccdcore drew them)")
 
 
-def _spatial_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
+def _spatial_plots(doc: Doc, emva: EmvaSummary) -> None:
     """Spatial nonuniformity and defect pixels (sec. 4, 8): the four spectrograms, the two
     logarithmic and the two accumulated histograms, the two profiles."""
     doc.add("<h3>Spatial nonuniformity and defect pixels</h3>")
@@ -279,25 +268,23 @@ def _spatial_plots(doc: Doc, emva: Mapping[str, Any]) -> None:
             doc.plot(fig, id_=id_, caption=caption)
 
 
-def emva_section(doc: Doc, emva: Mapping[str, Any]) -> None:
-    """The EMVA 1288 datasheet: its figures in the standard's order with their errors (or
-    why each is not determined), the other notes, then its plots in the standard's order
-    (photon transfer, SNR, linearity and its deviation; dark current; spatial
-    nonuniformity)."""
+def emva_section(doc: Doc, emva: EmvaSummary) -> None:
+    """The EMVA 1288 datasheet of the figures ``emva`` (a calibration product's, checked when it
+    was loaded): its figures in the standard's order with their errors (or why each is not
+    determined), the other notes, then its plots in the standard's order (photon transfer,
+    SNR, linearity and its deviation; dark current; spatial nonuniformity)."""
     rows = datasheet_rows(emva)
     with doc.section("emva1288", ESTIMATE_TITLES["emva1288"]):
         doc.add(para("The summary datasheet of the EMVA 1288 standard "
-                     f"({emva.get('standard', 'EMVA 1288 release 3.1')}, with release 4.0's "
+                     f"({emva.standard}, with release 4.0's "
                      "row, column and pixel parts of DSNU1288 and PRNU1288), in the standard's "
                      "order, each figure with its standard error; definitions of "
-                     f"{emva.get('definitions', 'the standard')}. A figure this session "
+                     f"{emva.definitions}. A figure this session "
                      "cannot give is \u201cnot determined\u201d, with the reason and, where "
                      "the data give one, an upper bound."))
         doc.add(_datasheet_table(rows))
         shown = {r.note for r in rows if r.note}
-        notes = emva.get("notes")
-        notes = notes if isinstance(notes, list) else [notes] if notes else []
-        doc.add(bullets(n for n in notes if n not in shown))
+        doc.add(bullets(n for n in emva.notes if n not in shown))
         _transfer_plots(doc, emva)
         _dark_plots(doc, emva, rows)
         _spatial_plots(doc, emva)

@@ -12,12 +12,13 @@ flat_section
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from ccdcore.common import format_pm, sort_key
 from ccdcore.errors import CcdError
+from ccdcore.flatfield_results import FlatFieldSummary
 from ccdcore.product import CalibrationProduct, MapName
 from ccdcore.session import Session
 
@@ -37,24 +38,25 @@ def _snup_rows(result: Any) -> dict[str, str]:
     return {c.name: format_pm(c.snup, c.snup_err, unit="%") for c in result.channels}
 
 
-def _flat_facts(ff: Mapping[str, Any]) -> str:
-    base = ff.get("base")
+def _flat_facts(ff: FlatFieldSummary) -> str:
+    """The offset setting, the base and dark images and the flagged pixels."""
     return facts([
-        ("offset setting", ff.get("setting") or "none named", ""),
-        ("base image", "level {}, exposure {} s".format(*base) if base and len(base) == 2
-         else "n/a", f"{ff.get('n_base')} frames averaged"),
-        ("dark image", f"{ff.get('n_dark')} frames",
-         f"exposure {num(ff.get('dark_exposure'), '.4g', 's')}"),
-        ("flagged pixels", ff.get("n_flagged"), str(ff.get("flag_rule") or "")),
+        ("offset setting", ff.setting or "none named", ""),
+        ("base image", "level {}, exposure {} s".format(*ff.base) if ff.base is not None
+         else "n/a", f"{ff.n_base} frames averaged"),
+        ("dark image", f"{ff.n_dark} frames",
+         f"exposure {num(ff.dark_exposure, '.4g', 's')}"),
+        ("flagged pixels", ff.n_flagged, ff.flag_rule),
     ])
 
 
-def _flat_channels_table(ff: Mapping[str, Any]) -> str:
-    rows = [(c.get("name"), num(c.get("k"), ".5g"), num(c.get("dark_level"), ".4g"),
-             num(c.get("base_level"), ".4g"), c.get("n_flagged"),
-             num(100 * c["dark_zero_fraction"], ".3g", "%")
-             if finite(c.get("dark_zero_fraction")) else "n/a")
-            for c in ff.get("channels", ())]
+def _flat_channels_table(ff: FlatFieldSummary) -> str:
+    """Per channel k, ⟨DL_0⟩, ⟨DL_B⟩, the flagged pixels and the dark pixels at 0."""
+    rows = [(c.name, num(c.k, ".5g"), num(c.dark_level, ".4g"), num(c.base_level, ".4g"),
+             c.n_flagged,
+             num(100 * c.dark_zero_fraction, ".3g", "%")
+             if finite(c.dark_zero_fraction) else "n/a")
+            for c in ff.channels]
     return table(rows, ("channel", "k (DN)", "\u27e8DL_0\u27e9 (DN)", "\u27e8DL_B\u27e9 (DN)",
                         "flagged", "dark pixels at 0"),
                  cls="ccd-report-flat-channels", numeric=(1, 2, 3, 4, 5))
@@ -84,25 +86,42 @@ def _base_snup(doc: Doc, product: CalibrationProduct, layout: str) -> None:
 
 def flat_section(doc: Doc, product: CalibrationProduct, session: Session | None) -> None:
     """The flat field's inputs and per-channel figures, the base image's SNUP and the SNUP of
-    held-out frames before and after correction."""
-    ff = product.estimates["flat_field"]
-    layout = str(ff.get("layout") or product.camera.layout)
+    held-out frames before and after correction.
+
+    Parameters
+    ----------
+    doc
+        The report being assembled.
+    product
+        A product whose ``estimates.flat_field`` is made (the maps G, O, DL_0, DL_B with it).
+    session
+        The session, to correct held-out flat frames; ``None``: the table says it needs it.
+
+    Raises
+    ------
+    ValueError
+        The product holds no flat field.
+    """
+    ff = product.estimates.flat_field
+    if ff is None:
+        raise ValueError("flat_section: the product holds no flat field")
+    layout = ff.layout or product.camera.layout
     with doc.section("flat-field", "Flat field"):
         doc.add(para("De Lasarte et al. 2007: DL_c = O + G\u00b7DL (eqs. 1\u20134) per channel, "
                      "from the dark image DL_0 and the base image DL_B (maps under Maps). "
                      "SNUP = 100\u00b7\u03c3/mean (eq. 5) measures the nonuniformity."))
         doc.add(_flat_facts(ff))
         doc.add(_flat_channels_table(ff))
-        doc.add(bullets(ff.get("notes") or ()))
+        doc.add(bullets(ff.notes))
         _base_snup(doc, product, layout)
-        _held_out(doc, product, session, layout)
+        _held_out(doc, product, session, ff, layout)
 
 
-def _held_out_keys(session: Session, ff: Mapping[str, Any]) -> tuple[list[Any], Any]:
+def _held_out_keys(session: Session, ff: FlatFieldSummary) -> tuple[list[Any], Any]:
     """The flat groups other than the base, those at the base's exposure first, and the groups
     themselves."""
-    base = tuple(ff.get("base") or ())
-    groups = session.flat_groups(setting=ff.get("setting"))
+    base = tuple(ff.base or ())
+    groups = session.flat_groups(setting=ff.setting)
     base_t = base[1] if len(base) == 2 else None
     keys = sorted((k for k in groups if tuple(k) != base),
                   key=lambda k: (tuple(k)[1:2] != (base_t,), sort_key(tuple(k))))
@@ -129,7 +148,7 @@ def _held_out_rows(rec: Any, key: Any, before: Any, after: Any) -> list[str]:
 
 
 def _held_out(doc: Doc, product: CalibrationProduct, session: Session | None,
-              layout: str) -> None:
+              ff: FlatFieldSummary, layout: str) -> None:
     """SNUP before and after correction of the first frame of each flat group other than the
     base (the groups at the base's exposure first; at most :data:`MAX_HELD_OUT`), when the
     session is at hand."""
@@ -142,7 +161,7 @@ def _held_out(doc: Doc, product: CalibrationProduct, session: Session | None,
                      "Make it from the session (ccdcore report SESSION) to correct one frame of "
                      "each flat group that G was not made from.", "note"))
         return
-    keys, groups = _held_out_keys(session, product.estimates["flat_field"])
+    keys, groups = _held_out_keys(session, ff)
     if not keys:
         doc.add(para("None: every flat frame belongs to the base group.", "note"))
         return

@@ -11,10 +11,16 @@ scene_section
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+
+from ccdcore.common import format_pm
+from ccdcore.darkmap import DarkSummary
+from ccdcore.kmap_kernels import FixedPatternSummary
+from ccdcore.planning import PlanSummary
+from ccdcore.ptc_fit import PhotonTransferSummary
+from ccdcore.scene_summary import CorrectionCheckSummary, SceneSummary
 
 from . import figures
-from .html import Doc, bullets, facts, finite, num, para, pm, table, value_text
+from .html import Doc, bullets, facts, finite, num, para, table, value_text
 
 __all__ = ["noise_section", "dark_section", "fixed_pattern_section", "plan_section",
            "correction_section", "scene_section"]
@@ -28,64 +34,65 @@ _VERDICTS = {
 }
 
 
+def _pm(value: float | None, error: float | None, unit: str = "") -> str:
+    """``value ± error`` as :func:`ccdcore.common.format_pm` writes it (``None``: not
+    measured)."""
+    return format_pm(value if finite(value) else float("nan"),
+                     error if finite(error) else None, unit=unit)
+
+
 # ---------------------------------------------------------------------------------------------
 # photon transfer
 # ---------------------------------------------------------------------------------------------
-def _verdict_text(noise: Mapping[str, Any]) -> str:
-    verdict = str(noise.get("verdict", ""))
-    q = noise.get("Q")
+def _verdict_text(noise: PhotonTransferSummary) -> str:
+    verdict = noise.verdict
+    q = noise.Q
     if not finite(q):
         return ("untested: no degrees of freedom are left (as many light levels as the line "
                 "has parameters)")
     return f"Q = {q:.3g}: {_VERDICTS.get(verdict, verdict)}"
 
 
-def _noise_facts(noise: Mapping[str, Any]) -> str:
+def _noise_facts(noise: PhotonTransferSummary) -> str:
     """The fitted line, the noise figures derived from it and the goodness of fit."""
+    n = noise
     return facts([
-        ("gain A", pm(noise, "A", unit="DN/e\u207b"), "DN per electron"),
+        ("gain A", _pm(n.A, n.A_err, unit="DN/e\u207b"), "DN per electron"),
         ("conversion gain 1/A",
-         pm(noise, "conversion_gain_e_per_dn", unit="e\u207b/DN"), "electrons per DN"),
-        ("\u03c3\u00b2_C", pm(noise, "sigma_c2", unit="DN\u00b2"),
+         _pm(n.conversion_gain_e_per_dn, n.conversion_gain_e_per_dn_err, unit="e\u207b/DN"),
+         "electrons per DN"),
+        ("\u03c3\u00b2_C", _pm(n.sigma_c2, n.sigma_c2_err, unit="DN\u00b2"),
          "signal-independent noise, A\u00b2\u03c3\u00b2_R + q\u00b2/12 (eq. 27)"),
-        ("read noise \u03c3_R", pm(noise, "read_noise_e", unit="e\u207b"),
+        ("read noise \u03c3_R", _pm(n.read_noise_e, n.read_noise_e_err, unit="e\u207b"),
          "\u221a(\u03c3\u00b2_C \u2212 q\u00b2/12)/A"),
-        ("read noise in DN", pm(noise, "read_noise_dn", unit="DN"), "A\u00b7\u03c3_R"),
-        ("quantisation q\u00b2/12", num(noise.get("quantisation_dn2"), ".4g", "DN\u00b2"), ""),
-        ("black level b\u2080", num(noise.get("black_level_dn"), ".4g", "DN"),
-         str(noise.get("black_level_source") or "")),
-        ("\u03c7\u00b2", num(noise.get("chi2"), ".4g"),
-         f"with {noise.get('dof')} degrees of freedom"),
-        ("goodness of fit Q", num(noise.get("Q"), ".3g"), _verdict_text(noise)),
-        ("region", "whole frame" if not noise.get("roi")
-         else "ROI " + ", ".join(map(str, noise["roi"])) + " (X, Y, W, H)", ""),
+        ("read noise in DN", _pm(n.read_noise_dn, n.read_noise_dn_err, unit="DN"),
+         "A\u00b7\u03c3_R"),
+        ("quantisation q\u00b2/12", num(n.quantisation_dn2, ".4g", "DN\u00b2"), ""),
+        ("black level b\u2080", num(n.black_level_dn, ".4g", "DN"), n.black_level_source),
+        ("\u03c7\u00b2", num(n.chi2, ".4g"), f"with {n.dof} degrees of freedom"),
+        ("goodness of fit Q", num(n.Q, ".3g"), _verdict_text(n)),
+        ("region", "whole frame" if not n.roi
+         else "ROI " + ", ".join(map(str, n.roi)) + " (X, Y, W, H)", ""),
     ])
 
 
-def _levels_table(noise: Mapping[str, Any]) -> str:
+def _levels_table(noise: PhotonTransferSummary) -> str:
     """Every light level: μ, σ̂²_N ± error, pairs, exposure, used or why not."""
     rows = []
-    for p in noise.get("points", ()):
-        why = p.get("reason") or p.get("exclusion")
-        rows.append((p.get("level"), num(p.get("mu"), ".4f"), pm(p, "var"),
-                     p.get("n_pairs"), num(p.get("exposure"), ".4g"),
-                     "used" if p.get("used") else f"excluded: {why}"))
+    for p in noise.points:
+        why = p.reason or p.exclusion
+        rows.append((p.level, num(p.mu, ".4f"), _pm(p.var, p.var_err), p.n_pairs,
+                     num(p.exposure, ".4g"), "used" if p.used else f"excluded: {why}"))
     return table(rows, ("level", "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302\u00b2_N (DN\u00b2)",
                         "pairs", "exposure (s)", "fit"),
                  cls="ccd-report-points", numeric=(0, 1, 2, 3, 4))
 
 
-def _ptc_plots(doc: Doc, noise: Mapping[str, Any]) -> None:
-    """The app's photon-transfer plots of the summary (a warning when it cannot be read)."""
+def _ptc_plots(doc: Doc, noise: PhotonTransferSummary) -> None:
+    """The app's photon-transfer plots of the summary."""
     from bokeh.layouts import column
 
-    try:
-        result = figures.photon_transfer_of(noise)
-    except (KeyError, TypeError, ValueError) as exc:
-        doc.add(para(f"The photon-transfer plots cannot be drawn from this product: {exc}",
-                     "warning"))
-        return
-    figs = figures.ptc_figures(result)
+    figs = figures.ptc_figures(figures.photon_transfer_of(noise))
     doc.plot(column(figs.transfer, figs.residual, sizing_mode="stretch_width"), id_="ptc",
              caption="Photon transfer: \u03c3\u0302\u00b2_N of each light level with its "
                      "standard error (\u221aeq. 40), the fitted line and its 1-\u03c3 band "
@@ -98,7 +105,7 @@ def _ptc_plots(doc: Doc, noise: Mapping[str, Any]) -> None:
                      "shot-noise asymptote.")
 
 
-def noise_section(doc: Doc, noise: Mapping[str, Any]) -> None:
+def noise_section(doc: Doc, noise: PhotonTransferSummary) -> None:
     """The photon-transfer fit, the levels it used, its notes and its plots."""
     with doc.section("noise", "Photon transfer (noise model)"):
         doc.add(para("Healey & Kondepudy 1994, eqs. 37\u201342 and 59\u201367: the temporal "
@@ -106,106 +113,109 @@ def noise_section(doc: Doc, noise: Mapping[str, Any]) -> None:
                      "\u03bc \u2212 b\u2080, fitted by the weighted line "
                      "\u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C (eq. 41)."))
         doc.add(_noise_facts(noise))
-        if noise.get("robust_dropped"):
+        if noise.robust_dropped:
             doc.add(para("The robust mode dropped levels "
-                         + ", ".join(map(str, noise["robust_dropped"])) + "."))
+                         + ", ".join(map(str, noise.robust_dropped)) + "."))
         doc.add("<h3>Light levels</h3>")
         doc.add(_levels_table(noise))
-        doc.add(bullets(noise.get("notes") or ()))
+        doc.add(bullets(noise.notes))
         _ptc_plots(doc, noise)
 
 
 # ---------------------------------------------------------------------------------------------
 # Healey & Kondepudy: dark, fixed pattern, plan, correction check, scene
 # ---------------------------------------------------------------------------------------------
-def dark_section(doc: Doc, d: Mapping[str, Any]) -> None:
+def dark_section(doc: Doc, d: DarkSummary) -> None:
+    """The dark reference D̂_D: its level, spread, noise and the hot and dead pixels."""
     with doc.section("dark", "Dark reference"):
         doc.add(para("Healey & Kondepudy sec. V-A: the mean D\u0302_D of s dark frames, with "
                      "hot and dead pixels flagged by the rules below (maps under Maps)."))
         doc.add(facts([
-            ("frames s", d.get("s"), ""),
-            ("exposure", num(d.get("exposure"), ".4g", "s"), ""),
-            ("mean level", pm(d, "mean", "mean_sem", unit="DN"), "\u00b1 its standard error"),
-            ("spatial std", num(d.get("spatial_std"), ".4g", "DN"), "of D\u0302_D"),
-            ("spatial std of the signal", num(d.get("spatial_std_signal"), ".4g", "DN"),
+            ("frames s", d.s, ""),
+            ("exposure", num(d.exposure, ".4g", "s"), ""),
+            ("mean level", _pm(d.mean, d.mean_sem, unit="DN"), "\u00b1 its standard error"),
+            ("spatial std", num(d.spatial_std, ".4g", "DN"), "of D\u0302_D"),
+            ("spatial std of the signal", num(d.spatial_std_signal, ".4g", "DN"),
              "without the averaging noise \u03c3\u00b2_N/s"),
-            ("temporal noise \u03c3\u00b2_N", num(d.get("noise_var"), ".4g", "DN\u00b2"),
+            ("temporal noise \u03c3\u00b2_N", num(d.noise_var, ".4g", "DN\u00b2"),
              "mean per-pixel variance"),
-            ("hot pixels", d.get("n_hot"), str(d.get("hot_rule") or "")),
-            ("dead pixels", d.get("n_dead"), str(d.get("dead_rule") or "")),
+            ("hot pixels", d.n_hot, d.hot_rule),
+            ("dead pixels", d.n_dead, d.dead_rule),
         ]))
-        doc.add(bullets(d.get("notes") or ()))
+        doc.add(bullets(d.notes))
 
 
-def fixed_pattern_section(doc: Doc, k: Mapping[str, Any]) -> None:
-    bound = k.get("var_bound")
-    k_var = k.get("K_var_mean")
+def fixed_pattern_section(doc: Doc, k: FixedPatternSummary) -> None:
+    """K̂: its configurations, spread, error and the eq. 50 bound, and the rejected slopes."""
+    bound = k.var_bound
+    k_var = k.K_var_mean
+    rejected = k.fraction_pixels_with_rejection
     with doc.section("fixed-pattern", "Fixed pattern K\u0302"):
         doc.add(para("Healey & Kondepudy eqs. 45\u201350: per pixel, the mean of the slopes of "
                      "n1 card/lamp configurations kept within centre \u00b1 p\u00b7\u03c3\u0302 "
                      "(maps under Maps)."))
         doc.add(facts([
-            ("configurations n1 \u00d7 frames n2", f"{k.get('n1')} \u00d7 {k.get('n2')}", ""),
-            ("window, p", f"{k.get('window')}, {value_text(k.get('p'))}",
+            ("configurations n1 \u00d7 frames n2", f"{k.n1} \u00d7 {k.n2}", ""),
+            ("window, p", f"{k.window}, {value_text(k.p)}",
              "local mean window (pixels) and the rejection width"),
-            ("mean of K\u0302", num(k.get("mean"), ".6g"), ""),
-            ("spatial spread of K\u0302", num(k.get("spatial_std"), ".4g"), "standard deviation"),
-            ("slope spread \u03c3\u0302", num(k.get("sigma_hat"), ".4g"), "eq. 48"),
+            ("mean of K\u0302", num(k.mean, ".6g"), ""),
+            ("spatial spread of K\u0302", num(k.spatial_std, ".4g"), "standard deviation"),
+            ("slope spread \u03c3\u0302", num(k.sigma_hat, ".4g"), "eq. 48"),
             ("error of K\u0302 (mean)", num(math.sqrt(k_var) if finite(k_var) else None, ".3g"),
              f"\u221a of the mean error variance {num(k_var, '.3g')}"),
             ("eq. 50 bound", "infinite" if bound is None else num(bound, ".3g"),
-             f"error variance bound (std {num(k.get('sd_bound'), '.3g')})"),
+             f"error variance bound (std {num(k.sd_bound, '.3g')})"),
             ("pixels with a rejected slope",
-             num(100 * k["fraction_pixels_with_rejection"], ".3g", "%")
-             if finite(k.get("fraction_pixels_with_rejection")) else "n/a",
-             f"{k.get('n_rejected')} slopes rejected in all"),
+             num(100 * rejected, ".3g", "%") if finite(rejected) else "n/a",
+             f"{k.n_rejected} slopes rejected in all"),
         ]))
-        doc.add(bullets(k.get("notes") or ()))
+        doc.add(bullets(k.notes))
 
 
-def plan_section(doc: Doc, p: Mapping[str, Any]) -> None:
+def plan_section(doc: Doc, p: PlanSummary) -> None:
+    """n1 and n2 with their formulas and readings, and what the session lacks against them."""
     with doc.section("plan", "Acquisition plan"):
         doc.add(para("Healey & Kondepudy sec. V-B: how many card/lamp configurations n1 and "
                      "frames per configuration n2 the fixed-pattern map needs."))
-        alternatives = p.get("n2_alternatives") or {}
         doc.add(facts([
-            ("n1 (configurations)", p.get("n1_required"), str(p.get("n1_formula") or "")),
-            ("n2 (frames each)", p.get("n2_required"), str(p.get("n2_formula") or "")),
-            ("reading of the n2 rule", p.get("n2_reading", ""),
-             "; ".join(f"{k}: {v}" for k, v in alternatives.items())),
+            ("n1 (configurations)", p.n1_required, p.n1_formula),
+            ("n2 (frames each)", p.n2_required, p.n2_formula),
+            ("reading of the n2 rule", p.n2_reading,
+             "; ".join(f"{k}: {v}" for k, v in p.n2_alternatives.items())),
         ]))
-        if p.get("warnings"):
+        if p.warnings:
             doc.add("<h3>What the session lacks against the plan</h3>")
-            doc.add(bullets(p["warnings"], "warnings"))
-        doc.add(bullets(p.get("notes") or ()))
+            doc.add(bullets(p.warnings, "warnings"))
+        doc.add(bullets(p.notes))
 
 
-def correction_section(doc: Doc, c: Mapping[str, Any]) -> None:
-    def pct(key: str) -> str:
-        v = c.get(key)
+def correction_section(doc: Doc, c: CorrectionCheckSummary) -> None:
+    """How much the correction changes a maximum-intensity image, in steps q."""
+    def pct(v: float | None) -> str:
         return num(100 * v, ".3g", "%") if finite(v) else "n/a"
 
     with doc.section("correction-check", "Correction check"):
         doc.add(para("Healey & Kondepudy sec. VII-A: how much eq. 51 changes a maximum-intensity "
                      "image, in quantisation steps q."))
         doc.add(facts([
-            ("pixels changed by more than 1 q", pct("frac_gt_1q"), ""),
-            ("pixels changed by more than 2 q", pct("frac_gt_2q"), ""),
-            ("largest change", num(c.get("max_change_q"), ".3g", "q"), ""),
-            ("mean level of the image", num(c.get("mean_level"), ".4g", "DN"), ""),
+            ("pixels changed by more than 1 q", pct(c.frac_gt_1q), ""),
+            ("pixels changed by more than 2 q", pct(c.frac_gt_2q), ""),
+            ("largest change", num(c.max_change_q, ".3g", "q"), ""),
+            ("mean level of the image", num(c.mean_level, ".4g", "DN"), ""),
         ]))
 
 
-def scene_section(doc: Doc, scene: Mapping[str, Any]) -> None:
+def scene_section(doc: Doc, scene: dict[str, SceneSummary]) -> None:
+    """V_S of each patch with its fit, the levels used and excluded."""
     with doc.section("scene", "Scene variation"):
         doc.add(para("Healey & Kondepudy sec. VI: the relative variance V_S of each uniform "
                      "surface, with the calibration maps' own errors (eqs. 53\u201358)."))
         rows = []
         for name, sv in scene.items():
-            used = sum(1 for m in sv.get("measurements", ()) if m.get("used"))
-            rows.append((name, pm(sv, "V_S"), num(sv.get("chi2"), ".4g"), sv.get("dof"),
-                         num(sv.get("Q"), ".3g"), used, len(sv.get("excluded") or ())))
+            used = sum(1 for m in sv.measurements if m.used)
+            rows.append((name, _pm(sv.V_S, sv.V_S_err), num(sv.chi2, ".4g"), sv.dof,
+                         num(sv.Q, ".3g"), used, len(sv.excluded)))
         doc.add(table(rows, ("patch", "V_S", "\u03c7\u00b2", "dof", "Q", "levels used",
                              "excluded"), cls="ccd-report-scene", numeric=(1, 2, 3, 4, 5, 6)))
-        notes = sorted({n for sv in scene.values() for n in (sv.get("notes") or ())})
+        notes = sorted({n for sv in scene.values() for n in sv.notes})
         doc.add(bullets(notes))

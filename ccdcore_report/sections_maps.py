@@ -64,8 +64,8 @@ def _planes(name: str, data: NDArray, layout: str) -> dict[str, NDArray]:
 def _map_families(product: CalibrationProduct) -> dict[str, list[tuple[str, dict[str, NDArray]]]]:
     """The product's maps split into channel planes, by family (flat field; dark reference and
     fixed pattern; others), in drawing order."""
-    flat = product.estimates.get("flat_field") or {}
-    layout = str(flat.get("layout") or product.camera.layout or "mono")
+    flat = product.estimates.flat_field
+    layout = str((flat.layout if flat is not None else None) or product.camera.layout or "mono")
     families: dict[str, list[tuple[str, dict[str, NDArray]]]] = {}
     for name, data in _product_maps(product).items():
         family = ("Flat field" if name.startswith("flat_") else

@@ -9,12 +9,13 @@ response_section
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore.common import format_pm
+from ccdcore.response.methods import ResponseSummary
 
 from . import figures
 from .agreement import AGREEMENT_COLUMNS, channel_agreement_rows, pair_rows
@@ -25,13 +26,14 @@ __all__ = ["response_section"]
 # ---------------------------------------------------------------------------------------------
 # response curves
 # ---------------------------------------------------------------------------------------------
-def _response_noise_table(r: Mapping[str, Any], channels: Sequence[str]) -> str:
-    """Per channel σ_s, σ_c1, σ_c2 ± errors, iterations, convergence, white balance."""
+def _response_noise_table(r: ResponseSummary, channels: Sequence[str]) -> str:
+    """Per channel σ_s, σ_c1, σ_c2 ± errors, iterations, convergence, white balance (a
+    per-channel figure the record lacks, e.g. white balance of an older product: n/a, no)."""
     rows = []
     for i, ch in enumerate(channels):
         def pick(key: str) -> Any:
-            v = r.get(key)
-            return v[i] if isinstance(v, list) and i < len(v) else None
+            v = getattr(r, key)
+            return v[i] if i < len(v) else None
 
         rows.append((ch,
                      format_pm(json_float(pick("sigma_s")), pick("sigma_s_err")),
@@ -57,32 +59,35 @@ def _g_table(channels: Sequence[str], gs: Sequence[NDArray], errs: Sequence[NDAr
                  cls="ccd-report-response-g", numeric=tuple(range(len(channels) + 1)))
 
 
-def response_section(doc: Doc, r: Mapping[str, Any]) -> None:
+def response_section(doc: Doc, r: ResponseSummary) -> None:
     """The response's noise terms per channel, its exposures, g at six codes, the prediction
-    agreement, the notes and the curves with their bands."""
-    channels = [str(c) for c in r.get("channels", ())]
-    scale = r.get("scale") or {}
+    agreement, the notes and the curves with their bands.
+
+    Parameters
+    ----------
+    doc
+        The report being assembled.
+    r
+        The product's response (``product.estimates.response``).
+    """
+    channels = list(r.channels)
+    scale = r.scale
     with doc.section("response", "Response curves"):
         doc.add(para("Tsin, Ramesh & Kanade 2001, sec. 3.2: the inverse response g per channel "
-                     f"by {r.get('method')}, with its band and the noise terms of eq. 7 "
+                     f"by {r.method}, with its band and the noise terms of eq. 7 "
                      f"(\u03c3_s and \u03c3_c1 in units of g, \u03c3_c2 in DN). Scale: "
-                     f"g({scale.get('fixed_code')}) = "
-                     f"{num(scale.get('g_at_fixed_code'), '.4g')}."))
+                     f"g({scale.fixed_code}) = {num(scale.g_at_fixed_code, '.4g')}."))
         doc.add(_response_noise_table(r, channels))
-        times = r.get("exposure_times") or []
+        times = r.exposure_times
         doc.add(para(f"{len(times)} exposures: " + ", ".join(num(t, ".4g") for t in times)
-                     + " s; bloom radius " + value_text(r.get("bloom_radius")) + " px."))
-        gs = [json_floats(g) for g in r.get("g") or ()]
-        errs = [json_floats(e) for e in r.get("g_err") or ()]
-        levels = int(r.get("levels") or (gs[0].size if gs else 0))
+                     + " s; bloom radius " + value_text(r.bloom_radius) + " px."))
+        gs = [json_floats(g) for g in r.g]
+        errs = [json_floats(e) for e in r.g_err]
+        levels = int(r.levels or (gs[0].size if gs else 0))
         if gs and levels > 1:
             doc.add(_g_table(channels, gs, errs, levels))
         _agreement_tables(doc, r)
-        notes = r.get("notes") or {}
-        if isinstance(notes, dict):
-            doc.add(bullets(f"{ch}: {n}" for ch, ns in notes.items() for n in ns))
-        else:
-            doc.add(bullets(notes))
+        doc.add(bullets(f"{ch}: {n}" for ch, ns in r.notes.items() for n in ns))
         if not gs:
             return
         doc.plot(figures.response_figures(channels, gs, errs), id_="response-curves",
@@ -90,13 +95,14 @@ def response_section(doc: Doc, r: Mapping[str, Any]) -> None:
                          "error itself (0 at the fixed code, which sets the scale).")
 
 
-def _agreement_tables(doc: Doc, r: Mapping[str, Any]) -> None:
-    """The response's prediction agreement (Tsin et al. sec. 4.2, ``r["agreement"]``): the
-    pooled figures and each channel's, then each pair of neighbouring images per channel."""
-    a = r.get("agreement")
-    if not isinstance(a, dict):
+def _agreement_tables(doc: Doc, r: ResponseSummary) -> None:
+    """The response's prediction agreement (Tsin et al. sec. 4.2, ``r.agreement``; nothing
+    when not computed): the pooled figures and each channel's, then each pair of neighbouring
+    images per channel."""
+    a = r.agreement
+    if a is None:
         return
-    rng = a.get("code_range") or ("?", "?")
+    rng = a.code_range
     doc.add(para(f"How well the curves predict the bracket's own images (sec. 4.2), in DN "
                  f"over the codes {rng[0]}..{rng[-1]} both images read: each image from a "
                  "neighbour with the result's exposure ratio, with each pair's ratio fitted "
@@ -106,7 +112,7 @@ def _agreement_tables(doc: Doc, r: Mapping[str, Any]) -> None:
     header = ["channel", *AGREEMENT_COLUMNS.values(), "predictions"]
     doc.add(table([[row[h] for h in header] for row in rows], header,
                   cls="ccd-report-response-agreement", numeric=(1, 2, 3, 4)))
-    pairs = pair_rows(a, json_floats(r.get("exposure_times")))
+    pairs = pair_rows(a, json_floats(r.exposure_times))
     if pairs:
         header = list(pairs[0])
         doc.add(table([[row.get(h, "n/a") for h in header] for row in pairs], header,

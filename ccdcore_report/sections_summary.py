@@ -16,6 +16,7 @@ from typing import Any
 from ccdcore import __version__
 from ccdcore.common import format_size
 from ccdcore.product import CalibrationProduct
+from ccdcore.records import Record
 from ccdcore.session import Session
 
 from .html import Doc, Html, bullets, esc, facts, num, para, table, value_text
@@ -41,9 +42,10 @@ def _frame_shape(product: CalibrationProduct | None, session: Session | None
     if product is not None:
         if product.shape is not None:
             return tuple(product.shape)
-        for est in product.estimates.values():
-            if isinstance(est, dict) and isinstance(est.get("shape"), list):
-                return tuple(int(n) for n in est["shape"])
+        for _, est in product.estimates.items():
+            shape = getattr(est, "shape", None)
+            if shape is not None:
+                return tuple(int(n) for n in shape)
     return None
 
 
@@ -59,12 +61,16 @@ def _camera_facts(product: CalibrationProduct, session: Session | None) -> str:
         ("frame size (W \u00d7 H)", format_size(shape) if shape else "unknown"),
         ("black level (manifest)", num(cam.black_level, ".6g", "DN")
          if cam.black_level is not None else "not given"),
-        ("session", session.label if session is not None else prov.get("session", "unknown")),
+        ("session", session.label if session is not None else _known(prov.session)),
         ("session source", session.source if session is not None
-         else prov.get("source", "unknown")),
-        ("frames", len(session.frames) if session is not None
-         else prov.get("n_frames", "unknown")),
+         else _known(prov.source)),
+        ("frames", len(session.frames) if session is not None else _known(prov.n_frames)),
     ])
+
+
+def _known(value: Any) -> Any:
+    """A field of the provenance, ``"unknown"`` when the product does not record it."""
+    return "unknown" if value is None else value
 
 
 def _roles_table(session: Session) -> str:
@@ -84,8 +90,8 @@ def _roles_table(session: Session) -> str:
 
 def _made_text(product: CalibrationProduct, change: Any) -> str:
     """Which estimates were made and which skipped, in one sentence."""
-    made = [ESTIMATE_TITLES.get(k, k) for k in product.estimates]
-    if getattr(product, "emva1288", None):
+    made = [ESTIMATE_TITLES.get(k, k) for k in product.estimates.made()]
+    if product.emva1288 is not None:
         made.append(ESTIMATE_TITLES["emva1288"])
     if change is not None:
         made.append("Change detection")
@@ -109,7 +115,8 @@ def summary_section(doc: Doc, product: CalibrationProduct, session: Session | No
                          "are not stored in it (the estimates below say what they used).",
                          "note"))
         doc.add(para(_made_text(product, change)))
-        plan_warnings = set((product.estimates.get("plan") or {}).get("warnings") or ())
+        plan = product.estimates.plan
+        plan_warnings = set(plan.warnings if plan is not None else ())
         other = [w for w in product.warnings if w not in plan_warnings]
         if other:
             doc.add("<h3>Warnings</h3>" + bullets(other, "warnings"))
@@ -136,30 +143,27 @@ def provenance_section(doc: Doc, product: CalibrationProduct, session: Session |
     """The versions of the product and of the report, the session, its hash and the product's
     date (each said when the product does not record it), then every step's parameters."""
     prov = product.provenance
-    digest = prov.get("session_hash")
-    date = prov.get("date")
+    digest = prov.session_hash
+    date = prov.date
     with doc.section("provenance", "Provenance"):
         doc.add(facts([
-            ("product made by", f"ccdcore {prov.get('ccdcore', 'unknown version')}", ""),
+            ("product made by", f"ccdcore {prov.ccdcore or 'unknown version'}", ""),
             ("report made by", f"ccdcore {__version__}", now),
-            ("session", session.label if session is not None else prov.get("session", "unknown"),
-             prov.get("source", "")),
+            ("session", session.label if session is not None else _known(prov.session),
+             prov.source or ""),
             ("session hash", digest if digest else "unavailable",
              "" if digest else "this product records no hash of its session"),
             ("date of the product", date if date else now,
              "" if date else "the product records no date: this is the report's date"),
         ]))
-        steps = prov.get("steps") or {}
+        steps = list(prov.steps.items()) if prov.steps is not None else []
         if steps:
             doc.add("<h3>Parameters per step</h3>")
             doc.add(table([(ESTIMATE_TITLES.get(k, k), _parameters(v))
-                           for k, v in steps.items()],
+                           for k, v in steps],
                           ("step", "parameters"), cls="ccd-report-steps"))
 
 
-def _parameters(params: Any) -> Html:
+def _parameters(step: Record) -> Html:
     """A step's parameters, one ``key: value`` per line."""
-    if not isinstance(params, dict):
-        return Html(esc(value_text(params)))
-    return Html("<br>".join(f"<b>{esc(k)}</b>: {esc(value_text(v))}"
-                            for k, v in params.items()))
+    return Html("<br>".join(f"<b>{esc(k)}</b>: {esc(value_text(v))}" for k, v in step.items()))

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import io
 import json
 import os
@@ -27,7 +28,7 @@ from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 
 import ccdcore.datasheet_files as datasheet_files  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
-from ccdcore.common import format_pm, json_safe  # noqa: E402
+from ccdcore.common import format_pm  # noqa: E402
 from ccdcore.datasheet import emva_figures  # noqa: E402
 from ccdcore.datasheet_files import CSV_COLUMNS, PLOT_FORMATS, PLOTS  # noqa: E402
 from ccdcore.emva_sheet import DATASHEET, datasheet_rows  # noqa: E402
@@ -70,7 +71,8 @@ def emva_set(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def figures(emva_set):
-    return json_safe(emva_figures(emva_set).to_dict())
+    """The figures of the session as their record (``EmvaSummary``)."""
+    return emva_figures(emva_set).summary()
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +126,7 @@ def test_the_csv_round_trips_the_figures_exactly(sheet, figures):
     determined = undetermined = 0
     for r, (section, key, name, symbol, unit) in zip(rows, DATASHEET):
         assert (r["section"], r["name"], r["symbol"], r["unit"]) == (section, name, symbol, unit)
-        want, want_err = figures[key], figures.get(f"{key}_err")
+        want, want_err = getattr(figures, key), getattr(figures, f"{key}_err")
         if want is None:
             undetermined += 1
             assert r["value"] == r["error"] == "" and r["note"], key
@@ -137,19 +139,19 @@ def test_the_csv_round_trips_the_figures_exactly(sheet, figures):
         else:
             assert float(r["error"]) == want_err, key
     # both kinds are exercised: the dark current is resolved, some DSNU/PRNU parts are not
-    assert figures["u_I_mean"] is not None and figures["u_I_var"] is not None
+    assert figures.u_I_mean is not None and figures.u_I_var is not None
     assert determined >= 18 and undetermined >= 1
 
 
 def test_the_json_holds_the_figures_and_the_rows(sheet, figures):
     out, _, _ = sheet
     doc = json.loads((out / "datasheet.json").read_text(encoding="utf-8"))
-    assert doc["emva1288"] == figures
+    assert doc["emva1288"] == figures.to_dict()
     assert doc["rows"] == [r.to_dict() for r in datasheet_rows(figures)]
     assert doc["plots"] == {"drawn": list(PLOTS), "skipped": []}
     # the plot data the figures carry are in it too
     assert doc["emva1288"]["spatial_plots"]["histograms"]["DSNU"]["count"] == \
-        figures["spatial_plots"]["histograms"]["DSNU"]["count"]
+        list(figures.spatial_plots.histograms.DSNU.count)
 
 
 def test_the_summary_lists_every_figure_and_the_files(sheet, figures):
@@ -283,11 +285,11 @@ def test_a_failure_while_writing_leaves_the_earlier_set_untouched(capsys, emva_s
     before = tree(out)
     real, calls = datasheet_files._render, []
 
-    def disk_full(plot, emva, folder, where):
+    def disk_full(plot, emva, folder):
         calls.append(plot.name)
         if len(calls) == 3:
             raise OSError(28, "No space left on device")
-        return real(plot, emva, folder, where)
+        return real(plot, emva, folder)
 
     monkeypatch.setattr(datasheet_files, "_render", disk_full)
     code, stdout, err = run(capsys, "datasheet", emva_set, "-o", out)
@@ -338,10 +340,11 @@ def test_csv_and_json_need_no_plotting_package(figures, tmp_path):
     module does not import matplotlib."""
     code = ("import sys, json\nsys.modules['matplotlib'] = None\n"
             "from ccdcore.datasheet_files import write_datasheet\n"
-            f"e = json.loads(open({str(tmp_path / 'e.json')!r}).read())\n"
+            "from ccdcore.emva_results import EmvaSummary\n"
+            f"e = EmvaSummary.from_dict(json.loads(open({str(tmp_path / 'e.json')!r}).read()))\n"
             f"print('\\n'.join(map(str, write_datasheet(e, {str(tmp_path / 'ds')!r}, "
             "plots=False))))\n")
-    (tmp_path / "e.json").write_text(json.dumps(figures))
+    (tmp_path / "e.json").write_text(json.dumps(figures.to_dict()))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [str(tmp_path / "ds" / "datasheet.csv"),
@@ -399,14 +402,15 @@ def test_ptc_prints_its_fit_range(capsys, emva_set):
 def test_the_plots_do_not_depend_on_a_matplotlibrc(figures, tmp_path):
     """A user's matplotlibrc (here: another dpi, font size and line width) changes no byte of
     the plots: they are drawn with matplotlib's own defaults."""
-    emva = dict(figures, spatial_plots=None, dark_points=[])        # four plots: quick
-    (tmp_path / "e.json").write_text(json.dumps(emva))
+    emva = dataclasses.replace(figures, spatial_plots=None, dark_points=())   # four plots: quick
+    (tmp_path / "e.json").write_text(json.dumps(emva.to_dict()))
     datasheet_files.write_datasheet(emva, tmp_path / "here")
     (tmp_path / "matplotlibrc").write_text("savefig.dpi: 30\nfont.size: 22\n"
                                            "lines.linewidth: 7\n")
     code = ("import json, sys\nfrom ccdcore.datasheet_files import write_datasheet\n"
-            f"write_datasheet(json.loads(open({str(tmp_path / 'e.json')!r}).read()), "
-            f"{str(tmp_path / 'there')!r})\n")
+            "from ccdcore.emva_results import EmvaSummary\n"
+            "write_datasheet(EmvaSummary.from_dict(json.loads(open("
+            f"{str(tmp_path / 'e.json')!r}).read())), {str(tmp_path / 'there')!r})\n")
     env = dict(os.environ, MATPLOTLIBRC=str(tmp_path / "matplotlibrc"))
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=ROOT, env=env)

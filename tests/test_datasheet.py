@@ -316,15 +316,15 @@ def test_product_keeps_the_figures_and_the_session_hash(clean, healey, tmp_path)
     session = open_session(gen.descriptor_path)
     product = calibrate(session)
     assert product.emva1288 is not None
-    assert product.emva1288["K"] == f.K and product.emva1288["QE"] == f.QE
+    assert product.emva1288.K == f.K and product.emva1288.QE == f.QE
     # the photon transfer of the product is the sigma_d_ptc of the figures
-    assert product.emva1288["sigma_d_ptc"] == product.estimates["noise"]["read_noise_e"]
+    assert product.emva1288.sigma_d_ptc == product.estimates.noise.read_noise_e
     prov = product.provenance
-    assert prov["session_hash"] == session.content_hash() and len(prov["session_hash"]) == 64
-    assert prov["date"].endswith("+00:00") and "emva1288" in prov["steps"]
+    assert prov.session_hash == session.content_hash() and len(prov.session_hash) == 64
+    assert prov.date.endswith("+00:00") and prov.steps.emva1288 is not None
     folder = product.save(tmp_path / "p")
     doc = json.loads((folder / PRODUCT_FILE).read_text())
-    assert doc["emva1288"] == product.emva1288
+    assert doc["emva1288"] == product.emva1288.to_dict()
     back = load_product(folder)
     assert back.emva1288 == product.emva1288 and back.provenance == product.provenance
 
@@ -341,7 +341,7 @@ def test_old_products_without_the_new_keys_still_load(clean, tmp_path):
     del doc["emva1288"], doc["provenance"]["session_hash"], doc["provenance"]["date"]
     (folder / PRODUCT_FILE).write_text(json.dumps(doc))
     back = load_product(folder)
-    assert back.emva1288 is None and "session_hash" not in back.provenance
+    assert back.emva1288 is None and back.provenance.session_hash is None
     doc["emva1288"] = [1, 2]
     (folder / PRODUCT_FILE).write_text(json.dumps(doc))
     with pytest.raises(CcdError, match="'emva1288' must be a JSON object"):

@@ -217,12 +217,12 @@ def test_calibrate_product_and_provenance(client):
     assert sorted(b.maps) == sorted(a.maps)
     for name in a.maps:
         assert _same(a.maps[name], b.maps[name]), name
-    assert a.provenance["scheduler"] == "streamed (this process)"
-    sched = b.provenance["scheduler"]
+    assert a.provenance.scheduler == "streamed (this process)"
+    sched = b.provenance.scheduler
     assert client.scheduler.address in sched and "(2 workers)" in sched
-    assert b.estimates["dark"] == a.estimates["dark"]
-    assert b.estimates["fixed_pattern"] == a.estimates["fixed_pattern"]
-    assert b.estimates["noise"]["A"] == pytest.approx(a.estimates["noise"]["A"], rel=1e-9)
+    assert b.estimates.dark == a.estimates.dark
+    assert b.estimates.fixed_pattern == a.estimates.fixed_pattern
+    assert b.estimates.noise.A == pytest.approx(a.estimates.noise.A, rel=1e-9)
 
 
 # --------------------------------------------------------------------------------------------

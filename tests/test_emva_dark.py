@@ -12,6 +12,7 @@ Tolerances
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 
@@ -96,12 +97,15 @@ def test_a_current_the_range_cannot_resolve_is_none_with_its_bound():
     assert any(n.startswith("u_I_mean is not resolved") for n in tiny.notes)
 
 
-def test_fewer_than_three_exposure_times_give_no_current():
+def test_fewer_than_three_exposure_times_give_no_current(generated):
     t, mu, mu_err, s2, s2_err = _points(1500.0, t=np.array([0.01, 0.01, 0.2]))
     d = dark_current(t, mu, mu_err, s2, s2_err, K, 0.0)
     assert d.u_I_mean is None and d.u_I_var is None and d.mean_line is None
     assert d.notes and d.notes[0].startswith("no dark current") and "2 exposure times" in d.notes[0]
-    rows = {r.key: r for r in datasheet_rows({"notes": list(d.notes)})}
+    # figures with this dark current's notes and without its figures
+    figures = dataclasses.replace(generated[1].summary(), u_I_mean=None, u_I_mean_err=None,
+                                  notes=d.notes)
+    rows = {r.key: r for r in datasheet_rows(figures)}
     assert rows["u_I_mean"].note == d.notes[0]
 
 
@@ -154,7 +158,7 @@ def test_dark_current_against_the_generators_truth(generated):
 def test_datasheet_rows_follow_the_standard_and_carry_every_figure(generated):
     _, ours, _ = generated
     d = ours.to_dict()
-    rows = datasheet_rows(d)
+    rows = datasheet_rows(ours.summary())
     assert [r.key for r in rows] == [k for _, k, _, _, _ in DATASHEET]
     for r in rows:
         if r.key == "sigma_d_ptc":                 # photon transfer was not run here
@@ -198,8 +202,8 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
     assert chosen == min(have, key=lambda t: abs(math.log(t / median)))
     assert "16 exposures" in note and "nearest" in note and str(have[3]) not in note
     product = calibrate(session)
-    dark = product.estimates["dark"]
-    assert dark["exposure"] == pytest.approx(chosen) and dark["notes"][0] == note
+    dark = product.estimates.dark
+    assert dark.exposure == pytest.approx(chosen) and dark.notes[0] == note
     assert not any(s.estimate == "dark" for s in product.skipped)
     other = have[2]
     assert main(["calibrate", str(gen.descriptor_path), "-o", str(tmp_path / "p"),
@@ -208,12 +212,11 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
     assert f"made at {other:g} s, as named" in " ".join(out.split())
     d = product.emva1288
     assert (f"    dark current   μ_I.mean = "
-            f"{format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')}; μ_I.var = " in out)
+            f"{format_pm(d.u_I_mean, d.u_I_mean_err, unit='e⁻/s')}; μ_I.var = " in out)
     flat = " ".join(out.split())
     for part in ("row", "col", "pixel"):
-        assert (f"DSNU1288.{part} = "
-                f"{format_pm(d[f'DSNU1288_{part}'], d[f'DSNU1288_{part}_err'], unit='e⁻')}"
-                in flat)
+        value, err = getattr(d, f"DSNU1288_{part}"), getattr(d, f"DSNU1288_{part}_err")
+        assert f"DSNU1288.{part} = {format_pm(value, err, unit='e⁻')}" in flat
     assert "\u00a0" not in out
     with pytest.raises(SystemExit) as exc:
         main(["calibrate", str(gen.descriptor_path), "-o", str(tmp_path / "q"),
@@ -228,13 +231,15 @@ def test_a_section_as_markdown_items(generated):
 
     _, ours, _ = generated
     d = ours.to_dict()
-    lines = section_markdown(d, "Dark current")
+    lines = section_markdown(ours.summary(), "Dark current")
     assert lines == [f"- Dark current from the mean, μ_I.mean = **"
                      f"{format_pm(d['u_I_mean'], d['u_I_mean_err'], unit='e⁻/s')}**",
                      f"- Dark current from the variance, μ_I.var = **"
                      f"{format_pm(d['u_I_var'], d['u_I_var_err'], unit='e⁻/s')}**"]
-    missing = section_markdown({"notes": ["u_I_mean is not resolved: <x> below 3 e-/s"]},
-                               "Dark current")
+    missing = section_markdown(
+        dataclasses.replace(ours.summary(), u_I_mean=None, u_I_mean_err=None,
+                            notes=("u_I_mean is not resolved: <x> below 3 e-/s",)),
+        "Dark current")
     assert missing[0] == ("- Dark current from the mean, μ_I.mean: not determined — "
                           "u_I_mean is not resolved: &lt;x&gt; below 3 e-/s")
 

@@ -135,7 +135,7 @@ def test_verify_fails_a_wrong_product(h94) -> None:
 
 def test_verify_skips_a_session_without_uniform_frames() -> None:
     s = open_session(ASSETS / "tsin01")
-    empty = CalibrationProduct(maps={"dark": np.zeros((2, 2), np.float32)}, estimates={})
+    empty = CalibrationProduct(maps={"dark": np.zeros((2, 2), np.float32)})
     assert guide.verify(s, empty).gate.status == "skip"
 
 

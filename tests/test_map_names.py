@@ -79,7 +79,7 @@ def test_loading_refuses_a_map_that_is_not_a_member(saved, tmp_path):
 
 
 def test_saving_refuses_a_map_that_is_not_a_member(tmp_path):
-    product = CalibrationProduct(maps={"gain": np.ones((4, 4), np.float32)}, estimates={})
+    product = CalibrationProduct(maps={"gain": np.ones((4, 4), np.float32)})
     with pytest.raises(CcdError, match="unknown map 'gain'"):
         product.save(tmp_path / "calib")
     assert not (tmp_path / "calib" / PRODUCT_FILE).exists()

@@ -195,11 +195,11 @@ def test_calibrate_over_an_earlier_product_removes_its_other_maps(calib, tmp_pat
     folder = _copy(calib, tmp_path / "c")
     (folder / "notes.txt").write_text("mine")
     dark = load_product(folder).maps["dark"]
-    CalibrationProduct(maps={"dark": dark}, estimates={}).save(folder)
+    CalibrationProduct(maps={"dark": dark}).save(folder)
     assert sorted(p.name for p in (folder / "maps").iterdir()) == ["dark.exr"]
     assert (folder / "notes.txt").read_text() == "mine"
     assert set(load_product(folder).maps) == {"dark"} and leftovers(folder, tmp_path) == []
-    CalibrationProduct(maps={}, estimates={}).save(folder)     # curves only: no maps/ left
+    CalibrationProduct(maps={}).save(folder)     # curves only: no maps/ left
     assert sorted(p.name for p in folder.iterdir()) == ["calibration.json", "notes.txt"]
     assert load_product(folder).maps == {}
 
@@ -230,7 +230,7 @@ def test_one_dark_frame_is_a_skipped_estimate_not_a_damaged_product(capsys, sim,
     assert code == 0, err
     assert "skipped dark" in err and "dark_var" in err
     product = load_product(tmp_path / "c")
-    assert "dark" not in product.estimates and "dark_var" not in product.maps
+    assert product.estimates.dark is None and "dark_var" not in product.maps
     assert any(s.estimate == "dark" and "dark_var" in s.reason for s in product.skipped)
     assert run(capsys, "apply", tmp_path / "c", root / "scene" / "max_intensity.tif",
                "-o", tmp_path / "o")[0] == 2     # no dark map: one clear line, not "damaged"
@@ -253,20 +253,39 @@ def test_an_infinite_dark_pixel_skips_the_maps_it_would_damage(capsys, sim, tmp_
 
 
 # 6. damaged estimates: one line, not a traceback -------------------------------------------
+@pytest.fixture(scope="module")
+def others(tmp_path_factory) -> dict:
+    """A response and a flat field as calibration.json stores them (small simulated sessions),
+    to damage one field of a whole estimate."""
+    from ccdcore.flatfield import flat_field_from_session
+    from ccdcore.response.brackets import load_bracket
+    from ccdcore.response.methods import response_of
+    from ccdcore.session import open_session
+
+    tmp = tmp_path_factory.mktemp("others")
+    simulate("tsin01", tmp / "t", seed=5, size=(32, 24))
+    simulate("delasarte07", tmp / "d", seed=5, size=(48, 32))
+    response = response_of(load_bracket(open_session(tmp / "t")), "debevec")
+    flat = flat_field_from_session(open_session(tmp / "d"), base="auto")
+    return {"response": response.summary().to_dict(), "flat_field": flat.summary().to_dict()}
+
+
 @pytest.mark.parametrize("damage, field", [
-    (lambda d: d["estimates"].setdefault("response", {}).update(g="abc"), "estimates.response.g"),
-    (lambda d: d["estimates"].setdefault("flat_field", {}).update(channels=3),
+    (lambda d, o: d["estimates"].update(response={**o["response"], "g": "abc"}),
+     "estimates.response.g"),
+    (lambda d, o: d["estimates"].update(flat_field={**o["flat_field"], "channels": 3}),
      "estimates.flat_field.channels"),
-    (lambda d: d.update(provenance="abc"), "provenance"),
-    (lambda d: d["provenance"].update(steps="abc"), "provenance.steps"),
-    (lambda d: d["estimates"]["noise"].update(A="big"), "estimates.noise.A"),
-    (lambda d: d["estimates"]["dark"].update(notes=[3]), "estimates.dark.notes[0]"),
+    (lambda d, o: d.update(provenance="abc"), "provenance"),
+    (lambda d, o: d["provenance"].update(steps="abc"), "provenance.steps"),
+    (lambda d, o: d["estimates"]["noise"].update(A="big"), "estimates.noise.A"),
+    (lambda d, o: d["estimates"]["dark"].update(notes=[3]), "estimates.dark.notes"),
 ])
-def test_damaged_estimate_fields_are_one_line(capsys, calib, sim, tmp_path, damage, field):
+def test_damaged_estimate_fields_are_one_line(capsys, calib, sim, others, tmp_path, damage,
+                                              field):
     folder = _copy(calib, tmp_path / "c")
     manifest = folder / "calibration.json"
     doc = json.loads(manifest.read_text())
-    damage(doc)
+    damage(doc, others)
     manifest.write_text(json.dumps(doc))
     code, _, err = run(capsys, "report", folder, "-o", tmp_path / "r.html")
     line = one_error_line(err)

@@ -7,6 +7,7 @@ import contextlib
 import dataclasses
 import html
 import io
+import json
 import re
 import subprocess
 import sys
@@ -17,8 +18,12 @@ import pytest
 
 from ccdcore.cli import main
 from ccdcore.common import format_pm
+from ccdcore.emva_results import EmvaSummary
+from ccdcore.errors import CcdError
 from ccdcore.flatfield import correct
 from ccdcore.product import CalibrationProduct, calibrate, load_product
+from ccdcore.product_records import ProductEstimates
+from ccdcore.response.methods import ResponseSummary
 from ccdcore.session import Camera, open_session
 from ccdcore.uniformity import snup
 from ccdcore_report import MAX_MAP_SIDE, build_report, write_report
@@ -73,27 +78,27 @@ def test_cli_report_of_a_session_holds_the_estimates_as_the_product_has_them(h94
     text, est = h94["html"], h94["product"].estimates
     assert "report written to" in h94["stdout"]
     assert "calibrate: photon transfer" in h94["stderr"]     # progress lines on stderr
-    noise, dark, fp, plan = est["noise"], est["dark"], est["fixed_pattern"], est["plan"]
+    noise, dark, fp, plan = est.noise, est.dark, est.fixed_pattern, est.plan
     for expected in (
-            format_pm(noise["A"], noise["A_err"], unit="DN/e\u207b"),
-            format_pm(noise["sigma_c2"], noise["sigma_c2_err"], unit="DN\u00b2"),
-            format_pm(noise["read_noise_e"], noise["read_noise_e_err"], unit="e\u207b"),
-            f"{noise['chi2']:.4g}", f"Q = {noise['Q']:.3g}: the line",
-            f"with {noise['dof']} degrees of freedom",
-            format_pm(dark["mean"], dark["mean_sem"], unit="DN"),
-            f"{dark['spatial_std']:.4g} DN", f"{fp['spatial_std']:.4g}",
-            f"{fp['n1']} \u00d7 {fp['n2']}"):
+            format_pm(noise.A, noise.A_err, unit="DN/e\u207b"),
+            format_pm(noise.sigma_c2, noise.sigma_c2_err, unit="DN\u00b2"),
+            format_pm(noise.read_noise_e, noise.read_noise_e_err, unit="e\u207b"),
+            f"{noise.chi2:.4g}", f"Q = {noise.Q:.3g}: the line",
+            f"with {noise.dof} degrees of freedom",
+            format_pm(dark.mean, dark.mean_sem, unit="DN"),
+            f"{dark.spatial_std:.4g} DN", f"{fp.spatial_std:.4g}",
+            f"{fp.n1} \u00d7 {fp.n2}"):
         assert html.escape(expected) in text, expected
     hot = section(text, "dark")
-    assert f"<td>hot pixels</td><td class=\"num\">{dark['n_hot']}</td>" in hot
-    assert f"<td>dead pixels</td><td class=\"num\">{dark['n_dead']}</td>" in hot
+    assert f"<td>hot pixels</td><td class=\"num\">{dark.n_hot}</td>" in hot
+    assert f"<td>dead pixels</td><td class=\"num\">{dark.n_dead}</td>" in hot
     planned = section(text, "plan")
-    assert f'<td class="num">{plan["n1_required"]}</td>' in planned
-    assert f'<td class="num">{plan["n2_required"]}</td>' in planned
-    for warning in plan["warnings"]:
+    assert f'<td class="num">{plan.n1_required}</td>' in planned
+    assert f'<td class="num">{plan.n2_required}</td>' in planned
+    for warning in plan.warnings:
         assert html.escape(warning) in planned
-    for patch, sv in est["scene"].items():
-        assert html.escape(format_pm(sv["V_S"], sv["V_S_err"])) in section(text, "scene")
+    for patch, sv in est.scene.items():
+        assert html.escape(format_pm(sv.V_S, sv.V_S_err)) in section(text, "scene")
 
 
 def test_the_ptc_and_maps_sections_and_the_skipped_list(h94):
@@ -122,20 +127,20 @@ def test_a_product_folder_gives_the_same_figures(h94):
     # without the session: the roles are not known, the product's label and frame count are
     summary = section(h94["calib_html"], "summary")
     assert "Frames by role and group" not in summary
-    assert html.escape(h94["product"].provenance["session"]) in summary
+    assert html.escape(h94["product"].provenance.session) in summary
 
 
 def test_provenance_names_version_session_steps_and_the_missing_hash(h94):
     prov = section(h94["html"], "provenance")
     product = h94["product"]
-    assert f"ccdcore {product.provenance['ccdcore']}" in prov
-    assert html.escape(product.provenance["session"]) in prov
-    if product.provenance.get("session_hash"):
-        assert product.provenance["session_hash"] in prov
+    assert f"ccdcore {product.provenance.ccdcore}" in prov
+    assert html.escape(product.provenance.session) in prov
+    if product.provenance.session_hash:
+        assert product.provenance.session_hash in prov
     else:
         assert "unavailable" in prov
-    for step, params in product.provenance["steps"].items():
-        for key in params:
+    for step, params in product.provenance.steps.items():
+        for key, _ in params.items():
             assert f"<b>{html.escape(key)}</b>" in prov, (step, key)
 
 
@@ -179,17 +184,17 @@ def test_the_report_verb_does_not_load_panel(h94, tmp_path):
 def test_delasarte07_has_snup_tables_and_flat_maps(delasarte):
     text, product, session = delasarte["html"], delasarte["product"], delasarte["session"]
     flat = section(text, "flat-field")
-    ff = product.estimates["flat_field"]
-    for c in ff["channels"]:
-        assert f"<td>{c['name']}</td><td class=\"num\">{c['k']:.5g}</td>" in flat
+    ff = product.estimates.flat_field
+    for c in ff.channels:
+        assert f"<td>{c.name}</td><td class=\"num\">{c.k:.5g}</td>" in flat
     base = snup(product.maps["flat_base"], layout="rgb")
     for c in base.channels:
         assert format_pm(c.snup, c.snup_err, unit="%") in flat
     # the held-out table: the first frame of a group other than the base, before and after
-    base_key = tuple(ff["base"])
-    key = next(k for k in session.flat_groups(setting=ff["setting"]) if tuple(k) != base_key
+    base_key = tuple(ff.base)
+    key = next(k for k in session.flat_groups(setting=ff.setting) if tuple(k) != base_key
                and k[1] == base_key[1])
-    rec = session.flat_groups(setting=ff["setting"])[key][0]
+    rec = session.flat_groups(setting=ff.setting)[key][0]
     frame = session.read(rec)
     before = snup(frame, layout="rgb")
     after = snup(correct(frame, product.maps["flat_G"], product.maps["flat_O"]), layout="rgb")
@@ -218,20 +223,20 @@ def test_tsin01_has_the_response_section(tmp_path):
     assert code == 0, err
     text = (tmp_path / "t.html").read_text()
     resp = section(text, "response")
-    r = load_product_of(tmp_path, "tsin01").estimates["response"]
-    for i, ch in enumerate(r["channels"]):
-        assert html.escape(format_pm(r["sigma_s"][i], r["sigma_s_err"][i])) in resp
-        assert html.escape(format_pm(r["sigma_c2"][i], r["sigma_c2_err"][i], unit="DN")) in resp
-    z = round(0.5 * (r["levels"] - 1))
-    assert format_pm(r["g"][0][z], r["g_err"][0][z]) in resp
+    r = load_product_of(tmp_path, "tsin01").estimates.response
+    for i, ch in enumerate(r.channels):
+        assert html.escape(format_pm(r.sigma_s[i], r.sigma_s_err[i])) in resp
+        assert html.escape(format_pm(r.sigma_c2[i], r.sigma_c2_err[i], unit="DN")) in resp
+    z = round(0.5 * (r.levels - 1))
+    assert format_pm(r.g[0][z], r.g_err[0][z]) in resp
     assert re.search(r'<figure class="ccd-report-plot[^"]*" id="response-curves"', text)
     # the prediction agreement (sec. 4.2) of the product's response, pooled and per pair
-    a = r["agreement"]
+    a = r.agreement
     table = _table_html(resp, "ccd-report-response-agreement")
-    assert _row(table, "all")[1:4] == [f"{a[k]:.2f}" for k in ("rms", "rms_fitted",
-                                                                "rms_blend")]
+    assert _row(table, "all")[1:4] == [f"{getattr(a, k):.2f}" for k in ("rms", "rms_fitted",
+                                                                         "rms_blend")]
     pairs = _table_html(resp, "ccd-report-response-pairs")
-    assert len(re.findall(r"<tr><td>", pairs)) == len(r["exposure_times"]) - 1
+    assert len(re.findall(r"<tr><td>", pairs)) == len(r.exposure_times) - 1
 
 
 def _table_html(text: str, cls: str) -> str:
@@ -249,7 +254,7 @@ def _row(table: str, first: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def rgb_response(tmp_path_factory) -> dict:
+def rgb_response(tmp_path_factory) -> ResponseSummary:
     """A colour bracket's response (Debevec & Malik, fast) as a product holds it."""
     from ccdcore.response.brackets import load_bracket
     from ccdcore.response.methods import response_of
@@ -258,38 +263,38 @@ def rgb_response(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("rgb") / "bracket"
     simulate("tsin01", root, seed=5, size=(64, 48), layout="rgb")
     result = response_of(load_bracket(open_session(root)), "debevec")
-    return {k: v for k, v in result.to_dict().items() if k != "files"}
+    return result.summary()
 
 
-def _with_response(r: dict) -> CalibrationProduct:
-    return CalibrationProduct(maps={}, estimates={"response": r},
+def _with_response(r: ResponseSummary) -> CalibrationProduct:
+    return CalibrationProduct(maps={}, estimates=ProductEstimates(response=r),
                               camera=Camera(name="rgb", bits=8, layout="rgb"))
 
 
 def test_response_agreement_pooled_per_channel_and_per_pair(rgb_response):
     r = rgb_response
-    a = r["agreement"]
+    a = r.agreement
     resp = section(build_report(_with_response(r)), "response")
     table = _table_html(resp, "ccd-report-response-agreement")
-    for row in [a, *a["channels"]]:
-        name = row.get("channel", "all")
-        assert _row(table, name)[1:4] == [f"{row[k]:.2f}" for k in ("rms", "rms_fitted",
-                                                                     "rms_blend")], name
-    assert _row(table, "all")[4] == str(sum(c["n"] for c in a["channels"]))
+    for row in [a, *a.channels]:
+        name = getattr(row, "channel", "all")
+        assert _row(table, name)[1:4] == [f"{getattr(row, k):.2f}" for k in (
+            "rms", "rms_fitted", "rms_blend")], name
+    assert _row(table, "all")[4] == str(sum(c.n for c in a.channels))
     pairs = _table_html(resp, "ccd-report-response-pairs")
     header = re.findall(r"<th>(.*?)</th>", pairs)
-    t = r["exposure_times"]
-    for c in a["channels"]:
-        ch = c["channel"]
+    t = r.exposure_times
+    for c in a.channels:
+        ch = c.channel
         col = header.index(f"{ch}: RMS")
         assert header[col + 1] == f"{ch}: fitted"
         assert header[col + 2] == f"{ch}: ratio fit/nominal"
-        for p in c["pairs"]:
-            cells = _row(pairs, f"{p['j'] + 1}\u2192{p['k'] + 1}")
-            assert cells[1] == f"{t[p['j']]:.4g} \u2192 {t[p['k']]:.4g}"
+        for p in c.pairs:
+            cells = _row(pairs, f"{p.j + 1}\u2192{p.k + 1}")
+            assert cells[1] == f"{t[p.j]:.4g} \u2192 {t[p.k]:.4g}"
             assert cells[col:col + 3] == [
-                f"{p['rms']:.2f}", f"{p['rms_fitted']:.2f}",
-                f"{p['ratio_fitted'] / (t[p['k']] / t[p['j']]):.3f}"], (ch, p)
+                f"{p.rms:.2f}", f"{p.rms_fitted:.2f}",
+                f"{p.ratio_fitted / (t[p.k] / t[p.j]):.3f}"], (ch, p)
 
 
 def test_response_agreement_a_bad_frame_shows_in_its_pairs(tmp_path):
@@ -306,12 +311,11 @@ def test_response_agreement_a_bad_frame_shows_in_its_pairs(tmp_path):
     text = manifest.read_text()
     m = re.search(r'(s0_k04\.tif", role = "bracket", exposure = )([0-9.]+)', text)
     manifest.write_text(text.replace(m.group(0), m.group(1) + repr(float(m.group(2)) * 1.3)))
-    result = response_of(load_bracket(open_session(root)), "debevec")
-    r = {k: v for k, v in result.to_dict().items() if k != "files"}
+    r = response_of(load_bracket(open_session(root)), "debevec").summary()
     pairs = _table_html(section(build_report(_with_response(r)), "response"),
                         "ccd-report-response-pairs")
     header = re.findall(r"<th>(.*?)</th>", pairs)
-    names = [f"{j}\u2192{j + 1}" for j in range(1, len(r["exposure_times"]))]
+    names = [f"{j}\u2192{j + 1}" for j in range(1, len(r.exposure_times))]
     for ch in ("R", "G", "B"):
         rms = {n: float(_row(pairs, n)[header.index(f"{ch}: RMS")]) for n in names}
         ratio = {n: float(_row(pairs, n)[header.index(f"{ch}: ratio fit/nominal")])
@@ -324,13 +328,15 @@ def test_response_agreement_a_bad_frame_shows_in_its_pairs(tmp_path):
 
 
 def test_response_agreement_text_is_escaped_and_absent_agreement_is_no_table(rgb_response):
-    r = dict(rgb_response)
-    a = dict(r["agreement"])
-    a["channels"] = [{**c, "channel": "<i>R</i>"} if c["channel"] == "R" else c
-                     for c in a["channels"]]
-    resp = section(build_report(_with_response({**r, "agreement": a})), "response")
+    r = rgb_response
+    a = dataclasses.replace(r.agreement, channels=tuple(
+        dataclasses.replace(c, channel="<i>R</i>") if c.channel == "R" else c
+        for c in r.agreement.channels))
+    resp = section(build_report(_with_response(dataclasses.replace(r, agreement=a))),
+                   "response")
     assert "<i>R</i>" not in resp and "&lt;i&gt;R&lt;/i&gt;: RMS" in resp
-    resp = section(build_report(_with_response({**r, "agreement": None})), "response")
+    resp = section(build_report(_with_response(dataclasses.replace(r, agreement=None))),
+                   "response")
     assert "ccd-report-response-agreement" not in resp and "ccd-report-response-g" in resp
 
 
@@ -361,28 +367,32 @@ def test_change_has_the_change_section(tmp_path):
 
 # ------------------------------------------------------------------------------ EMVA 1288 ------
 def emva_dict() -> dict:
+    """Figures, notes and an SNR curve to write over the demo's EMVA 1288 figures."""
     u_p = [100.0, 1000.0, 5000.0, 20000.0]
     return {"K": 0.1, "K_err": 0.002, "QE": 50.0, "QE_err": 1.0, "sigma_d": 4.2,
             "sigma_d_err": 0.1, "sigma_d_ptc": None, "u_e_sat": 32000.0, "u_p_sat": 64000.0,
             "u_p_min": 11.3, "SNR_max": 181.0, "DR": 5800.0, "DR_dB": 75.3, "LE_min": -0.01,
-            "LE_max": 0.02, "DSNU1288": None, "PRNU1288": 0.5,
+            "LE_max": 0.02, "DSNU1288": None, "DSNU1288_err": None, "PRNU1288": 0.5,
             "notes": ["a note about <saturation>"],
             "snr_curve": {"u_p": u_p, "snr": [5.0, 20.0, 48.0, None],
-                          "snr_model": [5.1, 21.0, 49.0, 99.0]},
-            "points": [{"u_p": p, "u_y": 10 + p / 20, "u_y_dark": 10.0, "s2_y": 1 + p / 200,
-                        "s2_y_dark": 1.0, "in_sensitivity_fit": True} for p in u_p]}
+                          "snr_model": [5.1, 21.0, 49.0, 99.0]}}
 
 
-def with_emva(product: CalibrationProduct, emva: dict) -> CalibrationProduct:
-    if "emva1288" in {f.name for f in dataclasses.fields(CalibrationProduct)}:
-        return dataclasses.replace(product, emva1288=emva)
-    copy = dataclasses.replace(product)
-    object.__setattr__(copy, "emva1288", emva)     # a product of before the EMVA figures
-    return copy
+@pytest.fixture(scope="module")
+def emva_demo() -> EmvaSummary:
+    """The EMVA 1288 figures of the emva1288 demo as a product holds them."""
+    from ccdcore.datasheet import emva_figures
+
+    return emva_figures(ASSETS / "emva1288").summary()
 
 
-def test_emva1288_figures_table_notes_and_plots(h94):
-    text = build_report(with_emva(h94["product"], emva_dict()))
+def with_emva(product: CalibrationProduct, emva: EmvaSummary | None) -> CalibrationProduct:
+    return dataclasses.replace(product, emva1288=emva)
+
+
+def test_emva1288_figures_table_notes_and_plots(h94, emva_demo):
+    emva_figs = EmvaSummary.from_dict({**emva_demo.to_dict(), **emva_dict()}, "emva_dict")
+    text = build_report(with_emva(h94["product"], emva_figs))
     emva = section(text, "emva1288")
     assert html.escape(format_pm(0.1, 0.002, unit="DN/e\u207b")) in emva
     assert format_pm(50.0, 1.0, unit="%") in emva
@@ -393,10 +403,17 @@ def test_emva1288_figures_table_notes_and_plots(h94):
         assert f'id="{id_}"' in text, id_
 
 
-def test_emva1288_with_missing_keys_still_reports(h94):
-    text = build_report(with_emva(h94["product"], {"K": 0.1, "snr_curve": {"u_p": [1.0]}}))
-    emva = section(text, "emva1288")
-    assert emva.count('<td class="num">not determined</td>') == 23 and "emva-snr" not in text
+def test_emva1288_figures_with_missing_keys_are_refused_and_none_is_no_section(h94, tmp_path):
+    """Figures lacking keys cannot reach the report (``load_product`` refuses them, naming the
+    key); a product without figures has no EMVA 1288 section."""
+    folder = tmp_path / "calib"
+    with_emva(h94["product"], None).save(folder)
+    manifest = folder / "calibration.json"
+    doc = json.loads(manifest.read_text())
+    doc["emva1288"] = {"K": 0.1, "snr_curve": {"u_p": [1.0]}}
+    manifest.write_text(json.dumps(doc))
+    with pytest.raises(CcdError, match=r"'emva1288\.standard' is missing"):
+        load_product(folder)
     assert 'id="emva1288"' not in build_report(with_emva(h94["product"], None))
 
 
@@ -430,8 +447,7 @@ def test_large_maps_are_reduced_and_the_caption_says_so(h94):
     rng = np.random.default_rng(11)
     shape = (1000, 2000)                    # 8 MB of float32: the file must stay far smaller
     dark = rng.normal(10.0, 0.5, shape).astype(np.float32)
-    product = CalibrationProduct(maps={"dark": dark}, estimates={},
-                                 camera=Camera(name="big", bits=12))
+    product = CalibrationProduct(maps={"dark": dark}, camera=Camera(name="big", bits=12))
     text = build_report(product)
     factor = int(np.ceil(max(shape) / MAX_MAP_SIDE))
     assert f"2000 \u00d7 1000 px drawn at 1:{factor} (each screen pixel is the mean of a " \

@@ -29,6 +29,8 @@ np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E7
 from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 
 from ccdcore.common import format_pm  # noqa: E402
+from ccdcore.emva_results import EmvaSummary  # noqa: E402
+from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.emva_sheet import DATASHEET, datasheet_rows, linearity_deviation  # noqa: E402
 from ccdcore.product import calibrate  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
@@ -124,7 +126,8 @@ def test_the_datasheet_lists_every_figure_in_the_standards_order(full):
     at = 0
     for r in rows:
         assert r.value is not None, (r.key, r.note)       # this session determines them all
-        expected = row_html(r, format_pm(emva[r.key], emva[f"{r.key}_err"], unit=r.unit))
+        expected = row_html(r, format_pm(getattr(emva, r.key), getattr(emva, f"{r.key}_err"),
+                                         unit=r.unit))
         found = sec.find(expected, at)
         assert found > at, r.key                           # present, and after the one before
         at = found
@@ -144,11 +147,11 @@ def test_a_figure_not_determined_shows_its_reason_and_bound(plain):
     for key in missing:
         r = rows[key]
         assert row_html(r, "not determined") + f"<td>{html.escape(r.note)}</td></tr>" in sec, key
-    bound = emva["dark_current"]["u_I_mean_bound"]
+    bound = emva.dark_current.u_I_mean_bound
     assert bound > 0 and f"below {bound:.3g} e-/s" in rows["u_I_mean"].note
     assert "no spatial sets" in rows["DSNU1288"].note
     # the determined figures are still written with their errors
-    assert row_html(rows["K"], format_pm(emva["K"], emva["K_err"], unit="DN/e\u207b")) in sec
+    assert row_html(rows["K"], format_pm(emva.K, emva.K_err, unit="DN/e\u207b")) in sec
     # the plots the data allow are drawn, with the reason in the dark plot's caption
     for id_ in PLOT_IDS:
         assert (f'id="{id_}"' in sec) == (id_ not in SPATIAL_IDS), id_
@@ -157,7 +160,7 @@ def test_a_figure_not_determined_shows_its_reason_and_bound(plain):
     # notes the table shows are not repeated below it, the others are
     listed = re.findall(r"<li>(.*?)</li>", sec)
     assert html.escape(rows["u_I_mean"].note) not in listed
-    others = [n for n in emva["notes"] if n not in {r.note for r in rows.values()}]
+    others = [n for n in emva.notes if n not in {r.note for r in rows.values()}]
     assert others and all(html.escape(n) in listed for n in others)
 
 
@@ -185,8 +188,11 @@ def test_every_plot_is_in_the_report_in_the_standards_order(full):
 
 
 def test_an_older_product_without_the_new_keys_still_gets_its_section(full):
-    emva = {k: v for k, v in full["emva"].items()
-            if k not in ("dark_points", "dark_current", "spatial_plots", "nonuniformity_split")}
+    # the keys added since the first figures read as None; the dark points (in every product,
+    # never without the key) are empty
+    older = {k: v for k, v in full["emva"].to_dict().items()
+             if k not in ("dark_current", "spatial_plots", "nonuniformity_split")}
+    emva = EmvaSummary.from_dict({**older, "dark_points": []}, "calibration.json", "emva1288")
     doc = Doc()
     emva_section(doc, emva)
     text = "".join(v for kind, v in doc.parts if kind == "html")
@@ -205,59 +211,61 @@ def test_dark_plots_draw_the_points_and_the_dark_current_line(full, which, build
                                                               line_key, scale):
     emva = full["emva"]
     fig = build(emva)
-    t = np.array([p["exposure"] for p in emva["dark_points"]])
-    y = np.array([p[key] for p in emva["dark_points"]])
-    e = np.array([p[f"{key}_err"] for p in emva["dark_points"]])
+    t = np.array([p.exposure for p in emva.dark_points])
+    y = np.array([getattr(p, key) for p in emva.dark_points])
+    e = np.array([getattr(p, f"{key}_err") for p in emva.dark_points])
     pts = data(fig, "dark-points")
     np.testing.assert_array_equal(pts["t"], t)
     np.testing.assert_array_equal(pts["y"], y)
     np.testing.assert_allclose(pts["hi"] - pts["lo"], 2 * e, rtol=EXACT)
-    line = emva["dark_current"][line_key]
+    line = getattr(emva.dark_current, line_key)
     drawn = data(fig, "dark-line")
     assert drawn["x"].tolist() == [t.min(), t.max()]
-    np.testing.assert_allclose(drawn["y"], line["offset"] + line["slope"] * drawn["x"],
+    np.testing.assert_allclose(drawn["y"], line.offset + line.slope * drawn["x"],
                                rtol=EXACT)
     # the line drawn is the one the datasheet's dark current comes from (slope / K or / K²)
-    current = emva[f"u_I_{which}"]
-    assert line["slope"] / emva["K"] ** scale == pytest.approx(current, rel=1e-9)
-    assert format_pm(current, emva[f"u_I_{which}_err"], unit="e\u207b/s") in fig.title.text
+    current = getattr(emva, f"u_I_{which}")
+    assert line.slope / emva.K ** scale == pytest.approx(current, rel=1e-9)
+    assert format_pm(current, getattr(emva, f"u_I_{which}_err"),
+                     unit="e\u207b/s") in fig.title.text
 
 
 def test_dark_plots_without_their_data(full, plain):
     emva = full["emva"]
-    assert ef.dark_signal_figure({**emva, "dark_points": emva["dark_points"][:1]}) is None
-    assert ef.dark_variance_figure({k: v for k, v in emva.items() if k != "dark_points"}) is None
+    assert ef.dark_signal_figure(dataclasses.replace(emva, dark_points=emva.dark_points[:1])) \
+        is None
+    assert ef.dark_variance_figure(dataclasses.replace(emva, dark_points=())) is None
     # a product of before the dark current: the points, no line, "not determined"
-    fig = ef.dark_signal_figure({**emva, "dark_current": None, "u_I_mean": None})
+    fig = ef.dark_signal_figure(dataclasses.replace(emva, dark_current=None, u_I_mean=None))
     assert not fig.select(name="dark-line") and len(data(fig, "dark-points")["t"]) == 12
     assert "not determined" in fig.title.text
     # not resolved: the bound in the title, the (flat) line still drawn
     p = plain["emva"]
-    assert (f"below {p['dark_current']['u_I_var_bound']:.3g} e\u207b/s"
+    assert (f"below {p.dark_current.u_I_var_bound:.3g} e\u207b/s"
             in ef.dark_variance_figure(p).title.text)
     assert ef.dark_current_text(p, "mean").startswith("\u03bc_I.mean not determined: below")
 
 
 def test_linearity_deviation_is_the_datasheets(full):
     emva = full["emva"]
-    a, b = emva["linearity_slope"], emva["linearity_offset"]
-    pts = emva["points"]
-    u_p = np.array([p["u_p"] for p in pts])
-    Y = np.array([p["u_y"] - p["u_y_dark"] for p in pts])
+    a, b = emva.linearity_slope, emva.linearity_offset
+    pts = emva.points
+    u_p = np.array([p.u_p for p in pts])
+    Y = np.array([p.u_y - p.u_y_dark for p in pts])
     want = 100 * (Y - (a * u_p + b)) / (a * u_p + b)
     d = linearity_deviation(emva)
     np.testing.assert_allclose(d["deviation"], want, rtol=EXACT)
-    in_fit = np.array([p["in_linearity_fit"] for p in pts])
+    in_fit = np.array([p.in_linearity_fit for p in pts])
     np.testing.assert_array_equal(d["in_fit"], in_fit)
-    assert want[in_fit].min() == pytest.approx(emva["LE_min"], rel=1e-9)
-    assert want[in_fit].max() == pytest.approx(emva["LE_max"], rel=1e-9)
+    assert want[in_fit].min() == pytest.approx(emva.LE_min, rel=1e-9)
+    assert want[in_fit].max() == pytest.approx(emva.LE_max, rel=1e-9)
 
     fig = ef.linearity_deviation_figure(emva)
     fit = data(fig, "deviation-fit")
     np.testing.assert_allclose(fit["deviation"], want[in_fit], rtol=EXACT)
     np.testing.assert_array_equal(fit["u_p"], u_p[in_fit])
     for key in ("LE_min", "LE_max"):
-        assert set(data(fig, key)["y"]) == {emva[key]}
+        assert set(data(fig, key)["y"]) == {getattr(emva, key)}
     # every point is drawn once: in the fit, outside it, or pinned at the edge when far off
     # (this set's first point, a few % off, and the last, past saturation)
     shown = [data(fig, n) for n in ("deviation-fit", "deviation-outside", "deviation-off-scale")]
@@ -267,11 +275,16 @@ def test_linearity_deviation_is_the_datasheets(full):
     assert np.all((off["deviation"] < lo) | (off["deviation"] > hi))
     assert np.all((off["y"] > lo) & (off["y"] < hi))
     assert np.all((off["marker"] == "triangle") == (off["deviation"] > hi))
-    assert lo < emva["LE_min"] and emva["LE_max"] < hi and np.all(abs(want[in_fit]) < hi - lo)
+    assert lo < emva.LE_min and emva.LE_max < hi and np.all(abs(want[in_fit]) < hi - lo)
 
 
 def test_linearity_deviation_needs_the_fitted_line(full):
-    emva = {**full["emva"], "linearity_slope": None}
+    # figures without the fitted line are refused where they are read (a product at its
+    # load); figures without points give no deviation
+    emva = {**full["emva"].to_dict(), "linearity_slope": None}
+    with pytest.raises(CcdError, match=r"'emva1288\.linearity_slope' must be a number"):
+        EmvaSummary.from_dict(emva, "calibration.json", "emva1288")
+    emva = dataclasses.replace(full["emva"], points=())
     assert linearity_deviation(emva) is None and ef.linearity_deviation_figure(emva) is None
 
 
@@ -279,14 +292,14 @@ def test_linearity_deviation_needs_the_fitted_line(full):
 def test_spectrograms_draw_the_amplitudes_and_labelled_levels(full, which):
     emva = full["emva"]
     fig = ef.spectrogram_figure(emva, which)
-    spec = emva["spatial_plots"]["spectrograms"][which]
-    f, amp = np.array(spec["f"]), np.array(spec["amplitude"])
+    spec = getattr(emva.spatial_plots.spectrograms, which)
+    f, amp = np.array(spec.f), np.array(spec.amplitude)
     drawn = data(fig, "spectrum")
     keep = amp > 0
     np.testing.assert_array_equal(drawn["x"], f[keep])
     np.testing.assert_array_equal(drawn["y"], amp[keep])
     assert type(fig.y_scale).__name__ == "LogScale"
-    levels = emva["spatial_plots"]["levels"]
+    levels = emva.spatial_plots.levels.to_dict()
     keys = (("DSNU1288_DN", "sigma_y_stack_dark", "sigma_y_stack_dark_avg")
             if which.startswith("DSNU") else
             ("PRNU1288", "sigma_y_stack_percent", "sigma_y_stack_avg_percent"))
@@ -306,8 +319,8 @@ def test_spectrograms_draw_the_amplitudes_and_labelled_levels(full, which):
 @pytest.mark.parametrize("which, pixels", [("DSNU", H * W), ("PRNU", (H - 4) * (W - 4))])
 def test_histograms_count_every_pixel_once(full, which, pixels):
     emva = full["emva"]
-    hist = emva["spatial_plots"]["histograms"][which]
-    x, count = np.array(hist["x"]), np.array(hist["count"])
+    hist = getattr(emva.spatial_plots.histograms, which)
+    x, count = np.array(hist.x), np.array(hist.count)
     fig = ef.histogram_figure(emva, which)
     drawn = data(fig, "counts")
     width = x[1] - x[0]
@@ -315,16 +328,15 @@ def test_histograms_count_every_pixel_once(full, which, pixels):
     np.testing.assert_array_equal(drawn["count"], count[count > 0])
     assert drawn["count"].sum() == pixels      # every pixel (the high-pass image: 2 cut a side)
     model = data(fig, "model")
-    np.testing.assert_array_equal(model["y"], np.array(hist["model"])[np.array(hist["model"])
-                                                                     > 0])
+    np.testing.assert_array_equal(model["y"], np.array(hist.model)[np.array(hist.model) > 0])
     assert fig.y_range.start == 0.5 and type(fig.y_scale).__name__ == "LogScale"
     unit = "e\u207b" if which == "DSNU" else "% of the mean signal"
     assert unit in fig.xaxis[0].axis_label
 
-    acc = emva["spatial_plots"]["accumulated"][which]
+    acc = getattr(emva.spatial_plots.accumulated, which)
     fig = ef.accumulated_histogram_figure(emva, which)
     drawn = data(fig, "accumulated")
-    percent = np.array(acc["percent"])
+    percent = np.array(acc.percent)
     np.testing.assert_array_equal(drawn["percent"], percent[percent > 0])
     assert drawn["percent"][0] == 100.0 and np.all(np.diff(drawn["percent"]) <= 0)
 
@@ -336,19 +348,19 @@ def test_profiles_stack_the_signal_over_the_dark(full, which, n):
     bright, dark = layout.children
     assert bright.x_range is dark.x_range
     for part, fig in (("bright", bright), ("dark", dark)):
-        prof = emva["spatial_plots"]["profiles"][f"{part}_{which}"]
+        prof = getattr(emva.spatial_plots.profiles, f"{part}_{which}")
         for key in ("mean", "min", "max", "mid"):
             drawn = data(fig, f"{part}-{key}")
-            np.testing.assert_array_equal(drawn["x"], prof["index"])
-            np.testing.assert_array_equal(drawn["y"], prof[key])
-        assert len(prof["index"]) == n
+            np.testing.assert_array_equal(drawn["x"], prof.index)
+            np.testing.assert_array_equal(drawn["y"], getattr(prof, key))
+        assert len(prof.index) == n
     # the signal is the bright image less the dark one: its mean profile is far above the dark
     assert min(data(bright, "bright-min")["y"]) > max(data(dark, "dark-max")["y"])
 
 
 def test_spatial_plots_are_none_without_spatial_sets(plain):
     emva = plain["emva"]
-    assert emva["spatial_plots"] is None
+    assert emva.spatial_plots is None
     for which in ef.SPECTROGRAMS:
         assert ef.spectrogram_figure(emva, which) is None
     for which in ef.HISTOGRAMS:

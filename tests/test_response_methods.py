@@ -131,7 +131,7 @@ def test_cli_hdr_refuses_an_output_over_an_input(capsys, tmp_path):
 
 def test_product_response_round_trip_and_linearise(capsys, tmp_path):
     product = calibrate(DEMO)
-    assert "response" in product.estimates
+    assert "response" in product.estimates.made()
     folder = product.save(tmp_path / "c")
     back = load_product(folder)
     models = back.response_models()

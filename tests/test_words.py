@@ -36,8 +36,8 @@ def test_calibrate_names_the_correction_and_flat_field_figures(capsys, tmp_path)
     assert code == 0, err
     doc = json.loads((tmp_path / "h" / "calibration.json").read_text())
     c = doc["estimates"]["correction_check"]
-    assert f"the largest change is {c['max_change_q']:.2f} q" in out
-    assert "K̂ (each pixel's relative gain, no unit)" in out
+    assert re.search(rf"largest change +{c['max_change_q']:.5g} q", out)
+    assert re.search(r"mean of K̂ +[0-9.]+ +each pixel's relative gain, no unit", out)
     # the plan's warning: a sentence first, the formula after
     flat = " ".join(out.split())
     assert re.search(r"the plan needs n1 = \d+ card/lamp positions, so that the error of the "
@@ -48,8 +48,7 @@ def test_calibrate_names_the_correction_and_flat_field_figures(capsys, tmp_path)
     ff = json.loads((tmp_path / "d" / "calibration.json").read_text())["estimates"]["flat_field"]
     level, t = ff["base"]
     flat = " ".join(out.split())
-    assert f"recommended base flat: level {level:g}, exposure {t:g} s ({ff['n_base']} frames)" \
-        in flat
+    assert f"level {level:g}, exposure {t:g} s ({ff['n_base']} frames)" in flat
     assert "corrected = O + G·raw" in flat and "[3, 0.04]" not in flat
 
 

@@ -34,6 +34,10 @@ CODE_RANGE
     toe and the knee where cameras clip and compress.
 PairAgreement, ChannelAgreement, Agreement
     The figures per pair of neighbours, per channel and pooled over the channels.
+PairAgreementSummary, ChannelAgreementSummary, AgreementSummary
+    Their records as ``calibration.json`` stores them (``response.agreement``), with ``rows()``:
+    ``PairAgreement.summary()``, ``ChannelAgreement.summary()``,
+    ``Agreement.summary_record()`` (``Agreement.summary()`` is the one-line text).
 channel_agreement(data, g, a, b)
     One channel of a bracket against one curve.
 agreement(brackets, responses)
@@ -51,9 +55,11 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize_scalar
 
+from ..records import Record, Row
 from .brackets import BracketData
 
-__all__ = ["CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement", "agreement",
+__all__ = ["CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement",
+           "PairAgreementSummary", "ChannelAgreementSummary", "AgreementSummary", "agreement",
            "channel_agreement", "code_range", "inverse", "MAX_PIXELS"]
 
 #: codes counted by default, for 8 bits (scaled to other bit depths by :func:`code_range`)
@@ -88,6 +94,46 @@ def inverse(g: ArrayLike) -> "callable":
     return f
 
 
+#: the pooled figures as the report's tables head them (``ccdcore_report.agreement``)
+_LABELS = {"rms": ("RMS, own ratios",
+                   "each image predicted from a neighbour with the result's exposure ratio"),
+           "rms_fitted": ("RMS, each pair's ratio fitted",
+                          "the same with each pair's ratio fitted: what remains is the "
+                          "curve's shape"),
+           "rms_blend": ("RMS from the blend of the others",
+                         "each image predicted from the blend of all the others (eq. 9)")}
+
+
+def _rms_rows(s: Any) -> list[Row]:
+    return [Row(label, getattr(s, key), None, "DN", meaning)
+            for key, (label, meaning) in _LABELS.items() if hasattr(s, key)]
+
+
+@dataclass(frozen=True)
+class PairAgreementSummary(Record):
+    """A :class:`PairAgreement` as ``calibration.json`` stores it
+    (``response.agreement.channels[i].pairs[p]``); ``None`` for a figure that is not finite."""
+
+    #: the images ``j`` and ``k = j + 1`` (increasing exposure, from 0) and the predictions
+    #: counted (both directions)
+    j: int
+    k: int
+    n: int
+    #: RMS of ẑ − z in DN with the result's ratio and with the pair's fitted ratio
+    rms: float | None
+    rms_fitted: float | None
+    #: the result's exposure ratio a_k / a_j and the pair's fitted ratio
+    ratio: float | None
+    ratio_fitted: float | None
+
+    def rows(self) -> tuple[Row, ...]:
+        """The two RMS figures (DN) and the two ratios."""
+        return (*_rms_rows(self),
+                Row("ratio", self.ratio, None, "", "the result's exposure ratio a_k / a_j"),
+                Row("fitted ratio", self.ratio_fitted, None, "",
+                    "the exposure ratio that predicts the pair best"))
+
+
 @dataclass(frozen=True)
 class PairAgreement:
     """Neighbouring images ``j`` and ``k = j + 1`` (increasing exposure) predicted from each
@@ -101,10 +147,39 @@ class PairAgreement:
     ratio: float            # the result's a_k / a_j
     ratio_fitted: float
 
+    def summary(self) -> PairAgreementSummary:
+        """The record ``calibration.json`` stores (non-finite figures as ``None``)."""
+        return PairAgreementSummary(int(self.j), int(self.k), int(self.n), _num(self.rms),
+                                    _num(self.rms_fitted), _num(self.ratio),
+                                    _num(self.ratio_fitted))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"j": self.j, "k": self.k, "n": self.n, "rms": _num(self.rms),
-                "rms_fitted": _num(self.rms_fitted), "ratio": _num(self.ratio),
-                "ratio_fitted": _num(self.ratio_fitted)}
+        return self.summary().to_dict()
+
+
+@dataclass(frozen=True)
+class ChannelAgreementSummary(Record):
+    """A :class:`ChannelAgreement` as ``calibration.json`` stores it
+    (``response.agreement.channels[i]``): the pooled sums are left out."""
+
+    #: the channel's name
+    channel: str
+    #: RMS in DN over every prediction: own ratios, fitted ratios, from the blend of the others
+    #: (``None``: nothing to predict)
+    rms: float | None
+    rms_fitted: float | None
+    rms_blend: float | None
+    #: predictions counted by the pairs and by the blend
+    n: int
+    n_blend: int
+    #: every pair of neighbouring images
+    pairs: tuple[PairAgreementSummary, ...]
+
+    def rows(self) -> tuple[Row, ...]:
+        """The three RMS figures (DN) and the predictions counted."""
+        return (*_rms_rows(self),
+                Row("predictions", self.n, None, "",
+                    "pixels predicted from a neighbour, both directions"))
 
 
 @dataclass(frozen=True)
@@ -126,11 +201,59 @@ class ChannelAgreement:
         live = [p for p in self.pairs if p.n > 0 and math.isfinite(p.rms)]
         return max(live, key=lambda p: p.rms) if live else None
 
+    def summary(self) -> ChannelAgreementSummary:
+        """The record ``calibration.json`` stores (non-finite figures as ``None``)."""
+        return ChannelAgreementSummary(str(self.channel), _num(self.rms),
+                                       _num(self.rms_fitted), _num(self.rms_blend),
+                                       int(self.n), int(self.n_blend),
+                                       tuple(p.summary() for p in self.pairs))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"channel": self.channel, "rms": _num(self.rms),
-                "rms_fitted": _num(self.rms_fitted), "rms_blend": _num(self.rms_blend),
-                "n": self.n, "n_blend": self.n_blend,
-                "pairs": [p.to_dict() for p in self.pairs]}
+        return self.summary().to_dict()
+
+
+def _line(rms: float | None, rms_fitted: float | None, rms_blend: float | None,
+          codes: tuple[int, int]) -> str:
+    """The pooled figures in one line (``nan`` for a figure that is not there)."""
+    def f(v: float | None) -> float:
+        return math.nan if v is None else v
+    return (f"predicts its images within {f(rms):.2f} DN RMS from a neighbour "
+            f"({f(rms_fitted):.2f} DN with each pair's ratio fitted, "
+            f"{f(rms_blend):.2f} DN from the blend of the others; codes "
+            f"{codes[0]}..{codes[1]})")
+
+
+@dataclass(frozen=True)
+class AgreementSummary(Record):
+    """An :class:`Agreement` as ``calibration.json`` stores it (``response.agreement``): the
+    prediction agreement of Tsin, Ramesh & Kanade (2001), sec. 4.2."""
+
+    #: the codes counted (both images of a pair must read them)
+    code_range: tuple[int, int]
+    #: RMS in DN pooled over the channels: own ratios, fitted ratios, from the blend of the
+    #: others (``None``: nothing to predict)
+    rms: float | None
+    rms_fitted: float | None
+    rms_blend: float | None
+    #: every channel's figures and pairs
+    channels: tuple[ChannelAgreementSummary, ...]
+
+    def __getitem__(self, channel: str) -> ChannelAgreementSummary:
+        for c in self.channels:
+            if c.channel == channel:
+                return c
+        raise KeyError(channel)
+
+    def line(self) -> str:
+        """One line: the pooled figures (as :meth:`Agreement.summary`)."""
+        return _line(self.rms, self.rms_fitted, self.rms_blend, self.code_range)
+
+    def rows(self) -> tuple[Row, ...]:
+        """The three pooled RMS figures (DN) and the predictions counted."""
+        return (*_rms_rows(self),
+                Row("predictions", sum(c.n for c in self.channels), None, "",
+                    f"pixels predicted from a neighbour, both directions, codes "
+                    f"{self.code_range[0]}..{self.code_range[1]}"))
 
 
 @dataclass(frozen=True)
@@ -149,17 +272,20 @@ class Agreement:
                 return c
         raise KeyError(channel)
 
+    def summary_record(self) -> AgreementSummary:
+        """The record ``calibration.json`` stores (non-finite figures as ``None``).
+        (:meth:`summary` is the one-line text the CLI prints.)"""
+        return AgreementSummary((int(self.code_range[0]), int(self.code_range[1])),
+                                _num(self.rms), _num(self.rms_fitted), _num(self.rms_blend),
+                                tuple(c.summary() for c in self.channels))
+
     def to_dict(self) -> dict[str, Any]:
-        return {"code_range": list(self.code_range), "rms": _num(self.rms),
-                "rms_fitted": _num(self.rms_fitted), "rms_blend": _num(self.rms_blend),
-                "channels": [c.to_dict() for c in self.channels]}
+        return self.summary_record().to_dict()
 
     def summary(self) -> str:
         """One line: the pooled figures."""
-        return (f"predicts its images within {self.rms:.2f} DN RMS from a neighbour "
-                f"({self.rms_fitted:.2f} DN with each pair's ratio fitted, "
-                f"{self.rms_blend:.2f} DN from the blend of the others; codes "
-                f"{self.code_range[0]}..{self.code_range[1]})")
+        return _line(_num(self.rms), _num(self.rms_fitted), _num(self.rms_blend),
+                     self.code_range)
 
 
 def _num(v: float) -> float | None:
@@ -257,7 +383,8 @@ def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = Non
         e = f(a[k] * E + b[k]) - z[k, m]
         sse_b += float(e @ e)
         n_b += int(m.sum())
-    return ChannelAgreement(channel or data.channel, tuple(pairs), _rms(sse, n_all), _rms(sse_f, n_all),
+    return ChannelAgreement(channel or data.channel, tuple(pairs), _rms(sse, n_all),
+                            _rms(sse_f, n_all),
                             _rms(sse_b, n_b), n_all, n_b, sse, sse_f, sse_b)
 
 

@@ -18,7 +18,11 @@ Public objects
 METHODS
     name -> :class:`Method` (label, paper, function); the CLI's and the app's choices.
 ResponseResult
-    The per-channel responses of one bracket, with ``to_dict()`` (the CLI's JSON).
+    The per-channel responses of one bracket, with ``to_dict()`` (the CLI's JSON) and
+    ``summary()``.
+ResponseSummary, ResponseScaleSummary
+    The record ``calibration.json`` stores (``estimates["response"]``: the CLI's JSON without
+    ``files``), with ``rows()`` and ``models(where)`` (the curves as the HDR merge takes them).
 response_of(brackets, method, ...)
     Estimate every channel of a bracket (:func:`ccdcore.response.brackets.load_bracket`).
 session_response(session, method, ...)
@@ -29,7 +33,7 @@ from __future__ import annotations
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -38,14 +42,16 @@ from threadpoolctl import threadpool_limits
 
 from ..errors import CcdError
 from ..progress import Progress
-from .agreement import Agreement, agreement, code_range
+from ..records import Record, Row
+from .agreement import Agreement, AgreementSummary, agreement, code_range
 from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
 from .classic import debevec, mitsunaga_nayar, robertson
+from .hdr_merge import ResponseModel
 from .scale import reference_codes
 from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
 
-__all__ = ["METHODS", "Method", "ResponseResult", "response_of", "session_response",
-           "JACKKNIFE_BLOCKS"]
+__all__ = ["METHODS", "Method", "ResponseResult", "ResponseSummary", "ResponseScaleSummary",
+           "response_of", "session_response", "JACKKNIFE_BLOCKS"]
 
 #: blocks of pixels of the classic methods' jackknife band
 JACKKNIFE_BLOCKS = 8
@@ -133,6 +139,137 @@ METHODS: dict[str, Method] = {
 }
 
 
+_Curves = tuple[tuple[float | None, ...], ...]
+
+
+@dataclass(frozen=True)
+class ResponseScaleSummary(Record):
+    """The reported scale of g (:mod:`ccdcore.response.scale`): g(z_hi) = z_hi / (levels − 1)."""
+
+    #: the code z_hi where g is fixed, and g there
+    fixed_code: int
+    g_at_fixed_code: float
+    #: whether g has a free offset (never, in this release)
+    offset: bool
+
+
+@dataclass(frozen=True)
+class ResponseSummary(Record):
+    """A :class:`ResponseResult` as ``calibration.json`` stores it (``estimates["response"]``):
+    the inverse response g of Tsin, Ramesh & Kanade (2001) per channel, in ``channels`` order,
+    with its band and the noise terms of eq. 17; ``None`` for a number that is not finite.
+    The bracket's files are in the product's provenance."""
+
+    #: the estimator (a key of :data:`METHODS`), the channels and the codes per channel
+    method: str
+    channels: tuple[str, ...]
+    levels: int
+    #: the scale g is reported on
+    scale: ResponseScaleSummary
+    #: the bracket's nominal exposure times t_k, s, in increasing order
+    exposure_times: tuple[float | None, ...]
+    #: g per channel and code (relative exposure) and its 1-σ band
+    g: _Curves
+    g_err: _Curves
+    #: the gains a_k and offsets b_k per channel and image (eq. 5; the nominal t_k and 0 unless
+    #: white balance was estimated), then their standard errors
+    a: _Curves
+    b: _Curves
+    a_err: _Curves
+    b_err: _Curves
+    #: the noise terms of eq. 17 per channel: shot σ_s and dark/input σ_c1 in units of g,
+    #: output/read σ_c2 in DN (``None``: not estimated), then their standard errors
+    sigma_s: tuple[float | None, ...]
+    sigma_c1: tuple[float | None, ...]
+    sigma_c2: tuple[float | None, ...]
+    sigma_s_err: tuple[float | None, ...]
+    sigma_c1_err: tuple[float | None, ...]
+    sigma_c2_err: tuple[float | None, ...]
+    #: iterations of each channel's fit and whether it converged
+    iterations: tuple[int, ...]
+    converged: tuple[bool, ...]
+    #: radius (pixels) around saturated pixels left out of the fit
+    bloom_radius: int
+    #: per channel: the gains a_k were estimated (white balance); products made before
+    #: white balance lack the key
+    white_balance: tuple[bool, ...] = ()
+    #: decisions and doubts per channel, keyed by channel
+    notes: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    #: how well the curves predict the bracket's own images (sec. 4.2; ``None``: not computed)
+    agreement: AgreementSummary | None = None
+    #: why the curves should not be trusted (:meth:`ResponseResult.warnings`)
+    warnings: tuple[str, ...] = ()
+
+    def rows(self) -> tuple[Row, ...]:
+        """The method, the noise terms of every channel, the prediction agreement and a
+        verdict."""
+        out = [Row("method", None, None, "", f"the estimator of the inverse response g, "
+                                             f"{self.levels} codes per channel", self.method)]
+        terms = (("sigma_s", "σ_s", "", "shot noise (eq. 17), in units of g"),
+                 ("sigma_c1", "σ_c1", "", "dark/input noise (eq. 17), in units of g"),
+                 ("sigma_c2", "σ_c2", "DN", "output/read noise (eq. 17)"))
+        for i, ch in enumerate(self.channels):
+            for key, symbol, unit, meaning in terms:
+                value, err = getattr(self, key), getattr(self, f"{key}_err")
+                out.append(Row(f"{symbol}, {ch}", value[i] if i < len(value) else None,
+                               err[i] if i < len(err) else None, unit, meaning))
+        if self.agreement is not None:
+            out += [replace(r, label=f"agreement {r.label}") for r in self.agreement.rows()[:2]]
+        verdict = ("no warning" if not self.warnings else
+                   f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''}: "
+                   + "; ".join(self.warnings))
+        out.append(Row("verdict", None, None, "", "whether the curves can be trusted: fits "
+                                                  "converged, curves not collapsed, exposures "
+                                                  "consistent with the images", verdict))
+        return tuple(out)
+
+    def models(self, where: Any = None) -> dict[str, ResponseModel]:
+        """Channel -> :class:`ccdcore.response.hdr.ResponseModel` (g per code, a_k, b_k, the
+        noise terms, ``None`` as 0), checked.
+
+        Raises
+        ------
+        CcdError
+            Naming ``where``: a channel without its curve or noise terms, g not a finite
+            non-decreasing curve of two codes or more, a and b of different lengths or a not
+            positive ("damaged response estimate: ...").
+        """
+        try:
+            m = len(self.channels)
+            for key in ("g", "a", "b", "sigma_s", "sigma_c1", "sigma_c2"):
+                if len(getattr(self, key)) < m:
+                    raise ValueError(f"{key} has {len(getattr(self, key))} entries for {m} "
+                                     "channels")
+            out = {}
+            for i, c in enumerate(self.channels):
+                g = np.asarray(self.g[i], np.float64)
+                a = np.asarray(self.a[i], np.float64)
+                b = np.asarray(self.b[i], np.float64)
+                if g.ndim != 1 or g.size < 2 or not np.all(np.isfinite(g)) \
+                        or np.any(np.diff(g) < 0):
+                    raise ValueError(f"g of channel {c} is not a finite non-decreasing curve")
+                if a.shape != b.shape or not np.all(a > 0):
+                    raise ValueError(f"a, b of channel {c} do not match or a is not positive")
+                out[c] = ResponseModel(g, a, b, float(self.sigma_s[i] or 0.0),
+                                       float(self.sigma_c1[i] or 0.0),
+                                       float(self.sigma_c2[i] or 0.0))
+        except (TypeError, ValueError) as exc:
+            raise CcdError(where, f"damaged response estimate: {exc}") from None
+        return out
+
+
+def _num(v: Any) -> float | None:
+    """A plain float, ``None`` for None or a number that is not finite."""
+    if v is None:
+        return None
+    v = float(v)
+    return v if np.isfinite(v) else None
+
+
+def _curve(x: Any) -> tuple[float | None, ...]:
+    return tuple(_num(v) for v in np.asarray(x, np.float64).tolist())
+
+
 @dataclass(frozen=True, eq=False)
 class ResponseResult:
     """The responses of one bracket, one per channel in ``channels`` order."""
@@ -180,47 +317,44 @@ class ResponseResult:
         """channel -> response, as :func:`ccdcore.response.hdr.merge` takes them."""
         return dict(zip(self.channels, self.responses))
 
-    def to_dict(self) -> dict[str, Any]:
-        """The CLI's JSON: per-channel lists in ``channels`` order (docs/cli.md)."""
-        def num(v: Any) -> Any:
-            if v is None:
-                return None
-            v = float(v)
-            return v if np.isfinite(v) else None
-
-        def arr(x: Any) -> list:
-            return [num(v) for v in np.asarray(x, np.float64)]
-
-        z_lo, z_hi = reference_codes(self.levels)
+    def summary(self) -> ResponseSummary:
+        """The record ``calibration.json`` stores: :meth:`to_dict` without ``files``."""
+        _, z_hi = reference_codes(self.levels)
+        levels = int(self.levels)
         r = self.responses
-        return {
-            "method": self.method,
-            "channels": list(self.channels),
-            "levels": int(self.levels),
-            "scale": {"fixed_code": z_hi, "g_at_fixed_code": z_hi / (self.levels - 1),
-                      "offset": False},
-            "exposure_times": arr(self.t),
-            "files": list(self.files),
-            "g": [arr(c.g) for c in r],
-            "g_err": [arr(c.g_err) for c in r],
-            "a": [arr(c.a) for c in r],
-            "b": [arr(c.b) for c in r],
-            "a_err": [arr(c.a_err) for c in r],
-            "b_err": [arr(c.b_err) for c in r],
-            "sigma_s": [num(c.sigma_s) for c in r],
-            "sigma_c1": [num(c.sigma_c1) for c in r],
-            "sigma_c2": [num(c.sigma_c2) for c in r],
-            "sigma_s_err": [num(c.sigma_s_err) for c in r],
-            "sigma_c1_err": [num(c.sigma_c1_err) for c in r],
-            "sigma_c2_err": [num(c.sigma_c2_err) for c in r],
-            "iterations": [int(c.iterations) for c in r],
-            "converged": [bool(c.converged) for c in r],
-            "bloom_radius": int(self.bloom_radius),
-            "white_balance": [bool(c.white_balance) for c in r],
-            "notes": {ch: list(c.notes) for ch, c in zip(self.channels, r)},
-            "agreement": None if self.agreement is None else self.agreement.to_dict(),
-            "warnings": list(self.warnings()),
-        }
+
+        def each(key: str) -> tuple[float | None, ...]:
+            return tuple(_num(getattr(c, key)) for c in r)
+
+        def curves(key: str) -> _Curves:
+            return tuple(_curve(getattr(c, key)) for c in r)
+
+        return ResponseSummary(
+            method=str(self.method), channels=tuple(str(c) for c in self.channels),
+            levels=levels,
+            scale=ResponseScaleSummary(int(z_hi), float(z_hi / (levels - 1)), False),
+            exposure_times=_curve(self.t), g=curves("g"), g_err=curves("g_err"),
+            a=curves("a"), b=curves("b"), a_err=curves("a_err"), b_err=curves("b_err"),
+            sigma_s=each("sigma_s"), sigma_c1=each("sigma_c1"), sigma_c2=each("sigma_c2"),
+            sigma_s_err=each("sigma_s_err"), sigma_c1_err=each("sigma_c1_err"),
+            sigma_c2_err=each("sigma_c2_err"),
+            iterations=tuple(int(c.iterations) for c in r),
+            converged=tuple(bool(c.converged) for c in r),
+            bloom_radius=int(self.bloom_radius),
+            white_balance=tuple(bool(c.white_balance) for c in r),
+            notes={str(ch): tuple(str(n) for n in c.notes) for ch, c in zip(self.channels, r)},
+            agreement=None if self.agreement is None else self.agreement.summary_record(),
+            warnings=self.warnings())
+
+    def to_dict(self) -> dict[str, Any]:
+        """The CLI's JSON: per-channel lists in ``channels`` order (docs/cli.md): the
+        :meth:`summary` with ``files`` after ``exposure_times``."""
+        out: dict[str, Any] = {}
+        for key, value in self.summary().to_dict().items():
+            out[key] = value
+            if key == "exposure_times":
+                out["files"] = list(self.files)
+        return out
 
 
 def _longest_run(mask: NDArray[np.bool_]) -> int:

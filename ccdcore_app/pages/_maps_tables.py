@@ -29,6 +29,7 @@ import pandas as pd
 import panel as pn
 
 from ccdcore.common import format_pm
+from ccdcore.emva_results import EmvaSummary
 from ccdcore.emva_sheet import section_markdown
 from ccdcore.io import write_image, write_map
 from ccdcore.session import Session
@@ -210,16 +211,16 @@ def has_emva_spatial(session: Session | None) -> bool:
     return any(len(recs) > 2 for recs in session.ptc_levels().values())
 
 
-def emva_spatial_figures(session: Session) -> dict[str, Any]:
-    """The EMVA 1288 figures of ``session`` as their JSON dict
-    (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`; no photon transfer of our own: the
+def emva_spatial_figures(session: Session) -> EmvaSummary:
+    """The EMVA 1288 figures of ``session`` as their record
+    (:meth:`ccdcore.datasheet.EmvaFigures.summary`; no photon transfer of our own: the
     spatial section does not use it)."""
     from ccdcore.datasheet import emva_figures
 
-    return emva_figures(session, with_ptc=False).to_dict()
+    return emva_figures(session, with_ptc=False).summary()
 
 
-def emva_spatial_layout(emva: dict[str, Any]) -> Any | None:
+def emva_spatial_layout(emva: EmvaSummary) -> Any | None:
     """The plots of the spatial section (sec. 8) as one Bokeh layout, two side by side: the
     DSNU and the PRNU spectrograms (horizontal, vertical), the logarithmic and the accumulated
     histograms (DSNU, PRNU), the profiles (horizontal, vertical); ``None`` when the figures
@@ -240,15 +241,14 @@ def emva_spatial_layout(emva: dict[str, Any]) -> Any | None:
     return column(*rows, sizing_mode="stretch_width") if rows else None
 
 
-def emva_spatial_text(emva: dict[str, Any]) -> str:
+def emva_spatial_text(emva: EmvaSummary) -> str:
     """The spatial section's figures (:func:`ccdcore.emva_sheet.datasheet_rows`) as Markdown:
     each with its standard error, or why it is not determined."""
     lines = section_markdown(emva, "Spatial nonuniformity")
     sets = []
-    for key, what in (("spatial", "bright"), ("spatial_dark", "dark")):
-        s = emva.get(key)
-        if isinstance(s, dict) and s.get("L"):
-            sets.append(f"{s['L']} {what} frames")
+    for s, what in ((emva.spatial, "bright"), (emva.spatial_dark, "dark")):
+        if s is not None and s.L:
+            sets.append(f"{s.L} {what} frames")
     head = ("**EMVA 1288 spatial nonuniformity** (release 3.1 sec. 8; the row, column and pixel "
             "parts of release 4.0)" + (f", from the averages of {' and '.join(sets)}" if sets
                                        else "") + ":")

@@ -70,6 +70,7 @@ from typing import Any
 import panel as pn
 import param
 
+from ccdcore.emva_results import EmvaSummary
 from ccdcore.product import ESTIMATE_STEPS, estimate_all, missing_frames, requirement
 from ccdcore.session import ROLES, Session
 
@@ -145,7 +146,8 @@ class MapsPage(MapsTab, SceneTab, PlanningTab, pn.viewable.Viewer):
     computing = param.Boolean(default=False, precedence=-1, doc=(
         "True while the page computes the estimates (a request meanwhile is ignored)."))
     # ---- the EMVA 1288 spatial tab
-    emva = param.Dict(default=None, allow_None=True, precedence=-1, doc=(
+    emva = param.ClassSelector(class_=EmvaSummary, default=None, allow_None=True,
+                               precedence=-1, doc=(
         "The EMVA 1288 figures of the session (emva_spatial_figures), computed when the EMVA "
         "1288 spatial tab is first shown; None before and for another session."))
     emva_computing = param.Boolean(default=False, precedence=-1, doc=(

@@ -460,14 +460,14 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             return
         res = self.responses[self.method]
         self.agreement_table.object = pd.DataFrame(agreement_rows(
-            [(LABELS[m], None if r.agreement is None else r.agreement.to_dict())
+            [(LABELS[m], None if r.agreement is None else r.agreement.summary_record())
              for m, r in self.responses.items()]))
         a = res.agreement
         if a is None:
             self.pairs_note.object = f"**{LABELS[self.method]}**: no agreement computed."
             self.pairs_table.object = pd.DataFrame()
         else:
-            self.pairs_table.object = pd.DataFrame(pair_rows(a.to_dict(), res.t))
+            self.pairs_table.object = pd.DataFrame(pair_rows(a.summary_record(), res.t))
             worst = [(w.rms, c.channel, w) for c in a.channels
                      if (w := c.worst_pair()) is not None]
             text = (f"**Pairs of neighbouring images, {LABELS[self.method]}** (RMS in DN with "

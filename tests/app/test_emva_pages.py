@@ -5,6 +5,7 @@ datasheet table (every row, in the standard's order), the dark current of the da
 the Maps page's EMVA 1288 spatial tab (computed once per session, read back from the cache)."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,12 @@ def emva_set(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
+def figures_json(emva_set):
+    """The EMVA 1288 figures of the set as the pages keep them (their record)."""
+    return emva_figures(open_session(emva_set), with_ptc=False).summary()
+
+
+@pytest.fixture(scope="module")
 def walked(emva_set):
     """The Walkthrough on the EMVA set after its dark and photon-transfer steps."""
     state = AppState(allowed_roots=[emva_set.parent])
@@ -118,8 +125,8 @@ def test_the_fit_range_control_sets_the_fit_and_the_gate(walked, emva_set, monke
     assert step.linearity_pane.object is linearity
     # nor were the frames read again: only σ_d from the new intercept changed
     assert reads == []
-    assert page.results.emva["sigma_d_ptc"] == emva_figures(
-        session, noise=every).to_dict()["sigma_d_ptc"]
+    assert page.results.emva.sigma_d_ptc == emva_figures(
+        session, noise=every).summary().sigma_d_ptc
     # back to the EMVA range
     step.range_select.value = "emva"
     _run(page.run_step("ptc"))
@@ -144,8 +151,8 @@ def test_the_datasheet_table_has_every_row(walked, emva_set):
     figures = page.results.emva
     session = open_session(emva_set)
     want = emva_figures(session, noise=photon_transfer(
-        session, fit_fraction=EMVA_FIT_FRACTION)).to_dict()
-    assert figures["K"] == want["K"] and figures["DSNU1288"] == want["DSNU1288"]
+        session, fit_fraction=EMVA_FIT_FRACTION)).summary()
+    assert figures.K == want.K and figures.DSNU1288 == want.DSNU1288
     table = page.steps["ptc"].emva_table.object
     assert table.equals(emva_table(figures))
     rows = datasheet_rows(figures)
@@ -167,11 +174,11 @@ def test_the_datasheet_table_has_every_row(walked, emva_set):
                 assert "±" in line["value"]
             assert line["value"].endswith(r.unit)
     by_symbol = {line["symbol"]: line["value"] for _, line in table.iterrows()}
-    assert by_symbol["K"] == format_pm(want["K"], want["K_err"], unit="DN/e⁻")
-    assert by_symbol["PRNU1288.row"] == format_pm(want["PRNU1288_row"], want["PRNU1288_row_err"],
+    assert by_symbol["K"] == format_pm(want.K, want.K_err, unit="DN/e⁻")
+    assert by_symbol["PRNU1288.row"] == format_pm(want.PRNU1288_row, want.PRNU1288_row_err,
                                                   unit="%")
     # the dark current is in the table, resolved (the generator's dark current is large)
-    assert figures["u_I_mean"] is not None and figures["u_I_var"] is not None
+    assert figures.u_I_mean is not None and figures.u_I_var is not None
     # the deviation from linearity is shown with the figures
     assert page.steps["ptc"].emva_holder.visible
     linearity = page.steps["ptc"].linearity_pane.object
@@ -206,7 +213,7 @@ def test_the_dark_step_shows_the_dark_current(walked):
     assert dark.current_holder.visible
     text = dark.current_text.object
     assert "μ_I.mean" in text and "μ_I.var" in text and "e⁻/s" in text
-    assert f"{figures['u_I_mean']:.0f}"[:2] in text
+    assert f"{figures.u_I_mean:.0f}"[:2] in text
     layout = dark.current_pane.object
     titles = [f.title.text for f in layout.children]     # side by side: mean, variance
     assert titles[0].startswith("Mean dark signal against exposure time: μ_I.mean = ")
@@ -215,16 +222,17 @@ def test_the_dark_step_shows_the_dark_current(walked):
     assert not dark.level_plot.visible
     points = layout.children[0].select_one(dict(name="dark-points")).data_source.data
     np.testing.assert_allclose(sorted(points["t"]),
-                               sorted(d["exposure"] for d in figures["dark_points"]))
+                               sorted(d.exposure for d in figures.dark_points))
 
 
-def test_an_undetermined_dark_current_says_why():
+def test_an_undetermined_dark_current_says_why(figures_json):
     from ccdcore_app.pages.walkthrough.dark import dark_current_markdown
 
     note = ("u_I_mean is not resolved: 1.2 ± 3 e-/s over 0.001 to 0.01 s is within 2 standard "
             "errors of zero")
-    text = dark_current_markdown({"u_I_mean": None, "u_I_var": 12.5, "u_I_var_err": 1.5,
-                                  "notes": [note]})
+    text = dark_current_markdown(dataclasses.replace(
+        figures_json, u_I_mean=None, u_I_mean_err=None, u_I_var=12.5, u_I_var_err=1.5,
+        notes=(note,)))
     assert f"μ_I.mean: not determined — {note}" in text
     assert "μ_I.var = **12.5 ± 1.5 e⁻/s**" in text
 
@@ -248,14 +256,14 @@ def test_the_maps_page_shows_the_emva_spatial_tab(emva_set, assets, tmp_path, mo
     assert page.emva is None and page.emva_pane.object is None
     page.tab_bar.value = EMVA_TAB                   # showing the tab computes the figures
     assert len(calls) == 1 and page.emva is not None
-    want = emva_figures(open_session(emva_set), with_ptc=False).to_dict()
-    assert page.emva["spatial_plots"] == want["spatial_plots"]
+    want = emva_figures(open_session(emva_set), with_ptc=False).summary()
+    assert page.emva.spatial_plots == want.spatial_plots
     layout = page.emva_pane.object
     assert len(list(layout.select(dict(name="spectrum")))) == 4
     figs = {f.title.text: f for f in layout.select(dict(type=_figure_type()))}
     drawn = figs["Horizontal spectrogram of the DSNU"].select_one(dict(name="spectrum"))
-    spectrum = want["spatial_plots"]["spectrograms"]["DSNU_horizontal"]
-    amplitude = np.array(spectrum["amplitude"], float)
+    spectrum = want.spatial_plots.spectrograms.DSNU_horizontal
+    amplitude = np.array(spectrum.amplitude, float)
     np.testing.assert_allclose(drawn.data_source.data["y"], amplitude[amplitude > 0])
     for start in ("Horizontal profile of the signal", "Vertical profile of the dark image",
                   "Logarithmic histogram of the DSNU", "Accumulated histogram of the PRNU"):
@@ -272,15 +280,15 @@ def test_the_maps_page_shows_the_emva_spatial_tab(emva_set, assets, tmp_path, mo
     other.__panel__()
     _run(other.compute_emva())
     assert len(calls) == 1 and "from the cache" in other_state.status
-    assert other.emva["spatial_plots"] == page.emva["spatial_plots"]
+    assert other.emva.spatial_plots == page.emva.spatial_plots
     # a session without photon counts has no such tab; the tab shown goes back to Maps
     assert state.load(str(assets / "healey94"))
     assert EMVA_TAB not in page.tab_bar.options and page.tab_bar.value == "Maps"
     assert page.emva is None
 
 
-def test_the_spatial_layout_is_none_without_spatial_plots():
-    assert emva_spatial_layout({"spatial_plots": None}) is None
+def test_the_spatial_layout_is_none_without_spatial_plots(figures_json):
+    assert emva_spatial_layout(dataclasses.replace(figures_json, spatial_plots=None)) is None
 
 
 def test_the_dark_step_says_when_the_emva_figures_cannot_be_made(emva_set, monkeypatch):

@@ -45,8 +45,8 @@ def test_product_round_trip_through_the_app(page: Page, serve_app, open_app, hea
     page.get_by_role("button", name="Open product").click()
     estimates = page.locator(".ccd-product-estimates")
     expect(estimates.get_by_text("fixed_pattern", exact=True)).to_be_visible(timeout=TIMEOUT)
-    noise = product.estimates["noise"]
-    expect(estimates.get_by_text(format_pm(noise["A"], noise["A_err"]), exact=False)) \
+    noise = product.estimates.noise
+    expect(estimates.get_by_text(format_pm(noise.A, noise.A_err), exact=False)) \
         .to_be_visible()
     expect(page.locator(".ccd-product-skipped").get_by_text("flat_field")).to_be_visible()
     expect(alert).to_be_hidden()

@@ -70,16 +70,17 @@ def test_summary_lists_estimates_maps_skips_and_provenance(opened, made):
     assert opened.product_path == str(folder) and not opened.error_alert.visible
     assert opened.summary.visible
     est = opened.estimates_table.object
-    assert list(est["estimate"]) == list(product.estimates)
+    assert list(est["estimate"]) == list(product.estimates.made())
     headline = dict(zip(est["estimate"], est["headline"]))
-    noise = product.estimates["noise"]
-    assert format_pm(noise["A"], noise["A_err"]) in headline["noise"]
-    assert format_pm(noise["sigma_c2"], noise["sigma_c2_err"]) in headline["noise"]
-    dark = product.estimates["dark"]
-    assert format_pm(dark["mean"], dark["mean_sem"]) in headline["dark"]
-    assert f"n1 = {product.estimates['fixed_pattern']['n1']}" in headline["fixed_pattern"]
-    for name, v in product.estimates["scene"].items():
-        assert f"{name} {format_pm(v['V_S'], v['V_S_err'])}" in headline["scene"]
+    noise = product.estimates.noise
+    assert format_pm(noise.A, noise.A_err) in headline["noise"]
+    assert format_pm(noise.sigma_c2, noise.sigma_c2_err) in headline["noise"]
+    dark = product.estimates.dark
+    assert format_pm(dark.mean, dark.mean_sem) in headline["dark"]
+    assert f"n1 = {product.estimates.fixed_pattern.n1}" in headline["fixed_pattern"]
+    for name, v in product.estimates.scene.items():
+        assert f"{name}: scene variation V_S = {format_pm(v.V_S, v.V_S_err)}" \
+            in headline["scene"]
     maps = opened.maps_table.object
     assert list(maps["map"]) == sorted(product.maps)
     assert set(maps["size (W\u00d7H)"]) == {format_size(product.shape)} == {"256 \u00d7 192"}
@@ -87,7 +88,7 @@ def test_summary_lists_estimates_maps_skips_and_provenance(opened, made):
     assert list(skipped["estimate"]) == [s.estimate for s in product.skipped]
     assert {"flat_field", "response"} <= set(skipped["estimate"])     # healey94 has neither
     assert list(skipped["reason"]) == [s.reason for s in product.skipped]
-    assert product.provenance["session"] in opened.provenance_pane.object
+    assert product.provenance.session in opened.provenance_pane.object
     assert "eqs. 45-50" in opened.provenance_pane.object
     assert product.camera.name in opened.camera_pane.object
     # no response: correcting is the only mode
@@ -148,21 +149,28 @@ def test_snup_before_and_after_are_ccdcore_s(opened):
     assert "x 20\u201390, y 12\u201370" in opened.snup_title.object
 
 
-def test_headlines_of_an_emva_product_and_of_damaged_summaries(made):
+def test_headlines_of_an_emva_product_and_of_damaged_summaries(made, assets):
+    from ccdcore.datasheet import emva_figures
+
     _, product, _ = made
-    emva = {"K": 0.0123, "K_err": 0.0004, "QE": 51.2, "QE_err": 1.3, "sigma_d": 11.9,
-            "sigma_d_err": 0.6, "u_e_sat": 9300.0, "u_e_sat_err": 120.0, "DR_dB": 58.1,
-            "DR_dB_err": 0.4, "DSNU1288": None, "PRNU1288": 0.71, "PRNU1288_err": 0.05}
+    # the demo's figures with these headline figures, no DSNU and no dark current
+    emva = dataclasses.replace(
+        emva_figures(assets / "emva1288", with_ptc=False).summary(), K=0.0123, K_err=0.0004,
+        QE=51.2, QE_err=1.3, sigma_d=11.9, sigma_d_err=0.6, u_e_sat=9300.0, u_e_sat_err=120.0,
+        DR_dB=58.1, DR_dB_err=0.4, DSNU1288=None, DSNU1288_err=None, PRNU1288=0.71,
+        PRNU1288_err=0.05, u_I_mean=None, u_I_mean_err=None, u_I_var=None, u_I_var_err=None,
+        dark_current=None)
     rows = estimates_frame(dataclasses.replace(product, emva1288=emva))
     headline = dict(zip(rows["estimate"], rows["headline"]))["emva1288"]
     assert f"K = {format_pm(0.0123, 0.0004)} DN/e⁻" in headline
     assert f"η = {format_pm(51.2, 1.3)} %" in headline and "DSNU" not in headline
     assert "μ_I.mean" not in headline                  # the product has no dark current
     assert f"PRNU1288 = {format_pm(0.71, 0.05)} %" in headline
-    # a summary of another version: what is missing reads "?", nothing raises
-    assert estimate_headline("noise", {"A": 0.01}).startswith("A = 0.01 DN")
-    assert "?" in estimate_headline("fixed_pattern", {})
-    assert estimate_headline("future_estimate", {"b": 1, "a": 2}) == "keys: a, b"
+    # what a summary does not hold reads "n/a", nothing raises; a scene without patches says so
+    noise = dataclasses.replace(product.estimates.noise, A=0.01, A_err=None, sigma_c2=None)
+    assert "gain A = 0.01 DN/e⁻" in estimate_headline(noise)
+    assert "σ²_C = n/a" in estimate_headline(noise)
+    assert estimate_headline({}) == "no patches"
 
 
 def test_view_roi_covers_the_pixels_in_view_and_maps_cfa_planes_to_the_frame():
@@ -357,14 +365,14 @@ def test_a_product_calibrated_in_the_app(state, healey94, made):
     panel = ProductPanel(state, auto=False)
     assert _run(panel.calibrate_session())
     assert panel.product_path == "" and "not saved" in panel.camera_pane.object
-    assert list(panel.product.estimates) == list(product.estimates)
+    assert list(panel.product.estimates.made()) == list(product.estimates.made())
     _apply(panel, SCENE)
     assert panel.applied.corrected.tobytes() == product.correct(panel.applied.raw).tobytes()
     # the photon-transfer fit the app made (here over an ROI) is the product's noise model
     state.results.ptc = photon_transfer(state.session, roi=(0, 0, 64, 48))
     assert _run(panel.calibrate_session())
-    assert panel.product.estimates["noise"]["roi"] == [0, 0, 64, 48]
-    assert panel.product.estimates["noise"]["A"] == state.results.ptc.A
+    assert panel.product.estimates.noise.roi == (0, 0, 64, 48)
+    assert panel.product.estimates.noise.A == state.results.ptc.A
 
 
 # ------------------------------------------------------------------------------ wiring --------

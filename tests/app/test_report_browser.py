@@ -102,16 +102,16 @@ def test_change_labels_are_drawn_in_the_apps_colours(page: Page, reports, assets
 def test_the_response_band_is_two_sigma_of_the_products_curve(page: Page, reports, assets):
     from ccdcore.product import calibrate
 
-    r = calibrate(assets / "tsin01").estimates["response"]
+    r = calibrate(assets / "tsin01").estimates.response
     _open(page, reports["tsin01"])
-    for i, ch in enumerate(r["channels"]):
+    for i, ch in enumerate(r.channels):
         data = page.evaluate("""name => {
             for (const m of Bokeh.documents[0].all_models)
                 if (m.name === name) return Object.fromEntries(
                     ["g", "err", "lo", "hi"].map(k => [k, Array.from(m.data[k])]));
             return null; }""", f"ccd-response-{ch}")
         assert data is not None, ch
-        g, err = np.asarray(r["g"][i], float), np.asarray(r["g_err"][i], float)
+        g, err = np.asarray(r.g[i], float), np.asarray(r.g_err[i], float)
         np.testing.assert_allclose(data["g"], g, rtol=0, atol=1e-15)
         np.testing.assert_allclose(data["err"], err, rtol=0, atol=1e-15)
         np.testing.assert_allclose(data["hi"], g + 2 * err, rtol=0, atol=1e-12)

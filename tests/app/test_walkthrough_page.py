@@ -86,7 +86,7 @@ def test_leaving_out_a_level_recomputes_the_later_steps(assets: Path) -> None:
     ref = photon_transfer(open_session(assets / "healey94"), exclude_levels=[3])
     assert after.A == ref.A
     product = page.results.verify.product
-    assert product.estimates["noise"]["A"] == pytest.approx(ref.A, rel=1e-12)
+    assert product.estimates.noise.A == pytest.approx(ref.A, rel=1e-12)
 
 
 def test_plan_inputs_replan(assets: Path) -> None:
@@ -107,6 +107,11 @@ def test_export_writes_the_product_and_the_report(assets: Path, tmp_path: Path) 
     export = page.steps["export"]
     assert not export.report_download.disabled
     assert export.report_bytes().getvalue().decode() == page.results.report
+    listed = export.estimates_table.object            # each estimate with its rows
+    made = page.results.verify.product.estimates
+    assert list(listed["estimate"]) == list(made.made())
+    noise = dict(zip(listed["estimate"], listed["headline"]))["noise"]
+    assert all(f"{r.label} = {r.shown}" in noise for r in made.noise.rows())
     page.export_folder = str(tmp_path / "calib")
     _run(page.save())
     assert page.gates["export"].status == "pass", page.gates["export"]
@@ -138,8 +143,8 @@ def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
     _run(page.run_step("ptc"))
     figures = page.results.emva
     s = open_session(descriptor)
-    want = emva_figures(s, noise=photon_transfer(s)).to_dict()
-    assert figures["K"] == want["K"] and figures["QE"] == want["QE"]
+    want = emva_figures(s, noise=photon_transfer(s)).summary()
+    assert figures.K == want.K and figures.QE == want.QE
     table = emva_table(figures)
     assert list(table["figure"])[:3] == ["Quantum efficiency", "Responsivity",
                                          "Overall system gain"]

@@ -21,6 +21,7 @@ import pandas as pd
 import panel as pn
 
 from ccdcore import guide
+from ccdcore.emva_results import EmvaSummary
 
 from ...batch import batched, in_document
 from ...image_view import ImageView, view_pane
@@ -66,15 +67,15 @@ def dark_level_figure() -> tuple[Any, Any]:
     return fig, src
 
 
-def dark_current_data(figures: dict[str, Any] | None) -> tuple:
+def dark_current_data(figures: EmvaSummary | None) -> tuple:
     """What the dark-current plots draw (they are rebuilt only when this changes): the dark
     points and the dark-current lines of the EMVA 1288 figures."""
-    if not figures:
+    if figures is None:
         return (None, None)
-    return (figures.get("dark_points"), figures.get("dark_current"))
+    return (figures.dark_points, figures.dark_current)
 
 
-def dark_current_markdown(figures: dict[str, Any]) -> str:
+def dark_current_markdown(figures: EmvaSummary) -> str:
     """μ_I.mean and μ_I.var of the EMVA 1288 figures as Markdown: each with its standard
     error, or why it is not determined (:func:`ccdcore.emva_sheet.datasheet_rows`)."""
     from ccdcore.emva_sheet import section_markdown

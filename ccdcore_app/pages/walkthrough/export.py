@@ -1,5 +1,7 @@
 """Step 8, export: the verify step's product and its report, saved into a folder inside the
-allowed roots (``report.html`` beside the maps); the report to download."""
+allowed roots (``report.html`` beside the maps); the report to download. The product's estimates
+are listed with their headline figures, the rows every result gives
+(:func:`ccdcore_app.product_summary.estimates_frame`, as the product panel lists them)."""
 from __future__ import annotations
 
 import io
@@ -14,7 +16,8 @@ from ccdcore.guide import Gate, GateStatus
 from ccdcore.session import Session
 
 from ...batch import in_document
-from ._common import Step
+from ...product_summary import estimates_frame
+from ._common import Step, table
 
 if TYPE_CHECKING:
     from ccdcore.product import CalibrationProduct
@@ -63,8 +66,10 @@ class ExportStep(Step):
             css_classes=["ccd-wt-report-download"])
         self.export_note = pn.pane.Markdown("", sizing_mode="stretch_width",
                                             css_classes=["ccd-wt-export-note"])
-        return [self.folder_input, pn.Row(self.save_button, self.report_download),
-                self.export_note]
+        self.estimates_table = table("ccd-wt-estimates")
+        return [pn.pane.Markdown("The product's estimates, with their headline figures:"),
+                self.estimates_table, self.folder_input,
+                pn.Row(self.save_button, self.report_download), self.export_note]
 
     async def ensure(self) -> tuple[CalibrationProduct, str] | None:
         """The product (step 7's) and its report, built once off the UI thread; the download
@@ -86,7 +91,10 @@ class ExportStep(Step):
                     tuple(f"skipped {s.estimate}: {s.reason}" for s in product.skipped))
 
     def draw(self, found: str) -> None:
-        """The report ``found`` (HTML) ready: its download is enabled."""
+        """The report ``found`` (HTML) ready: its download is enabled, and the product's
+        estimates are listed."""
+        if self.results.verify is not None:
+            self.estimates_table.object = estimates_frame(self.results.verify.product)
         session = self.page.state.session
         if session is not None:
             self.report_download.param.update(disabled=False,

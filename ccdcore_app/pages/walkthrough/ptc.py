@@ -25,6 +25,7 @@ import param
 
 from ccdcore import guide
 from ccdcore.common import format_pm
+from ccdcore.emva_results import EmvaSummary
 from ccdcore.emva_sheet import datasheet_rows
 from ccdcore.guide import Gate
 from ccdcore.noise import EMVA_FIT_FRACTION
@@ -85,7 +86,7 @@ def emva_of_frames(session: Session) -> Any:
 NOT_DETERMINED = "not determined"
 
 
-def emva_table(figures: dict[str, Any]) -> pd.DataFrame:
+def emva_table(figures: EmvaSummary) -> pd.DataFrame:
     """The datasheet (:func:`ccdcore.emva_sheet.datasheet_rows`): every figure in the
     standard's order, one row each: ``section`` (on its first row only), ``figure``,
     ``symbol``, ``value`` (value ± error and unit, or "not determined") and ``note`` (why it
@@ -100,11 +101,10 @@ def emva_table(figures: dict[str, Any]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["section", "figure", "symbol", "value", "note"])
 
 
-def _linearity_data(figures: dict[str, Any]) -> tuple:
+def _linearity_data(figures: EmvaSummary) -> tuple:
     """What the deviation-from-linearity plot draws (it is rebuilt only when this changes)."""
-    return (figures.get("points"), figures.get("linearity_slope"),
-            figures.get("linearity_offset"), figures.get("LE_min"), figures.get("LE_max"),
-            figures.get("LE_min_err"), figures.get("LE_max_err"))
+    return (figures.points, figures.linearity_slope, figures.linearity_offset, figures.LE_min,
+            figures.LE_max, figures.LE_min_err, figures.LE_max_err)
 
 
 class PtcStep(Step, param.Parameterized):
@@ -232,13 +232,13 @@ class PtcStep(Step, param.Parameterized):
             base = await state.compute(emva_of_frames, session, label="the EMVA 1288 figures")
             self._emva_frames = None if base is None else (session, base)
         figures = (None if self._emva_frames is None
-                   else with_photon_transfer(self._emva_frames[1], noise).to_dict())
+                   else with_photon_transfer(self._emva_frames[1], noise).summary())
         self.results.emva = figures
         if figures is None:
             notes: tuple[str, ...] = (
                 f"the EMVA 1288 figures could not be made: {state.error}",)
         else:
-            notes = tuple(f"EMVA 1288: {n}" for n in figures.get("notes", ()))
+            notes = tuple(f"EMVA 1288: {n}" for n in figures.notes)
         return Gate(gate.status, gate.summary, gate.reasons + notes, gate.next)
 
     # ------------------------------------------------------------------ drawing -----------
@@ -248,17 +248,17 @@ class PtcStep(Step, param.Parameterized):
             return
         self.figs.update(noise.points, noise)
         figures = self.results.emva
-        if figures:
+        if figures is not None:
             self.emva_table.object = emva_table(figures)
             self._draw_linearity(figures)
-            self.spatial_card.visible = bool(figures.get("spatial_plots"))
+            self.spatial_card.visible = figures.spatial_plots is not None
             if not self.spatial_card.collapsed:
                 pn.state.execute(self._draw_spatial)
-        self.emva_holder.visible = bool(figures)
+        self.emva_holder.visible = figures is not None
         self.exclude_select.options = [int(p.level) for p in noise.points]
         self.page.steps["plan"].use_session.disabled = False
 
-    def _draw_linearity(self, figures: dict[str, Any]) -> None:
+    def _draw_linearity(self, figures: EmvaSummary) -> None:
         """The deviation from linearity, built again only when its data changed (a new fit
         range or levels left out change the photon transfer, not the EMVA points)."""
         from ccdcore_report.emva_figures import linearity_deviation_figure
@@ -274,7 +274,7 @@ class PtcStep(Step, param.Parameterized):
         from ..maps import emva_spatial_layout
 
         figures = self.results.emva
-        plots = figures.get("spatial_plots") if figures else None
+        plots = figures.spatial_plots if figures is not None else None
         if plots is None or plots == self._spatial_shown:
             return
         self._spatial_shown = plots

@@ -13,9 +13,10 @@ Results
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import TYPE_CHECKING, Iterable
 
 if TYPE_CHECKING:
+    from ccdcore.emva_results import EmvaSummary
     from ccdcore.guide import DarkStep, PatternStep
 
     from .export import ExportResult
@@ -48,8 +49,8 @@ class Results:
     session: SessionResult | None = None
     dark: DarkStep | None = None
     ptc: PtcResult | None = None
-    #: the EMVA 1288 figures (:meth:`ccdcore.datasheet.EmvaFigures.to_dict`) of the ptc step
-    emva: dict[str, Any] | None = None
+    #: the EMVA 1288 figures (:meth:`ccdcore.datasheet.EmvaFigures.summary`) of the ptc step
+    emva: EmvaSummary | None = None
     pattern: PatternStep | None = None
     response: ResponseAndHdr | None = None
     verify: VerifyResult | None = None
