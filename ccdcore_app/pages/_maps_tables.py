@@ -72,53 +72,53 @@ def round_sig(value: float, digits: int = 6) -> float:
 
 
 def dark_summary(dark: Any) -> pd.DataFrame:
-    """The dark reference's statistics (from ``DarkReference.to_dict()``) beside the paper's
+    """The dark reference's statistics (``DarkReference.summary()``) beside the paper's
     (sec. VII-A: mean 10.74, spatial std 0.555)."""
-    d = dark.to_dict()
+    d = dark.summary()
     rows = [
-        ("D̂_D mean (DN)", format_pm(d["mean"], d["mean_sem"]), "10.74"),
-        ("D̂_D spatial std (DN)", fmt_value(d["spatial_std"], ".4g"), "0.555"),
-        ("  without the averaging noise σ²_N/s", fmt_value(d["spatial_std_signal"], ".4g"), ""),
-        ("dark frames averaged s", str(d["s"]), ""),
-        ("mean temporal variance σ²_N (DN²)", fmt_value(d["noise_var"], ".4g"), ""),
-        ("hot pixels", str(d["n_hot"]), ""),
-        ("dead pixels", str(d["n_dead"]), ""),
+        ("D̂_D mean (DN)", format_pm(d.mean, d.mean_sem), "10.74"),
+        ("D̂_D spatial std (DN)", fmt_value(d.spatial_std, ".4g"), "0.555"),
+        ("  without the averaging noise σ²_N/s", fmt_value(d.spatial_std_signal, ".4g"), ""),
+        ("dark frames averaged s", str(d.s), ""),
+        ("mean temporal variance σ²_N (DN²)", fmt_value(d.noise_var, ".4g"), ""),
+        ("hot pixels", str(d.n_hot), ""),
+        ("dead pixels", str(d.n_dead), ""),
     ]
     return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
 
 
 def fixed_pattern_summary(fp: Any) -> pd.DataFrame:
-    """K̂'s statistics (from ``FixedPattern.to_dict()``) beside the paper's (sec. VII-A: mean
+    """K̂'s statistics (``FixedPattern.summary()``) beside the paper's (sec. VII-A: mean
     0.99998, spatial std 3.72e-3), with the eq. 50 bound and the measured error."""
-    d = fp.to_dict()
-    k_var = d.get("K_var_mean")
+    d = fp.summary()
+    k_var = d.K_var_mean
     rows = [
-        ("K̂ mean", fmt_value(d["mean"], ".6f"), "0.99998"),
-        ("K̂ spatial std", fmt_value(d["spatial_std"], ".4g"), "3.72e-3"),
-        ("σ̂ (std of the slopes m_i)", fmt_value(d["sigma_hat"], ".4g"), ""),
-        ("configurations n1 × frames n2", f"{d['n1']} × {d['n2']}", "20 × 20"),
-        ("n̂_1 = min n'_1", str(d["n1_hat"]), ""),
-        ("eq. 50 bound √((p·σ̂)²/n̂_1)", fmt_value(d["sd_bound"], ".4g"), ""),
+        ("K̂ mean", fmt_value(d.mean, ".6f"), "0.99998"),
+        ("K̂ spatial std", fmt_value(d.spatial_std, ".4g"), "3.72e-3"),
+        ("σ̂ (std of the slopes m_i)", fmt_value(d.sigma_hat, ".4g"), ""),
+        ("configurations n1 × frames n2", f"{d.n1} × {d.n2}", "20 × 20"),
+        ("n̂_1 = min n'_1", str(d.n1_hat), ""),
+        ("eq. 50 bound √((p·σ̂)²/n̂_1)", fmt_value(d.sd_bound, ".4g"), ""),
         ("measured error √mean(var[K̂])", fmt_value(math.sqrt(k_var) if k_var is not None else None,
                                                ".4g"), ""),
         ("pixels with a rejected slope",
-         f"{100 * d['fraction_pixels_with_rejection']:.1f} %", ""),
-        ("window m, rejection p", f"{d['window']}, {d['p']:g}", "9, 1.5"),
+         f"{100 * d.fraction_pixels_with_rejection:.1f} %", ""),
+        ("window m, rejection p", f"{d.window}, {d.p:g}", "9, 1.5"),
     ]
     return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
 
 
 def correction_summary(check: Any) -> pd.DataFrame:
-    """The sec. VII-A correction check (``CorrectionCheck.to_dict()``) beside the paper's
+    """The sec. VII-A correction check (``CorrectionCheck.summary()``) beside the paper's
     (27 % of pixels changed by more than one quantisation step, 3 % by more than two, at most
     five steps)."""
-    d = check.to_dict()
+    d = check.summary()
     rows = [
-        ("pixels changed by > 1 q", f"{100 * d['frac_gt_1q']:.1f} %", "27 %"),
-        ("pixels changed by > 2 q", f"{100 * d['frac_gt_2q']:.1f} %", "3 %"),
-        ("  (of those > 1 q)", f"{100 * d['frac_gt_2q_of_gt_1q']:.1f} %", ""),
-        ("largest change (steps q)", fmt_value(d["max_change_q"], ".3g"), "5"),
-        ("mean level above dark (DN)", fmt_value(d["mean_level"], ".4g"), ""),
+        ("pixels changed by > 1 q", f"{100 * d.frac_gt_1q:.1f} %", "27 %"),
+        ("pixels changed by > 2 q", f"{100 * d.frac_gt_2q:.1f} %", "3 %"),
+        ("  (of those > 1 q)", f"{100 * d.frac_gt_2q_of_gt_1q:.1f} %", ""),
+        ("largest change (steps q)", fmt_value(d.max_change_q, ".3g"), "5"),
+        ("mean level above dark (DN)", fmt_value(d.mean_level, ".4g"), ""),
     ]
     return pd.DataFrame(rows, columns=["quantity", "this session", "paper"])
 
@@ -127,9 +127,9 @@ def scene_patch_frame(scene: dict[str, Any]) -> pd.DataFrame:
     """One row per patch: V_S ± error and the χ²/dof/Q of the eq. 57 fit."""
     rows = []
     for name, var in scene.items():
-        d = var.to_dict()
-        rows.append({"patch": name, "V_S": d["V_S"], "± err": d["V_S_err"],
-                     "χ²": d["chi2"], "dof": d["dof"], "Q": d["Q"],
+        d = var.summary()
+        rows.append({"patch": name, "V_S": d.V_S, "± err": d.V_S_err,
+                     "χ²": d.chi2, "dof": d.dof, "Q": d.Q,
                      "levels used": f"{sum(var.used)} of {len(var.measurements)}"})
     return pd.DataFrame(rows, columns=["patch", "V_S", "± err", "χ²", "dof", "Q",
                                        "levels used"])
@@ -138,11 +138,11 @@ def scene_patch_frame(scene: dict[str, Any]) -> pd.DataFrame:
 def scene_level_frame(variation: Any) -> pd.DataFrame:
     """One row per light level of a patch: μ̂_D, σ̂²_D, σ̂²_KN, σ̂²_cal, V_S ± error."""
     rows = []
-    for m in variation.to_dict()["measurements"]:
-        rows.append({"level": m["level"], "frame": m["path"], "μ̂_D (DN)": m["mu_D"],
-                     "σ̂²_D (DN²)": m["var_D"], "σ̂²_KN (DN²)": m["sigma_KN2"],
-                     "σ̂²_cal (DN²)": m["sigma_cal2"], "V_S": m["V_S"], "± err": m["V_S_err"],
-                     "used": m["used"]})
+    for m in variation.summary().measurements:
+        rows.append({"level": m.level, "frame": m.path, "μ̂_D (DN)": m.mu_D,
+                     "σ̂²_D (DN²)": m.var_D, "σ̂²_KN (DN²)": m.sigma_KN2,
+                     "σ̂²_cal (DN²)": m.sigma_cal2, "V_S": m.V_S, "± err": m.V_S_err,
+                     "used": m.used})
     return pd.DataFrame(rows, columns=["level", "frame", "μ̂_D (DN)", "σ̂²_D (DN²)",
                                        "σ̂²_KN (DN²)", "σ̂²_cal (DN²)", "V_S", "± err", "used"])
 
