@@ -158,11 +158,13 @@ class CalibrationProduct:
             raise CcdError(folder, "exists and is not a calibration product; "
                                    "choose an empty or new folder")
         _check_maps(self.maps, folder / PRODUCT_FILE)   # never write what load_product refuses
+        doc = self.to_dict()
+        text = json.dumps(doc, indent=2, allow_nan=False)
+        _records_of(json.loads(text), folder / PRODUCT_FILE)     # nor a description it refuses
         with output_set(folder, inputs=inputs, last=PRODUCT_FILE,
                         replaces=(PRODUCT_FILE, "maps")) as tmp:
             for name, m in self.maps.items():
                 write_map(tmp / "maps" / f"{name}.exr", m)
-            text = json.dumps(self.to_dict(), indent=2, allow_nan=False)
             atomic_write_text(tmp / PRODUCT_FILE, text + "\n")
         return folder
 
@@ -290,6 +292,22 @@ def _check_maps(maps: Mapping[str, np.ndarray], manifest: Path) -> None:
             raise CcdError(manifest, f"{problem}; the product is damaged")
 
 
+def _records_of(doc: Mapping[str, Any], manifest: Path
+                ) -> tuple[ProductEstimates, Provenance, EmvaSummary | None]:
+    """The estimates, the provenance and the EMVA 1288 figures of a product description,
+    every value checked against its record's types (one error naming ``manifest`` and the
+    key's path)."""
+    estimates = doc.get("estimates", {})
+    if not all(isinstance(v, dict) for v in estimates.values()):
+        raise CcdError(manifest, "every entry of 'estimates' must be an object")
+    emva = doc.get("emva1288")
+    if emva is not None and not isinstance(emva, dict):
+        raise CcdError(manifest, "'emva1288' must be a JSON object")
+    return (ProductEstimates.from_dict(estimates, manifest, "estimates"),
+            Provenance.from_dict(doc.get("provenance", {}), manifest, "provenance"),
+            None if emva is None else EmvaSummary.from_dict(emva, manifest, "emva1288"))
+
+
 def _camera_from(doc: Any, manifest: Path) -> Camera:
     if not isinstance(doc, dict):
         raise CcdError(manifest, "'camera' must be an object")
@@ -336,15 +354,7 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
                       ("skipped", list), ("warnings", list), ("notes", list)):
         if not isinstance(doc.get(key, kind()), kind):
             raise CcdError(manifest, f"'{key}' must be a JSON {kind.__name__.replace('dict', 'object')}")
-    estimates = doc.get("estimates", {})
-    if not all(isinstance(v, dict) for v in estimates.values()):
-        raise CcdError(manifest, "every entry of 'estimates' must be an object")
-    emva = doc.get("emva1288")
-    if emva is not None and not isinstance(emva, dict):
-        raise CcdError(manifest, "'emva1288' must be a JSON object")
-    made = ProductEstimates.from_dict(estimates, manifest, "estimates")
-    provenance = Provenance.from_dict(doc.get("provenance", {}), manifest, "provenance")
-    figures = None if emva is None else EmvaSummary.from_dict(emva, manifest, "emva1288")
+    made, provenance, figures = _records_of(doc, manifest)
     try:
         skipped = tuple(Skipped.from_dict(d) for d in doc.get("skipped", ()))
     except (KeyError, TypeError, AttributeError):

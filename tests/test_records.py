@@ -172,3 +172,22 @@ def test_a_product_saved_loaded_and_saved_again_writes_the_same_bytes(demo_produ
                                          back.estimates.items())
     second = back.save(out / "second")
     assert (second / PRODUCT_FILE).read_bytes() == (first / PRODUCT_FILE).read_bytes()
+
+
+def test_a_product_load_product_would_refuse_is_not_saved(demo_product):
+    product, out = demo_product
+    name = product.estimates.made()[0]
+    broken = dataclasses.replace(product.estimates, **{name: _broken(getattr(product.estimates,
+                                                                             name))})
+    with pytest.raises(CcdError, match=rf"'estimates\.{name}\.\w+' must be") as info:
+        dataclasses.replace(product, estimates=broken).save(out / "broken")
+    assert "calibration.json" in str(info.value) and not (out / "broken").exists()
+
+
+def _broken(summary: Record) -> Record:
+    """``summary`` with None in its first field that must hold a value (a plain number or
+    text): a record built by hand, past the checks of from_dict."""
+    hints = typing.get_type_hints(type(summary))
+    first = next(f.name for f in dataclasses.fields(summary)
+                 if hints[f.name] in (int, float, str))
+    return dataclasses.replace(summary, **{first: None})
