@@ -11,7 +11,7 @@ Html
     A fragment that is already HTML.
 esc(value), cell(value)
     A value as escaped text; a table cell (escaped unless :class:`Html`).
-finite(v), num(v, fmt, unit), pm(d, key, err, unit), value_text(v), short(values)
+finite(v), num(v, fmt, unit), value_text(v), short(values)
     Numbers and JSON values as text ("n/a" for None or non-finite).
 json_float(v), json_floats(values)
     JSON numbers (``None`` written for NaN) back as floats.
@@ -27,15 +27,14 @@ from __future__ import annotations
 import html
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Iterable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ccdcore import __version__
-from ccdcore.common import format_pm
 
-__all__ = ["Html", "esc", "cell", "finite", "num", "pm", "value_text", "short", "json_float",
+__all__ = ["Html", "esc", "cell", "finite", "num", "value_text", "short", "json_float",
            "json_floats", "table", "facts", "bullets", "para", "Doc", "page", "CSS"]
 
 #: the longest list of values (files, levels ...) written out in the provenance
@@ -66,12 +65,6 @@ def num(v: Any, fmt: str = ".4g", unit: str = "") -> str:
     if not finite(v):
         return "n/a"
     return f"{v:{fmt}}" + (f" {unit}" if unit else "")
-
-
-def pm(d: Mapping[str, Any], key: str, err: str | None = None, unit: str = "") -> str:
-    """``d[key] ± d[err]`` as :func:`ccdcore.common.format_pm` writes it."""
-    v, e = d.get(key), d.get(err or f"{key}_err")
-    return format_pm(v if finite(v) else float("nan"), e if finite(e) else None, unit=unit)
 
 
 def short(values: Sequence[Any], limit: int = MAX_LIST) -> str:

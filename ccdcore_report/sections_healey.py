@@ -34,13 +34,6 @@ _VERDICTS = {
 }
 
 
-def _pm(value: float | None, error: float | None, unit: str = "") -> str:
-    """``value ± error`` as :func:`ccdcore.common.format_pm` writes it (``None``: not
-    measured)."""
-    return format_pm(value if finite(value) else float("nan"),
-                     error if finite(error) else None, unit=unit)
-
-
 # ---------------------------------------------------------------------------------------------
 # photon transfer
 # ---------------------------------------------------------------------------------------------
@@ -57,15 +50,15 @@ def _noise_facts(noise: PhotonTransferSummary) -> str:
     """The fitted line, the noise figures derived from it and the goodness of fit."""
     n = noise
     return facts([
-        ("gain A", _pm(n.A, n.A_err, unit="DN/e\u207b"), "DN per electron"),
+        ("gain A", format_pm(n.A, n.A_err, unit="DN/e\u207b"), "DN per electron"),
         ("conversion gain 1/A",
-         _pm(n.conversion_gain_e_per_dn, n.conversion_gain_e_per_dn_err, unit="e\u207b/DN"),
+         format_pm(n.conversion_gain_e_per_dn, n.conversion_gain_e_per_dn_err, unit="e\u207b/DN"),
          "electrons per DN"),
-        ("\u03c3\u00b2_C", _pm(n.sigma_c2, n.sigma_c2_err, unit="DN\u00b2"),
+        ("\u03c3\u00b2_C", format_pm(n.sigma_c2, n.sigma_c2_err, unit="DN\u00b2"),
          "signal-independent noise, A\u00b2\u03c3\u00b2_R + q\u00b2/12 (eq. 27)"),
-        ("read noise \u03c3_R", _pm(n.read_noise_e, n.read_noise_e_err, unit="e\u207b"),
+        ("read noise \u03c3_R", format_pm(n.read_noise_e, n.read_noise_e_err, unit="e\u207b"),
          "\u221a(\u03c3\u00b2_C \u2212 q\u00b2/12)/A"),
-        ("read noise in DN", _pm(n.read_noise_dn, n.read_noise_dn_err, unit="DN"),
+        ("read noise in DN", format_pm(n.read_noise_dn, n.read_noise_dn_err, unit="DN"),
          "A\u00b7\u03c3_R"),
         ("quantisation q\u00b2/12", num(n.quantisation_dn2, ".4g", "DN\u00b2"), ""),
         ("black level b\u2080", num(n.black_level_dn, ".4g", "DN"), n.black_level_source),
@@ -81,7 +74,7 @@ def _levels_table(noise: PhotonTransferSummary) -> str:
     rows = []
     for p in noise.points:
         why = p.reason or p.exclusion
-        rows.append((p.level, num(p.mu, ".4f"), _pm(p.var, p.var_err), p.n_pairs,
+        rows.append((p.level, num(p.mu, ".4f"), format_pm(p.var, p.var_err), p.n_pairs,
                      num(p.exposure, ".4g"), "used" if p.used else f"excluded: {why}"))
     return table(rows, ("level", "\u03bc \u2212 b\u2080 (DN)", "\u03c3\u0302\u00b2_N (DN\u00b2)",
                         "pairs", "exposure (s)", "fit"),
@@ -133,7 +126,7 @@ def dark_section(doc: Doc, d: DarkSummary) -> None:
         doc.add(facts([
             ("frames s", d.s, ""),
             ("exposure", num(d.exposure, ".4g", "s"), ""),
-            ("mean level", _pm(d.mean, d.mean_sem, unit="DN"), "\u00b1 its standard error"),
+            ("mean level", format_pm(d.mean, d.mean_sem, unit="DN"), "\u00b1 its standard error"),
             ("spatial std", num(d.spatial_std, ".4g", "DN"), "of D\u0302_D"),
             ("spatial std of the signal", num(d.spatial_std_signal, ".4g", "DN"),
              "without the averaging noise \u03c3\u00b2_N/s"),
@@ -213,7 +206,7 @@ def scene_section(doc: Doc, scene: dict[str, SceneSummary]) -> None:
         rows = []
         for name, sv in scene.items():
             used = sum(1 for m in sv.measurements if m.used)
-            rows.append((name, _pm(sv.V_S, sv.V_S_err), num(sv.chi2, ".4g"), sv.dof,
+            rows.append((name, format_pm(sv.V_S, sv.V_S_err), num(sv.chi2, ".4g"), sv.dof,
                          num(sv.Q, ".3g"), used, len(sv.excluded)))
         doc.add(table(rows, ("patch", "V_S", "\u03c7\u00b2", "dof", "Q", "levels used",
                              "excluded"), cls="ccd-report-scene", numeric=(1, 2, 3, 4, 5, 6)))
