@@ -142,12 +142,11 @@ def dark_current_text(e: EmvaSummary, which: str) -> str:
     return f"{symbol} not determined"
 
 
-def _dark_figure(emva: EmvaSummary, which: str) -> Any:
+def _dark_figure(e: EmvaSummary, which: str) -> Any:
     """The dark points of ``which`` against the exposure time with their standard errors and
     the dark-current line; ``None`` below two exposure times."""
     from bokeh.models import ColumnDataSource
 
-    e = emva
     key, line_key, _, _, unit, slope_unit = _DARK[which]
     rows = [p for p in e.dark_points if p.exposure is not None]
     t = np.array([p.exposure for p in rows], np.float64)
@@ -219,7 +218,7 @@ def _levels(emva: EmvaSummary, kind: str) -> list[tuple[str, str]]:
                                           "frames, \u03c3_y.stack/\u221aL")]
 
 
-def spectrogram_figure(emva: EmvaSummary, which: str) -> Any:
+def spectrogram_figure(e: EmvaSummary, which: str) -> Any:
     """The spectrogram ``which`` (one of :data:`SPECTROGRAMS`) of sec. 8.2: the standard
     deviation of each spatial frequency (DN for DSNU, % of the mean signal for PRNU; log
     scale) against the frequency (cycles per pixel), with DSNU1288 (in DN) or PRNU1288, the
@@ -227,7 +226,6 @@ def spectrogram_figure(emva: EmvaSummary, which: str) -> Any:
     temporal noise leaves in the average of the L frames, each as a labelled line.
     ``None`` when the figures have no spatial plots."""
     _check_which(which, SPECTROGRAMS)
-    e = emva
     plots = e.spatial_plots
     if plots is None:
         return None
@@ -386,7 +384,7 @@ def _deviation_scale(dev: NDArray, in_fit: NDArray, marks: list[float]
     return lo - pad, hi + pad, on
 
 
-def linearity_deviation_figure(emva: EmvaSummary) -> Any:
+def linearity_deviation_figure(e: EmvaSummary) -> Any:
     """The deviation from linearity (sec. 6.7, :func:`linearity_deviation`) against μ_p: the
     points of the linearity fit filled and joined, the others hollow grey, LE_min and LE_max
     as labelled lines. Points so far off that they would flatten the fit's range are drawn
@@ -394,7 +392,6 @@ def linearity_deviation_figure(emva: EmvaSummary) -> Any:
     their value). ``None`` without the fitted line or points."""
     from bokeh.models import ColumnDataSource, Range1d
 
-    e = emva
     d = linearity_deviation(e)
     if d is None or not np.isfinite(d["deviation"]).any():
         return None
