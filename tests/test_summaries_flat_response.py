@@ -265,7 +265,7 @@ def test_response_rows(responses):
     assert row(rows, "σ_c2, L").unit == "DN"
     ag = row(rows, "agreement RMS, own ratios")
     assert ag.value == r.agreement.rms and ag.unit == "DN"
-    assert row(rows, "agreement RMS, each pair's ratio fitted").value == r.agreement.rms_fitted
+    assert row(rows, "agreement RMS, fitted ratios").value == r.agreement.rms_fitted
     assert row(rows, "verdict").text == "no warning"
     wb = responses["rgb-wb"].summary()
     assert len(wb.rows()) == 13

@@ -97,7 +97,7 @@ def inverse(g: ArrayLike) -> "callable":
 #: the pooled figures as the report's tables head them (``ccdcore_report.agreement``)
 _LABELS = {"rms": ("RMS, own ratios",
                    "each image predicted from a neighbour with the result's exposure ratio"),
-           "rms_fitted": ("RMS, each pair's ratio fitted",
+           "rms_fitted": ("RMS, fitted ratios",
                           "the same with each pair's ratio fitted: what remains is the "
                           "curve's shape"),
            "rms_blend": ("RMS from the blend of the others",
