@@ -94,7 +94,7 @@ def inverse(g: ArrayLike) -> "callable":
     return f
 
 
-#: the pooled figures as the report's tables head them (``ccdcore_report.agreement``)
+#: the pooled figures as their rows label them, with what each means
 _LABELS = {"rms": ("RMS, own ratios",
                    "each image predicted from a neighbour with the result's exposure ratio"),
            "rms_fitted": ("RMS, fitted ratios",
