@@ -14,7 +14,7 @@ from typing import Any, Iterable, Sequence
 from .channels import LAYOUTS, is_bayer
 from .cli_common import (SESSION_HELP, WIDTH, add_verb, channel_name, cluster_args, json_flag,
                          print_json, reducer_of, say, workers_note, workers_note_for)
-from .common import Roi, format_pm
+from .common import Roi, float_or_nan, format_pm
 from .errors import CcdError, require_extra
 from .records import Row
 
@@ -38,11 +38,6 @@ def _roi(text: str) -> Roi:
     if w < 1 or h < 1 or x < 0 or y < 0:
         raise argparse.ArgumentTypeError(f"ROI '{text}' needs X, Y >= 0 and W, H >= 1")
     return Roi(x, y, w, h)
-
-
-def _num(v: float | None) -> float:
-    """A figure of a summary (``None``, not measured, -> NaN so the formatter says n/a)."""
-    return float("nan") if v is None else v
 
 
 # --------------------------------------------------------------------------------------------
@@ -203,10 +198,6 @@ def _print_emva(e: Any) -> None:
         say("EMVA note", note, indent="    ")
 
 
-def _fmt(v: Any) -> str:
-    return "–" if v is None else f"{float(v):.4g}"
-
-
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .io import check_outputs
     from .product import PRODUCT_FILE, calibrate, session_inputs
@@ -363,8 +354,8 @@ def _cmd_snup(args: argparse.Namespace) -> int:
     for img in images:
         print(f"{img['path']} ({img['layout']})" + (f", ROI {args.roi}" if args.roi else ""))
         for ch in img["channels"]:
-            print(f"  {ch['name']:<3} mean {_num(ch.get('mean')):10.3f} DN   SNUP "
-                  f"{format_pm(_num(ch.get('snup')), _num(ch.get('snup_err')), unit='%')}")
+            print(f"  {ch['name']:<3} mean {float_or_nan(ch.get('mean')):10.3f} DN   SNUP "
+                  f"{format_pm(float_or_nan(ch.get('snup')), float_or_nan(ch.get('snup_err')), unit='%')}")
     return 0
 
 

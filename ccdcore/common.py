@@ -7,6 +7,8 @@ Public objects
 --------------
 json_safe(obj)
     Numbers, arrays and containers as strict-JSON values (NaN and infinities become ``None``).
+float_or_nan(v)
+    A stored number back as a float: ``None`` (written for NaN) is NaN again.
 format_pm(value, error, digits=2)
     ``"value ± error"`` with the error to ``digits`` significant digits.
 format_size(shape)
@@ -28,7 +30,7 @@ import numpy as np
 
 from .errors import CcdError
 
-__all__ = ["json_safe", "format_pm", "format_size", "sort_key", "group_by", "named_frames", "Roi", "check_roi", "crop"]
+__all__ = ["json_safe", "float_or_nan", "format_pm", "format_size", "sort_key", "group_by", "named_frames", "Roi", "check_roi", "crop"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -56,6 +58,12 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, Path):
         return obj.as_posix()
     return obj
+
+
+def float_or_nan(v: float | None) -> float:
+    """A number as :func:`json_safe` stored it, back as a float: ``None`` (written for NaN or an
+    infinity) is NaN."""
+    return math.nan if v is None else float(v)
 
 
 # --------------------------------------------------------------------------------------------

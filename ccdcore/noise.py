@@ -92,7 +92,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .common import check_roi, crop, json_safe
+from .common import check_roi, crop, float_or_nan, json_safe
 from .errors import CcdError
 from .ptc_fit import (CLIP_LIMIT, LINEARITY_Z, LineFit, PhotonTransferSummary, PtcPoint,
                       PtcPointSummary, data_reason, goodness_of_fit, linearity_reasons,
@@ -281,26 +281,21 @@ class PhotonTransfer:
         The product does not keep which notes the measurement made: :attr:`measure_notes` is
         empty, and :meth:`refit` of the result gives only the notes of the fit."""
         return cls(
-            A=_nan(s.A), A_err=_nan(s.A_err), sigma_c2=_nan(s.sigma_c2),
-            sigma_c2_err=_nan(s.sigma_c2_err),
-            cov=np.array([[_nan(v) for v in row] for row in s.cov], np.float64),
-            chi2=_nan(s.chi2), dof=int(s.dof), Q=_nan(s.Q),
+            A=float_or_nan(s.A), A_err=float_or_nan(s.A_err), sigma_c2=float_or_nan(s.sigma_c2),
+            sigma_c2_err=float_or_nan(s.sigma_c2_err),
+            cov=np.array([[float_or_nan(v) for v in row] for row in s.cov], np.float64),
+            chi2=float_or_nan(s.chi2), dof=int(s.dof), Q=float_or_nan(s.Q),
             points=tuple(PtcPoint.from_summary(p) for p in s.points),
-            conversion_gain_e_per_dn=_nan(s.conversion_gain_e_per_dn),
-            conversion_gain_e_per_dn_err=_nan(s.conversion_gain_e_per_dn_err),
-            read_noise_e=_nan(s.read_noise_e), read_noise_e_err=_nan(s.read_noise_e_err),
-            read_noise_dn=_nan(s.read_noise_dn), read_noise_dn_err=_nan(s.read_noise_dn_err),
-            quantisation_dn2=_nan(s.quantisation_dn2), black_level_dn=_nan(s.black_level_dn),
+            conversion_gain_e_per_dn=float_or_nan(s.conversion_gain_e_per_dn),
+            conversion_gain_e_per_dn_err=float_or_nan(s.conversion_gain_e_per_dn_err),
+            read_noise_e=float_or_nan(s.read_noise_e), read_noise_e_err=float_or_nan(s.read_noise_e_err),
+            read_noise_dn=float_or_nan(s.read_noise_dn), read_noise_dn_err=float_or_nan(s.read_noise_dn_err),
+            quantisation_dn2=float_or_nan(s.quantisation_dn2), black_level_dn=float_or_nan(s.black_level_dn),
             black_level_source=s.black_level_source,
             roi=None if s.roi is None else tuple(int(v) for v in s.roi), bits=s.bits,
             robust_dropped=tuple(s.robust_dropped), notes=tuple(s.notes), verdict=s.verdict,
-            linearity_tolerance=_nan(s.linearity_tolerance), source=s.source,
+            linearity_tolerance=float_or_nan(s.linearity_tolerance), source=s.source,
             fit_fraction=s.fit_fraction)
-
-
-def _nan(v: float | None) -> float:
-    """A stored number as a float: ``None`` (written for NaN) is NaN again."""
-    return math.nan if v is None else float(v)
 
 
 # --------------------------------------------------------------------------------------------

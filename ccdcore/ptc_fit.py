@@ -36,7 +36,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .common import json_safe
+from .common import float_or_nan, json_safe
 from .errors import CcdError
 from .records import Record, Row
 
@@ -117,17 +117,12 @@ class PtcPoint:
     def from_summary(cls, s: PtcPointSummary) -> PtcPoint:
         """The level a product stored (the inverse of :meth:`summary`: ``None`` written for NaN
         is NaN again, ``PtcPoint.from_summary(s).summary() == s``)."""
-        return cls(level=int(s.level), mu=_nan_if_none(s.mu), var=_nan_if_none(s.var),
-                   var_err=_nan_if_none(s.var_err), n_pairs=int(s.n_pairs),
+        return cls(level=int(s.level), mu=float_or_nan(s.mu), var=float_or_nan(s.var),
+                   var_err=float_or_nan(s.var_err), n_pairs=int(s.n_pairs),
                    n_pixels=int(s.n_pixels), used=bool(s.used), reason=s.reason,
-                   exposure=s.exposure, mu_raw=_nan_if_none(s.mu_raw),
-                   clipped_fraction=_nan_if_none(s.clipped_fraction), photons=s.photons,
+                   exposure=s.exposure, mu_raw=float_or_nan(s.mu_raw),
+                   clipped_fraction=float_or_nan(s.clipped_fraction), photons=s.photons,
                    exclusion=s.exclusion)
-
-
-def _nan_if_none(v: float | None) -> float:
-    """A stored number as a float: ``None`` (written for NaN) is NaN again."""
-    return math.nan if v is None else float(v)
 
 
 @dataclass(frozen=True)

@@ -13,8 +13,8 @@ esc(value), cell(value)
     A value as escaped text; a table cell (escaped unless :class:`Html`).
 finite(v), num(v, fmt, unit), value_text(v), short(values)
     Numbers and JSON values as text ("n/a" for None or non-finite).
-json_float(v), json_floats(values)
-    JSON numbers (``None`` written for NaN) back as floats.
+json_floats(values)
+    JSON numbers (``None`` written for NaN) back as float64.
 table(rows, header, cls=, numeric=), facts(rows), bullets(items), para(text)
     Tables, a list, a paragraph.
 Doc
@@ -34,8 +34,8 @@ from numpy.typing import NDArray
 
 from ccdcore import __version__
 
-__all__ = ["Html", "esc", "cell", "finite", "num", "value_text", "short", "json_float",
-           "json_floats", "table", "facts", "bullets", "para", "Doc", "page", "CSS"]
+__all__ = ["Html", "esc", "cell", "finite", "num", "value_text", "short", "json_floats",
+           "table", "facts", "bullets", "para", "Doc", "page", "CSS"]
 
 #: the longest list of values (files, levels ...) written out in the provenance
 MAX_LIST = 12
@@ -86,11 +86,6 @@ def value_text(v: Any) -> str:
     if isinstance(v, dict):
         return "; ".join(f"{k} = {value_text(x)}" for k, x in v.items())
     return str(v)
-
-
-def json_float(v: Any) -> float:
-    """A JSON number as a float (``None``, written for NaN, back to NaN)."""
-    return float("nan") if v is None else float(v)
 
 
 def json_floats(values: Any) -> NDArray[np.float64]:

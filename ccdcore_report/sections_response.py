@@ -19,7 +19,7 @@ from ccdcore.response.methods import ResponseSummary
 
 from . import figures
 from .agreement import AGREEMENT_COLUMNS, channel_agreement_rows, pair_rows
-from .html import Doc, bullets, json_float, json_floats, num, para, table, value_text
+from .html import Doc, bullets, json_floats, num, para, table, value_text
 
 __all__ = ["response_section"]
 
@@ -36,9 +36,9 @@ def _response_noise_table(r: ResponseSummary, channels: Sequence[str]) -> str:
             return v[i] if i < len(v) else None
 
         rows.append((ch,
-                     format_pm(json_float(pick("sigma_s")), pick("sigma_s_err")),
-                     format_pm(json_float(pick("sigma_c1")), pick("sigma_c1_err")),
-                     format_pm(json_float(pick("sigma_c2")), pick("sigma_c2_err"), unit="DN"),
+                     format_pm(pick("sigma_s"), pick("sigma_s_err")),
+                     format_pm(pick("sigma_c1"), pick("sigma_c1_err")),
+                     format_pm(pick("sigma_c2"), pick("sigma_c2_err"), unit="DN"),
                      pick("iterations"), "yes" if pick("converged") else "no",
                      "yes" if pick("white_balance") else "no"))
     return table(rows, ("channel", "\u03c3_s", "\u03c3_c1", "\u03c3_c2", "iterations",

@@ -55,6 +55,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize_scalar
 
+from ..common import float_or_nan
 from ..records import Record, Row
 from .brackets import BracketData
 
@@ -215,8 +216,7 @@ class ChannelAgreement:
 def _line(rms: float | None, rms_fitted: float | None, rms_blend: float | None,
           codes: tuple[int, int]) -> str:
     """The pooled figures in one line (``nan`` for a figure that is not there)."""
-    def f(v: float | None) -> float:
-        return math.nan if v is None else v
+    f = float_or_nan
     return (f"predicts its images within {f(rms):.2f} DN RMS from a neighbour "
             f"({f(rms_fitted):.2f} DN with each pair's ratio fitted, "
             f"{f(rms_blend):.2f} DN from the blend of the others; codes "
