@@ -12,6 +12,9 @@ is not are what this module models (``docs/camera_simulation.md`` says why each 
   ``cos^4``-like falloff of the irradiance towards the corners;
 * :func:`exposure_factors` -- the actual exposure differs from the nominal time by a lognormal
   factor per frame;
+* :func:`listed_steps` -- the listed (manifest, EXIF) exposures are wrong for part of the bracket:
+  some neighbouring pairs' true ratio differs from the listed one by a factor (a shutter that did
+  not change for a few steps of a real bracket gives 0.5 on a listed ratio of 2);
 * :func:`sharpen` -- the unsharp mask of the camera's engine (halos at edges, anticorrelated noise
   at two pixels' distance);
 * :func:`jpeg_roundtrip` -- baseline-JPEG compression and decompression (JFIF YCbCr, 4:2:0 chroma,
@@ -33,7 +36,7 @@ it imports neither that pipeline nor the preset.
 Public objects
 --------------
 CAMERAS
-    Option bundles of ``tsin01`` (``camera=<name>``): ``"real"``.
+    Option bundles of ``tsin01`` (``camera=<name>``): ``"real"``, ``"real-listed-wrong"``.
 GammaTone, SrgbKneeTone, make_tone(name, ...)
     Tone curves: ``f(v)`` in DN (CPU-independent) and the exact ``g`` table.
 structured_scene(rng, shape, median)
@@ -42,6 +45,9 @@ vignetting_map(shape, strength)
     ``1 / (1 + s rho^2)^2`` (``cos^4`` of the field angle), ``rho = 1`` at the corners.
 exposure_factors(rng, n, sigma)
     Lognormal factors ``exp(sigma N(0, 1))`` of the actual exposure against the nominal time.
+listed_steps(n, factors)
+    Per-pair factors of the true against the listed exposure ratio, and the per-frame cumulative
+    factor of the true against the listed exposure (1 before the first wrong pair).
 sharpen(y, amount, sigma)
     Unsharp mask ``y + amount (y - G_sigma * y)`` per channel.
 dct_matrix(), quant_table(quality, chroma), jpeg_roundtrip(z, quality)
@@ -59,8 +65,8 @@ from ..errors import CcdError
 from . import _det
 
 __all__ = ["CAMERAS", "DEFAULT_SIZE", "GammaTone", "SrgbKneeTone", "make_tone", "structured_scene",
-           "vignetting_map", "exposure_factors", "sharpen", "dct_matrix", "quant_table",
-           "jpeg_roundtrip", "SHARPEN_SIGMA", "JPEG_NOTE"]
+           "vignetting_map", "exposure_factors", "listed_steps", "sharpen", "dct_matrix",
+           "quant_table", "jpeg_roundtrip", "SHARPEN_SIGMA", "JPEG_NOTE"]
 
 #: option bundles of ``tsin01``: ``simulate("tsin01", out, camera=name)``; explicit options win.
 #: ``"real"``: an 8-bit JPEG camera bracket -- 10 frames one stop apart, Bayer RGGB with bilinear
@@ -90,6 +96,19 @@ CAMERAS: dict[str, dict[str, Any]] = {
         "sharpen": 0.5,
         "jpeg_quality": 90,
     },
+}
+#: ``"real-listed-wrong"``: the ``"real"`` camera with a bracket whose listed exposures are wrong
+#: for part of it, as in real Nikon brackets (four neighbouring pairs listed one stop apart whose
+#: images fit a ratio of about 1): 12 frames listed one stop apart, 1/128 ... 16 s, of which pairs
+#: 4, 5, 6 and 7 (frames 4 -> 8) are truly one-half as far apart as listed (ratio 1, not 2) -- 7
+#: of the 11 pairs are right.  Frames 0 .. 4 are exposed as listed (1/128 ... 1/8), frames 5 .. 8
+#: like frame 4 and frames 9 .. 11 at 1/4, 1/2, 1: the true bracket ends at ``a = 1`` like
+#: ``"real"``'s.
+CAMERAS["real-listed-wrong"] = {
+    **CAMERAS["real"],
+    "n_exposures": 12,
+    "t_max": 16.0,
+    "listed_step_factors": {4: 0.5, 5: 0.5, 6: 0.5, 7: 0.5},
 }
 
 #: default ``(width, height)`` of the ``tsin01-camera`` preset
@@ -370,6 +389,61 @@ def exposure_factors(rng: np.random.Generator, n: int, sigma: float) -> NDArray[
 
     eps = _det.exp(float(sigma) * rng.standard_normal(int(n)))
     return np.array([round_sig(x) for x in eps.tolist()], dtype=np.float64)
+
+
+def listed_steps(n: int, factors: Any) -> tuple[list[float], list[float]]:
+    """Where the listed exposures of an ``n``-frame bracket are wrong, pair by pair.
+
+    Parameters
+    ----------
+    n
+        Number of frames, in increasing listed exposure.
+    factors
+        A mapping from the neighbour-pair index ``p`` (frames ``p`` and ``p + 1``, ``0 <= p <=
+        n - 2``; an integer or its decimal string, as JSON writes it) to the factor ``f_p > 0`` by
+        which that pair's true exposure ratio differs from the listed one; pairs not named are
+        right (``f_p = 1``).  A sequence of ``n - 1`` factors is taken as well.
+
+    Returns
+    -------
+    pairs, cumulative
+        ``f_0 .. f_(n-2)`` and ``c_0 .. c_(n-1)`` with ``c_0 = 1``, ``c_(k+1) = c_k f_k``: frame
+        ``k``'s true exposure is ``c_k`` times its listed one, so the frames before the first wrong
+        pair are exactly as listed and ``true_(k+1) / true_k = f_k listed_(k+1) / listed_k``.
+        Both rounded to 12 significant digits (the product is formed unrounded, in order).
+    """
+    from ._common import round_sig
+
+    n = int(n)
+    if isinstance(factors, dict):
+        items = list(factors.items())
+    elif isinstance(factors, (list, tuple, np.ndarray)):
+        if len(factors) != n - 1:
+            raise CcdError("listed_step_factors", f"a sequence needs one factor per pair, "
+                                                  f"{n - 1}, got {len(factors)}")
+        items = list(enumerate(factors))
+    else:
+        raise CcdError("listed_step_factors", f"expected a mapping pair -> factor, got "
+                                              f"{type(factors).__name__}")
+    pairs = [1.0] * max(n - 1, 0)
+    for key, value in items:
+        try:
+            p = int(key) if not isinstance(key, (bool, float)) else None
+        except (TypeError, ValueError):
+            p = None
+        if p is None or not 0 <= p <= n - 2:
+            raise CcdError("listed_step_factors", f"pair {key!r} is not an index 0 .. {n - 2} "
+                                                  f"of the {n}-frame bracket's neighbour pairs")
+        f = float(value) if not isinstance(value, bool) else math.nan
+        if not (math.isfinite(f) and f > 0.0):
+            raise CcdError("listed_step_factors", f"the factor of pair {p} must be finite and "
+                                                  f"> 0, got {value!r}")
+        pairs[p] = f
+    cumulative, c = [1.0], 1.0
+    for f in pairs:
+        c *= f
+        cumulative.append(round_sig(c))
+    return [round_sig(f) for f in pairs], cumulative
 
 
 # =============================================================================================

@@ -76,13 +76,26 @@ of the keys below.
   ``1 / (1 + s rho^2)^2`` (``truth/vignetting.exr``; ``truth/E.exr`` is the vignetted irradiance).
 * ``exposure_error``: the actual exposure is ``t_k exp(sigma N(0, 1))`` (own stream), recorded in
   ``a`` (``a_k = t_k x factor_k x w_kc``) and in ``exposure_factor``.
+* ``listed_step_factors``: the listed exposures are wrong for part of the bracket, as on real
+  cameras whose shutter did not change for a few steps.  A mapping from the neighbour-pair index
+  ``p`` (frames ``p`` and ``p + 1`` in increasing listed exposure) to the factor ``f_p`` by which
+  that pair's true exposure ratio differs from the listed one (``{4: 0.5, 5: 0.5}``: pairs 4 and 5
+  are truly ratio 1, not 2, on a one-stop bracket).  The manifest keeps the listed ``t_k``; frame
+  ``k`` is exposed ``c_k t_k`` with ``c_0 = 1``, ``c_(k+1) = c_k f_k``
+  (:func:`camera.listed_steps`): the frames before the first wrong pair are as listed, the later
+  ones shorter (for ``f < 1``).  ``c_k`` multiplies the lognormal factor in ``exposure_factor`` and
+  ``a``; ``truth.json`` also holds ``listed_step_factors`` (every pair's ``f_p``),
+  ``listed_step_cumulative`` (``c_k``) and ``true_exposure`` (``t_k x exposure_factor_k``, per
+  stack, and in each frame entry).
 * ``black_level``: a pedestal added to ``v`` in every frame (recorded in ``b``).
 * ``sharpen``: unsharp mask ``y + s (y - G_1px * y)`` of ``f(v)`` (DN) before ``N_c2``.
 * ``jpeg_quality``: a deterministic baseline-JPEG round trip of the 8-bit frame (YCbCr 4:2:0, 8x8
   DCT, IJG tables).
 * ``camera``: an option bundle, ``"real"`` (:data:`camera.CAMERAS`: 10 frames one stop apart,
-  Bayer RGGB, all of the above, per-frame white balance); explicit options override it.  The
-  preset ``tsin01-camera`` is ``camera="real"``.
+  Bayer RGGB, all of the above but ``listed_step_factors``, per-frame white balance) or
+  ``"real-listed-wrong"`` (the same camera, 12 frames listed one stop apart of which pairs 4 .. 7
+  are truly ratio 1); explicit options override it.  The preset ``tsin01-camera`` is
+  ``camera="real"``.
 
 With any of them set, ``truth.json`` also holds ``camera_model`` (the bundle, every option's value,
 the pipeline), ``tone``, ``scene``, ``vignetting``, ``exposure_error``, ``exposure_factor``,
@@ -181,12 +194,17 @@ DEFAULTS: dict[str, Any] = {
     "black_level": 0.0,
     "sharpen": 0.0,
     "jpeg_quality": None,
+    "listed_step_factors": None,
 }
 
 #: the options of the camera model: when all are at their defaults the session is the sec. 4.1
 #: protocol, byte for byte, and truth.json has none of the camera-model keys
 CAMERA_OPTIONS = ("camera", "tone", "tone_gamma", "toe", "knee", "headroom", "scene", "vignetting",
-                  "exposure_error", "black_level", "sharpen", "jpeg_quality")
+                  "exposure_error", "black_level", "sharpen", "jpeg_quality",
+                  "listed_step_factors")
+#: options recorded in ``camera_model.options`` only when set (added after sessions were
+#: committed whose truth.json must stay byte for byte the same)
+_RECORDED_WHEN_SET = ("listed_step_factors",)
 
 SHOT_NOISE_NOTE = ("N_s ~ Normal(0, sigma_s^2 * a_k * E): shot-noise variance proportional to the "
                    "signal (Poisson), so eq. 7 reads sigma^2 = sigma_s^2 a E + sigma_c1^2 + "
@@ -199,6 +217,13 @@ CAMERA_PIPELINE_NOTE = ("v = a_k E + N_s + N_c1 + b_k per sensor site (E: scene 
                         "tone f(v) in DN -> unsharp mask -> + N_c2 -> round, clip to 8 bits "
                         "(255 at full well) -> JPEG round trip; a_k = t_k x exposure_factor_k "
                         "(x white balance w_kc)")
+
+LISTED_STEPS_NOTE = ("the manifest lists the nominal t_k; frame k was exposed t_k x "
+                     "exposure_factor_k = true_exposure_k, exposure_factor_k = "
+                     "listed_step_cumulative_k x the lognormal exposure error; "
+                     "listed_step_cumulative_0 = 1, listed_step_cumulative_(k+1) = "
+                     "listed_step_cumulative_k x listed_step_factors_k (the factor of pair k's "
+                     "true exposure ratio against its listed one)")
 
 LABEL_CLEAN, LABEL_CONTAMINATED, LABEL_SATURATED = 0, 1, 2
 
@@ -460,6 +485,12 @@ def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
         raise CcdError("tone", f"tone must be 'gamma' or 'srgb-knee', got {opts['tone']!r}")
     if opts["scene"] not in ("uniform", "structured"):
         raise CcdError("scene", f"scene must be 'uniform' or 'structured', got {opts['scene']!r}")
+    steps = opts["listed_step_factors"]
+    if steps is not None:
+        # validated against the bracket, then kept as {pair: factor} (None when empty)
+        pairs, _ = _cam.listed_steps(int(opts["n_exposures"]), steps)
+        named = sorted({int(p) for p in steps}) if isinstance(steps, dict) else range(len(pairs))
+        opts["listed_step_factors"] = {p: pairs[p] for p in named} or None
     q = opts["jpeg_quality"]
     if q is not None and (isinstance(q, bool) or not isinstance(q, (int, np.integer))
                           or not 1 <= int(q) <= 100):
@@ -514,12 +545,13 @@ def _camera_name(opts: dict[str, Any], camera_model: bool, jpeg: int | None) -> 
 
 @dataclass
 class _Shots:
-    """What the brackets were shot with, per stack: a_k, b_k, the exposure factors, the
-    frames' truth entries and the bloom masks' paths."""
+    """What the brackets were shot with, per stack: a_k, b_k, the exposure factors, the true
+    exposures, the frames' truth entries and the bloom masks' paths."""
 
     a: list[Any] = field(default_factory=list)
     b: list[Any] = field(default_factory=list)
     eps: list[Any] = field(default_factory=list)
+    true_exposure: list[list[float]] = field(default_factory=list)
     frames: list[dict[str, Any]] = field(default_factory=list)
     bloom_paths: list[list[str]] = field(default_factory=list)
 
@@ -528,11 +560,14 @@ def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDA
                   rng: np.random.Generator, seed: int, opts: dict[str, Any], n_channels: int,
                   camera_model: bool, gamma: float, noise: dict[str, float],
                   engine: dict[str, Any]) -> _Shots:
-    """Every stack's bracket (sec. 4.1): its white balance, exposure errors and black level,
-    then one frame per exposure time (with its bloom mask when blooming)."""
+    """Every stack's bracket (sec. 4.1): its white balance, exposure errors (lognormal, and the
+    wrong listed steps' cumulative factor) and black level, then one frame per exposure time
+    (with its bloom mask when blooming)."""
     bayer = opts["bayer"]
     rnd = np.vectorize(round_sig, otypes=[np.float64])
     eps_rng = np.random.default_rng([int(seed), 2])
+    steps = opts["listed_step_factors"]
+    cumulative = None if steps is None else np.array(_cam.listed_steps(t.size, steps)[1])
     shots = _Shots()
     for j in range(int(opts["n_stacks"])):
         a, b = white_balance(t, rng, enabled=bool(opts["white_balance"]), channels=n_channels,
@@ -541,12 +576,17 @@ def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDA
         eps = np.ones(t.size)
         if float(opts["exposure_error"]) > 0.0:
             eps = _cam.exposure_factors(eps_rng, t.size, float(opts["exposure_error"]))
+        if cumulative is not None:
+            eps = rnd(eps * cumulative)
+        if float(opts["exposure_error"]) > 0.0 or cumulative is not None:
             a = rnd(a * (eps if n_channels == 1 else eps[:, None]))
+        true_exposure = [round_sig(x) for x in (t * eps).tolist()]
         if float(opts["black_level"]) > 0.0:
             b = rnd(b + float(opts["black_level"]))
         shots.a.append(a)
         shots.b.append(b)
         shots.eps.append(eps)
+        shots.true_exposure.append(true_exposure)
         stack_blooms = []
         for k in range(t.size):
             shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
@@ -558,6 +598,8 @@ def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDA
                      "a": a[k], "b": b[k]}
             if camera_model:
                 entry["exposure_factor"] = float(eps[k])
+            if cumulative is not None:
+                entry["true_exposure"] = true_exposure[k]
             shots.frames.append(entry)
             if shot.bloom is not None:
                 mask_rel = f"truth/bloom_s{j}_k{k:02d}.png"
@@ -609,7 +651,8 @@ def _camera_model_truth(truth: dict[str, Any], opts: dict[str, Any], tone: Any,
     """Add the camera model's keys to ``truth`` (module notes)."""
     truth["camera_model"] = {
         "bundle": opts["camera"],
-        "options": {k: opts[k] for k in DEFAULTS if k != "radiance"},
+        "options": {k: opts[k] for k in DEFAULTS if k != "radiance"
+                    and (k not in _RECORDED_WHEN_SET or opts[k] is not None)},
         "pipeline": CAMERA_PIPELINE_NOTE,
     }
     truth["tone"] = tone.params()
@@ -619,6 +662,12 @@ def _camera_model_truth(truth: dict[str, Any], opts: dict[str, Any], tone: Any,
                            "map": "truth/vignetting.exr" if V is not None else None}
     truth["exposure_error"] = float(opts["exposure_error"])
     truth["exposure_factor"] = shots.eps
+    if opts["listed_step_factors"] is not None:
+        pairs, cumulative = _cam.listed_steps(len(truth["t"]), opts["listed_step_factors"])
+        truth["listed_step_factors"] = pairs
+        truth["listed_step_cumulative"] = cumulative
+        truth["true_exposure"] = shots.true_exposure
+        truth["listed_steps"] = LISTED_STEPS_NOTE
     truth["black_level"] = float(opts["black_level"])
     truth["sharpen"] = {"amount": float(opts["sharpen"]), "sigma": _cam.SHARPEN_SIGMA}
     truth["jpeg"] = None if jpeg is None else {"quality": jpeg, "model": _cam.JPEG_NOTE}
@@ -632,6 +681,11 @@ def _note(opts: dict[str, Any], seed: int, camera_model: bool) -> str:
         note = ("tsin01 simulation with a camera model"
                 + (f" (camera={opts['camera']!r})" if opts["camera"] else "")
                 + f", seed {int(seed)}.\nTruth in truth.json (camera_model, tone, scene ...).")
+    steps = opts["listed_step_factors"]
+    if steps is not None:
+        note += ("\nThe exposures listed are the nominal ones; the true ones differ: pair(s) "
+                 + ", ".join(f"{p} (x{f:g})" for p, f in steps.items())
+                 + " of the listed ratio (truth.json: true_exposure).")
     return note
 
 
@@ -655,9 +709,11 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
         ``blooming``, ``bloom_radius``, ``bloom_strength``, ``n_stacks`` (sequences of the same
         scene, new noise and white balance each) and ``radiance`` (an explicit ``E`` array);
         the camera model (module notes): ``camera`` (a bundle of :data:`camera.CAMERAS`,
-        ``"real"``), ``tone`` (``"gamma"``/``"srgb-knee"``) with ``tone_gamma``, ``toe``,
-        ``knee``, ``headroom``, ``scene`` (``"uniform"``/``"structured"``), ``vignetting``,
-        ``exposure_error``, ``black_level``, ``sharpen`` and ``jpeg_quality``.
+        ``"real"``, ``"real-listed-wrong"``), ``tone`` (``"gamma"``/``"srgb-knee"``) with
+        ``tone_gamma``, ``toe``, ``knee``, ``headroom``, ``scene``
+        (``"uniform"``/``"structured"``), ``vignetting``, ``exposure_error``, ``black_level``,
+        ``sharpen``, ``jpeg_quality`` and ``listed_step_factors`` (``{pair: factor}``: pairs
+        whose true exposure ratio differs from the listed one).
 
     Returns
     -------

@@ -28,7 +28,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
     (:data:`ccdcore.simulate.camera.CAMERAS`).
 
     ``size`` defaults to :data:`ccdcore.simulate.camera.DEFAULT_SIZE`; ``options`` override the
-    bundle's.
+    bundle's, and ``camera="real-listed-wrong"`` picks the bundle whose listed exposures are wrong
+    for four of its pairs.
     """
     options.setdefault("camera", "real")
     return tsin_simulate(out_dir, seed=seed, size=size, **options)
