@@ -169,6 +169,9 @@ class ChangeInputs:
     channels: tuple[str, ...]
     source: str
     files: tuple[str, ...]
+    #: the response estimated from the reference bracket, with its verdict (``None`` with a
+    #: calibration product)
+    response: Any = None
 
 
 @dataclass
@@ -613,7 +616,9 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
 def session_change(session: Any, options: ChangeOptions | None = None, *,
                    calib: str | Path | None = None, bloom_radius: int | None = None,
                    progress: Progress | None = None, reducer: Reducer | None = None,
-                   band_rows: int | None = None) -> tuple[ChangeResult, ChangeInputs]:
+                   band_rows: int | None = None, method: str = "auto",
+                   white_balance: bool = False, exposures: str = "auto"
+                   ) -> tuple[ChangeResult, ChangeInputs]:
     """Sec. 5 on a session's ``reference`` and ``target`` brackets.
 
     The response (g and the noise terms) comes from ``calib`` (a calibration product) or is
@@ -621,7 +626,9 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     nominal times (eqs. 9, 18, 19). Returns the result and its :class:`ChangeInputs` (both
     radiance maps with their sigma, the channels, the response's source, the frames).
     ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
-    half (without ``calib``), :func:`detect` the rest.
+    half (without ``calib``), :func:`detect` the rest. ``method``, ``white_balance`` and
+    ``exposures`` are :func:`ccdcore.response.methods.response_of`'s, for the reference
+    bracket's response (without ``calib``); its exposures, when estimated, merge the reference.
 
     ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
     reducer (:class:`ccdcore.distributed.DaskReducer`) they run band by band, the workers reading
@@ -663,6 +670,7 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
                                           f"bracket's first frame {shape0} {dtype0}")
     layout = session.camera.layout
 
+    res = None
     if calib is not None:
         from .product import load_product
 
@@ -675,10 +683,10 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
         brackets = load_bracket(session, None, role="reference", bloom_radius=radius,
                                 frames=ref_frames)
         del ref_frames
-        res = response_of(brackets, "tsin", bloom_radius=radius,
-                          progress=within(progress, 0.0, 0.5))
+        res = response_of(brackets, method, bloom_radius=radius, white_balance=white_balance,
+                          exposures=exposures, progress=within(progress, 0.0, 0.5))
         models = res.models()
-        source = "response estimated from the reference bracket (sec. 3.2)"
+        source = f"response estimated from the reference bracket ({res.method})"
     levels = {m.levels for m in models.values()}
     bits = session.camera.bits
     if bits is not None and levels != {2 ** int(bits)}:
@@ -687,6 +695,9 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     out = {}
     for role in ("reference", "target"):
         t = np.asarray([r.exposure for r in recs[role]], np.float64)
+        if role == "reference" and res is not None and res.exposures is not None \
+                and res.exposures.used == "estimated":
+            t = np.asarray(res.exposures.estimated, np.float64)   # the bracket's own
         ms = {ch: ResponseModel(np.asarray(m.g, np.float64), t, np.zeros(t.size),
                                 float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
               for ch, m in models.items()}
@@ -697,7 +708,7 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     inputs = ChangeInputs(out["reference"].radiance, out["reference"].sigma,
                           out["target"].radiance, out["target"].sigma,
                           tuple(out["reference"].channels), source,
-                          tuple(r.relpath for role in recs for r in recs[role]))
+                          tuple(r.relpath for role in recs for r in recs[role]), res)
     result = detect(inputs.E_ref, inputs.sigma_ref, inputs.E_tgt, inputs.sigma_tgt,
                     options, names=(first["reference"], first["target"]),
                     progress=within(progress, 0.5 if calib is None else 0.1, 1.0))

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 
 from .channels import LAYOUTS, is_bayer
+from .cli_response import response_args, response_options
 from .cli_common import (SESSION_HELP, WIDTH, add_verb, channel_name, cluster_args, json_flag,
                          print_json, reducer_of, say, workers_note, workers_note_for)
 from .common import Roi, float_or_nan, format_pm
@@ -212,7 +213,9 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         workers_note_for(args.workers, session, session.frames)
         with reducer_of(args) as reducer:
             product = calibrate(session, roi=args.roi, reducer=reducer,
-                                dark_exposure=args.dark_exposure)
+                                dark_exposure=args.dark_exposure,
+                                response_options={"method": args.method,
+                                                  **response_options(args)})
         folder = product.save(args.out, inputs=inputs)   # atomic: Ctrl+C leaves no part of it
     except KeyboardInterrupt:
         print("ccdcore calibrate: interrupted: nothing was written" + (
@@ -444,6 +447,7 @@ def add_calibrate(sub: Any) -> None:
                    help="product folder to write (new, empty, or an earlier product, which "
                         "is replaced whole: its calibration.json and maps/, so maps this "
                         "calibration does not make are removed; other files are left alone)")
+    response_args(p, "with a bracket: ")
     cluster_args(p)
     json_flag(p)
 

@@ -12,7 +12,7 @@ from .cli_common import (SESSION_HELP, add_verb, channel_name, cluster_args, jso
                          print_json, reducer_of, say, workers_note, workers_note_for)
 from .common import format_pm
 from .errors import CcdError
-from .reduce import STREAMED_NAME
+from .reduce_names import STREAMED_NAME
 
 
 def _bloom_radius(text: str) -> int:
@@ -41,7 +41,10 @@ def print_response(res: Any) -> None:
     _, z_hi = reference_codes(res.levels)
     top = res.levels - 1
     print(f"inverse response by {METHODS[res.method].label} from {len(res.files)} exposures "
-          f"({', '.join(f'{t:.4g}' for t in res.t)} s), {res.levels} codes")
+          f"({', '.join(f'{t:.4g}' for t in res.t)} s listed), {res.levels} codes")
+    if res.selection:
+        say("method", f"{res.requested}: {res.selection}")
+    print_exposures(res)
     say("", f"g(z) is the inverse response: the relative exposure (light × time) that gives "
             f"the code z, on a scale of its own: g({z_hi}) = {z_hi}/{top} = "
             f"{z_hi / top:.4g} (the code 90 % up the range maps to 0.9; no unit)")
@@ -77,18 +80,46 @@ def print_response(res: Any) -> None:
             worst = c.worst_pair()
             tail = (f"; worst pair {res.t[worst.j]:.4g} s -> {res.t[worst.k]:.4g} s: "
                     f"{worst.rms:.2f} DN ({worst.rms_fitted:.2f} fitted, ratio "
-                    f"{worst.ratio_fitted / worst.ratio:.3f} x nominal)") if worst else ""
+                    f"{worst.ratio_fitted / worst.ratio:.3f} x the ratio used)") if worst else ""
             print(f"    {c.channel}: {c.rms:.2f} DN, {c.rms_fitted:.2f} DN fitted, "
                   f"{c.rms_blend:.2f} DN from the blend{tail}")
-    for w in res.warnings():
-        say("warning", w)
+    print_verdict(res)
+
+
+def print_exposures(res: Any) -> None:
+    """Which exposures a response took and why, and the frames that disagree with the listed
+    ones (:mod:`ccdcore.response.exposures`)."""
+    if res.exposures is None:
+        return
+    ex = res.exposures.summary()
+    say("", ex.line())
+    for run in ex.off_runs():
+        say("", run, indent="    ")
+    if ex.used == "estimated":
+        print(f"    {'frame':>20} {'listed [s]':>12} {'own [s]':>12}")
+        for f, t, a in zip(ex.files, ex.listed, ex.estimated):
+            print(f"    {f.rsplit('/', 1)[-1]:>20} {t:>12.4g} {a:>12.4g}")
+
+
+def print_verdict(res: Any) -> None:
+    """The response's verdict (:mod:`ccdcore.response.verdict`), the words every surface
+    shows."""
+    v = res.verdict
+    if v is not None:
+        say("verdict", v.line())
+
+
+def response_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The response options of a verb's arguments (``--method``, ``--white-balance``,
+    ``--exposures``), as :func:`ccdcore.response.methods.response_of` takes them."""
+    return {"white_balance": bool(args.white_balance), "exposures": args.exposures}
 
 
 def _cmd_response(args: argparse.Namespace) -> int:
     from .response.methods import session_response
 
     res = session_response(args.session, args.method, stack=args.stack,
-                           bloom_radius=args.bloom_radius, white_balance=args.white_balance)
+                           bloom_radius=args.bloom_radius, **response_options(args))
     if args.json:
         print_json(res.to_dict())
     else:
@@ -124,9 +155,11 @@ def _cmd_change(args: argparse.Namespace) -> int:
     names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
     folder = _out_folder(args.out_dir, names, session, args.calib)
+    res = None
     with reducer_of(args) as reducer:
         res, inputs = session_change(session, opts, calib=args.calib,
-                                     bloom_radius=args.bloom_radius, reducer=reducer)
+                                     bloom_radius=args.bloom_radius, reducer=reducer,
+                                     method=args.method, **response_options(args))
         scheduler = reducer.description
     workers_note(args.workers, len(records), len(records) * int(res.labels.size))
     change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
@@ -139,10 +172,16 @@ def _cmd_change(args: argparse.Namespace) -> int:
         inputs=session_inputs(session) + ([args.calib] if args.calib else []))
     summary = res.to_dict()
     if args.json:
+        rv = inputs.response
         print_json({"source": inputs.source, "channels": list(inputs.channels),
-                    **summary, "files": [str(p) for p in paths], "scheduler": scheduler})
+                    **summary, "files": [str(p) for p in paths], "scheduler": scheduler,
+                    "verdict": None if rv is None or rv.verdict is None
+                    else rv.verdict.to_dict()})
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs.source}")
+    if inputs.response is not None:
+        print_exposures(inputs.response)
+        print_verdict(inputs.response)
     channels = [str(c) for c in inputs.channels]
     if scheduler != STREAMED_NAME:
         print(f"  brackets merged on {scheduler}")
@@ -192,6 +231,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     names = ("radiance.exr", "sigma.exr", "flags.png")
     workers_note_for(args.workers, session, records)
     folder = _out_folder(args.out_dir, names, session, args.calib)
+    res = None
     with reducer_of(args) as reducer:
         # read once here for the traces and the merge; with a calibration only when the
         # merge wants the frames as read (streamed)
@@ -222,10 +262,10 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                                      m.sigma_c1, m.sigma_c2)
             source = f"response of {args.calib}"
         else:
-            res = response_of(brackets, "tsin", bloom_radius=args.bloom_radius,
-                              white_balance=args.white_balance)
+            res = response_of(brackets, args.method, bloom_radius=args.bloom_radius,
+                              **response_options(args))
             models = res.models()
-            source = "response estimated from this bracket (sec. 3.2)"
+            source = f"response estimated from this bracket ({res.method})"
         out = merge_bracket(records, models, layout=session.camera.layout,
                             bloom_radius=args.bloom_radius, frames=frames, reducer=reducer,
                             session=session)
@@ -240,10 +280,17 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                     "files": [str(p) for p in paths],
                     "flags": {"ok": int(np.sum(out.flag_image() == 0)),
                               "flagged": int(np.sum(out.flag_image() != 0))},
-                    "scheduler": scheduler})
+                    "scheduler": scheduler,
+                    "verdict": None if res is None or res.verdict is None
+                    else res.verdict.to_dict(),
+                    "exposures": None if res is None or res.exposures is None
+                    else res.exposures.summary().to_dict()})
     else:
         print(f"HDR radiance of {len(records)} exposures ({source}), channels "
               f"{', '.join(out.channels)}")
+        if res is not None:
+            print_exposures(res)
+            print_verdict(res)
         if scheduler != STREAMED_NAME:
             print(f"  merged on {scheduler}")
         for p in paths:
@@ -255,7 +302,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
 # parser
 # --------------------------------------------------------------------------------------------
 def _bloom_arg(p: argparse.ArgumentParser) -> None:
-    from .response.brackets import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
+    from .response.names import DEFAULT_BLOOM_RADIUS, MAX_BLOOM_RADIUS
 
     p.add_argument("--bloom-radius", type=_bloom_radius, default=DEFAULT_BLOOM_RADIUS,
                    metavar="R", help="pixels within R of a saturated pixel are dropped as "
@@ -271,18 +318,30 @@ def _bracket_args(p: argparse.ArgumentParser) -> None:
 
 
 def add_response(sub: Any) -> None:
-    from .response.methods import METHODS
-
     p = add_verb(sub, "response", "inverse camera response g per channel, with its band and the "
                              "noise terms (Tsin et al. 2001 and classic methods)", _cmd_response,
                  needs="an exposure bracket (role = bracket, one exposure per frame)")
     _bracket_args(p)
-    p.add_argument("--method", choices=list(METHODS), default="tsin",
-                   help="estimation method (default tsin: Tsin, Ramesh & Kanade sec. 3.2)")
-    p.add_argument("--white-balance", action="store_true",
-                   help="estimate each image's gain a_k and offset b_k too (tsin; up to a common "
-                        "factor and a trend in the exposure, which no bracket fixes)")
+    response_args(p)
     json_flag(p)
+
+
+def response_args(p: argparse.ArgumentParser, when: str = "") -> None:
+    """``--method``, ``--white-balance`` and ``--exposures``, as every verb that estimates a
+    response takes them (``when``: a condition put before each help text)."""
+    from .response.names import DEFAULT_METHOD, EXPOSURE_MODES, METHOD_CHOICES
+
+    p.add_argument("--method", choices=list(METHOD_CHOICES), default=DEFAULT_METHOD,
+                   help=f"{when}response estimation method (default {DEFAULT_METHOD}: Tsin, "
+                        "Ramesh & Kanade sec. 3.2, unless Debevec & Malik's curve predicts the "
+                        "bracket clearly better)")
+    p.add_argument("--white-balance", action="store_true",
+                   help=f"{when}estimate each image's gain a_k and offset b_k too (tsin; up to a "
+                        "common factor and a trend in the exposure, which no bracket fixes)")
+    p.add_argument("--exposures", choices=list(EXPOSURE_MODES), default=EXPOSURE_MODES[0],
+                   help=f"{when}which exposures the response takes: the bracket's own, "
+                        "estimated from its images, when they disagree with the listed ones "
+                        "(auto, the default), the listed ones, or the bracket's own always")
 
 
 def add_hdr(sub: Any) -> None:
@@ -293,8 +352,7 @@ def add_hdr(sub: Any) -> None:
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "this bracket)")
-    p.add_argument("--white-balance", action="store_true",
-                   help="without --calib: estimate the gains and offsets too (see response)")
+    response_args(p, "without --calib: ")
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for radiance.exr, sigma.exr and flags.png")
     cluster_args(p)
@@ -311,6 +369,7 @@ def add_change(sub: Any) -> None:
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
                         "the reference bracket)")
+    response_args(p, "without --calib: ")
     _bloom_arg(p)
     p.add_argument("-o", "--out-dir", type=Path, required=True,
                    help="folder for change_mask.png, labels.png, d2.exr, predicted_target.exr")

@@ -410,10 +410,22 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
 
 # ---------------------------------------------------------------------------------------------
 def response_gate(response: Any, hdr: Any = None) -> Gate:
-    """The response step's gate from a :class:`~ccdcore.response.methods.ResponseResult`:
-    every channel converged; with ``hdr`` (a :class:`~ccdcore.response.hdr.HdrResult` of the
-    bracket) the pixels merged and flagged and the median relative sigma σ_E/E (eq. 19)."""
+    """The response step's gate from a :class:`~ccdcore.response.methods.ResponseResult`: its
+    verdict (:mod:`ccdcore.response.verdict`) in its own words -- trusted passes, doubtful
+    warns, failed fails, the verdict's next step as the gate's; with ``hdr`` (a
+    :class:`~ccdcore.response.hdr.HdrResult` of the bracket) the pixels merged and flagged and
+    the median relative sigma σ_E/E (eq. 19) among the reasons."""
+    from .response.verdict import DOUBTFUL, FAILED, response_verdict
+
+    verdict = response.verdict if response.verdict is not None else \
+        response_verdict(response, response.compared)
     reasons = []
+    if response.exposures is not None:
+        ex = response.exposures.summary()
+        reasons.append(ex.line())
+        reasons += list(ex.off_runs())
+    if response.selection:
+        reasons.append(f"method: {response.method} ({response.selection})")
     if hdr is not None:
         from .response.hdr import FLAG_OK
 
@@ -423,19 +435,15 @@ def response_gate(response: Any, hdr: Any = None) -> Gate:
                        f"{int(ok.size - ok.sum()):,} flagged (saturated or dark in every image, "
                        "or next to a saturated pixel); median σ_E/E = "
                        f"{100 * float(np.median(rel)) if rel.size else float('nan'):.3g} %")
-    bad = []
     for name in response.channels:
         c = response[name]
         reasons.append(f"{name}: {c.iterations} iterations"
                        f"{'' if c.converged else ', not converged'}; σ_s = {c.sigma_s:.3g}, "
                        f"σ_c2 = {c.sigma_c2:.3g} DN")
-        if not c.converged:
-            bad.append(name)
-    if bad:
-        return Gate(GateStatus.WARN, f"the fit did not converge in {', '.join(bad)}",
-                    tuple(reasons), ("capture a bracket with more exposures, a factor 1.4 "
-                                     "apart, and a scene with a wide range of radiance",))
-    return Gate(GateStatus.PASS, "the response curve converged in every channel", tuple(reasons))
+    nxt = (f"run `ccdcore response` with {verdict.next_step}",) if verdict.next_step else ()
+    status = {FAILED: GateStatus.FAIL, DOUBTFUL: GateStatus.WARN}.get(verdict.status,
+                                                                       GateStatus.PASS)
+    return Gate(status, verdict.line(), tuple(reasons), nxt)
 
 
 # ---------------------------------------------------------------------------------------------

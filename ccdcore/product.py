@@ -34,7 +34,7 @@ import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Mapping
 
 import numpy as np
 
@@ -243,6 +243,7 @@ class _Run:
     emva1288: bool
     reducer: Reducer
     dark_exposure: float | None = None
+    response_options: dict[str, Any] = field(default_factory=dict)
     made: dict[str, Any] = field(default_factory=dict)
     skipped: list[Skipped] = field(default_factory=list)
     lacking: dict[str, tuple[str, ...]] = field(init=False)
@@ -433,7 +434,8 @@ def _response(run: _Run) -> None:
     from .response.methods import session_response
 
     if run.response:
-        run.attempt("response", (), lambda: session_response(run.session))
+        run.attempt("response", (), lambda: session_response(run.session,
+                                                             **run.response_options))
 
 
 #: the function of each step of :data:`ESTIMATE_STEPS` (but ``done``), in that order
@@ -449,7 +451,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
                  window: int = 9, p: float = 1.5, noise: PhotonTransfer | None = None,
                  progress: Progress | None = None, response: bool = True,
                  emva1288: bool = True, reducer: Reducer | None = None,
-                 dark_exposure: float | None = None) -> Estimates:
+                 dark_exposure: float | None = None,
+                 response_options: Mapping[str, Any] | None = None) -> Estimates:
     """Every estimate the session's frames allow (see :func:`calibrate`).
 
     An estimate whose frames are missing, or whose frames the method refuses (a
@@ -457,7 +460,9 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     skipped and listed in :attr:`Estimates.skipped` with its reason; the others are still made.
     ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
     excluded in the app) instead of computing it here; ``response=False`` leaves the response
-    of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty).
+    of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty);
+    ``response_options`` are :func:`ccdcore.response.methods.session_response`'s (``method``,
+    ``white_balance``, ``exposures``).
     The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
     as ``not-applicable``.
     ``progress`` (a :class:`ccdcore.progress.Progress`) gets ``progress(start, name)`` as each
@@ -469,7 +474,8 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     (``docs/distributed.md`` says what is not distributed yet).
     """
     run = _Run(session, roi=roi, window=window, p=p, noise=noise, response=response,
-               emva1288=emva1288, reducer=reducer or STREAMED, dark_exposure=dark_exposure)
+               emva1288=emva1288, reducer=reducer or STREAMED, dark_exposure=dark_exposure,
+               response_options=dict(response_options or {}))
     report = Steps(progress, ESTIMATE_STEPS)
     for step, make in _STEPS:
         report(step)
@@ -500,8 +506,10 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
               roi: tuple[int, int, int, int] | None = None, window: int = 9, p: float = 1.5,
               progress: Progress | None = None,
               noise: PhotonTransfer | None = None, reducer: Reducer | None = None,
-              dark_exposure: float | None = None) -> CalibrationProduct:
-    """Run every estimate the session's frames allow.
+              dark_exposure: float | None = None,
+              response_options: Mapping[str, Any] | None = None) -> CalibrationProduct:
+    """Run every estimate the session's frames allow (``response_options``: see
+    :func:`estimate_all`).
 
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
     - ``dark`` frames: dark reference D̂_D with hot/dead flags (sec. V-A); with darks at
@@ -538,7 +546,8 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
         else open_session(session_or_path)
     session.raise_if_invalid()
     e = estimate_all(session, roi=roi, window=window, p=p, progress=progress, noise=noise,
-                     reducer=reducer, dark_exposure=dark_exposure)
+                     reducer=reducer, dark_exposure=dark_exposure,
+                     response_options=response_options)
     if not e.made:
         failed = [s for s in e.skipped if s.code == "failed"]
         why = "; ".join(f"{s.estimate}: {s.reason}" for s in failed) if failed else (

@@ -77,6 +77,15 @@ def response_section(doc: Doc, r: ResponseSummary) -> None:
                      f"by {r.method}, with its band and the noise terms of eq. 7 "
                      f"(\u03c3_s and \u03c3_c1 in units of g, \u03c3_c2 in DN). Scale: "
                      f"g({scale.fixed_code}) = {num(scale.g_at_fixed_code, '.4g')}."))
+        if r.verdict is not None:
+            # the library's verdict in its own words (ccdcore.response.verdict), as every verb
+            # and page shows it
+            doc.add(para(f"Verdict: {r.verdict.line()}",
+                         f"ccd-report-response-verdict ccd-verdict-{r.verdict.status}"))
+        if r.selection:
+            doc.add(para(f"Method: {r.requested or r.method}: {r.selection}"))
+        if r.exposures is not None:
+            doc.add(bullets((r.exposures.line(), *r.exposures.off_runs())))
         doc.add(_response_noise_table(r, channels))
         times = r.exposure_times
         doc.add(para(f"{len(times)} exposures: " + ", ".join(num(t, ".4g") for t in times)

@@ -231,21 +231,33 @@ def test_pattern_step_against_the_plan(monkeypatch, d1, d2, dark, status):
 
 
 # ----------------------------------------------------------------------------- response -----
-def test_response_gate_convergence():
-    def res(flags):
-        ch = {n: NS(iterations=3, converged=c, sigma_s=0.01, sigma_c2=1.0)
-              for n, c in flags.items()}
-        return _Res(ch)
+@pytest.mark.parametrize("status, gate_status", [("trusted", "pass"), ("doubtful", "warn"),
+                                                  ("failed", "fail")])
+def test_response_gate_is_the_verdict(status, gate_status):
+    """The gate says what the library's verdict says, in its words, and never passes over a
+    doubtful or failed curve; the verdict's next step is the gate's."""
+    from ccdcore.response.verdict import ResponseVerdict
 
-    assert guide.response_gate(res({"R": True, "G": True})).status == "pass"
-    gate = guide.response_gate(res({"R": True, "G": False}))
-    assert gate.status == "warn" and "G" in gate.summary and "R" not in gate.summary
+    v = ResponseVerdict(status, "because", ("a.png", "b.png"),
+                        "" if status == "trusted" else "--exposures estimated")
+    ch = {n: NS(iterations=3, converged=True, sigma_s=0.01, sigma_c2=1.0) for n in "RG"}
+    gate = guide.response_gate(_Res(ch, v))
+    assert gate.status == gate_status
+    assert gate.summary == v.line()
+    assert bool(gate.next) == (status != "trusted")
+    if gate.next:
+        assert "--exposures estimated" in gate.next[0]
 
 
 class _Res:
-    def __init__(self, ch):
+    def __init__(self, ch, verdict):
         self._ch = ch
         self.channels = list(ch)
+        self.verdict = verdict
+        self.exposures = None
+        self.selection = ""
+        self.compared = {}
+        self.method = "tsin"
 
     def __getitem__(self, name):
         return self._ch[name]

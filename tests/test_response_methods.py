@@ -38,7 +38,7 @@ def results():
 def test_cli_choices_come_from_the_registry():
     sub = next(a for a in build_parser()._actions if a.dest == "verb")
     method = next(a for a in sub.choices["response"]._actions if a.dest == "method")
-    assert list(method.choices) == list(METHODS)
+    assert list(method.choices) == ["auto"] + list(METHODS)
     assert list(METHODS) == ["tsin", "debevec", "robertson", "mitsunaga-nayar"]
 
 

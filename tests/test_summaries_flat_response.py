@@ -187,7 +187,11 @@ def test_response_summary_values(responses):
     assert s.scale == ResponseScaleSummary(230, 230 / 255, False)
     assert len(s.g) == 3 and len(s.g[0]) == 256 and s.white_balance == (True, True, True)
     assert set(s.notes) == {"R", "G", "B"} and all(isinstance(n, tuple) for n in s.notes.values())
-    assert s.warnings == responses["rgb-wb"].warnings() and len(s.warnings) == 2
+    # the warnings are the verdict's line when it is not trusted (ccdcore.response.verdict)
+    res = responses["rgb-wb"]
+    assert s.warnings == res.warnings()
+    assert s.warnings == (() if res.verdict.trusted else (res.verdict.line(),))
+    assert s.verdict == res.verdict
     assert s.agreement["G"].channel == "G"
 
 
@@ -256,8 +260,10 @@ def test_response_rows(responses):
     r = responses["tsin"]
     s = r.summary()
     rows = s.rows()
-    assert 5 <= len(rows) <= 13
+    # method, 3 noise terms, 2 agreements, 3 exposure rows, the method chosen, the verdict
+    assert 5 <= len(rows) <= 16
     assert row(rows, "method").text == "tsin"
+    assert row(rows, "exposures used").text == r.exposures.used
     c = r["L"]
     for key, symbol in (("sigma_s", "σ_s"), ("sigma_c1", "σ_c1"), ("sigma_c2", "σ_c2")):
         x = row(rows, f"{symbol}, L")
@@ -266,10 +272,12 @@ def test_response_rows(responses):
     ag = row(rows, "agreement RMS, own ratios")
     assert ag.value == r.agreement.rms and ag.unit == "DN"
     assert row(rows, "agreement RMS, fitted ratios").value == r.agreement.rms_fitted
-    assert row(rows, "verdict").text == "no warning"
+    assert row(rows, "verdict").text == r.verdict.line()
     wb = responses["rgb-wb"].summary()
-    assert len(wb.rows()) == 13
-    assert row(wb.rows(), "verdict").text.startswith("2 warnings: ")
+    # + 6 noise terms of two more channels
+    assert len(wb.rows()) == len(rows) + 6 + len(wb.exposures.off_runs()) \
+        - len(s.exposures.off_runs())
+    assert row(wb.rows(), "verdict").text == responses["rgb-wb"].verdict.line()
     assert row(wb.rows(), "σ_s, B").value == wb.sigma_s[2]
     a = s.agreement
     assert [x.value for x in a.rows()] == [a.rms, a.rms_fitted, a.rms_blend,

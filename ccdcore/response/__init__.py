@@ -24,20 +24,59 @@ Modules
 :mod:`ccdcore.response.hdr_merge`
     The merge itself on frames in memory, the kernel both paths run (its names are re-exported by
     :mod:`ccdcore.response.hdr`).
+:mod:`ccdcore.response.names`
+    The methods' names and the blooming limits, for the command line's parser: it imports
+    nothing, and this package loads each public name from its submodule on first use.
 
 See docs/response.md.
 """
 from __future__ import annotations
 
-from .brackets import BracketData, bracket_data, load_bracket, preprocess
-from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
-from .hdr import HdrResult, ResponseModel, merge
-from .methods import METHODS, ResponseResult, response_of, session_response
-from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
-from .scale import normalize, reference_codes, rms_error
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # what a type checker sees; at run time the names load on first use
+    from .brackets import BracketData, bracket_data, load_bracket, preprocess
+    from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
+    from .hdr import HdrResult, ResponseModel, merge
+    from .methods import METHODS, ResponseResult, response_of, session_response
+    from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
+    from .scale import normalize, reference_codes, rms_error
 
 __all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "ClassicFit",
            "debevec", "robertson", "mitsunaga_nayar", "HdrResult", "ResponseModel", "merge",
            "normalize", "reference_codes", "rms_error", "METHODS", "ResponseResult",
            "response_of", "session_response", "ChannelResponse", "TsinOptions", "estimate",
            "noise_terms"]
+
+#: each public name -> the submodule that defines it, imported on first use (SPEC 1's lazy
+#: loading): ``import ccdcore.response.names`` (the command line) loads no estimator
+_HOMES = {name: module for module, names in {
+    "brackets": ("BracketData", "bracket_data", "load_bracket", "preprocess"),
+    "classic": ("ClassicFit", "debevec", "mitsunaga_nayar", "robertson"),
+    "hdr": ("HdrResult", "ResponseModel", "merge"),
+    "methods": ("METHODS", "ResponseResult", "response_of", "session_response"),
+    "tsin": ("ChannelResponse", "TsinOptions", "estimate", "noise_terms"),
+    "scale": ("normalize", "reference_codes", "rms_error"),
+}.items() for name in names}
+
+#: the submodules, which ``ccdcore.response.<name>`` also loads on first use
+_SUBMODULES = ("agreement", "brackets", "classic", "classic_common", "exposures", "hdr",
+               "hdr_merge", "methods", "names", "scale", "tsin", "tsin_gauge", "tsin_kernels",
+               "tsin_noise", "verdict")
+
+
+def __getattr__(name: str) -> Any:
+    """A public name from its submodule (or a submodule), imported on first use and kept."""
+    if name in _HOMES:
+        value = getattr(importlib.import_module(f".{_HOMES[name]}", __name__), name)
+    elif name in _SUBMODULES:
+        value = importlib.import_module(f".{name}", __name__)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__) | set(_SUBMODULES))

@@ -59,7 +59,8 @@ from ..common import float_or_nan
 from ..records import Record, Row
 from .brackets import BracketData
 
-__all__ = ["CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement",
+__all__ = ["PairMoments", "pair_moments", "moments_of_codes", "moments_by_block", "moments_of_counts", "fit_ratio",
+           "CODE_RANGE", "PairAgreement", "ChannelAgreement", "Agreement",
            "PairAgreementSummary", "ChannelAgreementSummary", "AgreementSummary", "agreement",
            "channel_agreement", "code_range", "inverse", "MAX_PIXELS"]
 
@@ -296,68 +297,161 @@ def _num(v: float) -> float | None:
 def _sample_columns(P: int, max_pixels: int) -> NDArray[np.int64] | slice:
     if P <= max_pixels:
         return slice(None)
-    return np.unique(np.linspace(0, P - 1, max_pixels).astype(np.int64))
+    keep = np.linspace(0, P - 1, max_pixels).astype(np.int64)      # sorted: drop repeats
+    return keep[np.r_[True, keep[1:] != keep[:-1]]]
 
 
 def _rms(sse: float, n: int) -> float:
     return math.sqrt(sse / n) if n > 0 else float("nan")
 
 
+@dataclass(frozen=True, eq=False)
+class PairMoments:
+    """The codes of neighbouring images ``j`` and ``k = j + 1`` where both are readable, as
+    sums per code: every sum of :func:`fit_ratio` over pixels is a sum over codes (a prediction
+    depends on the pixel's pair of codes only). ``src_j``: per code u of image j, the count,
+    sum and sum of squares of image k's codes (``src_k`` the other way); ``n`` the pixels."""
+
+    n: int
+    src_j: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+    src_k: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]
+
+    def __add__(self, other: "PairMoments") -> "PairMoments":
+        return PairMoments(self.n + other.n,
+                           tuple(x + y for x, y in zip(self.src_j, other.src_j)),
+                           tuple(x + y for x, y in zip(self.src_k, other.src_k)))
+
+    def __sub__(self, other: "PairMoments") -> "PairMoments":
+        return PairMoments(self.n - other.n,
+                           tuple(x - y for x, y in zip(self.src_j, other.src_j)),
+                           tuple(x - y for x, y in zip(self.src_k, other.src_k)))
+
+
+def moments_of_codes(zj: ArrayLike, zk: ArrayLike, levels: int, codes: tuple[int, int]
+                     ) -> PairMoments:
+    """:class:`PairMoments` of two images' codes at the same pixels (both readable: within
+    ``codes``)."""
+    zj, zk = np.asarray(zj), np.asarray(zk)
+    lo, hi = codes
+    m = (zj >= lo) & (zj <= hi) & (zk >= lo) & (zk <= hi)
+    xj, xk = zj[m].astype(np.int64), zk[m].astype(np.int64)
+    out = []
+    for src, dst in ((xj, xk), (xk, xj)):
+        w = dst.astype(np.float64)
+        out.append((np.bincount(src, minlength=levels).astype(np.float64),
+                    np.bincount(src, weights=w, minlength=levels),
+                    np.bincount(src, weights=w * w, minlength=levels)))
+    return PairMoments(int(xj.size), out[0], out[1])
+
+
+def moments_by_block(zj: ArrayLike, zk: ArrayLike, levels: int, codes: tuple[int, int],
+                     block: ArrayLike, blocks: int) -> list[PairMoments]:
+    """:func:`moments_of_codes` of every block of pixels (``block``: each pixel's block, in
+    ``0 .. blocks - 1``), in one pass: their sum is the moments of all the pixels."""
+    zj, zk, block = np.asarray(zj), np.asarray(zk), np.asarray(block)
+    lo, hi = codes
+    L = int(levels)
+    m = (zj >= lo) & (zj <= hi) & (zk >= lo) & (zk <= hi)
+    xj, xk, bk = zj[m].astype(np.int64), zk[m].astype(np.int64), block[m].astype(np.int64)
+    n_blk = np.bincount(bk, minlength=blocks)
+    sums = []
+    for src, dst in ((xj, xk), (xk, xj)):
+        w = dst.astype(np.float64)
+        idx = bk * L + src
+        sums.append([np.bincount(idx, weights=x, minlength=blocks * L).reshape(blocks, L)
+                     for x in (None, w, w * w)])
+    return [PairMoments(int(n_blk[b]), tuple(np.asarray(a[b], np.float64) for a in sums[0]),
+                        tuple(np.asarray(a[b], np.float64) for a in sums[1]))
+            for b in range(blocks)]
+
+
+def moments_of_counts(counts: NDArray, codes: tuple[int, int]) -> PairMoments:
+    """:class:`PairMoments` of a comparagram: ``counts[u, v]`` pixels read u in image j and v
+    in image k (``BracketData.pair_counts``)."""
+    C = np.asarray(counts, np.float64)
+    L = C.shape[0]
+    lo, hi = codes
+    inside = np.zeros(L, bool)
+    inside[lo:hi + 1] = True
+    C = C * inside[:, None] * inside[None, :]
+    v = np.arange(L, dtype=np.float64)
+    return PairMoments(int(round(C.sum())), (C.sum(axis=1), C @ v, C @ (v * v)),
+                       (C.sum(axis=0), C.T @ v, C.T @ (v * v)))
+
+
+def pair_moments(data: BracketData, codes: tuple[int, int] | None = None,
+                 columns: ArrayLike | None = None) -> tuple[PairMoments, ...]:
+    """Every neighbour pair's :class:`PairMoments` of a channel: from its comparagrams over the
+    whole frame when the bracket carries them (``pair_counts``), else from its pixels
+    (``columns``: only those)."""
+    rng = code_range(data.levels) if codes is None else tuple(codes)
+    counts = getattr(data, "pair_counts", None)
+    if counts is not None and columns is None:
+        return tuple(moments_of_counts(c, rng) for c in counts)
+    z = np.asarray(data.z)
+    if columns is not None:
+        z = z[:, np.asarray(columns)]
+    return tuple(moments_of_codes(z[j], z[j + 1], int(data.levels), rng)
+                 for j in range(data.n_images - 1))
+
+
+def fit_ratio(mom: PairMoments, f: Any, sig_j: NDArray, sig_k: NDArray, b_j: float,
+              b_k: float, r0: float) -> tuple[float, float, float]:
+    """The pair's squared prediction errors (both directions, DN²) at the ratio ``r0`` and at
+    the ratio that predicts it best, and that ratio: ``(sse at r0, sse fitted, fitted ratio)``.
+    ``f`` is the inverse of the curve (:func:`inverse`), ``sig_j``, ``sig_k`` the signal of
+    every code in each image (g − b). The ratio is searched within :data:`RATIO_SPAN` of
+    ``r0``."""
+    (n_j, s1_j, s2_j), (n_k, s1_k, s2_k) = mom.src_j, mom.src_k
+    s2 = float(s2_j.sum() + s2_k.sum())
+
+    def cost(lr: float) -> float:
+        r = math.exp(lr)
+        pk = f(r * sig_j + b_k)                # image k from each code of image j
+        pj = f(sig_k / r + b_j)                # image j from each code of image k
+        return float(n_j @ (pk * pk) - 2.0 * (s1_j @ pk)
+                     + n_k @ (pj * pj) - 2.0 * (s1_k @ pj) + s2)
+
+    c0 = max(cost(math.log(r0)), 0.0)
+    span = math.log(RATIO_SPAN)
+    opt = minimize_scalar(cost, bounds=(math.log(r0) - span, math.log(r0) + span),
+                          method="bounded", options={"xatol": 1e-6})
+    c1, lr = max(float(opt.fun), 0.0), float(opt.x)
+    if not c1 < c0:
+        c1, lr = c0, math.log(r0)
+    return c0, c1, math.exp(lr)
+
+
 def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,
                       b: ArrayLike | None = None, *, codes: tuple[int, int] | None = None,
-                      max_pixels: int = MAX_PIXELS, channel: str | None = None
-                      ) -> ChannelAgreement:
+                      max_pixels: int = MAX_PIXELS, channel: str | None = None,
+                      pairs_of: "tuple[PairMoments, ...] | None" = None) -> ChannelAgreement:
     """The agreement of one channel of a bracket with the curve ``g`` (every code) and the
-    exposures ``a``, offsets ``b`` (nominal times and 0 when not given)."""
+    exposures ``a``, offsets ``b`` (nominal times and 0 when not given).
+
+    ``pairs_of``: the pairs' code moments (:func:`pair_moments`) to count instead of the
+    bracket's own pixels, e.g. those of pixels the curve was not fitted to."""
     g = np.asarray(g, np.float64)
     N = data.n_images
     a = np.asarray(data.t if a is None else a, np.float64)
     b = np.zeros(N) if b is None else np.asarray(b, np.float64)
     lo, hi = code_range(data.levels) if codes is None else codes
-    L = g.size
     zall = np.asarray(data.z)
     f = inverse(g)
     pairs = []
     sse = sse_f = 0.0
     n_all = 0
+    moments = pair_moments(data, (lo, hi)) if pairs_of is None else pairs_of
     for j in range(N - 1):
         k = j + 1
-        zj, zk = zall[j], zall[k]
-        m = (zj >= lo) & (zj <= hi) & (zk >= lo) & (zk <= hi)
-        n = int(np.count_nonzero(m))
         r0 = float(a[k] / a[j])
+        mom = moments[j]
+        n = int(mom.n)
         if n == 0:
             pairs.append(PairAgreement(j, k, 0, float("nan"), float("nan"), r0, float("nan")))
             continue
-        # a prediction depends on the pixel's pair of codes only: the moments of the predicted
-        # image's codes per code of the other make every sum over pixels a sum over codes
-        # (exact, and one pass over the pixels per pair)
-        xj, xk = zj[m].astype(np.int64), zk[m].astype(np.int64)
-        mom = []
-        for src, dst in ((xj, xk), (xk, xj)):
-            w = dst.astype(np.float64)
-            mom.append((np.bincount(src, minlength=L).astype(np.float64),
-                        np.bincount(src, weights=w, minlength=L),
-                        np.bincount(src, weights=w * w, minlength=L)))
-        (n_j, s1_j, s2_j), (n_k, s1_k, s2_k) = mom
-        sig_j, sig_k = g - b[j], g - b[k]          # the signal of every code, each image
-
-        def cost(lr: float) -> float:
-            r = math.exp(lr)
-            pk = f(r * sig_j + b[k])                # image k from each code of image j
-            pj = f(sig_k / r + b[j])                # image j from each code of image k
-            return float(n_j @ (pk * pk) - 2.0 * (s1_j @ pk) + s2_j.sum()
-                         + n_k @ (pj * pj) - 2.0 * (s1_k @ pj) + s2_k.sum())
-
-        c0 = max(cost(math.log(r0)), 0.0)
-        span = math.log(RATIO_SPAN)
-        opt = minimize_scalar(cost, bounds=(math.log(r0) - span, math.log(r0) + span),
-                              method="bounded", options={"xatol": 1e-6})
-        c1, lr = max(float(opt.fun), 0.0), float(opt.x)
-        if not c1 < c0:
-            c1, lr = c0, math.log(r0)
-        pairs.append(PairAgreement(j, k, 2 * n, _rms(c0, 2 * n), _rms(c1, 2 * n), r0,
-                                   math.exp(lr)))
+        c0, c1, ratio = fit_ratio(mom, f, g - b[j], g - b[k], b[j], b[k], r0)
+        pairs.append(PairAgreement(j, k, 2 * n, _rms(c0, 2 * n), _rms(c1, 2 * n), r0, ratio))
         sse += c0
         sse_f += c1
         n_all += 2 * n
@@ -389,17 +483,19 @@ def channel_agreement(data: BracketData, g: ArrayLike, a: ArrayLike | None = Non
 
 
 def agreement(brackets: Mapping[str, BracketData], responses: Mapping[str, Any], *,
-              codes: tuple[int, int] | None = None, max_pixels: int = MAX_PIXELS
-              ) -> Agreement:
+              codes: tuple[int, int] | None = None, max_pixels: int = MAX_PIXELS,
+              pairs_of: Mapping[str, tuple[PairMoments, ...]] | None = None) -> Agreement:
     """The agreement of every channel of ``brackets`` with ``responses[channel]`` (anything
     with ``g``, ``a``, ``b``: a :class:`ccdcore.response.tsin.ChannelResponse`, or a mapping
-    with those keys), pooled over the channels."""
+    with those keys), pooled over the channels. ``pairs_of``: per channel, the pairs' code
+    moments to count (:func:`channel_agreement`)."""
     out = []
     for name, data in brackets.items():
         r = responses[name]
         get = (lambda key: r[key]) if isinstance(r, Mapping) else (lambda key: getattr(r, key))
         out.append(channel_agreement(data, get("g"), get("a"), get("b"), codes=codes,
-                                     max_pixels=max_pixels, channel=name))
+                                     max_pixels=max_pixels, channel=name,
+                                     pairs_of=None if pairs_of is None else pairs_of[name]))
     first = next(iter(brackets.values()))
     rng = code_range(first.levels) if codes is None else tuple(codes)
     n = sum(c.n for c in out)

@@ -43,15 +43,28 @@ from threadpoolctl import threadpool_limits
 from ..errors import CcdError
 from ..progress import Progress
 from ..records import Record, Row
-from .agreement import Agreement, AgreementSummary, agreement, code_range
+from .agreement import Agreement, AgreementSummary, agreement
 from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
 from .classic import debevec, mitsunaga_nayar, robertson
 from .hdr_merge import ResponseModel
+from .names import DEFAULT_METHOD, EXPOSURE_MODES, METHOD_CHOICES, METHOD_NAMES
 from .scale import reference_codes
 from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
+from .exposures import ExposureEstimate, ExposureSummary, estimate_exposures
+from .verdict import ResponseVerdict, response_verdict
 
 __all__ = ["METHODS", "Method", "ResponseResult", "ResponseSummary", "ResponseScaleSummary",
-           "response_of", "session_response", "JACKKNIFE_BLOCKS"]
+           "MethodComparison", "response_of", "session_response", "JACKKNIFE_BLOCKS", "AUTO",
+           "CHALLENGER", "EXPOSURE_MODES"]
+
+#: the default method: sec. 3.2, unless Debevec & Malik's curve predicts the bracket clearly
+#: better (:func:`response_of`)
+AUTO = "auto"
+#: the method every result is checked against (fast, and well behaved far from the truth)
+CHALLENGER = "debevec"
+#: which exposures a response takes (:data:`ccdcore.response.names.EXPOSURE_MODES`): ``auto``
+#: (the bracket's own when the images disagree with the listed ones), ``listed``,
+#: ``estimated`` (:mod:`ccdcore.response.exposures`)
 
 #: blocks of pixels of the classic methods' jackknife band
 JACKKNIFE_BLOCKS = 8
@@ -137,6 +150,8 @@ METHODS: dict[str, Method] = {
                               "Mitsunaga & Nayar 1999, CVPR",
                               _classic("mitsunaga-nayar", mitsunaga_nayar)),
 }
+assert tuple(METHODS) == METHOD_NAMES and DEFAULT_METHOD == AUTO and METHOD_CHOICES == (AUTO,) + \
+    METHOD_NAMES, "names.py is out of step"
 
 
 _Curves = tuple[tuple[float | None, ...], ...]
@@ -151,6 +166,17 @@ class ResponseScaleSummary(Record):
     g_at_fixed_code: float
     #: whether g has a free offset (never, in this release)
     offset: bool
+
+
+@dataclass(frozen=True)
+class MethodComparison(Record):
+    """Another method's curve on the same bracket and exposures: its prediction agreement
+    (sec. 4.2, DN RMS from a neighbour with the exposures, and with each pair's ratio
+    fitted)."""
+
+    method: str
+    rms: float | None
+    rms_fitted: float | None
 
 
 @dataclass(frozen=True)
@@ -199,6 +225,16 @@ class ResponseSummary(Record):
     agreement: AgreementSummary | None = None
     #: why the curves should not be trusted (:meth:`ResponseResult.warnings`)
     warnings: tuple[str, ...] = ()
+    #: whether the curves can be trusted (:mod:`ccdcore.response.verdict`; ``None`` in
+    #: products made before the verdict)
+    verdict: ResponseVerdict | None = None
+    #: the method asked for ("auto" or a method) and why this one was kept
+    requested: str = ""
+    selection: str = ""
+    #: the other curves fitted to the same bracket and exposures, with their agreement
+    compared: tuple["MethodComparison", ...] = ()
+    #: the bracket's own exposures against the listed ones (``None``: not estimated)
+    exposures: ExposureSummary | None = None
 
     def rows(self) -> tuple[Row, ...]:
         """The method, the noise terms of every channel, the prediction agreement and a
@@ -215,12 +251,18 @@ class ResponseSummary(Record):
                                err[i] if i < len(err) else None, unit, meaning))
         if self.agreement is not None:
             out += [replace(r, label=f"agreement {r.label}") for r in self.agreement.rows()[:2]]
-        verdict = ("no warning" if not self.warnings else
-                   f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''}: "
-                   + "; ".join(self.warnings))
-        out.append(Row("verdict", None, None, "", "whether the curves can be trusted: fits "
-                                                  "converged, curves not collapsed, exposures "
-                                                  "consistent with the images", verdict))
+        if self.exposures is not None:
+            out += list(self.exposures.rows())
+        if self.selection:
+            out.append(Row("method chosen", None, None, "", "why this curve", self.selection))
+        if self.verdict is not None:
+            out += list(self.verdict.rows())
+        else:
+            verdict = ("no warning" if not self.warnings else
+                       f"{len(self.warnings)} warning{'s' if len(self.warnings) > 1 else ''}: "
+                       + "; ".join(self.warnings))
+            out.append(Row("verdict", None, None, "", "whether the curves can be trusted",
+                           verdict))
         return tuple(out)
 
     def models(self, where: Any = None) -> dict[str, ResponseModel]:
@@ -284,31 +326,19 @@ class ResponseResult:
     notes: tuple[str, ...] = field(default_factory=tuple)
     #: how well the curves predict the bracket's own images (sec. 4.2; ``None``: not computed)
     agreement: Agreement | None = None
+    #: the bracket's own exposures (``None``: the listed ones taken as they are)
+    exposures: ExposureEstimate | None = None
+    #: the method asked for, why this one was kept, the other curves fitted
+    requested: str = ""
+    selection: str = ""
+    compared: dict[str, Agreement] = field(default_factory=dict)
+    #: whether the curves can be trusted (:func:`ccdcore.response.verdict.response_verdict`)
+    verdict: ResponseVerdict | None = None
 
     def warnings(self) -> tuple[str, ...]:
-        """Why the curves should not be trusted, in plain words (empty when nothing is wrong):
-        a channel's fit that did not converge, a curve flat over a tenth of the readable codes
-        (collapsed), and images that disagree with the exposures the result used."""
-        out = []
-        lo, hi = code_range(self.levels)
-        for ch, r in zip(self.channels, self.responses):
-            if not r.converged:
-                out.append(f"channel {ch}: the fit stopped after {r.iterations} iterations "
-                           "without converging; the curve may be wrong")
-            g = np.asarray(r.g[lo:hi + 1])
-            flat = np.diff(g) <= 1e-9 * max(float(g[-1] - g[0]), 1e-300)
-            run = _longest_run(flat)
-            if run >= 0.1 * (hi - lo):
-                out.append(f"channel {ch}: g is flat over {run} codes of {lo}..{hi} (a "
-                           "collapsed curve): it cannot tell those codes apart")
-        ag = self.agreement
-        if ag is not None and np.isfinite(ag.rms) and ag.rms > 1.5 * ag.rms_fitted + 1.0:
-            out.append(f"the images disagree with the exposures used ({ag.rms:.1f} DN RMS with "
-                       f"them, {ag.rms_fitted:.1f} DN with each pair's ratio fitted): the "
-                       "exposure times are off"
-                       + ("" if any(r.white_balance for r in self.responses) else
-                          "; estimate the gains (--white-balance)"))
-        return tuple(out)
+        """The verdict's line when the result is not trusted (empty when it is)."""
+        v = self.verdict if self.verdict is not None else response_verdict(self, self.compared)
+        return () if v.trusted else (v.line(),)
 
     def __getitem__(self, channel: str) -> ChannelResponse:
         return self.responses[self.channels.index(channel)]
@@ -344,7 +374,11 @@ class ResponseResult:
             white_balance=tuple(bool(c.white_balance) for c in r),
             notes={str(ch): tuple(str(n) for n in c.notes) for ch, c in zip(self.channels, r)},
             agreement=None if self.agreement is None else self.agreement.summary_record(),
-            warnings=self.warnings())
+            warnings=self.warnings(), verdict=self.verdict, requested=str(self.requested),
+            selection=str(self.selection),
+            compared=tuple(MethodComparison(str(n), _num(c.rms), _num(c.rms_fitted))
+                           for n, c in self.compared.items()),
+            exposures=None if self.exposures is None else self.exposures.summary())
 
     def to_dict(self) -> dict[str, Any]:
         """The CLI's JSON: per-channel lists in ``channels`` order (docs/cli.md): the
@@ -357,31 +391,10 @@ class ResponseResult:
         return out
 
 
-def _longest_run(mask: NDArray[np.bool_]) -> int:
-    """The longest run of True in a 1-D mask."""
-    best = cur = 0
-    for v in np.asarray(mask, bool).tolist():
-        cur = cur + 1 if v else 0
-        best = max(best, cur)
-    return best
-
-
-def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
-                progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-                white_balance: bool = False) -> ResponseResult:
-    """Every channel of a bracket by ``method`` (a key of :data:`METHODS`); ``white_balance``
-    estimates the gains a_k too (``tsin`` only). ``progress`` (a
-    :class:`ccdcore.progress.Progress`) follows the channels, estimated side by side: its
-    fraction is their mean."""
-    if method not in METHODS:
-        raise CcdError("response", f"unknown method {method!r}; choose one of "
-                                   f"{', '.join(METHODS)}")
-    if white_balance and not METHODS[method].white_balance:
-        raise CcdError("response", f"{METHODS[method].label} takes the nominal exposure times "
-                                   "as exact: white balance is estimated by the tsin method")
+def _estimate_all(brackets: Mapping[str, BracketData], method: str, progress: Any,
+                  white_balance: bool) -> tuple[ChannelResponse, ...]:
+    """Every channel of a bracket by one method, side by side in threads."""
     names = tuple(brackets)
-    if not names:
-        raise CcdError("response", "the bracket has no channel")
     done = [0.0] * len(names)
     lock = threading.Lock()
 
@@ -403,23 +416,100 @@ def response_of(brackets: Mapping[str, BracketData], method: str = "tsin", *,
     # The limit is the process's while it holds (threadpoolctl cannot limit one thread).
     workers = max(1, min(len(names), os.cpu_count() or 1))
     if workers == 1:
-        out = [one(i) for i in range(len(names))]
-    else:
-        with threadpool_limits(1, user_api="blas"), \
-                ThreadPoolExecutor(workers, thread_name_prefix="response") as pool:
-            out = list(pool.map(one, range(len(names))))
+        return tuple(one(i) for i in range(len(names)))
+    with threadpool_limits(1, user_api="blas"), \
+            ThreadPoolExecutor(workers, thread_name_prefix="response") as pool:
+        return tuple(pool.map(one, range(len(names))))
+
+
+def _choose(runs: dict[str, Agreement], requested: str, white_balance: bool = False
+            ) -> tuple[str, str]:
+    """The method kept and why: the one asked for, or with ``auto`` sec. 3.2 unless
+    :data:`CHALLENGER`'s curve predicts the bracket clearly better
+    (:data:`ccdcore.response.verdict.BETTER_FACTOR`, :data:`~ccdcore.response.verdict.BETTER_DN`).
+    """
+    from .verdict import BETTER_DN, BETTER_FACTOR
+
+    def fig(name: str) -> str:
+        return f"{METHODS[name].label} {runs[name].rms:.2f} DN"
+
+    if requested != AUTO:
+        return requested, f"asked for ({METHODS[requested].label})"
+    if white_balance:
+        return "tsin", ("white balance asked for: sec. 3.2 is the method that estimates the "
+                        f"gains (against {fig(CHALLENGER)} at the exposures: "
+                        f"{fig('tsin')})")
+    t, c = runs["tsin"].rms, runs[CHALLENGER].rms
+    text = (f"prediction RMS from a neighbour over the whole bracket (curves fitted to a "
+            f"sample of its pixels): {fig('tsin')}, {fig(CHALLENGER)}")
+    if np.isfinite(c) and (not np.isfinite(t) or (c * BETTER_FACTOR < t and t - c > BETTER_DN)):
+        return CHALLENGER, f"{text}: the {CHALLENGER} curve predicts the bracket clearly better"
+    return "tsin", f"{text}: sec. 3.2 kept"
+
+
+def response_of(brackets: Mapping[str, BracketData], method: str = AUTO, *,
+                progress: Progress | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
+                white_balance: bool = False, exposures: str = "auto") -> ResponseResult:
+    """Every channel of a bracket by ``method`` (a key of :data:`METHODS`, or ``"auto"``: sec.
+    3.2 unless Debevec & Malik's curve predicts the bracket clearly better); ``white_balance``
+    estimates the gains a_k too (``tsin`` only). ``exposures`` (:data:`EXPOSURE_MODES`): the
+    bracket's own exposures (:func:`ccdcore.response.exposures.estimate_exposures`) are
+    estimated unless ``"listed"``, and taken when the images disagree with the listed ones
+    (``"auto"``) or always (``"estimated"``). Every result is checked against
+    :data:`CHALLENGER`'s curve on the same exposures and carries its verdict
+    (:mod:`ccdcore.response.verdict`). ``progress`` (a :class:`ccdcore.progress.Progress`)
+    follows the steps."""
+    if method != AUTO and method not in METHODS:
+        raise CcdError("response", f"unknown method {method!r}; choose one of "
+                                   f"{', '.join((AUTO,) + tuple(METHODS))}")
+    if exposures not in EXPOSURE_MODES:
+        raise CcdError("response", f"unknown exposures {exposures!r}; choose one of "
+                                   f"{', '.join(EXPOSURE_MODES)}")
+    main = "tsin" if method == AUTO else method
+    if white_balance and not METHODS[main].white_balance:
+        raise CcdError("response", f"{METHODS[main].label} takes the exposures as exact: "
+                                   "white balance is estimated by the tsin method")
+    names = tuple(brackets)
+    if not names:
+        raise CcdError("response", "the bracket has no channel")
     first = brackets[names[0]]
-    if progress is not None:
-        progress(0.99, "agreement: each image predicted from its neighbours (sec. 4.2)")
-    agree = agreement(brackets, dict(zip(names, out)))
-    return ResponseResult(method, names, tuple(out), tuple(first.files), int(first.levels),
-                          np.asarray(first.t, np.float64), int(bloom_radius), agreement=agree)
+    ex = None
+    if exposures != "listed":
+        if progress is not None:
+            progress(0.0, "the bracket's own exposures (a quick curve, each pair's ratio)")
+        ex = estimate_exposures(brackets)
+        if exposures == "estimated" and ex.used != "estimated":
+            ex = replace(ex, used="estimated", reason=f"asked for (--exposures estimated); "
+                                                      f"{ex.reason}")
+    use = dict(brackets)
+    if ex is not None and ex.used == "estimated":
+        use = {ch: replace(d, t=np.asarray(ex.estimated, np.float64)) for ch, d in use.items()}
+    order = [main] + ([CHALLENGER] if main != CHALLENGER else [])
+    fits: dict[str, tuple[ChannelResponse, ...]] = {}
+    runs: dict[str, Agreement] = {}
+    for i, name in enumerate(order):
+        span = (0.05, 0.9) if i == 0 else (0.9, 0.97)
+
+        def sub(frac: float, msg: str, span=span, name=name) -> None:
+            if progress is not None:
+                progress(span[0] + (span[1] - span[0]) * frac, f"{name}: {msg}")
+        fits[name] = _estimate_all(use, name, sub, white_balance and name == main)
+        if progress is not None:
+            progress(span[1], f"{name}: agreement, each image predicted from its neighbours "
+                              "(sec. 4.2)")
+        runs[name] = agreement(use, dict(zip(names, fits[name])))
+    kept, why = _choose(runs, method, white_balance)
+    res = ResponseResult(kept, names, fits[kept], tuple(first.files), int(first.levels),
+                         np.asarray(first.t, np.float64), int(bloom_radius),
+                         agreement=runs[kept], exposures=ex, requested=method, selection=why,
+                         compared={n: a for n, a in runs.items() if n != kept})
+    return replace(res, verdict=response_verdict(res, res.compared))
 
 
-def session_response(session: Any, method: str = "tsin", *, stack: Any = None,
+def session_response(session: Any, method: str = AUTO, *, stack: Any = None,
                      bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
-                     progress: Progress | None = None, white_balance: bool = False
-                     ) -> ResponseResult:
+                     progress: Progress | None = None, white_balance: bool = False,
+                     exposures: str = "auto") -> ResponseResult:
     """The response of a session's bracket ``stack`` (a path or an open session)."""
     from ..session import open_session
 
@@ -427,4 +517,4 @@ def session_response(session: Any, method: str = "tsin", *, stack: Any = None,
         session = open_session(session)
     brackets = load_bracket(session, stack, bloom_radius=bloom_radius, border=border)
     return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius,
-                       white_balance=white_balance)
+                       white_balance=white_balance, exposures=exposures)

@@ -834,11 +834,11 @@ def _estimate_notes(opts: TsinOptions, data: BracketData, s: _Setup, *, sampled:
                      "u-ambiguity, an offset of g and one of the radiance)")
     if chi2 > 3.0:
         cause = ("the gains and offsets do not explain the exposures" if opts.white_balance else
-                 "the exposures do not follow the nominal times (white balance or shutter "
-                 "errors? estimate the gains)")
+                 "the images do not follow the exposures taken (white balance or shutter "
+                 "errors)")
         notes.append(f"the pools' errors are {math.sqrt(chi2):.1f} times their expected "
-                     f"size (chi²/dof {chi2:.0f}): {cause}, or the scene moved; g is "
-                     "distorted")
+                     f"size (chi²/dof {chi2:.0f}): {cause}, or the scene moved; g may be "
+                     "distorted (the verdict weighs it by the prediction agreement)")
     if theta[2] == 0 or theta[0] == 0:
         notes.append("a noise term was forced to 0 by the non-negative fit (sec. 4.1: when g and "
                      "g'² look alike, shot and output noise cannot be told apart)")
