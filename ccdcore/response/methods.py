@@ -96,14 +96,14 @@ def _blocks(data: BracketData, n: int) -> NDArray[np.int64]:
 
 
 def _classic(name: str, fn: Callable[[BracketData], Any]
-             ) -> Callable[[BracketData, Progress | None], ChannelResponse]:
-    def run(data: BracketData, progress: Progress | None) -> ChannelResponse:
+             ) -> Callable[..., ChannelResponse]:
+    def run(data: BracketData, progress: Progress | None, band: bool = True) -> ChannelResponse:
         fit = fn(data)
         g = np.asarray(fit.g, np.float64)
         L = g.size
         blocks = _blocks(data, JACKKNIFE_BLOCKS)
         reps = []
-        for b in range(JACKKNIFE_BLOCKS):
+        for b in range(JACKKNIFE_BLOCKS if band else 0):
             if progress is not None:
                 progress((b + 1) / (JACKKNIFE_BLOCKS + 2), f"band: jackknife block {b + 1} "
                                                           f"of {JACKKNIFE_BLOCKS}")
@@ -123,7 +123,7 @@ def _classic(name: str, fn: Callable[[BracketData], Any]
         if progress is not None:
             progress(0.95, "noise terms (eq. 17)")
         try:
-            nz = noise_terms(data, g)
+            nz = noise_terms(data, g) if band else {}
         except CcdError:
             nz = {}
         t = np.asarray(data.t, np.float64)
@@ -392,8 +392,9 @@ class ResponseResult:
 
 
 def _estimate_all(brackets: Mapping[str, BracketData], method: str, progress: Any,
-                  white_balance: bool) -> tuple[ChannelResponse, ...]:
-    """Every channel of a bracket by one method, side by side in threads."""
+                  white_balance: bool, band: bool = True) -> tuple[ChannelResponse, ...]:
+    """Every channel of a bracket by one method, side by side in threads; ``band=False``: a
+    classic method's curve only (no jackknife band, no noise terms: the challenger's)."""
     names = tuple(brackets)
     done = [0.0] * len(names)
     lock = threading.Lock()
@@ -406,7 +407,9 @@ def _estimate_all(brackets: Mapping[str, BracketData], method: str, progress: An
                 with lock:
                     done[i] = frac
                     progress(sum(done) / len(names), f"channel {name}: {msg}")
-        kw = {"white_balance": True} if white_balance else {}
+        kw: dict[str, Any] = {"white_balance": True} if white_balance else {}
+        if not band:
+            kw["band"] = False
         return METHODS[method].run(brackets[name], sub, **kw)
 
     # the channels are independent: one thread each, up to the cores (the kernels release
@@ -493,12 +496,17 @@ def response_of(brackets: Mapping[str, BracketData], method: str = AUTO, *,
         def sub(frac: float, msg: str, span=span, name=name) -> None:
             if progress is not None:
                 progress(span[0] + (span[1] - span[0]) * frac, f"{name}: {msg}")
-        fits[name] = _estimate_all(use, name, sub, white_balance and name == main)
+        # the challenger is a curve to compare: no band, no noise terms -- unless kept (auto)
+        fits[name] = _estimate_all(use, name, sub, white_balance and name == main,
+                                   band=name == main)
         if progress is not None:
             progress(span[1], f"{name}: agreement, each image predicted from its neighbours "
                               "(sec. 4.2)")
         runs[name] = agreement(use, dict(zip(names, fits[name])))
     kept, why = _choose(runs, method, white_balance)
+    if kept != main:
+        # the challenger kept: its band and noise terms now
+        fits[kept] = _estimate_all(use, kept, None, False)
     res = ResponseResult(kept, names, fits[kept], tuple(first.files), int(first.levels),
                          np.asarray(first.t, np.float64), int(bloom_radius),
                          agreement=runs[kept], exposures=ex, requested=method, selection=why,

@@ -37,7 +37,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["pool_counts", "pool_members", "trace", "row_counts", "knot", "pixel_weights",
+__all__ = ["sort_rows", "pool_counts", "pool_members", "trace", "row_counts", "knot", "pixel_weights",
            "missing_images", "pool_sums", "write_rows", "pool_rows", "row_stats", "sorted_mad",
            "group_sums"]
 
@@ -347,6 +347,15 @@ def pool_rows(start, mz, mflag, mgrp, inc, paper, rowid, offsets, a, b, gk, gpc,
             write_rows(j, m, rowid, paper, a, K, U, C, H, Hs, want_noise, with_a, J, X)
     return J, X, resid, egrp
 
+
+
+@numba.njit(cache=True, nogil=True)
+def sort_rows(resid, offsets):  # pragma: no cover - compiled
+    """A copy of ``resid`` sorted within each row (``offsets``: the rows' CSR)."""
+    out = resid.copy()
+    for r in range(offsets.size - 1):
+        out[offsets[r]:offsets[r + 1]] = np.sort(resid[offsets[r]:offsets[r + 1]])
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -20,8 +20,9 @@ the same bracket:
     None of these.
 
 Each verdict names the frames involved and gives at most one next step: a flag of the command
-that printed it (``--exposures estimated``, ``--method NAME``), only where it helps the case
-that triggered it (the tests run every suggestion).
+that printed it (``--exposures estimated``, ``--method NAME``, ``--method NAME without
+--white-balance``), only where it helps the case that triggered it (the tests run every
+suggestion through the command line).
 
 Public objects
 --------------
@@ -146,7 +147,10 @@ def response_verdict(result: Any, challengers: Mapping[str, Any] | None = None
     stuck = [ch for ch, r in zip(result.channels, result.responses)
              if r.method == "tsin" and at_start(r.g, levels)]
     better = _better(result, challengers)
-    step_better = f"--method {better[0]}" if better else ""
+    wb = any(r.white_balance for r in result.responses)
+    # the challengers take the exposures as exact: with the gains estimated, the step drops them
+    step_better = (f"--method {better[0]}" + (" without --white-balance" if wb else "")
+                   if better else "")
     if stuck:
         return ResponseVerdict(
             FAILED, f"the fit of channel{'s' if len(stuck) > 1 else ''} {', '.join(stuck)} "

@@ -1,0 +1,111 @@
+"""The response verdict through the command line: the same words on ``response``, ``hdr``,
+``calibrate`` (the product) and ``change``, in ``--json`` too; every next step the verdict
+prints is accepted by the command and helps the case that triggered it."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from ccdcore.cli import main
+from ccdcore.product import load_product
+from ccdcore.simulate import simulate
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+def run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    return out.out
+
+
+def response_json(capsys, *argv):
+    return json.loads(run(capsys, "response", *argv, "--json"))
+
+
+def line(d):
+    """The verdict's line from its JSON record, as :meth:`ResponseVerdict.line` makes it."""
+    from ccdcore.response.verdict import ResponseVerdict
+
+    return ResponseVerdict.from_dict(d["verdict"], "json").line()
+
+
+@pytest.fixture(scope="module")
+def wrong(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verdict") / "wrong"
+    simulate("tsin01", out, seed=1, camera="real-listed-wrong", size=(128, 96))
+    return out
+
+
+def _follow(argv: list[str], step: str) -> list[str]:
+    """The arguments after the next step: ``--flag value`` replaces the flag's value or is
+    added; ``without --flag`` removes it."""
+    out = list(argv)
+    words = step.split()
+    if "without" in words:
+        gone = words[words.index("without") + 1]
+        out = [a for a in out if a != gone]
+        words = words[:words.index("without")]
+    flag, value = words
+    if flag in out:
+        out[out.index(flag) + 1] = value
+    else:
+        out += [flag, value]
+    return out
+
+
+def test_exposures_suggestion_is_accepted_and_helps(capsys, wrong):
+    argv = [str(wrong), "--exposures", "listed"]
+    d = response_json(capsys, *argv)
+    v = d["verdict"]
+    assert v["status"] == "doubtful" and v["next_step"] == "--exposures estimated"
+    d2 = response_json(capsys, *_follow(argv, v["next_step"]))
+    assert d2["verdict"]["status"] == "trusted"
+    assert d2["agreement"]["rms"] < 0.6 * d["agreement"]["rms"]
+    assert d2["exposures"]["used"] == "estimated"
+    # the summary prints the same words
+    text = run(capsys, "response", *argv)
+    assert " ".join(line(d).split()) in " ".join(text.split())
+
+
+def test_method_suggestion_is_accepted_and_helps(capsys):
+    """On the camera demo the white-balance fit predicts the bracket worse than Debevec's
+    curve at the listed exposures (5.1 against 4.3 DN): doubtful, and the step it names (drop
+    the gains, take Debevec's curve) runs and predicts better."""
+    argv = [str(ASSETS / "tsin01-camera"), "--method", "tsin", "--white-balance"]
+    d = response_json(capsys, *argv)
+    v = d["verdict"]
+    assert v["status"] == "doubtful"
+    assert v["next_step"] == "--method debevec without --white-balance"
+    d2 = response_json(capsys, *_follow(argv, v["next_step"]))
+    assert d2["method"] == "debevec" and d2["verdict"]["status"] == "trusted"
+    assert d2["agreement"]["rms"] < d["agreement"]["rms"]
+
+
+def test_every_verb_says_the_same_verdict(capsys, wrong, tmp_path):
+    d = response_json(capsys, wrong)
+    words = line(d)
+    assert d["verdict"]["status"] == "trusted"
+    h = json.loads(run(capsys, "hdr", wrong, "-o", tmp_path / "hdr", "--json"))
+    assert line(h) == words
+    text = run(capsys, "hdr", wrong, "-o", tmp_path / "hdr2")
+    assert " ".join(words.split()) in " ".join(text.split())
+    run(capsys, "calibrate", wrong, "-o", tmp_path / "product")
+    product = load_product(tmp_path / "product")
+    assert product.estimates.response.verdict.line() == words
+    assert product.estimates.response.exposures.used == "estimated"
+    # the report shows the product's verdict in the same words
+    run(capsys, "report", tmp_path / "product", "-o", tmp_path / "report.html")
+    html = (tmp_path / "report.html").read_text()
+    assert words.replace("'", "&#x27;") in html or words in html
+
+
+def test_hdr_takes_the_response_options(capsys, wrong, tmp_path):
+    h = json.loads(run(capsys, "hdr", wrong, "-o", tmp_path / "h", "--json", "--method",
+                       "debevec", "--exposures", "listed"))
+    assert "debevec" in h["source"]
+    assert h["verdict"]["status"] == "doubtful"
+    assert h["exposures"] is None
