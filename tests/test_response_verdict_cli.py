@@ -109,3 +109,18 @@ def test_hdr_takes_the_response_options(capsys, wrong, tmp_path):
     assert "debevec" in h["source"]
     assert h["verdict"]["status"] == "doubtful"
     assert h["exposures"] is None
+
+
+def test_a_fit_that_never_moved_is_failed_and_the_step_helps(capsys, wrong):
+    """What two real brackets did: at the listed exposures (wrong for four pairs) the sec. 3.2
+    fit takes back every step and ends at its straight starting line. Not converged, failed,
+    and the step it names gives a trusted curve."""
+    argv = [str(wrong), "--method", "tsin", "--exposures", "listed"]
+    d = response_json(capsys, *argv)
+    assert d["converged"] == [False, False, False]
+    v = d["verdict"]
+    assert v["status"] == "failed" and "starting line" in v["reason"]
+    assert v["next_step"] == "--exposures estimated"
+    d2 = response_json(capsys, *_follow(argv, v["next_step"]))
+    assert d2["converged"] == [True, True, True]
+    assert d2["verdict"]["status"] == "trusted"

@@ -286,6 +286,9 @@ RESOLUTION = 0.1
 #: the white-balance fit stops when three steps in a row lower its objective by less than
 #: this fraction each
 FLAT = 1e-5
+#: a reported curve within this of the straight starting line (fraction of full scale, at every
+#: code) never moved: not converged
+START_TOLERANCE = 1e-6
 
 
 def _sample(data: BracketData) -> tuple[BracketData, int]:
@@ -713,8 +716,16 @@ def _result(st: _Fit, sampled: int) -> ChannelResponse:
     s1, s1_e = _sqrt_err(theta_n[1] * sc * sc, theta_e[1] * sc * sc)
     s2, s2_e = _sqrt_err(theta_n[2], theta_e[2])
     chi2_last = history[-1]["chi2"] if history else float("nan")
+    # convergence means the fit moved and stopped improving: a curve still at its straight
+    # starting line has not converged, whatever the steps said (measured on real brackets
+    # whose listed exposures were wrong: every step was taken back and the line reported)
+    moved = bool(np.max(np.abs(g_rep - codes / (L - 1.0))) > START_TOLERANCE)
+    converged = bool(st.converged and moved)
     notes = _estimate_notes(opts, data, s, sampled=sampled, converged=st.converged,
                             step=st.step, chi2=chi2_last, theta=theta_n)
+    if not moved:
+        notes.append("the fit never left its straight starting line g = z/(levels - 1): every "
+                     "step made the fit worse, so the curve is not an estimate")
     pools = PoolTable(s.rows[:, 0].copy(), s.knots.codes[s.rows[:, 1]], s.rows[:, 2].copy(),
                       n.astype(np.int64), tm * sc, sig * sc, se * sc)
     before = st.before
@@ -723,7 +734,7 @@ def _result(st: _Fit, sampled: int) -> ChannelResponse:
         g_err=np.interp(codes, s.knots.codes, err) * sc, a=a * sc if fit_a else a,
         a_err=a_err * sc, b=b * sc + c0 if fit_a else b, b_err=b_err * sc, t=t, sigma_s=ss,
         sigma_c1=s1, sigma_c2=s2, sigma_s_err=ss_e,
-        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=st.it, converged=st.converged,
+        sigma_c1_err=s1_e, sigma_c2_err=s2_e, iterations=st.it, converged=converged,
         white_balance=fit_a, pools=pools, history=tuple(history),
         pool_errors={"pool_image": before["pool_image"], "code": before["code"],
                      "predicted_image": before["predicted_image"], "before": before["values"],

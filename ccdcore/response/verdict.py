@@ -143,19 +143,26 @@ def response_verdict(result: Any, challengers: Mapping[str, Any] | None = None
     levels = int(result.levels)
     ag = result.agreement
     method = result.method
-    # failed: the fit never moved, a collapsed curve, nothing to predict
-    stuck = [ch for ch, r in zip(result.channels, result.responses)
-             if r.method == "tsin" and at_start(r.g, levels)]
-    better = _better(result, challengers)
+    exposures = getattr(result, "exposures", None)
+    used_estimated = exposures is not None and exposures.used == "estimated"
     wb = any(r.white_balance for r in result.responses)
+    # the images disagree with the exposures used: the cause to remove first
+    off = (ag is not None and math.isfinite(ag.rms)
+           and ag.rms > EXPOSURE_FACTOR * ag.rms_fitted + EXPOSURE_DN)
+    step_exposures = "--exposures estimated" if off and not used_estimated and not wb else ""
+    better = _better(result, challengers)
     # the challengers take the exposures as exact: with the gains estimated, the step drops them
     step_better = (f"--method {better[0]}" + (" without --white-balance" if wb else "")
                    if better else "")
+    step_failed = step_exposures or step_better
+    # failed: the fit never moved, a collapsed curve, nothing to predict
+    stuck = [ch for ch, r in zip(result.channels, result.responses)
+             if r.method == "tsin" and at_start(r.g, levels)]
     if stuck:
         return ResponseVerdict(
             FAILED, f"the fit of channel{'s' if len(stuck) > 1 else ''} {', '.join(stuck)} "
                     "never left its starting line g = z/(levels − 1): the curve is not an "
-                    "estimate", (), step_better)
+                    "estimate", _worst_pair_frames(result) if off else (), step_failed)
     lo, hi = code_range(levels)
     flat = [(ch, longest_flat_run(r.g, levels)) for ch, r in zip(result.channels,
                                                                  result.responses)]
@@ -164,20 +171,17 @@ def response_verdict(result: Any, challengers: Mapping[str, Any] | None = None
         ch, n = flat[0]
         return ResponseVerdict(FAILED, f"g of channel {ch} is flat over {n} codes of "
                                        f"{lo}..{hi} (a collapsed curve): it cannot tell those "
-                                       "codes apart", (), step_better)
+                                       "codes apart", (), step_failed)
     if ag is None or not math.isfinite(ag.rms):
         return ResponseVerdict(FAILED, "no pair of neighbouring images shares readable codes: "
                                        "nothing checks the curve", (), "")
     # doubtful
     figures = (f"{ag.rms:.2f} DN RMS from a neighbour with its exposures, "
                f"{ag.rms_fitted:.2f} DN with each pair's ratio fitted")
-    exposures = getattr(result, "exposures", None)
-    used_estimated = exposures is not None and exposures.used == "estimated"
-    if ag.rms > EXPOSURE_FACTOR * ag.rms_fitted + EXPOSURE_DN:
-        step = "" if used_estimated or any(r.white_balance for r in result.responses) \
-            else "--exposures estimated"
+    if off:
         return ResponseVerdict(DOUBTFUL, f"the images disagree with the exposures used "
-                                         f"({figures})", _worst_pair_frames(result), step)
+                                         f"({figures})", _worst_pair_frames(result),
+                               step_exposures)
     if better:
         name, rms_other = better
         return ResponseVerdict(DOUBTFUL, f"the {name} curve predicts this bracket clearly "
