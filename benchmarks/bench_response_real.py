@@ -1,10 +1,13 @@
 """Response curves of real exposure brackets: every ccdcore method against OpenCV's.
 
-For every bracket (a session folder with ``role = "bracket"`` frames and their exposures), every
-method of :data:`ccdcore.response.methods.METHODS` (``tsin``, also with ``--white-balance``,
-``debevec``, ``robertson``, ``mitsunaga-nayar``) is run through
-:func:`ccdcore.response.methods.response_of`, and OpenCV's ``CalibrateDebevec`` and
-``CalibrateRobertson`` (defaults) on the same files. Real brackets have no true curve: each
+For every bracket (a session folder with ``role = "bracket"`` frames and their exposures), the
+default (``auto``: the bracket's own exposures where the listed ones are wrong, sec. 3.2 unless
+Debevec's curve predicts clearly better) and every method of
+:data:`ccdcore.response.methods.METHODS` (``tsin``, also with ``--white-balance``,
+``debevec``, ``robertson``, ``mitsunaga-nayar``; each with the default exposures) are run
+through :func:`ccdcore.response.methods.response_of`, and OpenCV's ``CalibrateDebevec`` and
+``CalibrateRobertson`` (defaults; the listed exposures, which OpenCV takes as exact) on the same
+files. Real brackets have no true curve: each
 result is judged by the prediction agreement of Tsin, Ramesh & Kanade (2001), sec. 4.2
 (:mod:`ccdcore.response.agreement`): every image predicted from its neighbours through the curve
 and the exposure ratio, RMS in DN over codes 10..245, pooled over the channels --
@@ -73,7 +76,7 @@ import _report  # noqa: E402
 from ccdcore.response import classic  # noqa: E402
 from ccdcore.response.agreement import agreement  # noqa: E402
 from ccdcore.response.brackets import bracket_records, load_bracket  # noqa: E402
-from ccdcore.response.methods import METHODS, response_of  # noqa: E402
+from ccdcore.response.methods import AUTO, METHODS, response_of  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 
 #: the shared real data, next to the repository (not part of the project)
@@ -91,7 +94,7 @@ CV_CHANNEL = {"B": 0, "G": 1, "R": 2, "L": 0}
 # -------------------------------------------------------------------------------- methods --
 def ours() -> dict[str, tuple[str, bool]]:
     """Selectable ccdcore variants: key -> (method name, white balance)."""
-    out: dict[str, tuple[str, bool]] = {}
+    out: dict[str, tuple[str, bool]] = {AUTO: (AUTO, False)}
     for name, m in METHODS.items():
         out[name] = (name, False)
         if m.white_balance:
@@ -103,7 +106,9 @@ def label(key: str) -> str:
     if key in OPENCV:
         return OPENCV[key]
     name, wb = ours()[key]
-    return f"ccdcore {name}" + (" --white-balance" if wb else "")
+    if name == AUTO:
+        return "ccdcore response (default)"
+    return f"ccdcore --method {name}" + (" --white-balance" if wb else "")
 
 
 def choose(text: str | None) -> list[str]:
@@ -203,6 +208,8 @@ def run_ours(key: str, brackets: dict, repeat: int) -> dict[str, Any]:
         if res.agreement is not None:
             agree = res.agreement
         rec.update(_figures(agree))
+        rec.update(kept=res.method, exposures=None if res.exposures is None
+                   else res.exposures.used, verdict=res.verdict.status)
         rec.update(response_of_s=total, agreement_s=t_agree, peak_mb=mem.mb,
                    memory=mem.kind, iterations=[int(r.iterations) for r in res.responses],
                    converged=[bool(r.converged) for r in res.responses])
@@ -307,9 +314,12 @@ def row(rec: dict[str, Any], load_s: float | None) -> str:
         with_read = _report.summary(rec["with_read_s"]).median
     else:
         with_read = curve.median + load_s if load_s is not None else None
+    tail = (f"  [{rec['kept']}, exposures {rec['exposures'] or 'listed'}, {rec['verdict']}]"
+            if "verdict" in rec else "")
     return (f"{name:34s} {_f(rec['rms'], '.3f', 11)} {_f(rec['rms_fitted'], '.3f', 10)} "
             f"{_f(rec['rms_blend'], '.3f', 9)} {curve_txt:>22s} {_f(with_read, '.3f', 8)} "
-            f"{_f(rec.get('response_of_s'), '.2f', 13)} {_f(rec.get('peak_mb'), '.0f', 7)}")
+            f"{_f(rec.get('response_of_s'), '.2f', 13)} {_f(rec.get('peak_mb'), '.0f', 7)}"
+            + tail)
 
 
 # ------------------------------------------------------------------------------- brackets --

@@ -15,9 +15,15 @@ agreement_rows(named), channel_agreement_rows(agreement), pair_rows(agreement, t
     its records: ``Agreement.summary_record()``) as table rows of text: pooled per method,
     per channel, per pair of neighbouring images (the page's tables and the report's; from
     :mod:`ccdcore_report.agreement`, with ``AGREEMENT_COLUMNS`` and ``dn``).
+md_text(text)
+    Any text (file names, the library's sentences) as Markdown that shows it literally.
+VERDICT_ALERTS
+    A response verdict's status (:mod:`ccdcore.response.verdict`) -> the alert type that shows
+    it: trusted ``success``, doubtful ``warning``, failed ``danger``.
 """
 from __future__ import annotations
 
+import re
 from typing import Any, Sequence
 
 import numpy as np
@@ -28,13 +34,24 @@ from ccdcore_report.agreement import (AGREEMENT_COLUMNS, agreement_rows, channel
 
 __all__ = ["ResponseFigure", "PoolHistogram", "tone_map", "histogram", "TONE_CURVES",
            "METHOD_COLOURS", "hdr_views", "hdr_planes", "agreement_rows",
-           "channel_agreement_rows", "pair_rows", "AGREEMENT_COLUMNS", "dn"]
+           "channel_agreement_rows", "pair_rows", "AGREEMENT_COLUMNS", "dn", "md_text",
+           "VERDICT_ALERTS"]
 
 #: display curves of the HDR radiance (the data are never changed)
 TONE_CURVES = ("gamma 2.2", "log")
 #: one colour per method (colour-blind safe, Okabe-Ito)
-METHOD_COLOURS = {"tsin": "#D55E00", "debevec": "#0072B2", "robertson": "#009E73",
-                  "mitsunaga-nayar": "#CC79A7"}
+METHOD_COLOURS = {"auto": "#E69F00", "tsin": "#D55E00", "debevec": "#0072B2",
+                  "robertson": "#009E73", "mitsunaga-nayar": "#CC79A7"}
+#: a response verdict's status -> the alert type showing it
+VERDICT_ALERTS = {"trusted": "success", "doubtful": "warning", "failed": "danger"}
+_PUNCTUATION = re.compile(r"([!-/:-@\[-`{-~])")
+
+
+def md_text(text: Any) -> str:
+    """``text`` for a Markdown pane, shown as it is: every ASCII punctuation character
+    backslash-escaped (CommonMark), so neither a file name's ``_`` or ``*`` nor an HTML tag,
+    a link or ``$`` (math) in it is interpreted."""
+    return _PUNCTUATION.sub(r"\\\1", str(text))
 
 
 def tone_map(radiance: NDArray, stops: float = 0.0, curve: str = "gamma 2.2"
@@ -89,8 +106,8 @@ class ResponseFigure:
                           tools="pan,wheel_zoom,box_zoom,reset,save", toolbar_location="above",
                           css_classes=["ccd-response-curves"])
         self.band = ColumnDataSource({"z": [], "lo": [], "hi": []}, name="ccd-response-band")
-        self.fig.varea("z", "lo", "hi", source=self.band, fill_color="#D55E00",
-                       fill_alpha=0.25)
+        self.band_area = self.fig.varea("z", "lo", "hi", source=self.band,
+                                        fill_color="#D55E00", fill_alpha=0.25)
         self.truth = ColumnDataSource({"z": [], "g": []})
         truth_line = self.fig.line("z", "g", source=self.truth, line_dash="dashed",
                                    line_color="black", line_width=1.5)
@@ -112,7 +129,8 @@ class ResponseFigure:
 
     def show(self, curves: dict[str, tuple[NDArray, NDArray]], chosen: str, compare: bool,
              truth: NDArray | None = None) -> None:
-        """``curves``: method -> (g, g_err) on every code; the band is ±2σ of ``chosen``."""
+        """``curves``: method -> (g, g_err) on every code (a method missing: no line); the
+        band is ±2σ of ``chosen`` (none when ``chosen`` is missing)."""
         for m, src in self.sources.items():
             if m in curves:
                 g, err = curves[m]
@@ -122,10 +140,13 @@ class ResponseFigure:
                 src.data = {"z": [], "g": [], "err": []}
             self.lines[m].visible = (m == chosen) or compare
             self.lines[m].glyph.line_width = 3 if m == chosen else 1.5
+        self.band_area.glyph.fill_color = METHOD_COLOURS.get(chosen, "gray")
         if chosen in curves:
             g, err = curves[chosen]
             e = np.nan_to_num(np.asarray(err))
             self.band.data = {"z": np.arange(g.size), "lo": g - 2 * e, "hi": g + 2 * e}
+        else:
+            self.band.data = {"z": [], "lo": [], "hi": []}
         if truth is None:
             self.truth.data = {"z": [], "g": []}
             self.truth_line.visible = False

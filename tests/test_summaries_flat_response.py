@@ -272,12 +272,13 @@ def test_response_rows(responses):
     ag = row(rows, "agreement RMS, own ratios")
     assert ag.value == r.agreement.rms and ag.unit == "DN"
     assert row(rows, "agreement RMS, fitted ratios").value == r.agreement.rms_fitted
-    assert row(rows, "verdict").text == r.verdict.line()
+    assert row(rows, "verdict").meaning == r.verdict.line()
+    assert row(rows, "verdict").text == r.verdict.status
     wb = responses["rgb-wb"].summary()
     # + 6 noise terms of two more channels
     assert len(wb.rows()) == len(rows) + 6 + len(wb.exposures.off_runs()) \
         - len(s.exposures.off_runs())
-    assert row(wb.rows(), "verdict").text == responses["rgb-wb"].verdict.line()
+    assert row(wb.rows(), "verdict").meaning == responses["rgb-wb"].verdict.line()
     assert row(wb.rows(), "σ_s, B").value == wb.sigma_s[2]
     a = s.agreement
     assert [x.value for x in a.rows()] == [a.rms, a.rms_fitted, a.rms_blend,

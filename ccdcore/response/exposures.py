@@ -165,8 +165,7 @@ class ExposureSummary(Record):
                Row("agreement, estimated exposures", self.rms_estimated, None, "DN",
                    "the same with the bracket's own exposures")]
         for run in self.off_runs():
-            out.append(Row("exposures off", None, None, "", "frames whose images disagree "
-                                                            "with the listed exposures", run))
+            out.append(Row("exposures off", None, None, "", run, "frames"))
         return tuple(out)
 
 

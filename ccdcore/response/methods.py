@@ -254,7 +254,7 @@ class ResponseSummary(Record):
         if self.exposures is not None:
             out += list(self.exposures.rows())
         if self.selection:
-            out.append(Row("method chosen", None, None, "", "why this curve", self.selection))
+            out.append(Row("method chosen", None, None, "", self.selection, self.method))
         if self.verdict is not None:
             out += list(self.verdict.rows())
         else:

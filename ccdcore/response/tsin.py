@@ -98,7 +98,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -645,7 +646,7 @@ def _phase1_step(st: _Fit, p: _PassState) -> tuple[NDArray, NDArray]:
     """Steps 6-7 at the nominal gains: eq. 15's weighted least squares for the update of the
     free knots, ``(delta, rhs)``; sets the resolution (a tenth of g's statistical error)."""
     K, free = st.s.knots.n, st.free
-    rhs = -(p.Jm[:, :K].T @ (p.W * p.tm)) - p.lam * (p.P_s @ st.gk)
+    rhs = -p.g_gradient() - p.lam * (p.P_s @ st.gk)
     delta = np.zeros(K)
     Hf = p.Hs[np.ix_(free, free)]
     try:
@@ -742,7 +743,8 @@ def _result(st: _Fit, sampled: int) -> ChannelResponse:
         notes=tuple(notes))
 
 
-class _PassState(NamedTuple):
+@dataclass(eq=False)
+class _PassState:
     """One pass at (a, b, g) and what steps 6-7 make of it (:func:`_measure`)."""
 
     J: NDArray            # rows' summed linearisations (eq. 13), in g (and a, b)
@@ -755,15 +757,33 @@ class _PassState(NamedTuple):
     lo: NDArray           # winsorising limits
     hi: NDArray
     wmean: NDArray        # winsorised means
-    Jm: NDArray           # J per pixel of the row (eq. 13's mean)
+    n: NDArray            # the rows' pixels
     W: NDArray            # rows' weights (1 / se², floored)
-    JWfull: NDArray       # Jm W
-    JW: NDArray           # its g part
     H: NDArray            # eq. 15's normal matrix in g
     dg: NDArray           # its diagonal
     lam: float            # the smoothness weight
     P_s: NDArray          # the smoothness relative to the slope (:func:`_smoothness`)
     Hs: NDArray           # H + lam P_s
+
+    @cached_property
+    def Jm(self) -> NDArray:
+        """J per pixel of the row (eq. 13's mean); made when asked (white balance, the band)."""
+        return self.J / self.n[:, None]
+
+    @cached_property
+    def JWfull(self) -> NDArray:
+        """Jm W."""
+        return self.Jm * self.W[:, None]
+
+    @property
+    def JW(self) -> NDArray:
+        """Its g part."""
+        return self.JWfull[:, :self.H.shape[0]]
+
+    def g_gradient(self) -> NDArray:
+        """Jm[:, :K]ᵀ (W tm) without forming Jm: eq. 15's data term of the right-hand side."""
+        K = self.H.shape[0]
+        return self.J[:, :K].T @ (self.W * self.tm / self.n)
 
 
 def _measure(s: _Setup, a: NDArray, b: NDArray, gk: NDArray, fit_a: bool, mad_c: float,
@@ -777,19 +797,20 @@ def _measure(s: _Setup, a: NDArray, b: NDArray, gk: NDArray, fit_a: bool, mad_c:
     J, X, resid, egrp = _pass(s, a, b, gk, want_noise=True, with_a=fit_a,
                               wcode=_eq18_codes(s, gk))
     tm, sig, se, lo, hi, wmean = row_stats(_sorted_rows(s, resid), s.offsets, TRIM, mad_c)
-    Jm = J / n[:, None]
     # a pool's mean error cannot be known better than its codes' quantisation (1/12 DN²) at a
     # tenth of the curve's mean slope: where a step flattened g, the errors there vanish with
     # the slope and their weights would grow without bound
     floor = 0.1 * max(float(gk[-1] - gk[0]), 1e-12) / (L - 1) / np.sqrt(12.0 * n)
     W = 1.0 / np.maximum(se, floor) ** 2
-    JWfull = Jm * W[:, None]
-    JW = JWfull[:, :K]
-    H = JW.T @ Jm[:, :K]
+    # eq. 15's normal matrix Σ_rows W (J/n)(J/n)ᵀ as one symmetric product of the rows scaled by
+    # √W / n (half the work of forming J/n and (J/n) W apart, and no copies of them)
+    Js = J[:, :K] * (np.sqrt(W) / n)[:, None]
+    H = Js.T @ Js
+    del Js
     dg = np.diag(H)
     lam = bw ** 4 * float(np.median(dg[dg > 0])) if np.any(dg > 0) else 0.0
     P_s = _smoothness(gk, D2)
-    return _PassState(J, X, resid, egrp, tm, sig, se, lo, hi, wmean, Jm, W, JWfull, JW, H, dg,
+    return _PassState(J, X, resid, egrp, tm, sig, se, lo, hi, wmean, n, W, H, dg,
                       lam, P_s, H + lam * P_s)
 
 

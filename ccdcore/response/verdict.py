@@ -90,10 +90,8 @@ class ResponseVerdict(Record):
         return self.status == TRUSTED
 
     def rows(self) -> tuple[Row, ...]:
-        return (Row("verdict", None, None, "", "whether the curves can be trusted: fits that "
-                                               "moved and converged, curves not collapsed, "
-                                               "exposures consistent with the images, no "
-                                               "other method clearly better", self.line()),)
+        """One row: the status as its value, the whole line as its meaning (wrapped)."""
+        return (Row("verdict", None, None, "", self.line(), self.status),)
 
 
 def longest_flat_run(g: Any, levels: int) -> int:
@@ -197,9 +195,9 @@ def response_verdict(result: Any, challengers: Mapping[str, Any] | None = None
         return ResponseVerdict(DOUBTFUL, "the bracket's own exposures did not settle in "
                                          f"{exposures.iterations} alternations ({figures})",
                                (), "")
-    what = f"{method} curve" + (", the bracket's own exposures" if used_estimated else "")
-    return ResponseVerdict(TRUSTED, f"the {what} converged and predicts the images within "
-                                    f"{figures}", (), "")
+    own = " with the bracket's own exposures" if used_estimated else ""
+    return ResponseVerdict(TRUSTED, f"the {method} curve converged{own} and predicts the images "
+                                    f"within {figures}", (), "")
 
 
 def _better(result: Any, challengers: Mapping[str, Any] | None) -> tuple[str, float] | None:

@@ -1,6 +1,9 @@
-"""The Response & HDR page in headless Chromium: on the tsin01 demo the curves are drawn, the
-band is ccdcore's, and choosing another method changes the curve the browser holds; on a colour
-bracket each channel's curves reach the browser and the agreement tables are shown."""
+"""The Response & HDR page in headless Chromium: on the tsin01 demo the default curve is drawn
+with ccdcore's band and the library's verdict, word for word, and only the default reaches the
+browser; choosing another method computes it and changes the curve the browser holds; on a
+colour bracket "Compare all methods" adds every method's curves and agreement, and each
+channel's curves reach the browser; on a bracket with wrong listed exposures the page says which
+exposures it used and which frames look off, and the exposures choice recomputes."""
 from __future__ import annotations
 
 import re
@@ -12,10 +15,10 @@ from playwright.sync_api import Page, expect
 import ccdcore_app.cache
 from ccdcore_app.cache import SharedResults
 from ccdcore.response.brackets import load_bracket
-from ccdcore.response.methods import response_of
+from ccdcore.response.methods import METHODS, response_of
 from ccdcore.session import open_session
 
-TIMEOUT = 90_000  # four methods with their bands are computed on first visit
+TIMEOUT = 90_000  # the default result, then one more method, on a busy machine
 
 
 @pytest.fixture(autouse=True)
@@ -33,34 +36,62 @@ BAND_AT = """(code) => {
   return null;
 }"""
 
+CURVE_AT = """([method, code]) => {
+  for (const doc of Bokeh.documents) {
+    const src = doc.get_model_by_name('ccd-response-' + method);
+    if (src && src.data.g && src.data.g.length > code) return src.data.g[code];
+  }
+  return null;
+}"""
 
-def test_switching_method_changes_the_curve(page: Page, serve_app, assets, settled_box):
+VERDICT = ".ccd-response-verdict"
+
+
+def _verdict_shown(page: Page, line: str, status: str) -> None:
+    """The verdict alert holds ``line`` exactly, styled by ``status``."""
+    alert = page.locator(VERDICT)
+    expect(alert).to_have_text(line, timeout=TIMEOUT)
+    assert alert.locator("p").all_inner_texts() == [line]     # (the text is in a shadow root)
+    kind = {"trusted": "success", "doubtful": "warning", "failed": "danger"}[status]
+    expect(alert).to_have_class(re.compile(rf"\balert-{kind}\b"))
+
+
+def test_default_then_a_chosen_method(page: Page, serve_app, assets, settled_box):
     demo = assets / "tsin01"
     brackets = load_bracket(open_session(demo))
     code = 100
-    expected = {}
-    for name in ("tsin", "debevec"):
-        c = response_of(brackets, name)["L"]
-        expected[name] = float(c.g[code] + 2 * c.g_err[code])
-    assert abs(expected["tsin"] - expected["debevec"]) > 1e-4   # the change is visible
+    default = response_of(brackets)
+    debevec = response_of(brackets, "debevec")
+    expected = {name: float(r["L"].g[code] + 2 * r["L"].g_err[code])
+                for name, r in (("auto", default), ("debevec", debevec))}
+    assert abs(expected["auto"] - expected["debevec"]) > 1e-4   # the change is visible
 
     url = serve_app(demo)
     page.set_viewport_size({"width": 1400, "height": 1200})
     page.goto(url)
     expect(page.get_by_text("Loaded tsin01")).to_be_visible(timeout=TIMEOUT)
     page.get_by_role("button", name=re.compile("Response & HDR")).click()
-    expect(page.locator(".ccd-response-curves canvas").first).to_be_visible(timeout=TIMEOUT)
     page.wait_for_function(f"() => ({BAND_AT})({code}) !== null", timeout=TIMEOUT)
     shown = page.evaluate(BAND_AT, code)
-    assert np.isclose(shown, expected["tsin"], rtol=0, atol=1e-9), (shown, expected)
-    expect(page.get_by_text(re.compile(r"Tsin, Ramesh & Kanade \(sec\. 3\.2\): \d+ "
+    assert np.isclose(shown, expected["auto"], rtol=0, atol=1e-9), (shown, expected)
+    _verdict_shown(page, default.verdict.line(), default.verdict.status)
+    expect(page.locator(".ccd-response-exposures")).to_contain_text(default.selection)
+    label = METHODS[default.method].label
+    expect(page.get_by_text(re.compile(rf"auto \(default\): {re.escape(label)}: \d+ "
                                        r"iteration"))).to_be_visible(timeout=TIMEOUT)
+    # only the default was computed: no other method's curve reached the browser
+    for m in METHODS:
+        assert page.evaluate(CURVE_AT, [m, code]) is None, m
 
     page.get_by_role("button", name="Debevec & Malik", exact=True).click()
     page.wait_for_function(
         f"() => Math.abs(({BAND_AT})({code}) - {expected['debevec']}) < 1e-9", timeout=TIMEOUT)
+    _verdict_shown(page, debevec.verdict.line(), debevec.verdict.status)
     expect(page.get_by_text(re.compile(r"Debevec & Malik: 1 iteration"))).to_be_visible(
         timeout=TIMEOUT)
+    # the default's curve stays overlaid
+    assert page.evaluate(CURVE_AT, ["auto", code]) == pytest.approx(
+        float(default["L"].g[code]), abs=1e-12)
     # the HDR views are drawn and read out radiance ± sigma under the cursor
     expect(page.locator(".ccd-hdr-radiance canvas").first).to_be_visible(timeout=TIMEOUT)
     expect(page.locator(".ccd-hdr-sigma canvas").first).to_be_visible(timeout=TIMEOUT)
@@ -74,17 +105,6 @@ def test_switching_method_changes_the_curve(page: Page, serve_app, assets, settl
 
 
 # ------------------------------------------------------------------ a colour bracket ---------
-RGB_TIMEOUT = 60_000  # the four methods on the server (about 10 s on an idle machine)
-
-CURVE_AT = """([method, code]) => {
-  for (const doc of Bokeh.documents) {
-    const src = doc.get_model_by_name('ccd-response-' + method);
-    if (src && src.data.g && src.data.g.length > code) return src.data.g[code];
-  }
-  return null;
-}"""
-
-
 @pytest.fixture(scope="module")
 def rgb_bracket(tmp_path_factory):
     """The colour bracket the test opens: one folder holding ``session.toml`` (a small sec. 4.1
@@ -96,8 +116,7 @@ def rgb_bracket(tmp_path_factory):
     return root
 
 
-def test_rgb_bracket_shows_each_channel_and_the_agreement(page: Page, serve_app,
-                                                          rgb_bracket):
+def test_rgb_bracket_compares_all_methods_per_channel(page: Page, serve_app, rgb_bracket):
     session = open_session(rgb_bracket)
     assert session.camera.layout == "rgb"
     debevec = response_of(load_bracket(session), "debevec")
@@ -109,8 +128,14 @@ def test_rgb_bracket_shows_each_channel_and_the_agreement(page: Page, serve_app,
     url = serve_app(rgb_bracket, allowed_roots=[rgb_bracket.parent])
     page.set_viewport_size({"width": 1400, "height": 1200})
     page.goto(url + "/?page=response_hdr")
-    page.wait_for_function(f"() => ({CURVE_AT})(['debevec', {code}]) !== null",
-                           timeout=RGB_TIMEOUT)
+    page.wait_for_function(f"() => ({CURVE_AT})(['auto', {code}]) !== null",
+                           timeout=TIMEOUT)
+    expect(page.locator(VERDICT)).to_be_visible(timeout=TIMEOUT)
+    assert page.evaluate(CURVE_AT, ["debevec", code]) is None
+    page.get_by_role("button", name="Compare all methods").click()
+    for m in METHODS:
+        page.wait_for_function(f"() => ({CURVE_AT})(['{m}', {code}]) !== null",
+                               timeout=TIMEOUT)
     expect(page.locator(".ccd-response-curves canvas").first).to_be_visible()
     # the first channel is shown; each channel button shows that channel's curves
     shown = page.evaluate(CURVE_AT, ["debevec", code])
@@ -119,21 +144,62 @@ def test_rgb_bracket_shows_each_channel_and_the_agreement(page: Page, serve_app,
         page.get_by_role("button", name=ch, exact=True).click()
         page.wait_for_function(
             f"() => Math.abs(({CURVE_AT})(['debevec', {code}]) - {g[ch]!r}) < 1e-12",
-            timeout=RGB_TIMEOUT)
+            timeout=TIMEOUT)
     expect(page.locator(".ccd-response-error")).to_be_hidden()
 
     # the pooled agreement of every method, Debevec & Malik's as ccdcore computes it
     a = debevec.agreement
-    row = page.locator(".ccd-response-agreement tr", has_text="Debevec & Malik")
+    row = page.locator(".ccd-response-agreement tr").filter(
+        has=page.get_by_role("cell", name="Debevec & Malik", exact=True))
     for value in (a.rms, a.rms_fitted, a.rms_blend):
         expect(row).to_contain_text(f"{value:.2f}")
-    for label in ("Tsin, Ramesh & Kanade (sec. 3.2)", "Robertson et al.", "Mitsunaga & Nayar"):
+    for label in ("auto (default)", "Tsin, Ramesh & Kanade (sec. 3.2)", "Robertson et al.",
+                  "Mitsunaga & Nayar"):
         expect(page.locator(".ccd-response-agreement")).to_contain_text(label)
-    # the chosen method's pairs of neighbouring images, per channel
+    # the chosen method's pairs of neighbouring images, per channel, and its verdict
     page.get_by_role("button", name="Debevec & Malik", exact=True).click()
+    _verdict_shown(page, debevec.verdict.line(), debevec.verdict.status)
     pairs = page.locator(".ccd-response-pairs")
     expect(pairs).to_contain_text("B: ratio fit/nominal")
     first = a["B"].pairs[0]
     row = pairs.locator("tr", has_text="1\u21922")
     expect(row).to_contain_text(f"{first.rms:.2f}")
     expect(row).to_contain_text(f"{first.ratio_fitted / (debevec.t[1] / debevec.t[0]):.3f}")
+
+
+# ------------------------------------------------------------------ wrong listed exposures ---
+@pytest.fixture(scope="module")
+def wrong_bracket(tmp_path_factory):
+    """A camera-like bracket whose listed exposures are wrong for a run of pairs."""
+    from ccdcore.simulate import simulate
+
+    root = tmp_path_factory.mktemp("wrong-bracket") / "listed-wrong"
+    simulate("tsin01", root, seed=1, camera="real-listed-wrong", size=(96, 64))
+    return root
+
+
+def test_wrong_listed_exposures_and_the_exposures_choice(page: Page, serve_app,
+                                                         wrong_bracket):
+    brackets = load_bracket(open_session(wrong_bracket))
+    default = response_of(brackets)
+    listed = response_of(brackets, exposures="listed")
+    assert default.exposures.used == "estimated"
+    summary = default.exposures.summary()
+    runs = summary.off_runs()
+    assert runs and "_" in runs[0]        # frame names with underscores, shown as they are
+
+    url = serve_app(wrong_bracket, allowed_roots=[wrong_bracket.parent])
+    page.set_viewport_size({"width": 1400, "height": 1200})
+    page.goto(url + "/?page=response_hdr")
+    _verdict_shown(page, default.verdict.line(), default.verdict.status)
+    note = page.locator(".ccd-response-exposures")
+    expect(note).to_contain_text(summary.line())
+    for run in runs:
+        expect(note).to_contain_text(run)
+
+    page.locator(".ccd-response-exposure-mode").get_by_role(
+        "button", name="listed", exact=True).click()
+    _verdict_shown(page, listed.verdict.line(), listed.verdict.status)
+    expect(note).to_contain_text("exposures: listed")
+    expect(note).not_to_contain_text(runs[0])
+    expect(page.locator(".ccd-response-error")).to_be_hidden()

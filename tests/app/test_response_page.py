@@ -1,10 +1,13 @@
-"""The Response & HDR page without a browser: what it computes and shows, and what it says
-without a bracket or with a bracket it cannot use; a colour bracket's channel choice, the
-prediction agreement with its warning, and one computation shared by every browser session."""
+"""The Response & HDR page without a browser: on opening it computes the library's default
+result only and shows its verdict in the library's words; other methods when asked (the method
+choice, "Compare all methods"); the exposures choice; what it says without a bracket or with a
+bracket it cannot use; a colour bracket's channel choice, the prediction agreement, and one
+computation shared by every browser session."""
 from __future__ import annotations
 
 import asyncio
 import dataclasses
+import html
 import shutil
 import time
 
@@ -15,14 +18,18 @@ from bokeh.document import Document
 import ccdcore_app.cache
 import ccdcore_app.pages.response_hdr as response_hdr
 from ccdcore_app.cache import SharedResults
-from ccdcore_app.pages.response_hdr import LABELS, NO_BRACKET_MESSAGE, ResponsePage, untrusted_reason
-from ccdcore_app.response_plots import tone_map
+from ccdcore_app.pages.response_hdr import (AUTO_LABEL, LABELS, NO_BRACKET_MESSAGE,
+                                            ResponsePage)
+from ccdcore_app.response_plots import VERDICT_ALERTS, md_text, tone_map
 from ccdcore_app.state import AppState
 from ccdcore.channels import channel_names
 from ccdcore.errors import CcdError
-from ccdcore.response.methods import METHODS
+from ccdcore.response.methods import AUTO, METHODS
+from ccdcore.response.verdict import ResponseVerdict
 from ccdcore.simulate import simulate
 from _coro import run as _run
+
+KEY = (3, False, "auto")      # the page's cache key with its default options
 
 
 @pytest.fixture(autouse=True)
@@ -39,33 +46,94 @@ def _page(path, **kw):
     return state, page
 
 
+def _rendered(pane) -> str:
+    """The HTML a Markdown pane (an alert) sends to the browser, unescaped once (Panel sends
+    it escaped)."""
+    return html.unescape(pane.get_root(Document()).text)
+
+
 @pytest.fixture(scope="module")
 def shown(assets):
     return _page(assets / "tsin01")
 
 
-def test_every_method_is_drawn_with_its_curve(shown):
+def test_only_the_default_is_computed_on_open(shown):
     state, page = shown
     assert page.error == "" and state.error == ""
-    for m in METHODS:
-        np.testing.assert_array_equal(page.curves.curve(m), page.responses[m]["L"].g)
+    assert list(page.responses) == [AUTO]
+    assert list(state.results.response) == [KEY]
+    res = page.responses[AUTO]
+    assert res.requested == AUTO and res.method in ("tsin", "debevec")
+    np.testing.assert_array_equal(page.curves.curve(AUTO), res["L"].g)
+    for m in METHODS:                              # the others are not computed, nor drawn
+        assert page.curves.curve(m).size == 0
     band = page.curves.band.data
-    e = page.responses["tsin"]["L"].g_err
-    np.testing.assert_allclose(band["hi"] - band["lo"], 4 * e)
-    assert list(page.noise_table.object["method"]) == [m.label for m in METHODS.values()]
+    np.testing.assert_allclose(band["hi"] - band["lo"], 4 * res["L"].g_err)
+    assert list(page.noise_table.object["method"]) == [f"{AUTO_LABEL}: "
+                                                       f"{METHODS[res.method].label}"]
+    # the HDR is merged with the default result
+    assert page.hdr is state.results.response[KEY]["hdr"][AUTO]
 
 
-def test_method_choice_moves_the_band_without_recomputing(shown):
+def test_the_verdict_is_the_librarys_line(shown):
+    _, page = shown
+    res = page.responses[AUTO]
+    alert = page.verdict_alert
+    assert alert.visible and alert.object == md_text(res.verdict.line())
+    assert alert.alert_type == VERDICT_ALERTS[res.verdict.status]
+    assert f">{html.escape(res.verdict.line(), quote=False)}</p>" in _rendered(alert)
+    note = page.exposures_note.object
+    assert md_text(res.selection) in note
+    if res.exposures is not None:
+        assert md_text(res.exposures.summary().line()) in note
+    assert not hasattr(response_hdr, "untrusted_reason")
+    assert not hasattr(response_hdr, "TRUST_FACTOR")
+
+
+def test_verdict_styles_and_escapes_file_names(rgb_shown):
+    """Doubtful is a warning, failed a danger alert; a frame name is shown as it is, never as
+    Markdown or HTML."""
+    _, page, _ = rgb_shown
+    saved = page.responses[AUTO]
+    frames = ("<b>k_1*</b>.tif", "[x](y) $z$.tif")
+    try:
+        for status, alert_type in (("doubtful", "warning"), ("failed", "danger"),
+                                   ("trusted", "success")):
+            verdict = ResponseVerdict(status, "the images disagree with the exposures used",
+                                      frames, "--exposures estimated")
+            page.responses[AUTO] = dataclasses.replace(saved, verdict=verdict)
+            page.method = AUTO
+            page._render_agreement()
+            assert page.verdict_alert.alert_type == alert_type
+            assert page.verdict_alert.object == md_text(verdict.line())
+            text = _rendered(page.verdict_alert)
+            assert f"<p>{html.escape(verdict.line(), quote=False)}</p>" in text, text
+            assert "<b>" not in text and "<a " not in text and "<em>" not in text
+    finally:
+        page.responses[AUTO] = saved
+        page._render_agreement()
+
+
+def test_choosing_a_method_computes_it_and_overlays_it(shown):
     state, page = shown
-    cached = state.results.response[(page.bloom_radius, False)]["responses"]
+    entry = state.results.response[KEY]
+    default = page.responses[AUTO]
     page.method = "robertson"
+    _run(page.show_method())
+    assert list(page.responses) == [AUTO, "robertson"] and page.responses is entry["responses"]
+    rob = page.responses["robertson"]
+    assert rob.requested == "robertson" and rob.method == "robertson"
     band = page.curves.band.data
-    np.testing.assert_allclose(band["lo"], page.responses["robertson"]["L"].g
-                               - 2 * page.responses["robertson"]["L"].g_err)
-    assert state.results.response[(page.bloom_radius, False)]["responses"] is cached
-    _run(page.show_hdr())
-    assert page.hdr is state.results.response[(page.bloom_radius, False)]["hdr"]["robertson"]
-    page.method = "tsin"
+    np.testing.assert_allclose(band["lo"], rob["L"].g - 2 * rob["L"].g_err)
+    np.testing.assert_array_equal(page.curves.curve("robertson"), rob["L"].g)
+    np.testing.assert_array_equal(page.curves.curve(AUTO), default["L"].g)   # overlaid
+    assert page.verdict_alert.object == md_text(rob.verdict.line())
+    assert page.hdr is entry["hdr"]["robertson"]
+    # back to the default: nothing recomputed
+    page.method = AUTO
+    _run(page.show_method())
+    assert page.responses[AUTO] is default and page.hdr is entry["hdr"][AUTO]
+    assert page.verdict_alert.object == md_text(default.verdict.line())
 
 
 def test_hdr_readout_reads_radiance_and_sigma(shown):
@@ -103,7 +171,7 @@ def test_tone_map_maps_the_white_point():
 def test_session_without_bracket_says_what_to_capture(assets):
     _, page = _page(assets / "healey94")
     assert page.info_alert.visible and page.info_alert.object == NO_BRACKET_MESSAGE
-    assert not page.content.visible
+    assert not page.content.visible and not page.verdict_alert.visible
 
 
 def test_unusable_bracket_shows_an_error_and_the_app_goes_on(assets, tmp_path):
@@ -120,21 +188,88 @@ def test_unusable_bracket_shows_an_error_and_the_app_goes_on(assets, tmp_path):
     _run(page.refresh())
     assert page.error_alert.visible and "saturated" in page.error
     assert "s0_k00.tif" in page.error
-    assert page.responses is None
+    assert md_text("s0_k00.tif") in page.error_alert.object     # escaped where shown
+    assert page.responses is None and not page.verdict_alert.visible
 
 
 def test_white_balance_gains_on_the_page(assets):
-    """Ticking the gains recomputes sec. 3.2 with them (cached apart); the table shows a_k / t_k
-    off 1 only for that method."""
+    """Ticking the gains recomputes the default with them (cached apart); sec. 3.2 chosen
+    estimates them, the table shows a_k / t_k off 1; a classic method takes the exposures as
+    they are."""
     state, page = _page(assets / "tsin01")
     page.param.update(white_balance=True)
     page._session = None
     _run(page.refresh())
-    assert (3, True) in state.results.response and (3, False) in state.results.response
+    assert (3, True, "auto") in state.results.response and KEY in state.results.response
+    res = page.responses[AUTO]
+    assert res.requested == AUTO and page.verdict_alert.object == md_text(res.verdict.line())
+    page.method = "tsin"
+    _run(page.show_method())
     c = page.responses["tsin"]["L"]
     assert c.white_balance and not np.allclose(c.a, c.t)
-    assert np.allclose(page.responses["debevec"]["L"].a, c.t)
     assert "a_k / t_k" in page.ab_table.object.columns
+    page.method = "debevec"
+    _run(page.show_method())
+    d = page.responses["debevec"]["L"]
+    assert not d.white_balance and np.allclose(d.a, d.t)
+    assert page.error == ""
+
+
+# ------------------------------------------------------------------ exposures ----------------
+@pytest.fixture(scope="module")
+def wrong_root(tmp_path_factory):
+    """A camera-like bracket whose listed exposures are wrong for a run of pairs."""
+    root = tmp_path_factory.mktemp("wrong") / "listed-wrong"
+    simulate("tsin01", root, seed=1, camera="real-listed-wrong", size=(96, 64))
+    return root
+
+
+def test_wrong_listed_exposures_are_estimated_and_named(wrong_root):
+    state = _state(wrong_root)
+    page = ResponsePage(state, auto=False)
+    _run(page.refresh())
+    assert page.error == "", page.error
+    res = page.responses[AUTO]
+    assert res.exposures is not None and res.exposures.used == "estimated"
+    summary = res.exposures.summary()
+    runs = summary.off_runs()
+    assert runs, "the simulated off pairs are named"
+    note = page.exposures_note.object
+    assert md_text(summary.line()) in note
+    for run in runs:
+        assert f"- {md_text(run)}" in note
+    assert page.verdict_alert.object == md_text(res.verdict.line())
+    # listed: the exposures as they are, cached apart; back to auto: nothing recomputed
+    default = res
+    page.exposures = "listed"
+    page._session = None
+    _run(page.refresh())
+    assert (3, False, "listed") in state.results.response
+    listed = page.responses[AUTO]
+    assert listed.exposures is None and listed is not default
+    assert "exposures: listed" in page.exposures_note.object
+    assert page.verdict_alert.object == md_text(listed.verdict.line())
+    page.exposures = "estimated"
+    page._session = None
+    _run(page.refresh())
+    assert page.responses[AUTO].exposures.used == "estimated"
+    page.exposures = "auto"
+    page._session = None
+    _run(page.refresh())
+    assert page.responses[AUTO] is default
+    assert sorted(k[2] for k in state.results.response) == ["auto", "estimated", "listed"]
+
+
+def test_exposures_choice_is_a_selector_with_its_doc():
+    p = ResponsePage.param.exposures
+    assert list(p.objects) == ["auto", "listed", "estimated"] and p.default == "auto"
+    assert "listed" in p.doc and "estimated" in p.doc
+    page = ResponsePage(AppState(), auto=False)
+    assert list(page.exposures_select.options) == ["auto", "listed", "estimated"]
+    page.exposures_select.value = "listed"              # as a click in the browser does
+    assert page.exposures == "listed"
+    labels = list(page.method_select.options)
+    assert labels == [AUTO_LABEL, *(m.label for m in METHODS.values())]
 
 
 # ------------------------------------------------------------------ a colour bracket ---------
@@ -163,12 +298,29 @@ def _models(root) -> dict[str, set[str]]:
 @pytest.fixture(scope="module")
 def rgb_shown(rgb_root):
     """The page on the colour bracket, rendered into a Bokeh document *before* the bracket
-    is shown (as in a browser: the served channel buttons then take part)."""
+    is shown (as in a browser: the served channel buttons then take part), then every method
+    compared: the figure's models are the same before and after (sources fed, nothing
+    rebuilt)."""
     state = _state(rgb_root)
     page = ResponsePage(state, auto=False)
     root = page.__panel__().get_root(Document())
     _run(page.refresh())
+    assert list(page.responses) == [AUTO]
+    before = _models(root)
+    _run(page.compare_all())
+    assert _models(root) == before
     return state, page, root
+
+
+def test_compare_all_methods_adds_the_others(rgb_shown):
+    state, page, _ = rgb_shown
+    assert list(page.responses) == [AUTO, *METHODS]
+    assert page.compare and not page.compare_button.disabled
+    for m in (AUTO, *METHODS):
+        np.testing.assert_array_equal(page.curves.curve(m), page.responses[m]["R"].g)
+        assert page.curves.lines[m].visible
+        assert page.responses[m].requested == m
+    assert list(state.results.response) == [KEY]
 
 
 def test_rgb_bracket_sets_the_channel_choice_consistently(rgb_shown):
@@ -190,21 +342,23 @@ def test_rgb_channel_choice_shows_each_channel_in_place(rgb_shown):
     for ch in ("G", "B", "R"):
         page.channel_select.value = ch                  # as a click in the browser does
         assert page.channel == ch
-        for m in METHODS:
-            np.testing.assert_array_equal(page.curves.curve(m), page.responses[m][ch].g)
+        for m, r in page.responses.items():
+            np.testing.assert_array_equal(page.curves.curve(m), r[ch].g)
         curves[ch] = page.curves.curve("debevec").copy()
     assert not np.array_equal(curves["R"], curves["G"])  # three curves, not one shown thrice
     assert _models(root) == before                       # sources fed, nothing rebuilt
 
 
 def _known(monkeypatch, **by_channels):
-    """``compute_responses`` replaced by the results already computed (counted, slowed), by
-    the session's channels: the tests of sharing and of the channel choice need results, not
-    the estimators' time. A copy each call, as a computation gives a new object."""
-    def known(session, *args, **kwargs):
-        return dict(by_channels["".join(channel_names(session.camera.layout))])
+    """``compute_response`` replaced by the results already computed (counted, slowed), by
+    the session's channels and the method: the tests of sharing and of the channel choice need
+    results, not the estimators' time. A copy each call, as a computation gives a new
+    object."""
+    def known(session, method=AUTO, *args, **kwargs):
+        found = by_channels["".join(channel_names(session.camera.layout))][method]
+        return dataclasses.replace(found)
     counted = _Counting(known)
-    monkeypatch.setattr(response_hdr, "compute_responses", counted)
+    monkeypatch.setattr(response_hdr, "compute_response", counted)
     return counted
 
 
@@ -224,20 +378,24 @@ def test_new_session_with_other_channels_keeps_choice_and_widget_in_step(
         assert list(page.channel_select.options) == names
         assert page.channel == page.channel_select.value == names[0]
         assert page.channel_select.visible == (len(names) > 1)
+        assert list(page.responses) == [AUTO]
 
 
 # ------------------------------------------------------------------ agreement ----------------
-def test_agreement_tables_show_every_method_and_the_chosen_ones_pairs(rgb_shown):
+def test_agreement_tables_show_every_curve_and_the_chosen_ones_pairs(rgb_shown):
     _, page, _ = rgb_shown
     pooled = page.agreement_table.object
-    assert list(pooled["method"]) == [LABELS[m] for m in METHODS]
-    for m, row in zip(METHODS, pooled.to_dict("records")):
+    default = page.responses[AUTO]
+    assert list(pooled["method"]) == [f"{AUTO_LABEL}: {METHODS[default.method].label}",
+                                      *(LABELS[m] for m in METHODS)]
+    for m, row in zip((AUTO, *METHODS), pooled.to_dict("records")):
         a = page.responses[m].agreement
         assert list(row.values())[1:] == [f"{a.rms:.2f}", f"{a.rms_fitted:.2f}",
                                           f"{a.rms_blend:.2f}"], m
     for method in ("robertson", "debevec"):
         page.method = method
         res = page.responses[method]
+        assert page.verdict_alert.object == md_text(res.verdict.line())
         pairs = page.pairs_table.object
         assert len(pairs) == res.t.size - 1
         t = res.t
@@ -248,57 +406,22 @@ def test_agreement_tables_show_every_method_and_the_chosen_ones_pairs(rgb_shown)
                 assert row[f"{ch}: fitted"] == f"{p.rms_fitted:.2f}"
                 assert row[f"{ch}: ratio fit/nominal"] == \
                     f"{p.ratio_fitted / (t[p.k] / t[p.j]):.3f}"
-        assert LABELS[method] in page.pairs_note.object
-    page.method = "tsin"
+        assert md_text(LABELS[method]) in page.pairs_note.object
+    page.method = AUTO
 
 
-def _worse(result, factor: float):
-    a = result.agreement
-    return dataclasses.replace(result, agreement=dataclasses.replace(a, rms=a.rms * factor))
-
-
-def test_untrusted_reason_rules(rgb_shown):
-    _, page, _ = rgb_shown
-    results = dict(page.responses)
-    best = min(results, key=lambda m: results[m].agreement.rms)
-    for m, r in results.items():
-        assert untrusted_reason(r, results) is None, m    # a clean simulated bracket
-    bad = _worse(results["debevec"], 1.6 * results[best].agreement.rms
-                 / results["debevec"].agreement.rms)
-    reason = untrusted_reason(bad, results)
-    assert reason is not None and "1.6\u00d7" in reason and LABELS[best] in reason
-    fine = _worse(results["debevec"], 1.4 * results[best].agreement.rms
-                  / results["debevec"].agreement.rms)
-    assert untrusted_reason(fine, results) is None
-    res = results["robertson"]
-    stuck = dataclasses.replace(res, responses=(
-        res.responses[0], dataclasses.replace(res.responses[1], converged=False),
-        res.responses[2]))
-    reason = untrusted_reason(stuck, list(results.values()))
-    assert reason is not None and "did not converge (channel G)" in reason
-    no_agreement = dataclasses.replace(res, agreement=None)
-    assert untrusted_reason(no_agreement, results) is None
-
-
-def test_untrusted_result_shows_a_warning_for_the_chosen_method_only(rgb_shown):
-    _, page, _ = rgb_shown
-    saved = dict(page.responses)
-    best = min(saved.values(), key=lambda r: r.agreement.rms).agreement.rms
-    try:
-        page.responses["mitsunaga-nayar"] = _worse(
-            saved["mitsunaga-nayar"], 2 * best / saved["mitsunaga-nayar"].agreement.rms)
-        page.method = "robertson"
-        assert not page.warning_alert.visible
-        page.method = "mitsunaga-nayar"
-        assert page.warning_alert.visible
-        assert "Mitsunaga & Nayar's curves may not be trustworthy" in page.warning_alert.object
-        assert page.error == "" and not page.error_alert.visible   # a warning, not an error
-        page.method = "robertson"
-        assert not page.warning_alert.visible
-    finally:
-        page.responses.clear()
-        page.responses.update(saved)
-        page.method = "tsin"
+def test_default_agreement_lists_its_challenger(rgb_root):
+    """Before any other method is computed, the table shows the curve the default was checked
+    against (the library's ``compared``)."""
+    state = _state(rgb_root)
+    page = ResponsePage(state, auto=False)
+    _run(page.refresh())
+    res = page.responses[AUTO]
+    rows = page.agreement_table.object.to_dict("records")
+    assert len(rows) == 1 + len(res.compared) and res.compared
+    for (name, a), row in zip(res.compared.items(), rows[1:]):
+        assert row["method"].startswith(f"{LABELS[name]} (challenger")
+        assert list(row.values())[1] == f"{a.rms:.2f}"
 
 
 # ------------------------------------------------------------------ shared computations ------
@@ -340,6 +463,7 @@ def test_two_pages_on_one_state_compute_once(rgb_root, rgb_shown, monkeypatch):
     _, ticks = _gather_with_ticks(one.refresh(), two.refresh())
     assert responses.calls == 1 and hdr.calls == 1
     assert one.responses is two.responses and one.hdr is two.hdr
+    assert list(one.responses) == [AUTO]
     assert one.error == two.error == state.error == ""
     assert ticks >= 20                 # the event loop ran on while both waited (> 0.4 s)
 
@@ -357,17 +481,29 @@ def test_browser_sessions_share_one_computation(rgb_root, rgb_shown, monkeypatch
     one, two = ResponsePage(first, auto=False), ResponsePage(second, auto=False)
     _, ticks = _gather_with_ticks(one.refresh(), two.refresh())
     assert responses.calls == 1 and hdr.calls == 1
-    assert one.responses is two.responses and one.hdr is two.hdr
+    assert one.responses[AUTO] is two.responses[AUTO] and one.hdr is two.hdr
     assert any("another browser tab" in s for s in statuses), statuses
     assert ticks >= 20
     third = ResponsePage(_state(rgb_root), auto=False)
     _run(third.refresh())
-    assert responses.calls == 1 and hdr.calls == 1 and third.responses is one.responses
+    assert responses.calls == 1 and hdr.calls == 1
+    assert third.responses[AUTO] is one.responses[AUTO]
+    # a method asked for in one session is shared with the others too
+    one.method = "robertson"
+    _run(one.show_method())
+    third.method = "robertson"
+    _run(third.show_method())
+    assert responses.calls == 2 and third.responses["robertson"] is one.responses["robertson"]
     # other options are another computation
     third.param.update(bloom_radius=0)
     third._session = None
     _run(third.refresh())
-    assert responses.calls == 2 and third.responses is not one.responses
+    assert responses.calls == 4        # the default and the chosen method, with radius 0
+    assert third.responses[AUTO] is not one.responses[AUTO]
+    third.param.update(exposures="listed")
+    third._session = None
+    _run(third.refresh())
+    assert responses.calls == 6
 
 
 def _slow(progress=None, fail: bool = False, steps: int = 60):

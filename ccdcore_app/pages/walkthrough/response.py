@@ -61,8 +61,13 @@ class ResponseStep(Step):
 
         self.response_fig = ResponseFigure(["tsin"], {"tsin": METHODS["tsin"].label},
                                            height=340)
+        # the verdict in the library's words, as the Response & HDR page shows it
+        self.verdict_alert = pn.pane.Alert("", alert_type="success",
+                                           sizing_mode="stretch_width",
+                                           css_classes=["ccd-wt-response-verdict"])
         self.response_holder = pn.Column(pn.pane.Bokeh(self.response_fig.fig,
                                                        sizing_mode="stretch_width"),
+                                         self.verdict_alert,
                                          visible=False, sizing_mode="stretch_width")
         self.hdr_view, self.hdr_sigma = hdr_views(IMAGE_WIDTH,
                                                   ("ccd-wt-hdr", "ccd-wt-hdr-sigma"))
@@ -94,11 +99,16 @@ class ResponseStep(Step):
     def draw(self, found: ResponseAndHdr) -> None:
         if found.skipped:
             return
-        from ...response_plots import hdr_planes
+        from ...response_plots import VERDICT_ALERTS, hdr_planes, md_text
 
         res = found.response
         ch = res.channels[0]
         self.response_fig.show({"tsin": (res[ch].g, res[ch].g_err)}, "tsin", False)
+        verdict = res.verdict
+        self.verdict_alert.param.update(
+            object="" if verdict is None else md_text(verdict.line()),
+            alert_type="info" if verdict is None else VERDICT_ALERTS.get(verdict.status, "info"),
+            visible=verdict is not None)
         self.response_holder.visible = True
         p = hdr_planes(found.hdr, 0)
         self.hdr_view.show(p["display"], clim=(0.0, 1.0))
