@@ -42,6 +42,7 @@ import numpy as np
 from . import channels as chan
 from .common import named_frames
 from .errors import CcdError
+from .reduce_names import STREAMED_NAME
 from .kmap_kernels import (NO_SIGMA, NOT_LIT, FixedPattern, eq49_reject, fixed_pattern_of,
                            local_mean, slope_moments, slopes_into)
 from .stats import MomentsResult, PixelMoments, pair_statistics
@@ -50,8 +51,6 @@ __all__ = ["Reducer", "STREAMED", "READ_AHEAD", "Check", "stand_in", "PairLevel"
 
 #: frames decoded ahead in threads by the streamed reductions
 READ_AHEAD = min(4, os.cpu_count() or 1)
-#: what a product's provenance records of a streamed run
-STREAMED_NAME = "streamed (this process)"
 
 #: ``check(name, frame)``: raise :class:`CcdError` for a frame the estimator cannot use
 Check = Callable[[str, np.ndarray], None]
@@ -173,8 +172,9 @@ class Reducer:
     # ---------------------------------------------------------------------------- HDR merge --
     def preload(self, session: Any, records: Sequence[Any]) -> list[np.ndarray] | None:
         """The frames of ``records`` read in this process when :meth:`merge` wants them as
-        read (streamed); ``None`` when its workers read them."""
-        return [session.read(r) for r in records]
+        read (streamed); ``None`` when its workers read them. Decoded :data:`READ_AHEAD` at a
+        time in threads (the same arrays as ``session.read``, in order)."""
+        return [frame for _, frame in session.iter_frames(list(records), read_ahead=READ_AHEAD)]
 
     def merge(self, records: Sequence[Any], models: Any, *, layout: str | None,
               bloom_radius: int, frames: Sequence[Any] | None = None, session: Any = None,

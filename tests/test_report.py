@@ -311,7 +311,14 @@ def test_response_agreement_a_bad_frame_shows_in_its_pairs(tmp_path):
     text = manifest.read_text()
     m = re.search(r'(s0_k04\.tif", role = "bracket", exposure = )([0-9.]+)', text)
     manifest.write_text(text.replace(m.group(0), m.group(1) + repr(float(m.group(2)) * 1.3)))
-    r = response_of(load_bracket(open_session(root)), "debevec").summary()
+    br = load_bracket(open_session(root))
+    # by default the bracket's own exposures are estimated and the frame is named
+    auto = response_of(br, "debevec")
+    assert auto.exposures.used == "estimated"
+    assert any(r.startswith("s0_k03 to s0_k04") or r.startswith("s0_k04 to s0_k05")
+               for r in auto.exposures.summary().off_runs()), auto.exposures.summary().off_runs()
+    # at the listed exposures the report's pairs show it
+    r = response_of(br, "debevec", exposures="listed").summary()
     pairs = _table_html(section(build_report(_with_response(r)), "response"),
                         "ccd-report-response-pairs")
     header = re.findall(r"<th>(.*?)</th>", pairs)

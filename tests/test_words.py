@@ -105,7 +105,8 @@ def test_white_balance_prints_gains_and_offsets_with_errors(capsys):
                         b=np.array([0.003, -0.001, -0.002]), b_err=np.array([1e-3, 2e-3, 3e-3]),
                         t=t, notes=())
     res = SimpleNamespace(levels=256, method="tsin", files=["a", "b", "c"], t=t,
-                          channels=["R"], responses=[r], agreement=None, warnings=lambda: [])
+                          channels=["R"], responses=[r], agreement=None, warnings=lambda: [],
+                          requested="tsin", selection="", exposures=None, verdict=None)
     cli_response.print_response(res)
     out = capsys.readouterr().out
     assert "offset b_k (units of g" in " ".join(out.split())

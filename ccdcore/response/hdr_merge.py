@@ -47,6 +47,8 @@ FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED
 """
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
@@ -119,56 +121,136 @@ def noise_sigma(model: ResponseModel, z: ArrayLike, k: int) -> NDArray[np.float6
     return np.sqrt(var)
 
 
-def _merge_plane(planes: list[NDArray], model: ResponseModel, bloom_radius: int
-                 ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+#: output pixels per band of the merge (with its blooming halo): a band's temporaries are a
+#: dozen float64 arrays of this size, whatever the frame's size and the number of images
+BAND_PIXELS = 2 ** 18
+#: threads merging bands at once (NumPy releases the GIL in its per-pixel loops)
+MERGE_THREADS = max(1, min(2, os.cpu_count() or 1))
+
+
+def _tables(model: ResponseModel) -> tuple[NDArray, NDArray]:
+    """Per image k and code z: a_k / σ(a_k, z) (floored σ, eq. 18) and (g(z) - b_k) / a_k, the
+    values the merge looks up per pixel (the same float64 operations as on the pixels), both
+    0 at the clipped codes 0 and L - 1 (never merged)."""
+    L, N = model.levels, model.a.size
+    codes = np.arange(L)
+    q = np.empty((N, L))
+    pred = np.empty((N, L))
+    for k in range(N):
+        q[k] = model.a[k] / np.maximum(noise_sigma(model, codes, k), 1e-12)
+        pred[k] = (model.g - model.b[k]) / model.a[k]
+    q[:, [0, L - 1]] = 0.0
+    pred[:, [0, L - 1]] = 0.0
+    return q, pred
+
+
+def _combine(zs: list[NDArray], blooms: list[NDArray | None] | None, tables: tuple[NDArray, NDArray]
+             ) -> tuple[NDArray, NDArray, NDArray]:
+    """Eqs. 9, 18, 19 over the unclipped codes of the images, those in ``blooms`` left out,
+    image after image (the order of a sum over the stacked images' axis: bit for bit)."""
+    q, pred = tables
+    unclipped = np.ones(q.shape[1], bool)
+    unclipped[[0, -1]] = False
+    total = num = n = None
+    for k, z8 in enumerate(zs):
+        z = z8.astype(np.intp)            # (NumPy's take is ten times faster with intp indices)
+        qk = np.take(q[k], z)                                   # a_k / σ(a_k, z_k), 0 if unused
+        term = np.take(pred[k], z)
+        used = np.take(unclipped, z)
+        del z
+        bloom = None if blooms is None else blooms[k]
+        if bloom is not None:
+            np.copyto(qk, 0.0, where=bloom)
+            np.copyto(term, 0.0, where=bloom)
+            used &= ~bloom
+        term *= qk
+        if total is None:
+            total, num, n = qk, term, used.astype(np.int16)
+        else:
+            total += qk
+            num += term
+            n += used
+    with np.errstate(invalid="ignore", divide="ignore"):
+        num /= total                                                  # eqs. 9, 18
+        sigma = np.sqrt(n.astype(np.float64)) / total                 # eq. 19
+    return num, sigma, n
+
+
+def _merge_band(planes: list[NDArray], model: ResponseModel, tables: tuple[NDArray, NDArray],
+                bloom_radius: int, saturates: list[bool], lo: int, y0: int, y1: int, hi: int,
+                out: tuple[NDArray, NDArray, NDArray, NDArray]) -> None:
+    """Rows ``y0 .. y1`` of the merge, the blooming masks made on rows ``lo .. hi`` (the halo
+    that the disk reaches), written into ``out``'s rows. ``saturates[k]``: image k has a
+    saturated pixel somewhere (else it has no blooming mask)."""
     L = model.levels
-    z = np.stack([np.asarray(p) for p in planes]).astype(np.int64)      # (N, H, W)
-    N = z.shape[0]
+    zs = [p[y0:y1] for p in planes]
+    blooms: list[NDArray | None] = []
+    for p, sat in zip(planes, saturates):
+        bloom = bloom_mask(p[lo:hi], L, bloom_radius)[y0 - lo:y1 - lo] if sat else None
+        blooms.append(bloom if bloom is not None and bloom.any() else None)
+    radiance, sigma, n = _combine(zs, blooms, tables)
+    flags = np.zeros(radiance.shape, np.uint8)
+    ys, xs = np.nonzero(n == 0)
+    if ys.size:             # no usable code: the pixels merged again without blooming masks
+        sub = [z[ys, xs] for z in zs]
+        r2, s2, n2 = _combine(sub, None, tables)
+        bloom_only = n2 > 0
+        at = (ys[bloom_only], xs[bloom_only])
+        radiance[at], sigma[at], n[at] = r2[bloom_only], s2[bloom_only], n2[bloom_only]
+        flags[at] = FLAG_BLOOMED
+        rest = ~bloom_only
+        order = np.argsort(model.a)
+        short, long_ = int(order[0]), int(order[-1])
+        sat = rest & (sub[short] >= L - 1)
+        dark = rest & ~sat
+        radiance[ys[sat], xs[sat]] = (model.g[L - 1] - model.b[short]) / model.a[short]
+        radiance[ys[dark], xs[dark]] = (model.g[1] - model.b[long_]) / model.a[long_]
+        sigma[ys[rest], xs[rest]] = np.inf
+        flags[ys[sat], xs[sat]] = FLAG_SATURATED
+        flags[ys[dark], xs[dark]] = FLAG_DARK
+    for o, v in zip(out, (radiance, sigma, flags, n)):
+        o[y0:y1] = v
+
+
+def _merge_plane(planes: list[NDArray], model: ResponseModel, bloom_radius: int,
+                 out: tuple[NDArray, NDArray, NDArray, NDArray] | None = None,
+                 band_rows: int | None = None) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """One channel's merge, in bands of rows (each with the halo of rows its blooming disk
+    reaches, as :func:`ccdcore.dask_hdr.merge_halo`): bit-identical to the whole plane at once,
+    in a band's memory. ``out``: radiance, sigma (float64), flags (uint8) and used (int16)
+    arrays of the plane's shape to fill (views of a colour result), else new ones."""
+    planes = [np.asarray(p) for p in planes]
+    N = len(planes)
     if model.a.size != N or model.b.size != N:
         raise CcdError("response", f"the calibration has {model.a.size} images, the bracket "
                                    f"{N}")
-    if int(z.max()) >= L or int(z.min()) < 0:
-        raise CcdError("bracket", f"codes outside 0..{L - 1} of the calibration's response")
-    clipped = (z <= 0) | (z >= L - 1)
-    bloomed = np.stack([bloom_mask(p, L, bloom_radius) for p in z])
-    usable = ~clipped & ~bloomed
-    fallback = ~clipped
-    a = model.a[:, None, None]
-    b = model.b[:, None, None]
-    sig = np.stack([noise_sigma(model, z[k], k) for k in range(N)])
-    sig = np.maximum(sig, 1e-12)
-    pred = (model.g[z] - b) / a
+    L = model.levels
+    saturates = []
+    for p in planes:
+        top = int(p.max()) if p.size else 0
+        if top >= L or (p.size and int(p.min()) < 0):
+            raise CcdError("bracket", f"codes outside 0..{L - 1} of the calibration's response")
+        saturates.append(top >= L - 1)
+    h, w = planes[0].shape
+    if out is None:
+        out = (np.empty((h, w)), np.empty((h, w)), np.empty((h, w), np.uint8),
+               np.empty((h, w), np.int16))
+    tables = _tables(model)
+    r = max(0, int(bloom_radius))
+    rows = int(band_rows) if band_rows else max(1, BAND_PIXELS // max(1, w))
+    cuts = [(max(0, y0 - r), y0, min(h, y0 + rows), min(h, y0 + rows + r))
+            for y0 in range(0, h, rows)]
 
-    def combine(mask: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-        q = np.where(mask, a / sig, 0.0)                 # a_i / σ(a_i, z_i)
-        total = q.sum(axis=0)
-        n = mask.sum(axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            radiance = (q * np.where(mask, pred, 0.0)).sum(axis=0) / total   # eqs. 9, 18
-            sigma = np.sqrt(n) / total                                        # eq. 19
-        return radiance, sigma, n
+    def run(cut: tuple[int, int, int, int]) -> None:
+        _merge_band(planes, model, tables, bloom_radius, saturates, *cut, out=out)
 
-    radiance, sigma, n = combine(usable)
-    flags = np.zeros(z.shape[1:], np.uint8)
-    none = n == 0
-    if none.any():
-        r2, s2, n2 = combine(fallback)
-        bloom_only = none & (n2 > 0)
-        radiance = np.where(bloom_only, r2, radiance)
-        sigma = np.where(bloom_only, s2, sigma)
-        n = np.where(bloom_only, n2, n)
-        flags[bloom_only] = FLAG_BLOOMED
-        rest = none & (n2 == 0)
-        order = np.argsort(model.a)
-        short, long_ = int(order[0]), int(order[-1])
-        sat = rest & (z[short] >= L - 1)
-        dark = rest & ~sat
-        radiance = np.where(sat, (model.g[L - 1] - model.b[short]) / model.a[short], radiance)
-        radiance = np.where(dark, (model.g[1] - model.b[long_]) / model.a[long_], radiance)
-        sigma = np.where(rest, np.inf, sigma)
-        flags[sat] = FLAG_SATURATED
-        flags[dark] = FLAG_DARK
-    return radiance, sigma, flags, n.astype(np.int16)
+    if MERGE_THREADS > 1 and len(cuts) > 1:
+        with ThreadPoolExecutor(MERGE_THREADS, thread_name_prefix="hdr-merge") as pool:
+            list(pool.map(run, cuts))
+    else:
+        for cut in cuts:
+            run(cut)
+    return out
 
 
 def merge(frames: Sequence[ArrayLike], models: Mapping[str, Any] | Any, *,
@@ -199,10 +281,12 @@ def merge(frames: Sequence[ArrayLike], models: Mapping[str, Any] | Any, *,
     missing = [c for c in names if c not in models]
     if missing:
         raise CcdError("response", f"no calibration for channel(s) {', '.join(missing)}")
-    out = [_merge_plane([s[c] for s in split], ResponseModel.of(models[c]), bloom_radius)
-           for c in names]
-    if len(out) == 1:
-        r, s, f, n = out[0]
-    else:
-        r, s, f, n = (np.stack([o[i] for o in out], axis=-1) for i in range(4))
+    h, w = split[0][names[0]].shape
+    tail = () if len(names) == 1 else (len(names),)
+    maps = (np.empty((h, w) + tail), np.empty((h, w) + tail), np.empty((h, w) + tail, np.uint8),
+            np.empty((h, w) + tail, np.int16))
+    for i, c in enumerate(names):           # each channel's bands written into the result
+        _merge_plane([s[c] for s in split], ResponseModel.of(models[c]), bloom_radius,
+                     out=maps if not tail else tuple(m[..., i] for m in maps))
+    r, s, f, n = maps
     return HdrResult(r, s, f, n, names, lay)

@@ -634,7 +634,10 @@ def _guard_gains(st: _Fit, p: _PassState, chi2: float) -> bool:
         if st.radius < 1e-3:
             st.converged = st.restore = True     # no step of any length improves the fit
         return True                              # from the kept state and its pass
-    st.flat = st.flat + 1 if kept is not None and kept[0] - cost < FLAT * kept[0] else 0
+    # a step whose gain is below the noise of the χ² itself (its value per degree of freedom:
+    # one more unit of misfit in one row) is no improvement
+    st.flat = st.flat + 1 if kept is not None and kept[0] - cost < max(FLAT * kept[0], chi2) \
+        else 0
     if st.flat >= 3:
         st.converged = st.done = True            # the fit no longer improves: flat
         return True
