@@ -15,9 +15,14 @@ Modules
     The iterative estimator of sec. 3.2 (instrumented pools), its band and the noise terms;
     its compiled passes over the pools in :mod:`ccdcore.response.tsin_kernels`, the gauge of
     the white-balance fit and the band in :mod:`ccdcore.response.tsin_gauge`, eq. 17's fit in
-    :mod:`ccdcore.response.tsin_noise`.
+    :mod:`ccdcore.response.tsin_noise`, its notes in :mod:`ccdcore.response.tsin_notes`.
+:mod:`ccdcore.response.exposures`
+    The bracket's own exposures, estimated from its images against the listed ones.
 :mod:`ccdcore.response.methods`
-    The registry of methods (``METHODS``) and the response of a session's bracket.
+    The registry of methods (``METHODS``), the default ``auto`` with its challenger, and the
+    response of a session's bracket.
+:mod:`ccdcore.response.verdict`
+    The one verdict of every response result (trusted, doubtful, failed).
 :mod:`ccdcore.response.hdr`
     HDR radiance with per-pixel sigma from a calibrated camera (eqs. 9, 18, 19), with bounds and
     flags where no code is usable, of a bracket's files (streamed or on a Dask cluster).
@@ -25,8 +30,9 @@ Modules
     The merge itself on frames in memory, the kernel both paths run (its names are re-exported by
     :mod:`ccdcore.response.hdr`).
 :mod:`ccdcore.response.names`
-    The methods' names and the blooming limits, for the command line's parser: it imports
-    nothing, and this package loads each public name from its submodule on first use.
+    The methods' names, the exposure modes and the blooming limits, for the command line's
+    parser: it imports nothing, and this package loads each public name from its submodule on
+    first use.
 
 See docs/response.md.
 """
@@ -63,7 +69,7 @@ _HOMES = {name: module for module, names in {
 #: the submodules, which ``ccdcore.response.<name>`` also loads on first use
 _SUBMODULES = ("agreement", "brackets", "classic", "classic_common", "exposures", "hdr",
                "hdr_merge", "methods", "names", "scale", "tsin", "tsin_gauge", "tsin_kernels",
-               "tsin_noise", "verdict")
+               "tsin_noise", "tsin_notes", "verdict")
 
 
 def __getattr__(name: str) -> Any:

@@ -113,6 +113,7 @@ from .tsin_gauge import band, joint_step
 from .tsin_kernels import (pool_counts, pool_members, pool_rows, row_counts, row_stats,
                            sort_rows)
 from .tsin_noise import noise_fit
+from .tsin_notes import estimate_notes, pick_pool
 
 __all__ = ["TsinOptions", "ChannelResponse", "PoolTable", "estimate", "noise_terms", "TRIM",
            "MAX_ENTRIES"]
@@ -565,7 +566,7 @@ def _next_pass(st: _Fit) -> _PassState:
         st.passes += 1
         here = _measure(st.s, st.a, st.b, st.gk, st.fit_a, st.mad_c, st.bw, st.D2)
         if st.it == 1:
-            st.before = _pick_pool(st.s, here.resid, st.gk)
+            st.before = pick_pool(st.s, here.resid, st.gk)
     else:
         here, st.reuse = st.reuse, None    # the pass at the last accepted curve, kept
     st.here = here
@@ -708,7 +709,7 @@ def _result(st: _Fit, sampled: int) -> ChannelResponse:
     fit_a, t, a, history = st.fit_a, st.t, st.a, st.history
     n = np.diff(s.offsets).astype(np.float64)
     tm, sig, se = here.tm, here.sig, here.se
-    after = _pick_pool(s, here.resid, st.gk, like=st.before)
+    after = pick_pool(s, here.resid, st.gk, like=st.before)
     gk, b, err, a_err, b_err = band(here, s.offsets, st.gk, a, st.b, t, st.free, st.k_rep,
                                     fit_a and here.J.shape[1] == K + 2 * N, int(opts.groups),
                                     TRIM)
@@ -725,7 +726,7 @@ def _result(st: _Fit, sampled: int) -> ChannelResponse:
     # whose listed exposures were wrong: every step was taken back and the line reported)
     moved = bool(np.max(np.abs(g_rep - codes / (L - 1.0))) > START_TOLERANCE)
     converged = bool(st.converged and moved)
-    notes = _estimate_notes(opts, data, s, sampled=sampled, converged=st.converged,
+    notes = estimate_notes(opts, data, s, sampled=sampled, converged=st.converged,
                             step=st.step, chi2=chi2_last, theta=theta_n)
     if not moved:
         notes.append("the fit never left its straight starting line g = z/(levels - 1): every "
@@ -840,58 +841,6 @@ def _smoothness(gk: NDArray, D2: NDArray) -> NDArray[np.float64]:
     gmed = float(np.median(gpk[gpk > 0])) if np.any(gpk > 0) else 1.0
     gpk = np.maximum(gpk, SLOPE_FLOOR * gmed)
     return D2.T @ (((gmed / gpk) ** 2)[:, None] * D2)
-
-
-def _estimate_notes(opts: TsinOptions, data: BracketData, s: _Setup, *, sampled: int,
-                    converged: bool, step: float, chi2: float, theta: NDArray) -> list[str]:
-    """What a user of the curve should know: the sample, convergence, the pool threshold,
-    the white balance's gauge, exposures the fit could not explain, a noise term forced to 0."""
-    notes = []
-    if sampled:
-        notes.append(f"estimated on an even sample of {data.n_pixels} of the bracket's "
-                     f"{sampled} pixels (memory bound)")
-    if not converged:
-        notes.append(f"stopped after {opts.max_iter} iterations (last mean |Δg| {step:.1e}, "
-                     f"tolerance {opts.tol:.0e})")
-    if s.min_pool < opts.min_pool:
-        notes.append(f"pools of at least {s.min_pool} pixels counted (the bracket is small; "
-                     f"sec. 4.1 used {opts.min_pool})")
-    if opts.white_balance:
-        notes.append("gains a_k and offsets b_k estimated (white balance, exposure errors), "
-                     "with ln(a_k/t_k) of zero mean and zero trend in ln t_k and the offsets b_k "
-                     "of smallest norm (the bracket cannot fix those: a common gain, sec. 3.2's "
-                     "u-ambiguity, an offset of g and one of the radiance)")
-    if chi2 > 3.0:
-        cause = ("the gains and offsets do not explain the exposures" if opts.white_balance else
-                 "the images do not follow the exposures taken (white balance or shutter "
-                 "errors)")
-        notes.append(f"the pools' errors are {math.sqrt(chi2):.1f} times their expected "
-                     f"size (chi²/dof {chi2:.0f}): {cause}, or the scene moved; g may be "
-                     "distorted (the verdict weighs it by the prediction agreement)")
-    if theta[2] == 0 or theta[0] == 0:
-        notes.append("a noise term was forced to 0 by the non-negative fit (sec. 4.1: when g and "
-                     "g'² look alike, shot and output noise cannot be told apart)")
-    return notes
-
-
-def _pick_pool(s: _Setup, resid: NDArray, gk: NDArray, like: dict | None = None
-               ) -> dict[str, Any]:
-    """The relative prediction errors of one pool (the paper's Fig. 3c-d shows the pool at code
-    199 of 255): the largest row whose pool code is nearest 78 % of full scale."""
-    if like and "row" in like:
-        r = int(like["row"])
-    else:
-        target = 0.78 * (s.data.levels - 1)
-        codes = s.knots.codes[s.rows[:, 1]]
-        n = np.diff(s.offsets)
-        d = np.abs(codes - target)
-        cand = np.flatnonzero(d == d.min())
-        r = int(cand[np.argmax(n[cand])])
-    j, m, k = (int(v) for v in s.rows[r])
-    gm = float(gk[m]) if gk[m] > 0 else 1.0
-    vals = resid[s.offsets[r]:s.offsets[r + 1]] / gm
-    return {"row": r, "pool_image": j, "code": float(s.knots.codes[m]), "predicted_image": k,
-            "values": vals.copy()}
 
 
 def noise_terms(data: BracketData, g: ArrayLike, a: ArrayLike | None = None,

@@ -7,6 +7,8 @@ KEY_VALUE_CSS
     A two-column Markdown table of names and values with an empty header row (hidden).
 heading(title, intro=None)
     A page's title and its muted introduction, the first panes of every page.
+progress_row(css_class)
+    A page's progress: a bar and its message in a row, hidden until work starts.
 """
 from __future__ import annotations
 
@@ -25,6 +27,19 @@ def heading(title: str, intro: str | None = None) -> list[Any]:
         panes.append(pn.pane.Markdown(intro, sizing_mode="stretch_width",
                                       styles={"color": MUTED}))
     return panes
+
+def progress_row(css_class: str) -> tuple[Any, Any, Any]:
+    """A page's progress while it computes: ``(bar, text, row)``, the bar indeterminate until a
+    fraction arrives, the text muted (``css_class`` for tests), the row hidden until shown."""
+    import panel as pn
+
+    bar = pn.indicators.Progress(value=-1, max=100, width=220, height=16, bar_color="info",
+                                 margin=(12, 10, 0, 10), sizing_mode="fixed", active=True)
+    text = pn.pane.Markdown("", sizing_mode="stretch_width",
+                            styles={"font-size": "0.88em", "color": "#6c757d"},
+                            css_classes=[css_class])
+    return bar, text, pn.Row(bar, text, visible=False, sizing_mode="stretch_width")
+
 
 TABLE_CSS = """
 table { width: 100%; border-collapse: collapse; font-size: 0.95em; }

@@ -52,7 +52,7 @@ from ..change_plots import (D2Histogram, RgbView, label_colour, label_name, labe
 from ..image_view import ImageView, view_pane
 from ..state import AppState
 from ._messages import PageMessages
-from ._styles import KEY_VALUE_CSS, TABLE_CSS, heading
+from ._styles import KEY_VALUE_CSS, TABLE_CSS, heading, progress_row
 
 __all__ = ["ChangePage", "create_page", "compute_change", "PFA_STEPS", "no_brackets_message"]
 
@@ -137,13 +137,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
     # ------------------------------------------------------------------------ building ----
     def _build(self) -> None:
         self._build_alerts("change")
-        self.progress_bar = pn.indicators.Progress(value=-1, max=100, width=220, height=16,
-                                                   bar_color="info", margin=(12, 10, 0, 10),
-                                                   sizing_mode="fixed", active=True)
-        self.progress_text = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED,
-                                              css_classes=["ccd-change-progress"])
-        self.progress_row = pn.Row(self.progress_bar, self.progress_text, visible=False,
-                                   sizing_mode="stretch_width")
+        self.progress_bar, self.progress_text, self.progress_row = progress_row("ccd-change-progress")
         self.retry_button = pn.widgets.Button(label="Detect changes again", visible=False,
                                               width=200, css_classes=["ccd-change-retry"])
         self.retry_button.on_click(lambda event: pn.state.execute(self.refresh))

@@ -70,7 +70,7 @@ from ..response_plots import (TONE_CURVES, VERDICT_ALERTS, PoolHistogram, Respon
 from ..state import AppState
 from ._choices import set_choices
 from ._messages import PageMessages
-from ._styles import TABLE_CSS, heading
+from ._styles import TABLE_CSS, heading, progress_row
 
 __all__ = ["ResponsePage", "create_page", "compute_response", "compute_responses",
            "compute_hdr", "NO_BRACKET_MESSAGE", "RESPONSES_ENTRY", "HDR_ENTRY", "AUTO_LABEL",
@@ -221,13 +221,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                                            css_classes=["ccd-response-verdict"])
         self.exposures_note = pn.pane.Markdown("", sizing_mode="stretch_width",
                                                css_classes=["ccd-response-exposures"])
-        self.progress_bar = pn.indicators.Progress(value=-1, max=100, width=220, height=16,
-                                                   bar_color="info", margin=(12, 10, 0, 10),
-                                                   sizing_mode="fixed", active=True)
-        self.progress_text = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED,
-                                              css_classes=["ccd-response-progress"])
-        self.progress_row = pn.Row(self.progress_bar, self.progress_text, visible=False,
-                                   sizing_mode="stretch_width")
+        self.progress_bar, self.progress_text, self.progress_row = progress_row("ccd-response-progress")
         self.method_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.method, color="default", css_classes=["ccd-response-method"])
         self.compare_button = pn.widgets.Button(
