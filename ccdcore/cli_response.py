@@ -109,6 +109,25 @@ def print_verdict(res: Any) -> None:
         say("verdict", v.line())
 
 
+def calib_times(brackets: Any, models: Any, times: Any, exposures: str) -> tuple[Any, Any]:
+    """The exposures a calibration's curves merge this bracket at: its own, estimated with
+    those curves (:func:`ccdcore.response.exposures.estimate_exposures`), when ``exposures``
+    asks for them (``estimated``) or the images disagree with the listed ones (``auto``);
+    else the listed ``times``. Also the estimate (``None`` when not made: ``listed``, or the
+    frames read by a cluster's workers, not here)."""
+    from dataclasses import replace
+
+    from .response.exposures import estimate_exposures
+
+    if brackets is None or exposures == "listed":
+        return times, None
+    ex = estimate_exposures(brackets, {ch: m.g for ch, m in models.items()})
+    if exposures == "estimated" and ex.used != "estimated":
+        ex = replace(ex, used="estimated", reason=f"asked for (--exposures estimated); "
+                                                  f"{ex.reason}")
+    return np.asarray(ex.exposures, np.float64), ex
+
+
 def response_options(args: argparse.Namespace) -> dict[str, Any]:
     """The response options of a verb's arguments (``--method``, ``--white-balance``,
     ``--exposures``), as :func:`ccdcore.response.methods.response_of` takes them."""
@@ -232,7 +251,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     names = ("radiance.exr", "sigma.exr", "flags.png")
     workers_note_for(args.workers, session, records)
     folder = _out_folder(args.out_dir, names, session, args.calib)
-    res = None
+    res = calib_exposures = None
     with reducer_of(args) as reducer:
         # read once here for the traces and the merge; with a calibration only when the
         # merge wants the frames as read (streamed)
@@ -258,7 +277,10 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                 if m.levels != levels:
                     raise CcdError(args.calib, f"its response has {m.levels} codes, the "
                                                f"bracket's camera {levels}: another camera?")
-                # the product's a, b were its own bracket's nominal times: take this one's
+            times, calib_exposures = calib_times(brackets if frames is not None else None,
+                                                 models, times, args.exposures)
+            for ch, m in models.items():
+                # the product's a, b were its own bracket's: take this one's exposures
                 models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s,
                                      m.sigma_c1, m.sigma_c2)
             source = f"response of {args.calib}"
@@ -285,14 +307,21 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                     "scheduler": scheduler,
                     "verdict": None if res is None or res.verdict is None
                     else res.verdict.to_dict(),
-                    "exposures": None if res is None or res.exposures is None
-                    else res.exposures.summary().to_dict()})
+                    "exposures": (res.exposures.summary().to_dict()
+                                  if res is not None and res.exposures is not None else
+                                  calib_exposures.summary().to_dict()
+                                  if calib_exposures is not None else None)})
     else:
         print(f"HDR radiance of {len(records)} exposures ({source}), channels "
               f"{', '.join(out.channels)}")
         if res is not None:
             print_exposures(res)
             print_verdict(res)
+        elif calib_exposures is not None:
+            ex = calib_exposures.summary()
+            say("", ex.line())
+            for run in ex.off_runs():
+                say("", run, indent="    ")
         if scheduler != STREAMED_NAME:
             print(f"  merged on {scheduler}")
         for p in paths:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ccdcore.cli import main
@@ -124,3 +125,31 @@ def test_a_fit_that_never_moved_is_failed_and_the_step_helps(capsys, wrong):
     d2 = response_json(capsys, *_follow(argv, v["next_step"]))
     assert d2["converged"] == [True, True, True]
     assert d2["verdict"]["status"] == "trusted"
+
+
+def test_hdr_with_a_calibration_takes_the_brackets_own_exposures(capsys, wrong, tmp_path):
+    """A product's curve merges this bracket at its own exposures when the listed ones are
+    wrong: estimated with the product's curve, said in the output, and the merge then agrees
+    with the one made from the bracket's own response far better than at the listed times."""
+    run(capsys, "calibrate", wrong, "-o", tmp_path / "product")
+    h = json.loads(run(capsys, "hdr", wrong, "--calib", tmp_path / "product", "-o",
+                       tmp_path / "h", "--json"))
+    assert h["exposures"]["used"] == "estimated"
+    assert h["verdict"] is None                    # no response estimated here
+    listed = json.loads(run(capsys, "hdr", wrong, "--calib", tmp_path / "product", "-o",
+                            tmp_path / "h2", "--json", "--exposures", "listed"))
+    assert listed["exposures"] is None
+    from ccdcore.io import read_image
+
+    own = read_image(tmp_path / "h" / "radiance.exr")
+    lst = read_image(tmp_path / "h2" / "radiance.exr")
+    ref = json.loads(run(capsys, "hdr", wrong, "-o", tmp_path / "h3", "--json"))
+    est = read_image(tmp_path / "h3" / "radiance.exr")
+    ok = np.isfinite(own) & np.isfinite(lst) & np.isfinite(est) & (est > 0)
+
+    def spread(x):                       # log radiance against the estimated response's merge
+        d = np.log(x[ok]) - np.log(est[ok])
+        return float(np.std(d - np.median(d)))
+
+    assert ref["exposures"]["used"] == "estimated"
+    assert spread(own) < 0.5 * spread(lst), (spread(own), spread(lst))
