@@ -153,3 +153,18 @@ def test_hdr_with_a_calibration_takes_the_brackets_own_exposures(capsys, wrong, 
 
     assert ref["exposures"]["used"] == "estimated"
     assert spread(own) < 0.5 * spread(lst), (spread(own), spread(lst))
+
+
+def test_change_says_the_reference_response_verdict(capsys, tmp_path):
+    """``change`` estimates the response from its reference bracket: the verdict it prints and
+    puts in ``--json`` is that response's, in the same words as ``response_of`` gives."""
+    from ccdcore.response.brackets import load_bracket
+    from ccdcore.response.methods import response_of
+    from ccdcore.session import open_session
+
+    session = ASSETS / "change"
+    d = json.loads(run(capsys, "change", session, "-o", tmp_path / "c", "--json"))
+    res = response_of(load_bracket(open_session(session), role="reference"))
+    assert line(d) == res.verdict.line()
+    text = run(capsys, "change", session, "-o", tmp_path / "c2")
+    assert " ".join(res.verdict.line().split()) in " ".join(text.split())
