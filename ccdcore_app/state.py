@@ -168,7 +168,7 @@ class Results(param.Parameterized):
         "the max-intensity frame) and what was skipped, with why."))
     flat = param.ClassSelector(class_=FlatResults, doc="The Flat field page's results.")
     response = param.Dict(default={}, doc=(
-        "The Response & HDR page's results: (blooming radius, white balance) -> "
+        "The Response & HDR page's results: (blooming radius, white balance, exposures) -> "
         "{'responses': method -> "
         "ccdcore.response.methods.ResponseResult, 'hdr': method -> "
         "ccdcore.response.hdr.HdrResult}."))
