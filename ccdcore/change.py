@@ -172,6 +172,8 @@ class ChangeInputs:
     #: the response estimated from the reference bracket, with its verdict (``None`` with a
     #: calibration product)
     response: Any = None
+    #: per role, the bracket's own exposures as estimated (``None``: the listed ones taken)
+    exposures: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -628,7 +630,11 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
     half (without ``calib``), :func:`detect` the rest. ``method``, ``white_balance`` and
     ``exposures`` are :func:`ccdcore.response.methods.response_of`'s, for the reference
-    bracket's response (without ``calib``); its exposures, when estimated, merge the reference.
+    bracket's response (without ``calib``); each bracket is merged at its own exposures when
+    ``exposures`` asks for them or the images disagree with the listed ones: the reference's
+    from its response, the other brackets' estimated with the curve
+    (:func:`ccdcore.response.exposures.exposures_with_curves`; not when a cluster's workers
+    read the frames).
 
     ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
     reducer (:class:`ccdcore.distributed.DaskReducer`) they run band by band, the workers reading
@@ -641,6 +647,7 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     the streamed path holds them too.
     """
     from .response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
+    from .response.exposures import exposures_with_curves
     from .response.hdr import ResponseModel, merge_bracket
     from .response.methods import response_of
 
@@ -693,11 +700,19 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
         raise CcdError(calib or first["reference"], f"the response has {sorted(levels)} codes, "
                                                     f"the camera {2 ** int(bits)}")
     out = {}
+    own: dict[str, Any] = {}
     for role in ("reference", "target"):
         t = np.asarray([r.exposure for r in recs[role]], np.float64)
-        if role == "reference" and res is not None and res.exposures is not None \
-                and res.exposures.used == "estimated":
-            t = np.asarray(res.exposures.estimated, np.float64)   # the bracket's own
+        if role == "reference" and res is not None:
+            own[role] = res.exposures
+            if res.exposures is not None and res.exposures.used == "estimated":
+                t = np.asarray(res.exposures.estimated, np.float64)   # the bracket's own
+        else:
+            # a bracket the curve was not fitted to: its own exposures with that curve
+            br = None if frames[role] is None else load_bracket(
+                session, None, role=role, bloom_radius=radius, frames=frames[role])
+            t, own[role] = exposures_with_curves(br, models, t, exposures)
+            del br
         ms = {ch: ResponseModel(np.asarray(m.g, np.float64), t, np.zeros(t.size),
                                 float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
               for ch, m in models.items()}
@@ -708,7 +723,7 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     inputs = ChangeInputs(out["reference"].radiance, out["reference"].sigma,
                           out["target"].radiance, out["target"].sigma,
                           tuple(out["reference"].channels), source,
-                          tuple(r.relpath for role in recs for r in recs[role]), res)
+                          tuple(r.relpath for role in recs for r in recs[role]), res, own)
     result = detect(inputs.E_ref, inputs.sigma_ref, inputs.E_tgt, inputs.sigma_tgt,
                     options, names=(first["reference"], first["target"]),
                     progress=within(progress, 0.5 if calib is None else 0.1, 1.0))

@@ -109,25 +109,6 @@ def print_verdict(res: Any) -> None:
         say("verdict", v.line())
 
 
-def calib_times(brackets: Any, models: Any, times: Any, exposures: str) -> tuple[Any, Any]:
-    """The exposures a calibration's curves merge this bracket at: its own, estimated with
-    those curves (:func:`ccdcore.response.exposures.estimate_exposures`), when ``exposures``
-    asks for them (``estimated``) or the images disagree with the listed ones (``auto``);
-    else the listed ``times``. Also the estimate (``None`` when not made: ``listed``, or the
-    frames read by a cluster's workers, not here)."""
-    from dataclasses import replace
-
-    from .response.exposures import estimate_exposures
-
-    if brackets is None or exposures == "listed":
-        return times, None
-    ex = estimate_exposures(brackets, {ch: m.g for ch, m in models.items()})
-    if exposures == "estimated" and ex.used != "estimated":
-        ex = replace(ex, used="estimated", reason=f"asked for (--exposures estimated); "
-                                                  f"{ex.reason}")
-    return np.asarray(ex.exposures, np.float64), ex
-
-
 def response_options(args: argparse.Namespace) -> dict[str, Any]:
     """The response options of a verb's arguments (``--method``, ``--white-balance``,
     ``--exposures``), as :func:`ccdcore.response.methods.response_of` takes them."""
@@ -195,11 +176,17 @@ def _cmd_change(args: argparse.Namespace) -> int:
         print_json({"source": inputs.source, "channels": list(inputs.channels),
                     **summary, "files": [str(p) for p in paths], "scheduler": scheduler,
                     "verdict": None if rv is None or rv.verdict is None
-                    else rv.verdict.to_dict()})
+                    else rv.verdict.to_dict(),
+                    "exposures": {role: None if ex is None else ex.summary().to_dict()
+                                  for role, ex in inputs.exposures.items()}})
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs.source}")
+    for role, ex in inputs.exposures.items():
+        if ex is not None:
+            say(role, ex.summary().line())
+            for run in ex.summary().off_runs():
+                say("", run, indent="    ")
     if inputs.response is not None:
-        print_exposures(inputs.response)
         print_verdict(inputs.response)
     channels = [str(c) for c in inputs.channels]
     if scheduler != STREAMED_NAME:
@@ -241,6 +228,7 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     from .io import write_image, write_map, write_outputs
     from .product import load_product, session_inputs
     from .response.brackets import check_times, bracket_records, load_bracket
+    from .response.exposures import exposures_with_curves
     from .response.hdr import merge_bracket
     from .response.methods import response_of
     from .session import open_session
@@ -277,8 +265,8 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
                 if m.levels != levels:
                     raise CcdError(args.calib, f"its response has {m.levels} codes, the "
                                                f"bracket's camera {levels}: another camera?")
-            times, calib_exposures = calib_times(brackets if frames is not None else None,
-                                                 models, times, args.exposures)
+            times, calib_exposures = exposures_with_curves(
+                brackets if frames is not None else None, models, times, args.exposures)
             for ch, m in models.items():
                 # the product's a, b were its own bracket's: take this one's exposures
                 models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s,

@@ -168,3 +168,29 @@ def test_change_says_the_reference_response_verdict(capsys, tmp_path):
     assert line(d) == res.verdict.line()
     text = run(capsys, "change", session, "-o", tmp_path / "c2")
     assert " ".join(res.verdict.line().split()) in " ".join(text.split())
+
+
+def test_change_merges_a_target_at_its_own_exposures(capsys, tmp_path):
+    """The change demo with the target's last three exposures listed twice as long as they were
+    (0.5 s listed 1 s, ...): at the listed exposures the target's radiance is off by 2 in part
+    of its range and changes appear everywhere; by default the target's own exposures are
+    estimated with the reference's curve, found wrong, and the change found is the demo's."""
+    import shutil
+
+    demo = tmp_path / "change"
+    shutil.copytree(ASSETS / "change", demo)
+    toml = demo / "session.toml"
+    text = toml.read_text()
+    for k, t in ((4, 2.0), (5, 4.0), (6, 8.0)):
+        text = text.replace(f'"target/k0{k}.tif", role = "target", exposure = {t}',
+                            f'"target/k0{k}.tif", role = "target", exposure = {2 * t}')
+    toml.write_text(text)
+    base = json.loads(run(capsys, "change", ASSETS / "change", "-o", tmp_path / "a", "--json"))
+    own = json.loads(run(capsys, "change", demo, "-o", tmp_path / "b", "--json"))
+    listed = json.loads(run(capsys, "change", demo, "-o", tmp_path / "c", "--json",
+                            "--exposures", "listed"))
+    assert own["exposures"]["target"]["used"] == "estimated"
+    assert listed["exposures"] == {"reference": None, "target": None}
+    n0, n1, n2 = (d["changed_pixels"] for d in (base, own, listed))
+    assert abs(n1 - n0) < 0.1 * n0 + 50, (n0, n1)
+    assert abs(n2 - n0) > 3 * abs(n1 - n0) + 100, (n0, n1, n2)

@@ -42,6 +42,8 @@ ExposureSummary, PairRatioSummary
     The records (``calibration.json``'s ``response.exposures``; the CLI's JSON).
 estimate_exposures(brackets, curves=None, ...)
     The estimate for a bracket's channels.
+exposures_with_curves(brackets, curves, listed, mode)
+    The exposures a calibration's curves merge a bracket at (``hdr --calib``, ``change``).
 """
 from __future__ import annotations
 
@@ -57,6 +59,7 @@ from .agreement import PairMoments, code_range, fit_ratio, inverse, moments_by_b
 from .brackets import BracketData
 
 __all__ = ["ExposureEstimate", "ExposureSummary", "PairRatioSummary", "estimate_exposures",
+           "exposures_with_curves",
            "WORSE_FACTOR", "WORSE_DN", "OFF_FACTOR", "JACKKNIFE_BLOCKS", "SYSTEMATIC"]
 
 #: the listed exposures are wrong when the agreement with them is this many times ...
@@ -418,3 +421,20 @@ def estimate_exposures(brackets: Mapping[str, BracketData],
     files = tuple(first.files) if first.files else tuple(f"frame {k}" for k in range(N))
     return ExposureEstimate(files, t, a, ln_err, pair_err, used, reason, rms_listed, rms_est,
                             it, converged)
+
+
+def exposures_with_curves(brackets: Mapping[str, BracketData] | None,
+                          curves: Mapping[str, Any], listed: Any, mode: str
+                          ) -> tuple[NDArray[np.float64], ExposureEstimate | None]:
+    """The exposures a calibration's ``curves`` (channel -> anything with ``g``) merge a bracket
+    at: its own, estimated with those curves, when ``mode`` asks for them (``"estimated"``) or
+    the images disagree with the listed ones (``"auto"``); else the ``listed`` ones. Also the
+    estimate (``None`` when not made: ``"listed"``, or ``brackets`` not read here -- a cluster's
+    workers read the frames)."""
+    if brackets is None or mode == "listed":
+        return np.asarray(listed, np.float64), None
+    ex = estimate_exposures(brackets, {ch: getattr(c, "g", c) for ch, c in curves.items()})
+    if mode == "estimated" and ex.used != "estimated":
+        ex = replace(ex, used="estimated", reason=f"asked for (--exposures estimated); "
+                                                  f"{ex.reason}")
+    return np.asarray(ex.exposures, np.float64), ex
