@@ -147,3 +147,15 @@ def test_verdict_line_is_the_same_words_in_the_record():
     assert v.line() == "doubtful: why (frames a.png); next step: --method debevec"
     assert ResponseVerdict.from_dict(v.to_dict(), "x") == v
     assert not math.isnan(len(v.rows()))
+
+
+def test_an_unconverged_white_balance_fit_suggests_the_fit_without_it(results):
+    """The gains' joint fit that stops without converging (as on a real night bracket): the
+    step drops the gains; the fit without them converges on the same bracket."""
+    own, _ = results
+    stuck = tuple(replace(r, white_balance=True, converged=False, method="tsin")
+                  for r in own.responses)
+    v = response_verdict(replace(own, method="tsin", responses=stuck, verdict=None), {})
+    assert v.status == DOUBTFUL and v.next_step == "--method tsin without --white-balance"
+    assert own.method == "tsin" and all(r.converged and not r.white_balance
+                                        for r in own.responses)

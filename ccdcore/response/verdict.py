@@ -21,8 +21,9 @@ the same bracket:
 
 Each verdict names the frames involved and gives at most one next step: a flag of the command
 that printed it (``--exposures estimated``, ``--method NAME``, ``--method NAME without
---white-balance``), only where it helps the case that triggered it (the tests run every
-suggestion through the command line).
+--white-balance`` -- also ``--method tsin without --white-balance`` for a gains' fit that did
+not converge), only where it helps the case that triggered it (the tests run the suggestions
+through the command line).
 
 Public objects
 --------------
@@ -187,10 +188,13 @@ def response_verdict(result: Any, challengers: Mapping[str, Any] | None = None
                                          "RMS from a neighbour)", (), step_better)
     unconverged = [ch for ch, r in zip(result.channels, result.responses) if not r.converged]
     if unconverged:
+        # the gains' joint fit can crawl along a direction the bracket barely fixes; the fit of
+        # g alone (at the exposures used) stops
+        step = f"--method {method} without --white-balance" if wb and method == "tsin" else ""
         return ResponseVerdict(DOUBTFUL, f"the fit of channel{'s' if len(unconverged) > 1 else ''}"
                                          f" {', '.join(unconverged)} stopped after "
                                          f"{max(r.iterations for r in result.responses)} "
-                                         f"iterations without converging ({figures})", (), "")
+                                         f"iterations without converging ({figures})", (), step)
     if used_estimated and not exposures.converged:
         return ResponseVerdict(DOUBTFUL, "the bracket's own exposures did not settle in "
                                          f"{exposures.iterations} alternations ({figures})",
