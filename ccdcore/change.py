@@ -633,8 +633,8 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
     bracket's response (without ``calib``); each bracket is merged at its own exposures when
     ``exposures`` asks for them or the images disagree with the listed ones: the reference's
     from its response, the other brackets' estimated with the curve
-    (:func:`ccdcore.response.exposures.exposures_with_curves`; not when a cluster's workers
-    read the frames).
+    (:func:`ccdcore.response.exposures.exposures_with_curves`, on frames read here even when a
+    cluster's workers merge them).
 
     ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
     reducer (:class:`ccdcore.distributed.DaskReducer`) they run band by band, the workers reading
@@ -707,12 +707,21 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
             own[role] = res.exposures
             if res.exposures is not None and res.exposures.used == "estimated":
                 t = np.asarray(res.exposures.estimated, np.float64)   # the bracket's own
+        elif exposures != "listed":
+            # a bracket the curve was not fitted to: its own exposures with that curve (read
+            # here when a cluster's workers merge it, as the reference is for its response).
+            # A bracket the estimate cannot use keeps its listed times: the merge and the
+            # detector say what is wrong with it
+            read = frames[role] if frames[role] is not None else \
+                [session.read(r) for r in recs[role]]
+            try:
+                br = load_bracket(session, None, role=role, bloom_radius=radius, frames=read)
+                t, own[role] = exposures_with_curves(br, models, t, exposures)
+            except CcdError:
+                own[role] = None
+            del read
         else:
-            # a bracket the curve was not fitted to: its own exposures with that curve
-            br = None if frames[role] is None else load_bracket(
-                session, None, role=role, bloom_radius=radius, frames=frames[role])
-            t, own[role] = exposures_with_curves(br, models, t, exposures)
-            del br
+            own[role] = None
         ms = {ch: ResponseModel(np.asarray(m.g, np.float64), t, np.zeros(t.size),
                                 float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
               for ch, m in models.items()}

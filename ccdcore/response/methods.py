@@ -501,8 +501,9 @@ def response_of(brackets: Mapping[str, BracketData], method: str = AUTO, *,
                          msg if name == main else f"{name} (to compare): {msg}")
         # the challenger is a curve to compare: no band, no noise terms -- unless kept (auto).
         # The white-balance fit starts its gains at the bracket's own exposures whether or not
-        # the listed ones are taken as wrong: from the listed times, on a real bracket whose
-        # short exposures run 25 % off, the guarded joint steps crawled for 30 passes
+        # the listed ones are taken as wrong: from the listed times, on a real night bracket
+        # whose short exposures run 25 % off, the joint fit ended its 30 passes at chi²/dof 10;
+        # seeded, at 3.3
         wb_here = white_balance and name == main
         data = seeded if wb_here and seeded is not None else use
         fits[name] = _estimate_all(data, name, sub, wb_here, band=name == main)
