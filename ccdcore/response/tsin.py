@@ -169,6 +169,8 @@ class TsinOptions:
         With ``white_balance``: the a-priori bound on the gains (sec. 3.2), the standard
         deviation of ln(a_k / t_k) a priori (0: none). Within the gauge it only holds the
         directions the data leave loose, e.g. the gain of an image that is nearly all saturated.
+        It is counted in the units of the pools' actual spread (divided by √(χ²/dof) when the
+        model does not fit the camera, χ²/dof > 1).
     """
 
     white_balance: bool = False
@@ -457,6 +459,7 @@ def estimate(data: BracketData, options: TsinOptions | None = None, *,
     while not st.done and (st.passes < opts.max_iter or st.reuse is not None):
         here = _next_pass(st)                                  # steps 3-5
         chi2 = float(np.sum(here.W * here.tm ** 2)) / max(1, here.tm.size - int(st.free.sum()))
+        st.chi2 = chi2
         if st.restore:
             break                                 # the pass at the last accepted curve
         obj = 0.0
@@ -526,6 +529,7 @@ class _Fit:
     eta: float = 1.0                    # phase 1: the step, shortened on a worse fit
     reuse: _PassState | None = None     # a pass to take again instead of making it
     resolution: float = 0.0             # a tenth of g's statistical error (per knot)
+    chi2: float = 1.0                   # the round's pools' χ²/dof
 
     @property
     def where(self) -> str:
@@ -624,7 +628,7 @@ def _guard_gains(st: _Fit, p: _PassState, chi2: float) -> bool:
     opts = st.opts
     cost = float(np.sum(p.W * p.tm ** 2))
     if opts.gain_prior:
-        cost += float(np.sum((np.log(st.a / st.t) / opts.gain_prior) ** 2))
+        cost += float(np.sum((np.log(st.a / st.t) / _prior_width(st, chi2)) ** 2))
     kept = st.kept
     if kept is not None and cost > kept[0]:
         _, _, st.gk, st.a, st.b, st.reuse = kept
@@ -662,6 +666,15 @@ def _phase1_step(st: _Fit, p: _PassState) -> tuple[NDArray, NDArray]:
     return delta, rhs
 
 
+def _prior_width(st: _Fit, chi2: float) -> float:
+    """The a-priori bound's width in the units of the pools' actual spread: the pools' χ² counts
+    the misfit in units of their statistical errors, and where the model does not fit a real
+    camera (χ²/dof well above 1: its toe, its JPEG) those units are too small, and an image the
+    bracket barely sees (a night scene's shortest) chased the misfit with its gain. Scaled by
+    the square root of χ²/dof (no change where the model fits)."""
+    return float(st.opts.gain_prior) / math.sqrt(max(1.0, chi2))
+
+
 def _phase2_step(st: _Fit, p: _PassState) -> NDArray:
     """Steps 6-8 of the white-balance fit: one joint step of g, the gains and the offsets in
     their gauge (:func:`ccdcore.response.tsin_gauge.joint_step`); the gains and offsets are
@@ -672,7 +685,8 @@ def _phase2_step(st: _Fit, p: _PassState) -> NDArray:
     grad = -(p.Jm.T @ (p.W * p.tm))
     grad[:K] -= p.lam * (p.P_s @ st.gk)
     delta, a_new, st.b, st.radius = joint_step(Hfull, grad, st.free, st.a, st.b, st.t,
-                                               st.opts.gain_prior, st.opts.eta, st.radius,
+                                               _prior_width(st, st.chi2), st.opts.eta,
+                                               st.radius,
                                                st.where)
     st.a_step = float(np.max(np.abs(a_new / st.a - 1.0)))
     st.a = a_new
