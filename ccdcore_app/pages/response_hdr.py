@@ -60,6 +60,7 @@ from ccdcore.progress import Progress, within
 from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
 from ccdcore.response.hdr import FLAG_OK, HdrResult, merge
 from ccdcore.response.methods import AUTO, EXPOSURE_MODES, METHODS, ResponseResult, response_of
+from ccdcore.response.scale import normalize
 from ccdcore.session import Session
 from ccdcore.simulate.truth import find_truth
 
@@ -149,7 +150,14 @@ def _true_g(session: Session) -> np.ndarray | None:
     if truth is None or "g" not in truth:
         return None
     g = np.asarray(truth["g"], np.float64)
-    return g if g.ndim == 1 else None
+    if g.ndim != 1 or g.size < 2:
+        return None
+    # on the scale every curve is reported on (g(z_hi) = z_hi / (levels - 1)): a camera-like
+    # simulation's own scale (a tone curve with headroom) would draw it far from every estimate
+    try:
+        return normalize(g, g.size)[0]
+    except ValueError:
+        return g
 
 
 def _table(css_class: str) -> pn.pane.DataFrame:

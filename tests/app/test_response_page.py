@@ -551,3 +551,21 @@ def test_a_shared_error_reaches_every_waiter_once_computed(rgb_root):
     a, b, calls, one, two = _two_callers(rgb_root, lambda progress: _slow(progress, True))
     assert a is None and b is None and calls == 1
     assert one.error == two.error == "bracket: every frame saturated"
+
+
+def test_the_simulators_truth_is_drawn_on_the_reported_scale(wrong_root):
+    """A camera-like simulation's true g has a scale of its own (its tone curve's headroom):
+    drawn as it is, it lay far below every estimate. It is drawn with g(z_hi) = z_hi / 255,
+    the scale every curve is reported on, its shape unchanged."""
+    import json
+
+    from ccdcore.response.scale import reference_codes
+
+    truth = np.asarray(json.loads((wrong_root / "truth.json").read_text())["g"])
+    state = _state(wrong_root)
+    page = ResponsePage(state, auto=False)
+    _run(page.refresh())
+    drawn = np.asarray(page.curves.truth.data["g"], np.float64)
+    _, z_hi = reference_codes(256)
+    assert drawn[z_hi] == pytest.approx(z_hi / 255, rel=1e-12)
+    np.testing.assert_allclose(drawn / drawn[z_hi], truth / truth[z_hi], rtol=1e-12)
