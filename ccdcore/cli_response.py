@@ -44,7 +44,7 @@ def print_response(res: Any) -> None:
           f"({', '.join(f'{t:.4g}' for t in res.t)} s listed), {res.levels} codes")
     if res.selection:
         say("method", f"{res.requested}: {res.selection}")
-    print_exposures(res)
+    print_exposures(res.exposures)
     say("", f"g(z) is the inverse response: the relative exposure (light × time) that gives "
             f"the code z, on a scale of its own: g({z_hi}) = {z_hi}/{top} = "
             f"{z_hi / top:.4g} (the code 90 % up the range maps to 0.9; no unit)")
@@ -86,16 +86,18 @@ def print_response(res: Any) -> None:
     print_verdict(res)
 
 
-def print_exposures(res: Any) -> None:
-    """Which exposures a response took and why, and the frames that disagree with the listed
-    ones (:mod:`ccdcore.response.exposures`)."""
-    if res.exposures is None:
+def print_exposures(estimate: Any, label: str = "", table: bool = True) -> None:
+    """Which exposures were taken and why (an
+    :class:`ccdcore.response.exposures.ExposureEstimate`; nothing for ``None``), the frames
+    that disagree with the listed ones and, with ``table``, each frame's listed and own
+    exposure when the own ones were taken."""
+    if estimate is None:
         return
-    ex = res.exposures.summary()
-    say("", ex.line())
+    ex = estimate.summary()
+    say(label, ex.line())
     for run in ex.off_runs():
         say("", run, indent="    ")
-    if ex.used == "estimated":
+    if table and ex.used == "estimated":
         print(f"    {'frame':>20} {'listed [s]':>12} {'own [s]':>12}")
         for f, t, a in zip(ex.files, ex.listed, ex.estimated):
             print(f"    {f.rsplit('/', 1)[-1]:>20} {t:>12.4g} {a:>12.4g}")
@@ -182,10 +184,7 @@ def _cmd_change(args: argparse.Namespace) -> int:
         return 0
     print(f"change detection (Tsin et al. 2001, sec. 5), {inputs.source}")
     for role, ex in inputs.exposures.items():
-        if ex is not None:
-            say(role, ex.summary().line())
-            for run in ex.summary().off_runs():
-                say("", run, indent="    ")
+        print_exposures(ex, role, table=False)
     if inputs.response is not None:
         print_verdict(inputs.response)
     channels = [str(c) for c in inputs.channels]
@@ -303,13 +302,10 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
         print(f"HDR radiance of {len(records)} exposures ({source}), channels "
               f"{', '.join(out.channels)}")
         if res is not None:
-            print_exposures(res)
+            print_exposures(res.exposures)
             print_verdict(res)
-        elif calib_exposures is not None:
-            ex = calib_exposures.summary()
-            say("", ex.line())
-            for run in ex.off_runs():
-                say("", run, indent="    ")
+        else:
+            print_exposures(calib_exposures, table=False)
         if scheduler != STREAMED_NAME:
             print(f"  merged on {scheduler}")
         for p in paths:

@@ -151,6 +151,16 @@ class BracketData:
         extra = BAYER_MAD_FACTOR.get(self.channel[:1], 1.0) if self.bayer_interpolated else 1.0
         return 1.483 * extra
 
+    def row_bands(self, n: int) -> NDArray[np.int64]:
+        """The band of every kept pixel when the frame's rows are cut into ``n`` bands (by
+        flat index; by the pixel order when the flat indices are not known): blocks of pixels
+        in which correlated neighbours stay together (jackknives, sandwich estimates)."""
+        P = self.n_pixels
+        h, w = self.shape
+        if self.pixels.size == P and h * w > 0:
+            return np.minimum(self.pixels.astype(np.int64) * n // (h * w), n - 1)
+        return np.arange(P, dtype=np.int64) * n // max(P, 1)
+
     def take(self, columns: ArrayLike) -> "BracketData":
         """The same bracket restricted to the pixel columns ``columns`` (a subsample of pixels);
         ``pair_counts`` stay those of the whole frame."""

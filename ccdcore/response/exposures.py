@@ -220,20 +220,11 @@ def _num(v: Any) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _blocks(data: BracketData) -> NDArray[np.int64]:
-    """Band of rows of every pixel of the channel (:data:`JACKKNIFE_BLOCKS` bands)."""
-    n, P = JACKKNIFE_BLOCKS, data.n_pixels
-    h, w = data.shape
-    if data.pixels.size == P and h * w > 0:
-        return np.minimum(data.pixels.astype(np.int64) * n // (h * w), n - 1)
-    return np.arange(P, dtype=np.int64) * n // max(P, 1)
-
-
 def _block_moments(data: BracketData, codes: tuple[int, int]
                    ) -> list[list[PairMoments]]:
     """Per pair, the code moments of every band of rows (their sum is the whole channel's)."""
     z = np.asarray(data.z)
-    blk = _blocks(data)
+    blk = data.row_bands(JACKKNIFE_BLOCKS)
     return [moments_by_block(z[j], z[j + 1], int(data.levels), codes, blk, JACKKNIFE_BLOCKS)
             for j in range(data.n_images - 1)]
 

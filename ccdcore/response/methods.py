@@ -86,22 +86,13 @@ def _tsin(data: BracketData, progress: Progress | None, white_balance: bool = Fa
     return estimate(data, TsinOptions(white_balance=white_balance), progress=progress)
 
 
-def _blocks(data: BracketData, n: int) -> NDArray[np.int64]:
-    """Block of every pixel: bands of rows of the frame (or of the pixel order)."""
-    P = data.n_pixels
-    h, w = data.shape
-    if data.pixels.size == P and h * w > 0:
-        return np.minimum(data.pixels.astype(np.int64) * n // (h * w), n - 1)
-    return np.arange(P, dtype=np.int64) * n // max(P, 1)
-
-
 def _classic(name: str, fn: Callable[[BracketData], Any]
              ) -> Callable[..., ChannelResponse]:
     def run(data: BracketData, progress: Progress | None, band: bool = True) -> ChannelResponse:
         fit = fn(data)
         g = np.asarray(fit.g, np.float64)
         L = g.size
-        blocks = _blocks(data, JACKKNIFE_BLOCKS)
+        blocks = data.row_bands(JACKKNIFE_BLOCKS)
         reps = []
         for b in range(JACKKNIFE_BLOCKS if band else 0):
             if progress is not None:

@@ -321,12 +321,7 @@ def _setup(data: BracketData, opts: TsinOptions) -> _Setup:
     obs = np.ascontiguousarray(data.observed, np.bool_)
     e = int(round(opts.edge * (L - 1) / 255.0))
     clip = (z <= e) | (z >= L - 1 - e)
-    G = int(opts.groups)
-    if data.pixels.size == P and data.shape[0] * data.shape[1] > 0:
-        grp = data.pixels.astype(np.int64) * G // (data.shape[0] * data.shape[1])
-    else:
-        grp = np.arange(P, dtype=np.int64) * G // max(P, 1)
-    grp = np.clip(grp, 0, G - 1).astype(np.int32)
+    grp = data.row_bands(int(opts.groups)).astype(np.int32)
     paper = opts.pools == "paper"
     seen, nclip = pool_counts(pb, obs, clip, K)
     inc = (seen > 0) & (nclip <= opts.clip_fraction * seen)
