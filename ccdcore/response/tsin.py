@@ -275,6 +275,8 @@ class _Setup:
     rows: NDArray[np.int64]          # (R, 3): j, m, k
     paper: bool
     min_pool: int
+    #: the last pass's order of the errors within each row (:func:`sort_rows`), -1 before one
+    order: NDArray[np.int64] | None = None
 
 
 #: the shortest step of g (as a fraction of eq. 16's step) tried before the fit is taken as
@@ -410,8 +412,12 @@ def _anchors(s: _Setup) -> tuple[int, int]:
 def _sorted_rows(s: _Setup, resid: NDArray) -> NDArray[np.float64]:
     """The residuals sorted within each row (a compiled sort per row: sorting the whole pass at
     once, each row shifted into an interval of its own, cost 2-4 times as much on a 13-image
-    bracket and was exact only to the shift's rounding)."""
-    return sort_rows(np.ascontiguousarray(resid, np.float64), s.offsets)
+    bracket and was exact only to the shift's rounding), starting from the last pass's order
+    (:func:`ccdcore.response.tsin_kernels.sort_rows`)."""
+    resid = np.ascontiguousarray(resid, np.float64)
+    if s.order is None or s.order.size != resid.size:
+        s.order = np.full(resid.size, -1, np.int64)
+    return sort_rows(resid, s.offsets, s.order)
 
 
 def _second_differences(n: int) -> NDArray[np.float64]:
