@@ -216,8 +216,23 @@ def _progress_bar(state: AppState) -> pn.Row:
     return row
 
 
+#: what a request for another host than the app listens on gets instead of the app
+WRONG_HOST = ("This app answers only at the addresses it listens on ({hosts}); the request "
+              "named the host {host!r}. Open it at one of those addresses.")
+
+
+def host_allowed(host: str | None, hosts: Iterable[str] | None) -> bool:
+    """Whether a request's ``Host`` header names an address the app listens on (``hosts``:
+    ``name:port`` strings; ``None``: any). A page elsewhere that resolves its own name to this
+    machine (DNS rebinding) sends its own name as the host, and gets no app."""
+    if hosts is None:
+        return True
+    return host is not None and host.strip().lower() in {h.lower() for h in hosts}
+
+
 def create_app(session_path: str | Path | None = None, *,
-               allowed_roots: Iterable[str | Path] | None = None) -> pn.template.BaseTemplate:
+               allowed_roots: Iterable[str | Path] | None = None,
+               hosts: Iterable[str] | None = None) -> pn.viewable.Viewable:
     """Build a fresh app for one browser session.
 
     Parameters
@@ -229,12 +244,24 @@ def create_app(session_path: str | Path | None = None, *,
     allowed_roots
         Folders the user may open sessions from; default: the bundled assets, the home folder
         and the working folder.
+    hosts
+        When served, the ``name:port`` addresses the server listens on: a request naming
+        another host in its ``Host`` header gets one line saying so instead of the app
+        (:func:`host_allowed`); ``None`` (a script, a test): no check.
 
     Returns
     -------
     AppTemplate
-        A ``panel.template.BootstrapTemplate``.
+        A ``panel.template.BootstrapTemplate`` (or, for a request to another host, a Markdown
+        pane saying so).
     """
+    doc = pn.state.curdoc
+    if hosts is not None and doc is not None and doc.session_context is not None:
+        host = (pn.state.headers or {}).get("Host")
+        if not host_allowed(host, hosts):
+            log.warning("refused a request for host %r (serving %s)", host, ", ".join(hosts))
+            return pn.pane.Markdown(WRONG_HOST.format(hosts=", ".join(sorted(hosts)),
+                                                      host=host))
     extra: list[Path] = []
     if session_path is not None:
         p = Path(session_path).expanduser().resolve()
@@ -270,7 +297,6 @@ def create_app(session_path: str | Path | None = None, *,
     template.app_shell = shell  # type: ignore[attr-defined]
     template.report_box = report_box  # type: ignore[attr-defined]
 
-    doc = pn.state.curdoc
     if doc is not None and doc.session_context is not None:
         # served: when the browser session ends, its results go (Bokeh destroys a session
         # some seconds after its last connection closed)
@@ -468,8 +494,8 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
     bokeh_settings.perform_error_diagnostics.set_value(False)
     origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
 
-    def app() -> pn.template.BaseTemplate:  # a plain function: Panel calls it per session
-        return create_app(session_path)
+    def app() -> pn.viewable.Viewable:  # a plain function: Panel calls it per session
+        return create_app(session_path, hosts=origins)
 
     return pn.serve({"/": app}, port=port, address=address, show=show, threaded=threaded,
                     title="ccdcore", liveness=True, websocket_origin=origins, start=True,

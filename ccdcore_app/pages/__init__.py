@@ -18,12 +18,17 @@ import importlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from ..markup import forbid_raw_html
+
 if TYPE_CHECKING:
     from panel.viewable import Viewable
 
     from ..state import AppState
 
 __all__ = ["PageSpec", "PAGES", "build_page", "get_page"]
+
+# no markup from a file runs in any page (ccdcore_app.markup): before any page makes a pane
+forbid_raw_html()
 
 
 @dataclass(frozen=True)

@@ -209,6 +209,26 @@ def serve_app(warmed: None) -> Iterator[Callable[..., str]]:
 
 
 @pytest.fixture
+def serve_main(warmed: None) -> Iterator[Callable[..., str]]:
+    """``serve_main(session_path=None) -> (url, port)``: the app served by
+    :func:`ccdcore_app.main.serve` itself (its host check, its origins), threaded on a free
+    port; stopped after the test."""
+    import panel as pn
+
+    from ccdcore_app.main import serve
+
+    def start(session_path: str | Path | None = None) -> tuple[str, int]:
+        port = _free_port()
+        serve(session_path, port=port, threaded=True)
+        url = f"http://127.0.0.1:{port}"
+        _wait_alive(url)
+        return url, port
+
+    yield start
+    pn.state.kill_all_servers()
+
+
+@pytest.fixture
 def open_app(page) -> Callable[[str], None]:
     """``open_app(url)``: load the app and wait until its websocket is connected and the document
     is idle. Widgets are drawn from the page's HTML before the connection opens; a click or a
