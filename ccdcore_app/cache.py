@@ -83,6 +83,7 @@ import ccdcore
 from ccdcore.session import Session
 
 __all__ = ["ResultCache", "cache_folder", "code_version", "default_cache", "max_bytes",
+           "entry_size_problem", "MAX_INDEX_BYTES",
            "fingerprint",
            "photon_transfer_entry", "estimates_entry", "SharedResults", "Shared",
            "shared_results", "CACHE_ENV", "content_hash", "file_digest", "encode", "decode",
@@ -422,6 +423,43 @@ def content_hash(session: Session) -> str:
 # ---------------------------------------------------------------------------------------------
 # the folder
 # ---------------------------------------------------------------------------------------------
+#: the largest content-hash index read (this cache writes a few hundred bytes per session)
+MAX_INDEX_BYTES = 16 * 2 ** 20
+
+
+def entry_size_problem(path: str | os.PathLike) -> str | None:
+    """Why an entry may not be loaded, from its declared sizes alone, or None.
+
+    Entries are written uncompressed (``np.savez``): every member is stored, and each array's
+    header declares exactly the bytes its member holds. A member compressed (a few MB that
+    inflate to GB), or an array header declaring more bytes than its member holds (NumPy would
+    allocate the declared size first), is not an entry of this cache, and nothing of it is
+    read."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if info.compress_type != zipfile.ZIP_STORED or \
+                        info.file_size != info.compress_size:
+                    return f"{info.filename}: compressed ({info.compress_size} bytes declared " \
+                           f"to inflate to {info.file_size})"
+                if not info.filename.endswith(".npy"):
+                    continue
+                with zf.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(f, max_header_size=2 ** 16)
+                    declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if declared > info.file_size:
+                    return f"{info.filename}: declares {declared} bytes in a member of " \
+                           f"{info.file_size}"
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
+        return f"unreadable: {err}"
+    return None
+
+
 def unsafe_folder(folder: Path, root: Path) -> str | None:
     """Why ``folder`` (``root`` or a folder inside it) may not hold the cache, or None: each
     folder from ``root`` down to ``folder`` must be a real folder owned by this user and not
@@ -547,6 +585,9 @@ class ResultCache:
         if not path.is_file() or not self.usable():
             return None
         try:
+            oversized = entry_size_problem(path)
+            if oversized:
+                raise ValueError(oversized)
             # arrays and JSON only: allow_pickle=False, and decode() makes nothing but plain
             # data and ccdcore's own dataclasses and enums
             with np.load(path, allow_pickle=False) as z:
@@ -691,12 +732,16 @@ class ResultCache:
         if not self.index_path.is_file() or not self.usable():
             return {}
         try:
+            if self.index_path.stat().st_size > MAX_INDEX_BYTES:
+                raise ValueError("index larger than any this cache writes")
             data = json.loads(self.index_path.read_text())
             if isinstance(data, dict) and data.get("format") == FORMAT \
                     and isinstance(data.get("sessions"), dict):
                 return data["sessions"]
-        except (OSError, ValueError):
-            pass
+        except (OSError, ValueError, RecursionError) as err:
+            # RecursionError: JSON nested thousands deep, which this cache never writes
+            log.warning("ignoring the cache index %s: %s", self.index_path,
+                        type(err).__name__)
         return {}
 
     def _write_index(self, sessions: dict[str, Any]) -> None:

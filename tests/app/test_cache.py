@@ -11,6 +11,7 @@ import os
 import pickle
 import shutil
 import threading
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -506,3 +507,53 @@ def test_round_trip_of_every_cached_result_type(cache_dir, assets, demo_results)
         key = f"{i + 10:064x}"
         assert cache.put(key, value), name
         assert_same(cache.get(key), value, name)
+
+
+# ------------------------------------------------------------------------- bounded entries ---
+def _bomb(key: str, arrays: dict[str, np.ndarray], compressed: bool) -> bytes:
+    buf = io.BytesIO()
+    entry = {"format": cache_mod.FORMAT, "key": key,
+             "value": {"__ndarray__": "big"} if "big" in arrays else None}
+    save = np.savez_compressed if compressed else np.savez
+    save(buf, __entry__=np.frombuffer(json.dumps(entry).encode(), dtype=np.uint8), **arrays)
+    return buf.getvalue()
+
+
+def test_an_entry_that_inflates_is_refused_before_it_is_read(cache_dir, monkeypatch):
+    """A small entry whose member inflates (a deflated array of zeros: 64 MB from about 65 kB)
+    or whose array header declares more bytes than its member holds is a miss, deleted, and
+    nothing of it is loaded; the cache's own entries still load."""
+    key = "4" * 64
+    cache = ResultCache(cache_dir)
+    assert cache.put(key, np.arange(5.0))
+    assert cache_mod.entry_size_problem(cache_dir / "results" / f"{key}.npz") is None
+    np.testing.assert_array_equal(cache.get(key), np.arange(5.0))
+    loads = []
+    monkeypatch.setattr(cache_mod.np, "load", lambda *a, **k: loads.append(a) or 1 / 0)
+    path = cache_dir / "results" / f"{key}.npz"
+    path.write_bytes(_bomb(key, {"big": np.zeros(2 ** 23)}, compressed=True))
+    assert path.stat().st_size < 2 ** 20
+    assert "compressed" in cache_mod.entry_size_problem(path)
+    assert cache.get(key) is None and not path.exists() and not loads
+    # an array header declaring 99 999 999 999 elements in a member of 160 bytes (the header's padding
+    # shortened by as much, so the member's size is unchanged)
+    raw = io.BytesIO()
+    np.save(raw, np.zeros(4))
+    raw = raw.getvalue()
+    at = raw.index(b"(4,), }")
+    end = raw.index(b"\n", at)
+    assert raw[end - 11:end] == b" " * 11
+    hacked = raw[:at] + b"(99999999999,), }" + raw[at + 7:end - 10] + raw[end:]
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+        zf.writestr("big.npy", hacked)
+    assert "declares 799999999992 bytes" in cache_mod.entry_size_problem(path)
+    assert cache.get(key) is None and not loads
+
+
+def test_a_deeply_nested_index_is_ignored(cache_dir, caplog):
+    """hashes.json nested 100 000 deep (RecursionError in json) is ignored with a warning."""
+    cache = ResultCache(cache_dir)
+    assert cache.usable(create=True)
+    cache.index_path.write_text("[" * 100_000 + "]" * 100_000)
+    assert cache._read_index() == {}
+    assert any("ignoring the cache index" in r.message for r in caplog.records)
