@@ -55,6 +55,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _inputs(args: argparse.Namespace) -> str:
+    """The command's input paths as the start of an error line ("a, b: "), or ""."""
+    inputs = [str(v) for k, v in vars(args).items()
+              if isinstance(v, Path) and k not in ("out", "out_dir")]
+    return f"{', '.join(inputs)}: " if inputs else ""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 2 bad input).
 
@@ -75,11 +82,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except RecursionError:
         # Last resort: a parser met input nested deeper than Python's stack (a hostile or
         # corrupt TOML/JSON file, e.g. ten thousand "[" in a row) and did not say which file.
-        inputs = [str(v) for k, v in vars(args).items()
-                  if isinstance(v, Path) and k not in ("out", "out_dir")]
-        where = f"{', '.join(inputs)}: " if inputs else ""
-        print(f"ccdcore {args.verb}: error: {where}a file holds tables or arrays nested too "
-              "deeply to read (corrupt?)", file=sys.stderr)
+        print(f"ccdcore {args.verb}: error: {_inputs(args)}a file holds tables or arrays "
+              "nested too deeply to read (corrupt?)", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError as err:
+        # a frame or a stack larger than the memory free (a 400 MP image under a limit): one
+        # line with what NumPy could not allocate, never its traceback
+        what = str(err) or "an allocation failed"
+        print(f"ccdcore {args.verb}: error: {_inputs(args)}not enough memory ({what}); free "
+              "memory, or give fewer or smaller frames", file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:
         # the reader went away (``ccdcore session ... | head``): stop quietly, as Unix tools do

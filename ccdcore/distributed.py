@@ -213,13 +213,27 @@ def get_client(scheduler: str | None = None, workers: int | None = None) -> Iter
         # (Dask's scheduler always serves a few HTTP routes (health, metrics): without a
         # dashboard they go to a free port of 127.0.0.1 rather than to 8787.)
         dashboard = _dashboard_address()
-        with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOCAL_HOST,
-                          dashboard_address=dashboard, worker_dashboard_address=None,
-                          scheduler_kwargs={"dashboard": dashboard is not None,
-                                            "dashboard_address": dashboard
-                                            or f"{LOCAL_HOST}:0"}) as cluster, \
-                Client(cluster) as client:
-            yield client
+        interrupted = False
+        try:
+            with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                              host=LOCAL_HOST, dashboard_address=dashboard,
+                              worker_dashboard_address=None,
+                              scheduler_kwargs={"dashboard": dashboard is not None,
+                                                "dashboard_address": dashboard
+                                                or f"{LOCAL_HOST}:0"}) as cluster, \
+                    Client(cluster) as client:
+                try:
+                    yield client
+                except KeyboardInterrupt:
+                    interrupted = True
+                    raise
+        except Exception:
+            # Ctrl+C reaches the worker processes too (one process group): closing a cluster
+            # whose workers are already gone can fail (an AssertionError in Dask's close),
+            # and that error would replace the interrupt the user asked for
+            if interrupted:
+                raise KeyboardInterrupt from None
+            raise
         return
     yield from _connected(scheduler)
 

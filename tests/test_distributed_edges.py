@@ -210,3 +210,33 @@ def test_cluster_readers_refuse_a_bomb_before_submitting(tmp_path, monkeypatch):
     monkeypatch.setenv("CCDCORE_MAX_PIXELS", str(40000 * 40000))
     ccd_dist.check_pixels(bombs[0], shape)        # the same override as the streamed reader
 
+
+
+class _ClosingFails:
+    """A stand-in for Dask's LocalCluster and Client whose close fails, as a cluster's does
+    after Ctrl+C has already stopped its worker processes."""
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        raise AssertionError("the cluster's workers are gone")
+
+
+def test_ctrl_c_with_a_local_cluster_stays_an_interrupt(monkeypatch):
+    """Ctrl+C while a local cluster runs reaches the command as KeyboardInterrupt (exit 130,
+    no traceback), not as the error of closing a cluster whose workers it also stopped; any
+    other failure while closing is still raised."""
+    import distributed
+
+    monkeypatch.setattr(distributed, "LocalCluster", _ClosingFails)
+    monkeypatch.setattr(distributed, "Client", _ClosingFails)
+    with pytest.raises(KeyboardInterrupt):
+        with ccd_dist.get_client(None, 1):
+            raise KeyboardInterrupt
+    with pytest.raises(AssertionError):
+        with ccd_dist.get_client(None, 1):
+            pass

@@ -269,3 +269,20 @@ def test_busy_port_is_named_before_serving(capsys):
     assert code == 2
     assert "serving" not in out
     assert one_line(err).endswith(f"port {port} is in use: choose another with --port")
+
+
+def test_out_of_memory_is_one_line_naming_the_input(capsys, tmp_path, monkeypatch):
+    """MemoryError anywhere in a verb (NumPy could not allocate a frame's worth) is one line
+    with exit 2 naming the session, not a traceback."""
+    import ccdcore.session as session_mod
+
+    def huge(*args, **kwargs):
+        raise MemoryError("Unable to allocate 3.18 GiB for an array with shape (20000, 20000) "
+                          "and data type float64")
+    monkeypatch.setattr(session_mod, "open_session", huge)
+    root = tmp_path / "big"
+    root.mkdir()
+    code, out, err = run(capsys, "session", root)
+    assert code == 2
+    line = one_line(err)
+    assert "not enough memory" in line and "3.18 GiB" in line and str(root) in line
