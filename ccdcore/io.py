@@ -61,15 +61,17 @@ from .io_limits import MAX_PIXELS, MAX_PIXELS_ENV, check_pixel_limit, pixel_limi
 from .io_oiio import (header_from_spec, libpng_quiet, oiio_close, oiio_module, oiio_open,
                       read_oiio, read_oiio_region)
 from .io_oiio_write import oiio_samples, oiio_spec, oiio_write
-from .io_outputs import (TEMP_PREFIX, check_not_inputs, check_output, check_outputs, output_set,
-                         real_path, remove_stale_temporaries, write_outputs)
+from .io_outputs import (RECORD, TEMP_PREFIX, check_not_inputs, check_output, check_outputs,
+                         output_set, ownership_problem, read_record, real_path,
+                         remove_stale_temporaries, write_outputs)
 
 __all__ = [
     "ImageHeader", "read_header", "read_image", "read_frame", "read_region", "write_image",
     "write_map", "atomic_path", "atomic_write_text", "atomic_write_bytes", "IMAGE_EXTENSIONS",
     "RAW_EXTENSIONS", "FITS_EXTENSIONS", "is_image_path", "MAX_PIXELS", "MAX_PIXELS_ENV",
            "check_pixel_limit",
-    "pixel_limit", "TEMP_PREFIX", "output_set", "write_outputs", "check_output", "check_outputs",
+    "pixel_limit", "TEMP_PREFIX", "RECORD", "read_record", "ownership_problem", "output_set",
+    "write_outputs", "check_output", "check_outputs",
     "check_not_inputs", "real_path", "remove_stale_temporaries",
 ]
 

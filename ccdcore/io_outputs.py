@@ -4,6 +4,7 @@ in), never over an input of the run nor over a FIFO or a device. Re-exported by 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -15,8 +16,9 @@ from typing import Any, Callable, Iterable, Iterator, Mapping
 from .errors import CcdError, ImageWriteError
 from .io_base import os_problem, sync_folder
 
-__all__ = ["TEMP_PREFIX", "real_path", "check_output", "check_not_inputs", "check_outputs",
-           "remove_stale_temporaries", "output_set", "write_outputs"]
+__all__ = ["TEMP_PREFIX", "MARK", "RECORD", "JOURNAL_PREFIX", "real_path", "check_output",
+           "check_not_inputs", "check_outputs", "read_record", "ownership_problem",
+           "recover_swaps", "remove_stale_temporaries", "output_set", "write_outputs"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -25,6 +27,15 @@ __all__ = ["TEMP_PREFIX", "real_path", "check_output", "check_not_inputs", "chec
 #: the prefix of the temporary folders an output set is written into (removed on failure, on
 #: SIGTERM, and by the next write into the same folder once the process that made it is gone)
 TEMP_PREFIX = ".ccdcore-tmp-"
+#: the file in each of our temporary folders that marks it as ours (it holds the writer's
+#: process id): a folder of the user's that happens to share the prefix is never removed
+MARK = ".ccdcore-run"
+#: the file in every output folder that records what ccdcore wrote there (name -> the files of
+#: a folder entry, or null for a file): only those are ever replaced or removed
+RECORD = ".ccdcore-outputs.json"
+#: the journal of a swap in progress (``.ccdcore-swap-<pid>.json``): which entries were moved
+#: aside and which moved in, so that a run killed halfway is undone by the next write
+JOURNAL_PREFIX = ".ccdcore-swap-"
 
 
 def real_path(path: str | os.PathLike) -> Path:
@@ -97,11 +108,13 @@ def check_not_inputs(outputs: Iterable[str | os.PathLike],
 
 
 def check_outputs(folder: str | os.PathLike, names: Iterable[str] | Mapping[str, bool],
-                  inputs: Iterable[str | os.PathLike] = ()) -> None:
+                  inputs: Iterable[str | os.PathLike] = (), *, owned: bool = True) -> None:
     """Check the outputs ``folder/name`` of a run before anything is computed or written:
     ``folder`` a folder (or absent) neither an input nor inside one, each output a regular
-    file (a folder where ``names`` maps the name to ``True``) or absent, and none equal to,
-    inside or containing an input (:func:`check_output`, :func:`check_not_inputs`).
+    file (a folder where ``names`` maps the name to ``True``) or absent, none equal to,
+    inside or containing an input (:func:`check_output`, :func:`check_not_inputs`), and, with
+    ``owned``, each existing output one that ccdcore wrote there (:func:`ownership_problem`):
+    an output replaces only what a run of ours wrote.
 
     Raises
     ------
@@ -116,6 +129,98 @@ def check_outputs(folder: str | os.PathLike, names: Iterable[str] | Mapping[str,
     for name, is_folder in kinds.items():
         check_output(folder / name, folder=is_folder)
     check_not_inputs([folder / n for n in kinds], inputs)
+    if owned and kinds and folder.is_dir():
+        record = read_record(folder)
+        for name in kinds:
+            problem = ownership_problem(folder, name, record)
+            if problem:
+                raise CcdError(folder / name, f"{problem}: an output replaces only what ccdcore "
+                                              "wrote there; move it away or choose another -o")
+
+
+def _plain_name(name: Any) -> bool:
+    """A name of one entry of a folder (no separator, not . or ..)."""
+    return isinstance(name, str) and name not in ("", ".", "..") and "/" not in name \
+        and os.sep not in name and "\0" not in name
+
+
+def read_record(folder: str | os.PathLike) -> dict[str, list[str] | None]:
+    """What ccdcore wrote in ``folder`` (its :data:`RECORD`): entry name -> the files of a
+    folder entry (relative paths), or None for a file. Empty when there is none or it is
+    damaged: then nothing there is known as ours."""
+    try:
+        with open(Path(folder) / RECORD, encoding="utf-8") as f:
+            data = json.loads(f.read(1 << 22))
+        entries = data["entries"]
+        out: dict[str, list[str] | None] = {}
+        for name, files in entries.items():
+            if _plain_name(name) and (files is None or (isinstance(files, list) and all(
+                    isinstance(x, str) for x in files))):
+                out[name] = files
+        return out
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError):
+        return {}
+
+
+def _entry_files(path: Path) -> list[str]:
+    """The files under a folder entry, as sorted relative paths (symlinks counted as files)."""
+    out = []
+    for root, dirs, files in os.walk(path):
+        rel = os.path.relpath(root, path)
+        for name in files + [d for d in dirs if os.path.islink(os.path.join(root, d))]:
+            out.append(os.path.normpath(os.path.join(rel, name)))
+    return sorted(out)
+
+
+def ownership_problem(folder: str | os.PathLike, name: str,
+                      record: Mapping[str, list[str] | None] | None = None) -> str | None:
+    """Why the existing entry ``folder/name`` may not be replaced by a run (it, or a file in
+    it, was not written by ccdcore: not in ``folder``'s :data:`RECORD`), or None (absent, or
+    ours)."""
+    path = Path(folder) / name
+    if not os.path.lexists(path):
+        return None
+    record = read_record(folder) if record is None else record
+    if name not in record:
+        return "exists and was not written by ccdcore"
+    files = record[name]
+    is_dir = path.is_dir() and not path.is_symlink()
+    if files is None:
+        return "is a folder, where ccdcore wrote a file" if is_dir else None
+    if not is_dir:
+        return "is a file, where ccdcore wrote a folder"
+    extra = sorted(set(_entry_files(path)) - set(files))
+    if extra:
+        more = f" (and {len(extra) - 1} more)" if len(extra) > 1 else ""
+        return f"holds {extra[0]}{more}, which ccdcore did not write"
+    return None
+
+
+def _write_json(path: Path, data: Any) -> None:
+    """``data`` as JSON at ``path``, durably and atomically (a temporary file, then a rename)."""
+    part = path.with_name(f"{path.name}.{os.getpid()}.part")
+    with open(part, "w", encoding="utf-8") as f:
+        json.dump(data, f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(part, path)
+    sync_folder(path.parent)
+
+
+def _temp_folder(home: Path, tag: str = "") -> Path:
+    """A new temporary folder of ours in ``home``, marked as ours (:data:`MARK`)."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}{tag}", suffix=f"-{os.getpid()}",
+                                dir=home))
+    (tmp / MARK).write_text(str(os.getpid()))
+    return tmp
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(OSError):
+            path.unlink()
 
 
 class _Terminated(BaseException):
@@ -123,13 +228,62 @@ class _Terminated(BaseException):
     folder goes."""
 
 
-def remove_stale_temporaries(folder: str | os.PathLike) -> None:
-    """Remove the temporary folders killed writes left in ``folder`` (not those of live
-    processes: their name ends with the writer's process id)."""
-    for p in Path(folder).glob(f"{TEMP_PREFIX}*"):
-        pid = p.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and int(pid) != os.getpid() and _alive(int(pid)):
+def recover_swaps(folder: str | os.PathLike) -> None:
+    """Finish or undo the swaps that killed runs (SIGKILL, a power cut) left in ``folder``,
+    from their journals: a swap that had moved its whole set in is finished (the set moved
+    aside goes); one that had not is undone (the entries it moved in go, the earlier set moved
+    aside comes back). ``folder`` then holds the earlier set or the new one, never a mix, and a
+    set moved aside is never deleted before the new one is whole."""
+    folder = Path(folder)
+    for part in folder.glob(f"{JOURNAL_PREFIX}*.json.*.part"):   # a journal half written
+        pid = part.name[:-len(".part")].rsplit(".", 1)[-1]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            with contextlib.suppress(OSError):
+                part.unlink()
+    for journal in sorted(folder.glob(f"{JOURNAL_PREFIX}*.json")):
+        pid = journal.name[len(JOURNAL_PREFIX):-len(".json")]
+        if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
             continue
+        try:
+            data = json.loads(journal.read_text(encoding="utf-8"))
+            tmp, old = data["tmp"], data["old"]
+            new, parked = list(data["new"]), list(data["parked"])
+            if not (all(_plain_name(n) for n in [tmp, old, *new, *parked])
+                    and tmp.startswith(TEMP_PREFIX) and old.startswith(TEMP_PREFIX)):
+                raise ValueError("names outside the folder")
+        except (OSError, ValueError, KeyError, TypeError, RecursionError):
+            continue                         # not a journal of ours: left alone
+        if data.get("state") != "done":
+            for name in new:                 # moved in: ours, and not the earlier set
+                if not os.path.lexists(folder / tmp / name):
+                    _remove(folder / name)
+            for name in parked:              # the earlier set, back in place
+                if os.path.lexists(folder / old / name):
+                    os.replace(folder / old / name, folder / name)
+        shutil.rmtree(folder / old, ignore_errors=True)
+        shutil.rmtree(folder / tmp, ignore_errors=True)
+        journal.unlink()
+        sync_folder(folder)
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> None:
+    """Undo or finish the swaps killed runs left in ``folder`` (:func:`recover_swaps`), then
+    remove the temporary folders they left (not those of live processes: their :data:`MARK`
+    holds the writer's process id). Only folders marked as ours are removed; a folder of the
+    user's named like one is left alone."""
+    recover_swaps(folder)
+    journals = list(Path(folder).glob(f"{JOURNAL_PREFIX}*.json"))
+    for p in Path(folder).glob(f"{TEMP_PREFIX}*"):
+        if not p.is_dir() or p.is_symlink() or not (p / MARK).is_file():
+            continue
+        try:
+            pid = (p / MARK).read_text().strip()
+        except OSError:
+            continue
+        if not pid.isdigit() or (int(pid) != os.getpid() and _alive(int(pid))):
+            continue
+        if any(p.name in j.read_text(errors="replace") for j in journals if j.is_file()):
+            continue                         # a swap not undone yet holds a set in it
         shutil.rmtree(p, ignore_errors=True)
 
 
@@ -152,38 +306,73 @@ def _renamed(err: CcdError, tmp: Path, folder: Path) -> CcdError:
     return cls(fix(err.where), fix(err.problem) or "")
 
 
-def _swap_in(tmp: Path, folder: Path, last: str | None, replaces: Iterable[str]) -> None:
+def _check_replaced(folder: Path, replaces: Iterable[str]) -> None:
+    """Refuse to remove an earlier set's entry of ours that now holds files of the user's."""
+    record = read_record(folder)
+    for name in replaces:
+        if name in record:
+            problem = ownership_problem(folder, name, record)
+            if problem:
+                raise CcdError(folder / name, f"{problem}: the earlier outputs it belongs to "
+                                              "would be removed; move it away or choose "
+                                              "another -o")
+
+
+def _entry_record(path: Path) -> list[str] | None:
+    return _entry_files(path) if path.is_dir() and not path.is_symlink() else None
+
+
+def _swap_in(tmp: Path, folder: Path, last: str | None, replaces: Iterable[str],
+             force: bool = False, record: bool = True) -> None:
     """Move the entries of ``tmp`` into ``folder`` (or ``tmp`` onto ``folder`` when there is
-    none yet); a folder entry replaces the earlier one whole; the entries ``replaces`` of the
-    earlier set go even when not written again; ``last`` goes last, and its earlier version
-    first (so ``folder`` is never a mix of two sets that ``last`` describes)."""
+    none yet, one rename) as one set, with the folder's :data:`RECORD` of what ccdcore wrote.
+
+    Every entry the set replaces, and the entries ``replaces`` of an earlier set of ours not
+    written again, are first moved aside into a folder of ours, then the new entries moved in
+    (``last`` last), a journal recording each stage, so that a run killed at any moment leaves
+    a state :func:`recover_swaps` turns into the earlier set or the new one. Entries ccdcore
+    did not write are never removed (``force``: the caller took the folder as it is)."""
+    names = sorted(n for n in os.listdir(tmp) if n not in (MARK, RECORD, last))
+    written = names + ([last] if last is not None and os.path.lexists(tmp / last) else [])
     if not folder.exists():
+        if record:
+            _write_json(tmp / RECORD, {"format": 1, "entries": {
+                n: _entry_record(tmp / n) for n in written}})
+        (tmp / MARK).unlink()
         os.chmod(tmp, 0o755)
         os.replace(tmp, folder)
+        sync_folder(folder.parent)
         return
-    names = sorted(n for n in os.listdir(tmp) if n != last)
-    old = Path(tempfile.mkdtemp(prefix=f"{TEMP_PREFIX}old-", suffix=f"-{os.getpid()}",
-                                dir=folder))
-    if last is not None and os.path.lexists(folder / last):
-        os.replace(folder / last, old / last)
-    for name in replaces:
-        if name != last and name not in names and os.path.lexists(folder / name):
-            os.replace(folder / name, old / name)
-    for name in names:
-        dst = folder / name
-        if (tmp / name).is_dir() and dst.is_dir() and not dst.is_symlink():
-            os.replace(dst, old / name)
-        os.replace(tmp / name, dst)
-    if last is not None and os.path.lexists(tmp / last):
-        os.replace(tmp / last, folder / last)
+    prev = read_record(folder)
+    gone = [n for n in replaces if n not in written and _plain_name(n)
+            and os.path.lexists(folder / n) and (force or n in prev)]
+    entries = {n: f for n, f in prev.items() if n not in gone and os.path.lexists(folder / n)}
+    entries.update({n: _entry_record(tmp / n) for n in written})
+    if record:
+        _write_json(tmp / RECORD, {"format": 1, "entries": entries})
+    new = names + ([RECORD] if record else []) + written[len(names):]   # ``last`` goes last
+    parked = ([last] if last in new and os.path.lexists(folder / last) else []) + \
+        [n for n in new if n != last and os.path.lexists(folder / n)] + gone
+    old = _temp_folder(folder, "old-")
+    journal = folder / f"{JOURNAL_PREFIX}{os.getpid()}.json"
+    stage = {"tmp": tmp.name, "old": old.name, "new": new, "parked": parked}
+    _write_json(journal, {**stage, "state": "swapping"})
+    for name in parked:
+        os.replace(folder / name, old / name)
+    for name in new:
+        os.replace(tmp / name, folder / name)
+    sync_folder(folder)
+    _write_json(journal, {**stage, "state": "done"})
     shutil.rmtree(old, ignore_errors=True)
     shutil.rmtree(tmp, ignore_errors=True)
+    journal.unlink()
     sync_folder(folder)
 
 
 @contextlib.contextmanager
 def output_set(folder: str | os.PathLike, *, inputs: Iterable[str | os.PathLike] = (),
-               last: str | None = None, replaces: Iterable[str] = ()) -> Iterator[Path]:
+               last: str | None = None, replaces: Iterable[str] = (),
+               force: bool = False, record: bool = True) -> Iterator[Path]:
     """Yield a temporary folder; what the body writes into it becomes part of ``folder`` as
     one set once the body is done.
 
@@ -194,8 +383,13 @@ def output_set(folder: str | os.PathLike, *, inputs: Iterable[str | os.PathLike]
     outputs untouched and removes the temporary folder; only then are the new entries renamed
     into ``folder`` (SIGTERM waits until the renames are done). Entries of ``folder`` the body
     did not write are left alone, except those named in ``replaces`` (the parts of an earlier
-    set, removed); ``last`` is renamed in last (a description of the set). Leftovers of a killed process (SIGKILL) are removed by the
-    next write into the same place.
+    set, removed); ``last`` is renamed in last (a description of the set). An existing entry
+    is replaced, and an entry of ``replaces`` removed, only when ccdcore wrote it there (the
+    folder's :data:`RECORD`; ``force``: the caller took the folder as it is, ``simulate
+    --force``; ``record=False``: no :data:`RECORD` is written, for a set that marks itself,
+    as a simulated session does with its truth.json). A run killed at any moment (SIGKILL) leaves the earlier set or the new one:
+    the next write into the same place finishes or undoes its swap (:func:`recover_swaps`)
+    and removes its temporary folders, and only folders marked as ours.
 
     Before anything is written, each entry's target is checked (:func:`check_output`, and
     :func:`check_not_inputs` against ``inputs``); errors name ``folder``'s entries, never the
@@ -216,7 +410,7 @@ def output_set(folder: str | os.PathLike, *, inputs: Iterable[str | os.PathLike]
         remove_stale_temporaries(home)
         if home != folder.parent and folder.parent.is_dir():
             remove_stale_temporaries(folder.parent)
-        tmp = Path(tempfile.mkdtemp(prefix=TEMP_PREFIX, suffix=f"-{os.getpid()}", dir=home))
+        tmp = _temp_folder(home)
     except OSError as exc:
         raise CcdError(folder, f"cannot write into the folder: {os_problem(exc)}") from None
     state = {"defer": False, "pending": False}
@@ -233,9 +427,12 @@ def output_set(folder: str | os.PathLike, *, inputs: Iterable[str | os.PathLike]
     try:
         try:
             yield tmp
-            check_outputs(folder, {n: (tmp / n).is_dir() for n in os.listdir(tmp)}, inputs)
+            check_outputs(folder, {n: (tmp / n).is_dir() for n in os.listdir(tmp)
+                                   if n not in (MARK, RECORD)}, inputs, owned=not force)
+            if not force and folder.is_dir():
+                _check_replaced(folder, replaces)
             state["defer"] = True
-            _swap_in(tmp, folder, last, tuple(replaces))
+            _swap_in(tmp, folder, last, tuple(replaces), force, record)
         except _Terminated:
             raise SystemExit(128 + signal.SIGTERM) from None
         except CcdError as err:

@@ -16,7 +16,7 @@ import pytest
 
 from ccdcore.cli import main
 from ccdcore.errors import CcdError
-from ccdcore.io import (TEMP_PREFIX, check_not_inputs, read_image, write_image,
+from ccdcore.io import (RECORD, TEMP_PREFIX, check_not_inputs, read_image, write_image,
                         write_outputs)
 from ccdcore.product import CalibrationProduct, calibrate, load_product
 from ccdcore.simulate import simulate
@@ -200,7 +200,7 @@ def test_calibrate_over_an_earlier_product_removes_its_other_maps(calib, tmp_pat
     assert (folder / "notes.txt").read_text() == "mine"
     assert set(load_product(folder).maps) == {"dark"} and leftovers(folder, tmp_path) == []
     CalibrationProduct(maps={}).save(folder)     # curves only: no maps/ left
-    assert sorted(p.name for p in folder.iterdir()) == ["calibration.json", "notes.txt"]
+    assert sorted(p.name for p in folder.iterdir()) == [RECORD, "calibration.json", "notes.txt"]
     assert load_product(folder).maps == {}
 
 
@@ -298,8 +298,7 @@ def test_damaged_estimate_fields_are_one_line(capsys, calib, sim, others, tmp_pa
 # 7. SIGTERM: no temporary folder stays -----------------------------------------------------
 def test_sigterm_while_writing_outputs_leaves_nothing(tmp_path):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "a.txt").write_text("earlier")
+    write_outputs(out, {"a.txt": lambda p: Path(p).write_text("earlier")})
     script = textwrap.dedent(f"""
         import time
         from pathlib import Path
@@ -322,14 +321,13 @@ def test_sigterm_while_writing_outputs_leaves_nothing(tmp_path):
         else:
             assert len(leftovers(out)) == 1
     write_outputs(out, {"a.txt": lambda p: Path(p).write_text("new")})   # cleans the leftover
-    assert sorted(p.name for p in out.iterdir()) == ["a.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD, "a.txt"]
     assert (out / "a.txt").read_text() == "new"
 
 
 def test_sigterm_during_report_leaves_no_temporary_file(calib, tmp_path):
     out = tmp_path / "r" / "report.html"
-    out.parent.mkdir()
-    out.write_text("an earlier report")
+    write_outputs(out.parent, {out.name: lambda p: Path(p).write_text("an earlier report")})
     script = textwrap.dedent(f"""
         import time
         import ccdcore.io as io
@@ -347,5 +345,122 @@ def test_sigterm_during_report_leaves_no_temporary_file(calib, tmp_path):
     proc.send_signal(signal.SIGTERM)
     proc.wait(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM
-    assert os.listdir(out.parent) == ["report.html"]
+    assert sorted(os.listdir(out.parent)) == [RECORD, "report.html"]
     assert out.read_text() == "an earlier report"
+
+
+# 8. SIGKILL at any moment of the swap: the earlier set or the new one, never a mix --------------
+_KILL_AT = textwrap.dedent("""
+    import os, signal, sys
+    from pathlib import Path
+    import ccdcore.io_outputs as outs
+    real, calls = os.replace, [0]
+    def replace(a, b):
+        calls[0] += 1
+        if calls[0] == int(sys.argv[2]):
+            os.kill(os.getpid(), signal.SIGKILL)
+        real(a, b)
+    outs.os.replace = replace
+    def writer(text):
+        def write(path):
+            path = Path(path)
+            if path.suffix:
+                path.write_text(text)
+            else:
+                path.mkdir()
+                (path / "p.png").write_text(text)
+        return write
+    outs.write_outputs(sys.argv[1], {n: writer("new " + n) for n in
+                                     ("a.txt", "b.txt", "plots", "c.txt")}, last="c.txt")
+    print("done")
+""")
+
+
+def _state(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): p.read_text() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != RECORD}
+
+
+def test_a_run_killed_at_any_moment_of_the_swap_leaves_one_whole_set(tmp_path):
+    """A run killed (SIGKILL) before, during or after each rename of the swap: once the next
+    write has recovered, the folder holds exactly the earlier set or exactly the new one (and
+    the user's file beside them), and no folder of ours is left."""
+    from ccdcore.io import write_outputs
+    from ccdcore.io_outputs import recover_swaps, remove_stale_temporaries
+
+    def earlier(folder: Path) -> None:
+        def write(text):
+            def w(path):
+                path = Path(path)
+                if path.suffix:
+                    path.write_text(text)
+                else:
+                    path.mkdir()
+                    (path / "p.png").write_text(text)
+            return w
+        write_outputs(folder, {n: write("old " + n) for n in ("a.txt", "plots", "c.txt")},
+                      last="c.txt")
+        (folder / "mine.txt").write_text("the user's")
+
+    outcomes = set()
+    for k in range(1, 40):
+        folder = tmp_path / f"k{k}"
+        earlier(folder)
+        old = _state(folder)
+        proc = subprocess.run([sys.executable, "-c", _KILL_AT, str(folder), str(k)], cwd=ROOT,
+                              capture_output=True, text=True, timeout=120)
+        finished = "done" in proc.stdout
+        remove_stale_temporaries(folder)          # what the next write does first
+        now = _state(folder)
+        new = {"a.txt": "new a.txt", "b.txt": "new b.txt", "c.txt": "new c.txt",
+               "mine.txt": "the user's", "plots/p.png": "new plots"}
+        assert now in (old, new), (k, now)
+        assert leftovers(folder) == [] and not list(folder.glob(".ccdcore-swap-*"))
+        outcomes.add("new" if now == new else "old")
+        if finished:
+            break
+    assert finished and outcomes == {"old", "new"}
+    recover_swaps(folder)                         # nothing left to do: no change
+    assert _state(folder) == new
+
+
+def test_only_what_ccdcore_wrote_is_replaced_or_removed(capsys, tmp_path):
+    """A folder of the user's named like our temporary folders is never removed; a file or a
+    file inside a folder entry that ccdcore did not write is refused, naming it, and nothing
+    is lost; the parts of an earlier set of ours are replaced as before."""
+    from ccdcore.io import output_set, write_outputs
+
+    out = tmp_path / "out"
+    out.mkdir()
+    mine = out / f"{TEMP_PREFIX}mine-1"
+    mine.mkdir()
+    (mine / "data.txt").write_text("keep")
+    (out / "report.html").write_text("the user's own page")
+    with pytest.raises(CcdError, match="report.html.*not written by ccdcore"):
+        write_outputs(out, {"report.html": lambda p: Path(p).write_text("ours")})
+    assert (out / "report.html").read_text() == "the user's own page"
+    write_outputs(out, {"plots": lambda p: (Path(p).mkdir(), (Path(p) / "a.png").write_text(
+        "1"))})
+    (out / "plots" / "user.png").write_text("the user's plot")
+    with pytest.raises(CcdError, match="user.png, which ccdcore did not write"):
+        with output_set(out, replaces=("plots",)) as tmp:
+            (tmp / "x.txt").write_text("x")
+    assert (out / "plots" / "user.png").read_text() == "the user's plot"
+    (out / "plots" / "user.png").unlink()
+    with output_set(out, replaces=("plots", "report.html")) as tmp:   # ours goes, theirs stays
+        (tmp / "x.txt").write_text("x")
+    assert not (out / "plots").exists() and (out / "report.html").exists()
+    assert (mine / "data.txt").read_text() == "keep"
+
+
+def test_report_over_a_users_file_is_refused_and_over_its_own_replaced(capsys, calib, tmp_path):
+    """One rule for every verb (docs/cli.md): an output replaces what ccdcore wrote there and
+    refuses anything else, in one line naming it (exit 2)."""
+    page = tmp_path / "page.html"
+    page.write_text("the user's own page")
+    code, _, err = run(capsys, "report", calib, "-o", page)
+    assert code == 2 and str(page) in one_error_line(err) and "not written by ccdcore" in err
+    assert page.read_text() == "the user's own page"
+    page.unlink()
+    assert run(capsys, "report", calib, "-o", page)[0] == 0
+    assert run(capsys, "report", calib, "-o", page)[0] == 0     # its own: replaced

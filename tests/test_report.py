@@ -464,8 +464,10 @@ def test_large_maps_are_reduced_and_the_caption_says_so(h94):
 
 # ------------------------------------------------------------------------------ bad input ------
 def test_bad_inputs_exit_2_naming_the_file_and_write_nothing(h94, tmp_path):
+    from ccdcore.io import write_outputs
+
     out = tmp_path / "r.html"
-    out.write_text("an earlier report")
+    write_outputs(tmp_path, {out.name: lambda p: p.write_text("an earlier report")})
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "calibration.json").write_text("{not json")
@@ -495,5 +497,6 @@ def test_bad_inputs_exit_2_naming_the_file_and_write_nothing(h94, tmp_path):
     assert code == 2 and str(session_toml) in err
     code, _, err = run("report", str(h94["calib"]), "-o", str(tmp_path))
     assert code == 2 and "is a folder" in err
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["broken", "plain", "r.html"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".ccdcore-outputs.json", "broken", "plain",
+                                                         "r.html"]
 

@@ -113,5 +113,6 @@ def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
         raise CcdError(out, "holds files that are not an earlier simulation (no truth.json of "
                             "ours); choose a new or empty folder, or give --force to write "
                             "into it")
-    with output_set(out) as tmp:
+    # the folder was taken as it is above (an earlier simulation, or --force)
+    with output_set(out, force=True, record=False) as tmp:
         return module.simulate(tmp, seed=int(seed), **kwargs)
