@@ -17,9 +17,15 @@ Gate rules (each also in the gate's own reasons, in words)
     * dark: more than 0.5 % hot or dead pixels, or more than 1 % of the dark frames' values at
       exactly zero (the offset clips the dark signal: de Lasarte's ZDI case) warn; the level per exposure and its
       drift (DN/s, least squares over the exposures) are reported;
-    * photon transfer: Q ≥ 0.01 passes, 0.001 ≤ Q < 0.01 warns, Q < 0.001 fails (eq. 67: the
-      points scatter more than their errors allow); fewer than 3 levels used fails; σ(A)/A above
-      5 % warns;
+    * photon transfer (:func:`ptc_gate`): judged on the size of the deviation, not on χ²
+      alone -- with millions of pixels the points' statistical errors are far below any real
+      sensor's nonlinearity, so χ² (eq. 42) resolves it on every good camera.  When χ² resolves
+      a deviation (Q < 0.01, eq. 67) the points' relative deviation from the line
+      (σ̂²_N − line)/line passes within ±3 %, warns within ±10 % and fails beyond; the
+      linearity error of the means (EMVA 1288 sec. 6.7, when the levels carry photon counts)
+      passes within ±1 %, warns within ±3 % and fails beyond; σ(A)/A with the nonlinearity
+      included (× √(χ²/ν) when χ²/ν > 1, the Birge ratio) above 5 % warns; fewer than 3 levels
+      used fails; χ², ν and Q are always among the reasons;
     * fixed pattern and flat field: fewer configurations or frames than the plan warn; a flat
       correction that leaves a held-out flat less uniform than before fails;
     * verify: the corrected frames' SNUP must not exceed the raw frames'; it passes when it is
@@ -28,7 +34,9 @@ Gate rules (each also in the gate's own reasons, in words)
 Public objects
 --------------
 STEPS, StepInfo, GateStatus, Gate, FIXES
-session_gate(session), dark_step(session), ptc_gate(noise), pattern_step(session, ...),
+session_gate(session), dark_step(session), ptc_gate(noise, emva=None), ptc_deviation(noise),
+ptc_linearity(noise), pattern_step(session, ...), session_plan(session) (the steps a
+session's frames allow, :class:`SessionPlan`),
 response_gate(response), held_out_frames(session, product), verify(session, product, ...)
 """
 from __future__ import annotations
@@ -46,7 +54,10 @@ from .session.records import ProblemCode
 
 __all__ = ["STEPS", "StepInfo", "GateStatus", "Gate", "FIXES", "session_gate", "DarkStep",
            "dark_step", "ptc_gate", "PatternStep", "pattern_step", "response_gate", "VerifyRow",
-           "Verification", "held_out_frames", "verify", "HOT_DEAD_LIMIT", "ZERO_DARK_LIMIT"]
+           "Verification", "held_out_frames", "verify", "HOT_DEAD_LIMIT", "ZERO_DARK_LIMIT",
+           "Q_RESOLVED", "PTC_DEVIATION_PASS", "PTC_DEVIATION_FAIL", "LINEARITY_PASS",
+           "LINEARITY_FAIL", "GAIN_ERROR_LIMIT", "ptc_deviation", "ptc_linearity",
+           "SessionPlan", "session_plan", "MISSING", "LAB_ROLES"]
 
 #: fraction of hot + dead pixels above which the dark step warns
 HOT_DEAD_LIMIT = 0.005
@@ -54,6 +65,21 @@ HOT_DEAD_LIMIT = 0.005
 ZERO_DARK_LIMIT = 0.01
 #: a corrected frame within this factor of the temporal-noise floor passes the verify step
 FLOOR_FACTOR = 1.5
+#: photon transfer: Q (eq. 67) below this means χ² resolves the points' deviation from the line
+Q_RESOLVED = 0.01
+#: photon transfer: a resolved relative deviation (σ̂²_N − line)/line of the points within
+#: ±3 % passes, within ±10 % warns, beyond fails.  The variance is the derivative of the
+#: response (σ²_y ∝ (dμ_y/dμ_e)²), so a smooth linearity error LE of the mean shows in the
+#: photon transfer 2 to 5 times larger: the ±1 % of a good EMVA 1288 datasheet is ±2–5 %
+#: here; ±10 % is a response 3–5 % off linear, or a clipped level
+PTC_DEVIATION_PASS = 0.03
+PTC_DEVIATION_FAIL = 0.10
+#: photon transfer: the linearity error of the means (EMVA 1288 sec. 6.7) within ±1 % passes
+#: (what good datasheets state: the reference CCD −0.62 … +0.48 %), within ±3 % warns
+LINEARITY_PASS = 0.01
+LINEARITY_FAIL = 0.03
+#: photon transfer: σ(A)/A, the nonlinearity included (Birge ratio), above this warns
+GAIN_ERROR_LIMIT = 0.05
 
 
 @dataclass(frozen=True)
@@ -69,7 +95,9 @@ class StepInfo:
 
 STEPS: tuple[StepInfo, ...] = (
     StepInfo("plan", "Plan the captures",
-             "Before touching the camera: how many dark frames, which exposures for photon "
+             "What the loaded session's frames allow and what they lack; for a lab session "
+             "(or none), before touching the camera: how many dark frames, which exposures for "
+             "photon "
              "transfer, how many card configurations and frames for the fixed-pattern map, "
              "which flat-field exposures and which bracket — each sized from the camera's bit "
              "depth and a rough noise model.",
@@ -90,7 +118,8 @@ STEPS: tuple[StepInfo, ...] = (
     StepInfo("ptc", "Photon transfer",
              "Pairs of frames at several light levels give the camera's noise against its "
              "signal; the straight line through them gives the gain (DN per electron) and the "
-             "read noise. The goodness of fit says whether the points agree with the line.",
+             "read noise. The gate judges how far the points stray from the line against a "
+             "stated tolerance; χ² and Q say whether their errors resolve that deviation.",
              "σ²_N = A·μ + σ²_C (eq. 41) from difference images (eqs. 37–40), weighted fit "
              "eqs. 59–66, Q from χ² with P − 2 degrees of freedom (eq. 67)."),
     StepInfo("pattern", "Fixed pattern and flat field",
@@ -255,45 +284,157 @@ def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
 
 
 # ---------------------------------------------------------------------------------------------
-def ptc_gate(noise: Any) -> Gate:
-    """The photon-transfer gate from a :class:`~ccdcore.noise.PhotonTransfer` (Q of eq. 67)."""
+def ptc_deviation(noise: Any) -> tuple[float, float, Any]:
+    """The relative deviation of the used points from the line, (σ̂²_N − line)/line with line
+    = A·μ + σ²_C (eq. 41): its minimum and maximum over the used levels and the level of the
+    largest |deviation| (``(nan, nan, None)`` without used levels)."""
+    dev = [((p.var - (noise.A * p.mu + noise.sigma_c2)) / (noise.A * p.mu + noise.sigma_c2), p)
+           for p in noise.points if p.used and noise.A * p.mu + noise.sigma_c2 > 0]
+    if not dev:
+        return math.nan, math.nan, None
+    worst = max(dev, key=lambda d: abs(d[0]))[1]
+    return min(d for d, _ in dev), max(d for d, _ in dev), worst
+
+
+def ptc_linearity(noise: Any) -> tuple[float, float] | None:
+    """The linearity error of the used levels' means against their photon counts, in the
+    spirit of EMVA 1288 release 3.1 sec. 6.7: the line a·μ_p + b minimising
+    Σ((μ − a·μ_p − b)/μ)² through the used points above 5 % of the largest μ (μ = μ̂ − b₀ of
+    eq. 37), and (LE_min, LE_max) = the extreme relative deviations (μ − fit)/fit, fractions.
+    ``None`` unless every such point has a photon count (an EMVA 1288 set) and there are three."""
+    used = [p for p in noise.points if p.used]
+    if not used:
+        return None
+    top = max(p.mu for p in used)
+    pts = [p for p in used if p.mu >= 0.05 * top]
+    if len(pts) < 3 or any(getattr(p, "photons", None) is None for p in pts):
+        return None
+    x = np.array([p.photons for p in pts], np.float64)
+    y = np.array([p.mu for p in pts], np.float64)
+    if np.any(y <= 0) or np.ptp(x) <= 0:
+        return None
+    a, b = np.linalg.lstsq(np.column_stack([x / y, 1.0 / y]), np.ones_like(y), rcond=None)[0]
+    fit = a * x + b
+    rel = (y - fit) / fit
+    return float(rel.min()), float(rel.max())
+
+
+def _worse(a: GateStatus, b: GateStatus) -> GateStatus:
+    order = (GateStatus.PASS, GateStatus.WARN, GateStatus.FAIL)
+    return a if order.index(a) >= order.index(b) else b
+
+
+def _band(value: float, pass_limit: float, fail_limit: float) -> GateStatus:
+    """PASS within ±``pass_limit``, WARN within ±``fail_limit``, FAIL beyond (limits included
+    in the better band)."""
+    if abs(value) <= pass_limit:
+        return GateStatus.PASS
+    return GateStatus.WARN if abs(value) <= fail_limit else GateStatus.FAIL
+
+
+def ptc_gate(noise: Any, *, emva: Any = None) -> Gate:
+    """The photon-transfer gate of a :class:`~ccdcore.noise.PhotonTransfer`: judged on what a
+    user needs, the line's deviation from the points and the gain's error, each against a
+    stated tolerance; χ² (eq. 42) and Q (eq. 67) are reported and say whether the deviation is
+    resolved at all.
+
+    * the points' deviation from the line, (σ̂²_N − A·μ − σ²_C)/(A·μ + σ²_C) (eqs. 38, 41):
+      within ±:data:`PTC_DEVIATION_PASS` passes, within ±:data:`PTC_DEVIATION_FAIL` warns,
+      beyond fails -- judged only when χ² resolves it (Q < :data:`Q_RESOLVED`); otherwise the
+      points agree with the line within their errors and the gate passes;
+    * the linearity error of the means (EMVA 1288 sec. 6.7; ``emva``'s ``LE_min``/``LE_max``
+      in %, else :func:`ptc_linearity` when the levels carry photon counts): within
+      ±:data:`LINEARITY_PASS` passes, within ±:data:`LINEARITY_FAIL` warns, beyond fails;
+    * σ(A)/A with the nonlinearity included, the statistical error of eq. 66 times the Birge
+      ratio √(χ²/ν) when χ²/ν > 1: above :data:`GAIN_ERROR_LIMIT` warns;
+    * fewer than 3 levels used, or no degrees of freedom, fails.
+    """
     used = int(np.sum([p.used for p in noise.points]))
     q = float(noise.Q) if noise.dof > 0 else float("nan")
-    reasons = [f"A = {noise.A:.4g} ± {noise.A_err:.2g} DN/e⁻, σ²_C = {noise.sigma_c2:.4g} ± "
-               f"{noise.sigma_c2_err:.2g} DN² from {used} levels; χ² = {noise.chi2:.3g} "
-               f"with {noise.dof} degrees of freedom, Q = {q:.3g}",
-               f"fit range: {noise.fit_range}"]
+    chi2_dof = float(noise.chi2) / noise.dof if noise.dof > 0 else float("nan")
+    birge = math.sqrt(chi2_dof) if chi2_dof > 1.0 else 1.0
+    a_rel = birge * noise.A_err / noise.A if noise.A > 0 else float("inf")
+    reasons = [f"A = {noise.A:.4g} ± {birge * noise.A_err:.2g} DN/e⁻ (σ(A)/A = {_pct(a_rel)}"
+               + (f", the statistical error × √(χ²/ν) = {birge:.3g} to include the "
+                  "nonlinearity" if birge > 1.0 else "")
+               + f"), σ²_C = {noise.sigma_c2:.4g} ± {birge * noise.sigma_c2_err:.2g} DN² from "
+               f"{used} levels; χ² = {noise.chi2:.3g} with {noise.dof} degrees of freedom, "
+               f"Q = {q:.3g}", f"fit range: {noise.fit_range}"]
+    if used < 3 or noise.dof <= 0:
+        return Gate(GateStatus.FAIL, "fewer than 3 levels in the fit: the line cannot be "
+                                     "checked against its points", tuple(reasons),
+                    ("capture pairs at more light levels (8 spread over the range; the capture "
+                     "plan lists them)",))
+    lo, hi, worst = ptc_deviation(noise)
+    dev = lo if abs(lo) >= abs(hi) else hi
+    resolved = not q >= Q_RESOLVED
+    tol = (f"tolerance ±{_pct(PTC_DEVIATION_PASS)} passes, ±{_pct(PTC_DEVIATION_FAIL)} warns")
+    reasons.append(f"the points deviate from the line by {100 * lo:+.2f} … {100 * hi:+.2f} % "
+                   f"((σ̂²_N − line)/line; largest at level {worst.level}, "
+                   f"{_resid(noise, worst):+.1f} σ); {tol}")
+    status = GateStatus.PASS
     nxt: list[str] = []
-    if used < 3:
-        return Gate(GateStatus.FAIL, "fewer than 3 levels in the fit: Q cannot judge the line",
-                    tuple(reasons), ("capture pairs at more light levels (8 spread over the "
-                                     "range; the capture plan lists them)",))
-    worst = max((p for p in noise.points if p.used), key=lambda p: abs(_resid(noise, p)))
-    r = _resid(noise, worst)
-    if q >= 0.01:
-        status = GateStatus.PASS
+    if not resolved:
         summary = "the points agree with the line within their errors"
-    elif q >= 0.001:
-        status = GateStatus.WARN
-        summary = "the points scatter a little more than their errors allow"
     else:
-        status = GateStatus.FAIL
-        summary = "the points scatter far more than their errors allow"
+        status = _band(dev, PTC_DEVIATION_PASS, PTC_DEVIATION_FAIL)
+        reasons.append(f"χ²/ν = {chi2_dof:.3g} (Q = {q:.3g} < {Q_RESOLVED:g}): the points' "
+                       "statistical errors are smaller than their deviation, so χ² resolves a "
+                       "nonlinearity; whether it matters is its size against the tolerance")
+        summary = {GateStatus.PASS: f"the line holds within ±{_pct(PTC_DEVIATION_PASS)}: χ² "
+                                    f"resolves a slight nonlinearity ({100 * dev:+.2f} %), "
+                                    "within the tolerance",
+                   GateStatus.WARN: f"the points deviate from the line by up to "
+                                    f"{100 * dev:+.2f} %: beyond ±{_pct(PTC_DEVIATION_PASS)}, "
+                                    f"within ±{_pct(PTC_DEVIATION_FAIL)}",
+                   GateStatus.FAIL: f"the points deviate from the line by {100 * dev:+.2f} %, "
+                                    f"beyond ±{_pct(PTC_DEVIATION_FAIL)}: the camera is not "
+                                    "linear over the fit range, or a level is clipped"}[status]
     if status != GateStatus.PASS:
-        reasons.append(f"Q = {q:.3g}: a line this far from its points happens by chance "
-                       f"{'in fewer than 1 in 1000 sessions' if q < 0.001 else 'rarely'}; the "
-                       f"worst level is {worst.level} ({r:+.1f} σ)")
         nxt.append(f"exclude level {worst.level} or switch on robust mode (drops levels beyond "
                    "3 σ one at a time); if levels near full scale misbehave, they are clipped")
         top = [p for p in noise.points if p.used]
-        if noise.fit_fraction is None and top and worst.mu >= 0.7 * max(p.mu for p in top):
+        if noise.fit_fraction is None and worst.mu >= 0.7 * max(p.mu for p in top):
             nxt.append("the worst level is near saturation: fit over the EMVA 1288 range "
                        "(0–70 % of the saturation signal), where the standard fits the gain")
-    if noise.A_err / noise.A > 0.05:
-        status = GateStatus.WARN if status == GateStatus.PASS else status
-        reasons.append(f"σ(A)/A = {_pct(noise.A_err / noise.A)} is above 5 %")
+    clipped = [p.level for p in noise.points if p.used and getattr(p, "clipped_fraction", 0) > 0]
+    if clipped:
+        reasons.append(f"level(s) {', '.join(map(str, clipped))} have values at 0 or full "
+                       "scale (fewer than the clipping limit): check them if they deviate")
+    status, summary = _linearity_band(noise, emva, status, summary, reasons, nxt)
+    if a_rel > GAIN_ERROR_LIMIT:
+        status = _worse(status, GateStatus.WARN)
+        reasons.append(f"σ(A)/A = {_pct(a_rel)} is above {_pct(GAIN_ERROR_LIMIT)}")
         nxt.append("use a larger ROI or more levels")
+        if summary.startswith("the points agree") or summary.startswith("the line holds"):
+            summary = f"the gain's error σ(A)/A = {_pct(a_rel)} is above {_pct(GAIN_ERROR_LIMIT)}"
     return Gate(status, summary, tuple(reasons), tuple(nxt))
+
+
+def _linearity_band(noise: Any, emva: Any, status: GateStatus, summary: str,
+                    reasons: list[str], nxt: list[str]) -> tuple[GateStatus, str]:
+    """The linearity error of the means (EMVA 1288 sec. 6.7) joined to the gate."""
+    le: tuple[float, float] | None = None
+    source = "the used levels' means against their photon counts"
+    if emva is not None and getattr(emva, "LE_min", None) is not None and \
+            getattr(emva, "LE_max", None) is not None and math.isfinite(emva.LE_min):
+        le, source = (emva.LE_min / 100.0, emva.LE_max / 100.0), \
+            "the EMVA 1288 datasheet, 5–95 % of saturation"
+    else:
+        le = ptc_linearity(noise)
+    if le is None:
+        return status, summary
+    worst = le[0] if abs(le[0]) >= abs(le[1]) else le[1]
+    band = _band(worst, LINEARITY_PASS, LINEARITY_FAIL)
+    reasons.append(f"linearity error LE = {100 * le[0]:+.2f} … {100 * le[1]:+.2f} % ({source}; "
+                   f"EMVA 1288 sec. 6.7); tolerance ±{_pct(LINEARITY_PASS)} passes, "
+                   f"±{_pct(LINEARITY_FAIL)} warns")
+    if band == GateStatus.PASS or _worse(status, band) == status:
+        return status, summary
+    nxt.append("the camera's response is not linear: check the exposure times and the light "
+               "source, and the levels near saturation")
+    return band, (f"the linearity error {100 * worst:+.2f} % is beyond "
+                  f"±{_pct(LINEARITY_PASS if band == GateStatus.WARN else LINEARITY_FAIL)}")
 
 
 def _resid(noise: Any, p: Any) -> float:
@@ -610,3 +751,116 @@ def _spread(items: Sequence[Any], n: int) -> list[Any]:
     """``n`` items spread evenly over ``items`` (first and last included)."""
     idx = np.unique(np.linspace(0, len(items) - 1, n).round().astype(int))
     return [items[i] for i in idx]
+
+
+# ---------------------------------------------------------------------------------------------
+#: the roles of a lab session, whose steps follow the full capture plan
+LAB_ROLES = ("ptc", "fixed_pattern")
+#: what each missing kind of frame costs, in plain words (:func:`session_plan`)
+MISSING: dict[str, str] = {
+    "dark": "dark frames (lens capped, at the exposure of the other frames): without them the "
+            "dark level is not measured and not removed",
+    "ptc": "photon-transfer pairs (two frames of a uniform card at each of several light "
+           "levels): without them there is no gain or read noise, so no noise floor for the "
+           "checks and no EMVA 1288 figures",
+    "pattern": "frames of a uniform card in several positions (role = fixed_pattern) or flats "
+               "of a uniform source (role = flat): without them there is no map of each pixel's "
+               "sensitivity",
+    "bracket": "a bracket of a static scene (role = bracket): without it there is no response "
+               "curve, which HDR radiance and a nonlinear camera need",
+}
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """What a session's frames allow: ``kind`` (``"none"`` without a session, ``"empty"``,
+    ``"lab"`` with photon-transfer or fixed-pattern frames, ``"flats"``, ``"bracket"``,
+    ``"darks"``, ``"scenes"``), the ``steps`` shown (slugs of :data:`STEPS`, in order),
+    ``lab_plan`` (whether the full capture plan of :mod:`ccdcore.capture` is proposed), a one
+    line ``summary`` and ``missing``: what the session lacks and why, in plain words."""
+
+    kind: str
+    steps: tuple[str, ...]
+    lab_plan: bool
+    summary: str
+    missing: tuple[str, ...] = ()
+
+    def gate(self) -> Gate:
+        """The plan step's gate for a session that gets no lab plan: passes with what the
+        frames allow (warns when they allow nothing), the missing frames as reasons."""
+        titles = ", ".join(s.title for s in STEPS if s.slug in self.steps
+                           and s.slug not in ("plan", "session", "export"))
+        status = GateStatus.WARN if self.kind in ("scenes", "empty") else GateStatus.PASS
+        nxt = ("declare the frames' roles in a session.toml (docs/session.md), or capture "
+               "the frames the missing list names",) if status == GateStatus.WARN else ()
+        return Gate(status, self.summary + (f"; the steps its frames allow: {titles}"
+                                            if titles else ""), self.missing, nxt)
+
+
+def session_plan(session: Any) -> SessionPlan:
+    """The steps a session's frames allow and what it lacks (:class:`SessionPlan`).
+
+    No session, or a lab session (photon-transfer or fixed-pattern frames: the captures of
+    Healey & Kondepudy's lab), gets every step and the full capture plan; a session of flats,
+    of a bracket, of darks or of scenes only gets the steps its frames allow -- the flat field
+    (pattern, verify) for flats, the response curve and HDR for a bracket -- and is not given
+    a lab plan sized from default camera figures."""
+    every = tuple(s.slug for s in STEPS)
+    if session is None:
+        return SessionPlan("none", every, True, "no session loaded: the plan of a full lab "
+                                                "calibration, from the camera figures entered")
+    roles = session.roles()
+    held = ", ".join(f"{n} {r}" for r, n in roles.items()) or "no frames"
+    has = {r for r, n in roles.items() if n}
+    missing = []
+    if "ptc" not in has:
+        missing.append(MISSING["ptc"])
+    if not has & {"fixed_pattern", "flat"}:
+        missing.append(MISSING["pattern"])
+    if has & set(LAB_ROLES):
+        if "dark" not in has:
+            missing.insert(0, MISSING["dark"])
+        if "bracket" not in has:
+            missing.append(MISSING["bracket"])
+        return SessionPlan("lab", every, True, f"a lab session ({held}): the full plan of the "
+                                               "captures, from the camera figures entered",
+                           tuple(missing))
+    steps = ["plan", "session"]
+    if "dark" in has and session.camera.layout == Layout.MONO:   # else DL_0 of the flat field
+        steps.append("dark")
+    if "flat" in has:
+        steps += ["pattern", "verify"]
+    if "bracket" in has:
+        steps.append("response")
+    if has & {"dark", "flat", "bracket"}:
+        steps.append("export")
+    kind = next((k for k, r in (("flats", "flat"), ("bracket", "bracket"), ("darks", "dark"),
+                                ("scenes", "scene")) if r in has), "empty")
+    if kind == "flats":
+        if "dark" not in has:
+            missing.insert(0, "dark frames: the flat field is made in de Lasarte et al.'s zero "
+                              "dark image case (DL_0 = 0), right only when the camera's black "
+                              "level is zero")
+        if len(session.flat_groups()) < 2:
+            missing.append("flats at a second exposure: with one level no held-out flat checks "
+                           "the correction (de Lasarte et al.: it should hold across the linear "
+                           "range)")
+    elif kind == "bracket":
+        missing = ["dark frames, photon-transfer pairs and frames of a uniform card: a bracket "
+                   "of a scene gives the response curve and HDR radiance only -- its pixels see "
+                   "different radiances and each exposure is one frame, so it cannot measure "
+                   "the gain, the read noise or each pixel's sensitivity; a full radiometric "
+                   "calibration needs a lab session (the plan step without a session lists it)"]
+    elif kind in ("scenes", "empty"):
+        n = roles.get("scene", 0)
+        missing = ([f"{n} frames are read as scenes, a role nothing is calibrated from: if "
+                    "they are flats or a bracket, declare their role in a session.toml "
+                    "([[frames]] role = \"flat\" or \"bracket\"; a folder without one is read "
+                    "by its folder names)"] if n else []) + missing
+    summary = {"flats": f"a flat-field session ({held})",
+               "bracket": f"an exposure bracket ({held})",
+               "darks": f"dark frames only ({held})",
+               "scenes": f"nothing to calibrate from ({held})",
+               "empty": "the session holds no frames"}[kind]
+    return SessionPlan(kind, tuple(s for s in every if s in steps), False, summary,
+                       tuple(missing))

@@ -77,15 +77,54 @@ def test_dark_step_skips_without_darks() -> None:
     assert gate.status == "skip" and gate.next
 
 
-def test_ptc_gate_follows_q_and_names_the_worst_level(h94) -> None:
+def test_ptc_gate_judges_the_deviation_and_names_the_worst_level(h94) -> None:
+    """On the demo the points agree with the line (Q > 0.01): pass. With Q forced down the
+    same points (within ±1 % of the line) still pass, χ² shown; a level 20 % below the line
+    (as a clipped one) fails and is named."""
     _, noise, _ = h94
     assert noise.Q > 0.01 and guide.ptc_gate(noise).status == "pass"
+    resolved = guide.ptc_gate(replace(noise, Q=1e-5, chi2=3.0 * noise.dof))
+    assert resolved.status == "pass" and "χ² resolves" in resolved.summary
+    assert any(f"χ² = {3.0 * noise.dof:.3g}" in r for r in resolved.reasons)
     used = [p for p in noise.points if p.used]
-    resid = {p.level: (p.var - noise.A * p.mu - noise.sigma_c2) / p.var_err for p in used}
-    worst = max(resid, key=lambda k: abs(resid[k]))
-    gate = guide.ptc_gate(replace(noise, Q=1e-5))
-    assert gate.status == "fail" and f"exclude level {worst} " in gate.next[0]
-    assert guide.ptc_gate(replace(noise, Q=0.005)).status == "warn"
+    low = used[-1]
+    points = tuple(replace(p, var=0.8 * p.var) if p is low else p for p in noise.points)
+    gate = guide.ptc_gate(replace(noise, points=points, Q=1e-9))
+    assert gate.status == "fail" and f"exclude level {low.level} " in gate.next[0]
+    assert "beyond ±10 %" in gate.summary
+
+
+def test_session_plan_follows_the_frames(tmp_path: Path) -> None:
+    """A lab session gets every step and the lab plan; a bracket the response step, flats the
+    flat field, scenes nothing -- each with what is missing, in words."""
+    every = tuple(s.slug for s in guide.STEPS)
+    none = guide.session_plan(None)
+    assert none.kind == "none" and none.steps == every and none.lab_plan
+    lab = guide.session_plan(open_session(ASSETS / "healey94"))
+    assert lab.kind == "lab" and lab.steps == every and lab.lab_plan
+    assert lab.missing == (guide.MISSING["bracket"],)
+    bracket = guide.session_plan(open_session(ASSETS / "tsin01"))
+    assert bracket.kind == "bracket" and not bracket.lab_plan
+    assert bracket.steps == ("plan", "session", "response", "export")
+    assert "bracket of a scene" in bracket.missing[0] and "gain" in bracket.missing[0]
+    gate = bracket.gate()
+    assert gate.status == "pass" and "Response curve and HDR" in gate.summary
+    flats = guide.session_plan(open_session(ASSETS / "delasarte07"))     # rgb: no D̂_D step
+    assert flats.kind == "flats" and flats.steps == ("plan", "session", "pattern", "verify",
+                                                     "export")
+    assert flats.missing == (guide.MISSING["ptc"],)
+    img = np.full((16, 16), 100, np.uint16)
+    _session(tmp_path / "flat1", [(f"f{i}.tif", {"role": "flat", "exposure": 0.1}, img)
+                                  for i in range(3)])
+    one = guide.session_plan(open_session(tmp_path / "flat1"))
+    assert one.kind == "flats" and one.steps == ("plan", "session", "pattern", "verify",
+                                                 "export")
+    assert any("zero dark" in m for m in one.missing)
+    assert any("second exposure" in m for m in one.missing)
+    _session(tmp_path / "scenes", [(f"s{i}.tif", {"role": "scene"}, img) for i in range(2)])
+    scenes = guide.session_plan(open_session(tmp_path / "scenes"))
+    assert scenes.kind == "scenes" and scenes.steps == ("plan", "session")
+    assert scenes.gate().status == "warn" and "read as scenes" in scenes.missing[0]
 
 
 def test_pattern_step_on_the_demos(h94) -> None:

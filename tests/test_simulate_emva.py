@@ -233,3 +233,40 @@ def test_reference_implementation_reads_the_descriptor(series, monkeypatch):
              *(f"{w}_{p}" for w in ("DSNU1288", "PRNU1288") for p in PARTS))
     for name in names:
         assert f.to_dict()[name] == pytest.approx(float(getattr(ref, name)), rel=1e-7), name
+
+
+# ------------------------------------------------------------------ a real sensor's nonlinearity
+def test_nonlinearity_bends_the_response_and_is_off_by_default(tmp_path):
+    """``nonlinearity`` = a multiplies K e by 1 + a(1 − 8x(1 − x)): +a at the ends, −a at half
+    of saturation; off (0) the frames are the linear camera's bytes and the truth has no key."""
+    from ccdcore.simulate.emva import bowl
+
+    x = np.array([1e-9, 0.25, 0.5, 1.0])
+    np.testing.assert_allclose(bowl(x * 100.0, 0.005, 100.0) / (x * 100.0),
+                               [1.005, 0.9975, 0.995, 1.005], rtol=1e-9)
+    lin = simulate("emva1288", tmp_path / "lin", seed=2, size=(32, 24), steps=5, L=3)
+    off = simulate("emva1288", tmp_path / "off", seed=2, size=(32, 24), steps=5, L=3,
+                   nonlinearity=0.0)
+    bent = simulate("emva1288", tmp_path / "bent", seed=2, size=(32, 24), steps=5, L=3,
+                    nonlinearity=0.02)
+    assert "nonlinearity" not in lin and "nonlinearity" not in off
+    assert bent["nonlinearity"]["amplitude"] == 0.02
+    assert bent["nonlinearity"]["saturation_dn"] == pytest.approx(0.1 * 35000.0)
+    name = "images/image0008.tif"           # the third bright pair, near half of saturation
+    a = read_image(tmp_path / "lin" / name).astype(float)
+    assert np.array_equal(a, read_image(tmp_path / "off" / name))
+    b = read_image(tmp_path / "bent" / name).astype(float)
+    signal = a.mean() - 100.0                       # black offset 100 DN
+    x_mid = signal / (0.1 * 35000.0)
+    want = signal * 0.02 * (1.0 - 8.0 * x_mid * (1.0 - x_mid))
+    # the same noise stream: the difference is the bend, within the pair mean's rounding
+    assert b.mean() - a.mean() == pytest.approx(want, abs=0.1 * abs(want) + 0.05)
+    assert want < 0                                  # below the line near half of saturation
+
+
+def test_nonlinearity_is_checked(tmp_path):
+    from ccdcore.errors import CcdError
+
+    with pytest.raises(CcdError, match="nonlinearity"):
+        simulate("emva1288", tmp_path / "x", seed=0, size=(32, 24), steps=5, L=3,
+                 nonlinearity=0.1)

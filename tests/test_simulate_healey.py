@@ -231,3 +231,29 @@ def test_quantisation_and_clipping():
     m1 = SensorModel(A=1.0, read_noise_e=0.0, dark_current_e=0.0, bits=10, black_level_dn=0.6)
     assert np.all(m1.expose(np.zeros(10), 1.0, 0.0, rng) == 1)
     assert SensorModel(bits=10).full_scale == 1023
+
+
+# ------------------------------------------------------------------ a real sensor's nonlinearity
+def test_nonlinearity_bends_the_response_and_is_off_by_default(tmp_path):
+    """``nonlinearity`` = a: the signal above the black level times 1 + a(1 − 8x(1 − x)), x
+    its fraction of the usable range; the same noise stream, so a level's mean moves by the
+    bend; off, the same bytes as without the option and no truth key."""
+    kw = dict(seed=4, size=(48, 32), n_dark=2, levels=[0.2, 0.5], n1=1, n2=1, patches=(),
+              max_intensity=None, bits=12, full_well_e=None)
+    lin = simulate("healey94", tmp_path / "lin", **kw)
+    off = simulate("healey94", tmp_path / "off", nonlinearity=0.0, **kw)
+    bent = simulate("healey94", tmp_path / "bent", nonlinearity=0.03, **kw)
+    assert "nonlinearity" not in lin and "nonlinearity" not in off
+    assert bent["nonlinearity"]["amplitude"] == 0.03
+    assert bent["nonlinearity"]["span_dn"] == pytest.approx(4095.0)
+    assert bent["ptc"] == lin["ptc"]                 # the linear model's truth
+    for level, frac in ((1, 0.2), (2, 0.5)):
+        name = f"ptc/L{level:02d}_a.tif"
+        a = read_image(tmp_path / "lin" / name).astype(float)
+        assert np.array_equal(a, read_image(tmp_path / "off" / name))
+        b = read_image(tmp_path / "bent" / name).astype(float)
+        x = a.mean() / 4095.0
+        want = a.mean() * 0.03 * (1.0 - 8.0 * x * (1.0 - x))
+        assert b.mean() - a.mean() == pytest.approx(want, rel=0.05, abs=0.05)
+    with pytest.raises(CcdError, match="nonlinearity"):
+        simulate("healey94", tmp_path / "x", nonlinearity=-0.2, **kw)

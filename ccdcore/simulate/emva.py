@@ -27,7 +27,18 @@ pixel (release 3.1 sec. 2.1 linear signal model, sec. 2.2 noise model, sec. 3.1 
 * PRNU map P[m, n] = 1 + r_P[m] + c_P[n] + p_P[m, n] and DSNU map D[m, n] = r_D[m] + c_D[n] +
   p_D[m, n] (e⁻), every part iid normal with its own standard deviation (``prnu_parts`` in %,
   ``dsnu_parts`` in e⁻; row, column, pixel).  The DSNU is an offset: it does not grow with t;
-* rint rounds to the nearest code (ties to even): a plain ADC, no dither.
+* rint rounds to the nearest code (ties to even): a plain ADC, no dither;
+* optionally (``nonlinearity`` = a ≠ 0) the conversion is slightly nonlinear, as a real
+  sensor's is: K e becomes K e·(1 + a·(1 − 8x(1 − x))), x = K e/(K μ_e.full) the fraction of
+  the saturation signal -- a smooth bowl, +a at both ends and −a at half of saturation: the
+  mean deviates from proportionality by ±a (a line fitted with an offset, as EMVA 1288 sec.
+  6.7's LE, takes up part of it: for a = 0.5 % the LE over the used levels of the 0–70 % range
+  is about ±0.1 %; the measured reference CCD shows −0.62 … +0.48 %).  The variance follows
+  the squared slope of the response, so the photon-transfer points deviate from the line by
+  about 2·(1 − 16x + 24x²)·a before the fit, some ±3a over 0–70 %
+  (``truth["nonlinearity"]``).  A polynomial of the four basic operations, so the bytes are
+  the same on every CPU; with a = 0 (the default) the frames and the truth are those of the
+  linear camera, unchanged.
 
 So μ_y = K(η μ_p P̄ + μ_I t + μ_d.off + D̄) + b and, below saturation,
 σ²_y = K²(η μ_p P̄ + μ_I t + σ²_d0) + σ²_q with σ²_q = 1/12 DN² (sec. 2.2), where P̄ and D̄ are
@@ -110,6 +121,8 @@ Public objects
 --------------
 simulate
     Write the session and return the truth dictionary.
+bowl(signal, a, saturation)
+    The smooth nonlinearity of ``nonlinearity`` (also used by the ``healey94`` preset).
 """
 from __future__ import annotations
 
@@ -125,12 +138,22 @@ from ..io import atomic_write_text
 from ._common import SessionWriter
 from .sensor import child_rng
 
-__all__ = ["simulate", "DESCRIPTOR_NAME"]
+__all__ = ["simulate", "DESCRIPTOR_NAME", "bowl"]
 
 CAMERA_NAME = "EMVA 1288 simulated camera"
 #: the descriptor's file name (the reference generator's)
 DESCRIPTOR_NAME = "EMVA1288descriptor.txt"
 _FORMATS = ("tif", "png")
+
+
+def bowl(signal: np.ndarray, a: float, saturation: float) -> np.ndarray:
+    """A real sensor's slight nonlinearity: ``signal``·(1 + a·(1 − 8x(1 − x))), x =
+    ``signal``/``saturation`` -- +a at both ends, −a at half of ``saturation``, so the mean
+    deviates from proportionality by ±a and the photon-transfer variance, which follows the
+    squared slope, by 2·(1 − 16x + 24x²)·a.
+    Only the four basic operations: the same bytes on every CPU."""
+    x = signal / saturation
+    return signal * (1.0 + a * (1.0 - 8.0 * x * (1.0 - x)))
 
 
 def _check(cond: bool, name: str, problem: str) -> None:
@@ -251,6 +274,7 @@ class _Camera:
     D: np.ndarray
     P: np.ndarray
     rng: np.random.Generator
+    nonlinearity: float = 0.0
 
     def frame(self, mu_p: float, t: float) -> np.ndarray:
         """One frame of ``mu_p`` photons per pixel at exposure ``t`` (s), uint16 codes."""
@@ -260,7 +284,10 @@ class _Camera:
             charge += self.rng.poisson(np.maximum(self.qe * mu_p * P, 0.0))
         np.minimum(charge, self.full_well_e, out=charge)
         e = charge + self.dark_offset_e + self.D + self.sigma_d0_e * self.rng.standard_normal(shape)
-        y = np.rint(e * self.K + self.black_offset_dn)
+        v = e * self.K
+        if self.nonlinearity:
+            v = bowl(v, self.nonlinearity, self.K * self.full_well_e)
+        y = np.rint(v + self.black_offset_dn)
         np.clip(y, 0, self.full_scale, out=y)
         return y.astype(np.uint16)
 
@@ -369,7 +396,7 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
              spatial_fraction: float = 0.5,
              dsnu_parts: Sequence[float] = (2.0, 3.0, 4.0),
              prnu_parts: Sequence[float] = (0.4, 0.6, 1.0),
-             image_format: str = "tif") -> dict[str, Any]:
+             image_format: str = "tif", nonlinearity: float = 0.0) -> dict[str, Any]:
     """Write the ``emva1288`` session into ``out_dir`` and return its truth.
 
     Parameters
@@ -406,6 +433,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         Standard deviations of the row, column and pixel parts of the PRNU map, % of the mean.
     image_format
         ``"tif"`` or ``"png"`` (16-bit containers either way).
+    nonlinearity
+        a, the amplitude of the smooth deviation of the response (module docstring), a
+        fraction: 0.005 is a good camera's few tenths of a percent; 0 (default) a linear camera
+        with the frames and truth unchanged.  |a| below 0.1.
 
     Returns
     -------
@@ -416,6 +447,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     dsnu_std, prnu_pc = _checked_parts(w, h, steps, L, bits, K, qe, sigma_d0_e, dark_current_e,
                                        full_well_e, exposure_min, exposure_max, saturation_at,
                                        spatial_fraction, dsnu_parts, prnu_parts, image_format)
+    _check(abs(float(nonlinearity)) < 0.1, "nonlinearity",
+           "give the amplitude as a fraction below 0.1 (0.005 = 0.5 %)")
     steps, L, bits = int(steps), int(L), int(bits)
     shape = (h, w)
     # ---- exposure times and photon counts ----------------------------------------------------
@@ -425,7 +458,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     D = _pattern(shape, dsnu_std, seed, "dsnu")                                 # e⁻
     P = 1.0 + _pattern(shape, tuple(p / 100.0 for p in prnu_pc), seed, "prnu")  # relative
     cam = _Camera(shape, K, qe, sigma_d0_e, dark_current_e, dark_offset_e, black_offset_dn,
-                  full_well_e, 2 ** bits - 1, D, P, child_rng(seed, "frames"))
+                  full_well_e, 2 ** bits - 1, D, P, child_rng(seed, "frames"),
+                  float(nonlinearity))
     # ---- frames and descriptor ----------------------------------------------------------------
     writer = SessionWriter(out_dir, camera={"name": CAMERA_NAME, "bits": bits,
                                             "layout": "mono"})
@@ -436,5 +470,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     writer.add_map("truth/prnu.exr", P, name="prnu")
     # ---- truth --------------------------------------------------------------------------------
     truth = _truth(cam, series, seed, w, h, bits, steps, L, dsnu_std, prnu_pc)
+    if nonlinearity:
+        truth["nonlinearity"] = {
+            "amplitude": float(nonlinearity), "saturation_dn": float(K * full_well_e),
+            "model": "K e (1 + a (1 - 8 x (1 - x))), x = K e / (K full_well_e)",
+            "note": "the other figures are those of the linear camera"}
     return writer.finish(truth, note=f"ccdcore simulate emva1288 --seed {int(seed)} "
                                      f"--size {w}x{h}\nthe same frames: {DESCRIPTOR_NAME}")

@@ -7,6 +7,15 @@ A = 0.0034 DN/e, σ_C² ≈ 1.10 DN² (σ_R ≈ 297 e, eq. 27), dark image mean 
 
 The manifest's ``[camera]`` table states the simulated black level (``black_level``, DN).
 
+With ``nonlinearity`` = a ≠ 0 the camera's conversion is slightly nonlinear, as a real sensor's
+is: the analogue signal above the black level, V − b, becomes
+(V − b)·(1 + a·(1 − 8x(1 − x))), x = (V − b) over the usable range above the black level
+(:func:`ccdcore.simulate.emva.bowl`): the mean deviates from proportionality by ±a, the
+photon-transfer variance (which follows the squared slope of the response) by about
+2·(1 − 16x + 24x²)·a.  The truth's ``mu`` and ``sigma2_N`` stay those of the linear model
+(eq. 41 exactly) and ``truth["nonlinearity"]`` records a; with a = 0 (the default) frames and
+truth are unchanged.
+
 Frames written (all ``exposure`` = the fixed exposure time, TIFF, 8-bit unless ``bits`` > 8):
 
 ``dark/dark_NNN.tif``  (role ``dark``, ``s`` = ``n_dark`` frames)
@@ -49,7 +58,7 @@ simulate
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +66,7 @@ import numpy as np
 
 from ..errors import CcdError
 from ._common import SessionWriter
+from .emva import bowl
 from .sensor import SensorModel, child_rng, smooth_field
 
 __all__ = ["simulate"]
@@ -64,6 +74,19 @@ __all__ = ["simulate"]
 CAMERA_NAME = "XC-77-like simulated CCD"
 DEFAULT_PATCHES: tuple[tuple[str, float], ...] = (("matte_grey", 0.01), ("paper", 0.02),
                                                    ("fabric", 0.04))
+
+
+@dataclass(frozen=True)
+class _NonlinearSensor(SensorModel):
+    """The sensor of eq. 20 with the smooth nonlinearity of the module docstring after its
+    knee: ``nonlinearity`` a, ``span_dn`` the signal above the black level where x = 1."""
+
+    nonlinearity: float = 0.0
+    span_dn: float = 255.0
+
+    def response(self, V: Any) -> np.ndarray:
+        S = np.asarray(super().response(V), dtype=float) - self.black_level_dn
+        return bowl(S, self.nonlinearity, self.span_dn) + self.black_level_dn
 
 
 def _check(cond: bool, name: str, problem: str) -> None:
@@ -239,7 +262,8 @@ def _check_args(w: int, h: int, n_dark: int, ptc_frames: int, n1: int, n2: int, 
 def _camera(out_dir: str | Path, seed: int, shape: tuple[int, int], A: float,
             read_noise_e: float, sigma_K: float, bits: int, black_level_dn: float,
             dark_current_dn: float, dark_std_dn: float, full_well_e: float | None,
-            exposure: float) -> tuple[SessionWriter, _Rig, np.ndarray]:
+            exposure: float, nonlinearity: float = 0.0
+            ) -> tuple[SessionWriter, _Rig, np.ndarray]:
     """The camera: its sensor model, drawn K and dark maps and usable range; the session
     writer, the rig the capture steps use and the expected dark frame (DN)."""
     model = SensorModel(A=float(A), read_noise_e=float(read_noise_e),
@@ -250,6 +274,11 @@ def _camera(out_dir: str | Path, seed: int, shape: tuple[int, int], A: float,
                         full_well_e=None if full_well_e is None else float(full_well_e),
                         q=1.0, exposure_ref=float(exposure))
     fs = model.full_scale
+    if nonlinearity:
+        span = (float(fs) if model.full_well_e is None else min(
+            float(fs), model.full_well_e * model.A + model.black_level_dn)) - model.black_level_dn
+        model = _NonlinearSensor(**asdict(model), nonlinearity=float(nonlinearity),
+                                 span_dn=span)
     K = model.draw_K(shape, child_rng(seed, "K"))
     dark_e = model.dark_electrons(model.draw_dark_map(shape, child_rng(seed, "dark_map")), exposure)
     dark_dn_map = dark_e * model.A + model.black_level_dn
@@ -318,7 +347,8 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
              patches: Sequence[tuple[str, float]] = DEFAULT_PATCHES,
              scene_levels: Sequence[float] = (0.2, 0.35, 0.5, 0.6, 0.7),
              scene_illumination_std: float = 0.003, scene_margin: int = 8,
-             max_intensity: float | None = 0.92, saturate_level: bool = False) -> dict[str, Any]:
+             max_intensity: float | None = 0.92, saturate_level: bool = False,
+             nonlinearity: float = 0.0) -> dict[str, Any]:
     """Write the ``healey94`` session into ``out_dir`` and return its truth.
 
     Parameters
@@ -371,6 +401,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
         such frame.
     saturate_level
         Add one PTC level far above full scale (clipped), for bad-input tests.
+    nonlinearity
+        a, the amplitude of the smooth deviation of the response (module docstring), a
+        fraction: 0.005 is a good camera's few tenths of a percent; 0 (default) linear, frames
+        and truth unchanged.  |a| below 0.1.
 
     Returns
     -------
@@ -380,10 +414,12 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     w, h = (int(size[0]), int(size[1]))
     _check_args(w, h, n_dark, ptc_frames, n1, n2, bits, A, read_noise_e, sigma_K, scene_margin,
                 scene_levels)
+    _check(abs(float(nonlinearity)) < 0.1, "nonlinearity",
+           "give the amplitude as a fraction below 0.1 (0.005 = 0.5 %)")
     fractions = _ptc_fractions(levels, ptc_range)
     writer, rig, dark_dn_map = _camera(out_dir, seed, (h, w), A, read_noise_e, sigma_K, bits,
                                        black_level_dn, dark_current_dn, dark_std_dn,
-                                       full_well_e, exposure)
+                                       full_well_e, exposure, nonlinearity)
     for i in range(n_dark):                     # dark frames (sec. V-A, eq. 43)
         rig.add(f"dark/dark_{i:03d}.tif", rig.expose(0.0), role="dark", exposure=exposure)
     ptc_truth = _ptc_levels(rig, seed, fractions, ptc_frames, illumination_std,
@@ -402,4 +438,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] = (128
     truth = _truth(rig, dark_dn_map, seed, w, h, n_dark, n1, n2, ptc_truth, fp_means,
                    patch_truth, max_truth, card_reflectance_std, outlier_fraction,
                    outlier_contrast, illumination_std)
+    if nonlinearity:
+        truth["nonlinearity"] = {
+            "amplitude": float(nonlinearity), "span_dn": rig.model.span_dn,
+            "model": "b + (V - b)(1 + a (1 - 8 x (1 - x))), x = (V - b) / span_dn",
+            "note": "mu and sigma2_N are those of the linear model"}
     return writer.finish(truth, note=f"ccdcore simulate healey94 --seed {int(seed)} --size {w}x{h}")

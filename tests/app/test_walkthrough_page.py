@@ -215,3 +215,35 @@ def test_one_step_object_per_guide_step_and_typed_results(assets: Path) -> None:
     assert page.results.dark is not None and page.results.plan is not None
     with pytest.raises(KeyError):
         Results().drop(["nothing"])
+
+
+def test_the_steps_follow_what_the_session_holds(assets: Path, tmp_path: Path) -> None:
+    """A bracket is not given a lab plan: the plan step says what it allows and what is
+    missing (ccdcore.guide.session_plan's words), the step list shows its steps only; flats get
+    the flat field; a lab session keeps the full plan and every step."""
+    page = _page(assets / "tsin01")
+    cover = guide.session_plan(open_session(assets / "tsin01"))
+    assert page.coverage == cover and cover.kind == "bracket"
+    assert page.plan is None and not page.steps["plan"].lab.visible
+    assert page.gates["plan"] == cover.gate()
+    assert page.gates["plan"].reasons == cover.missing
+    assert "exposure bracket" in page.steps["plan"].coverage.object
+    shown = [s for s, b in page.step_buttons.items() if b.visible]
+    assert shown == ["plan", "session", "response", "export"]
+    assert page.progress.max == 4
+    page.go("session", +1)                        # Next skips the steps a bracket lacks
+    assert page.step == "response"
+    page.go("response", -1)
+    assert page.step == "session"
+    flats = _page(assets / "delasarte07")
+    assert flats.coverage.kind == "flats" and flats.plan is None
+    assert [s for s, b in flats.step_buttons.items() if b.visible] == [
+        "plan", "session", "pattern", "verify", "export"]
+    lab = _page(assets / "healey94")
+    assert lab.coverage.kind == "lab" and lab.plan is not None
+    assert lab.steps["plan"].lab.visible
+    assert all(b.visible for b in lab.step_buttons.values())
+    # a new session: the plan follows it
+    assert lab.state.load(str(assets / "tsin01"))
+    assert lab.coverage.kind == "bracket" and lab.plan is None
+    assert lab.gates["plan"].summary == cover.gate().summary

@@ -7,6 +7,10 @@ the rest. Steps can be revisited and changed: a change (the photon-transfer leve
 robust mode, the plan's inputs, a new session) drops the results of the steps after it
 (:func:`.results.stale`), which recompute when shown.
 
+The steps listed follow what the session holds (:func:`ccdcore.guide.session_plan`, kept as
+:attr:`WalkthroughPage.coverage`): a bracket gets the response step, flats the flat field, a lab
+session every step; Back and Next move among them.
+
 The steps are :data:`ccdcore.guide.STEPS`, one module each (:data:`STEP_TYPES`); the page holds
 one step object per step (:attr:`WalkthroughPage.steps`) and their typed results
 (:attr:`WalkthroughPage.results`). The chosen step is in the URL (``?page=walkthrough&step=ptc``),
@@ -33,7 +37,7 @@ import panel as pn
 import param
 
 from ccdcore.capture import CapturePlan
-from ccdcore.guide import STEPS, Gate, GateStatus, StepInfo
+from ccdcore.guide import STEPS, Gate, GateStatus, SessionPlan, StepInfo, session_plan
 from ccdcore.session import Session
 
 from ...batch import batched, in_document
@@ -102,6 +106,9 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     # step 8
     export_folder = param.String(default="", doc="Folder for the calibration product.")
     gates = param.Dict(default={}, doc="Step slug -> its Gate (absent: not run yet).")
+    coverage = param.ClassSelector(class_=SessionPlan, default=session_plan(None), doc=(
+        "What the session's frames allow (ccdcore.guide.session_plan): the steps shown and "
+        "whether the full lab plan is proposed."))
 
     def __init__(self, state: AppState | None = None, *, auto: bool = True, **params: Any):
         super().__init__(state=state if state is not None else AppState(), **params)
@@ -114,6 +121,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         self._build()
         self.state.param.watch(self._on_session, "session")
         self._session_defaults()
+        self._follow_session()
         self.steps["plan"].replan()
         if pn.state.curdoc is not None and pn.state.location is not None:
             pn.state.location.sync(self, {"step": "step"})
@@ -157,8 +165,8 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
                                  disabled=i == 1, css_classes=["ccd-wt-back"])
         nxt = pn.widgets.Button(label="Next \u2192", color="primary", width=110,
                                 disabled=i == len(STEPS), css_classes=["ccd-wt-next"])
-        back.on_click(lambda e, k=i - 2: setattr(self, "step", SLUGS[max(k, 0)]))
-        nxt.on_click(lambda e, k=i: setattr(self, "step", SLUGS[min(k, len(SLUGS) - 1)]))
+        back.on_click(lambda e, slug=s.slug: self.go(slug, -1))
+        nxt.on_click(lambda e, slug=s.slug: self.go(slug, +1))
         self.gate_panes[s.slug] = gate
         return pn.Column(
             pn.pane.Markdown(f"### Step {i} of {len(STEPS)}: {s.title}",
@@ -182,7 +190,16 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
                                 sizing_mode="stretch_width"),
                          sizing_mode="stretch_width", name="Walkthrough")
 
+    def go(self, slug: str, by: int) -> None:
+        """Show the step ``by`` places from ``slug`` among the steps shown."""
+        shown = [s for s in SLUGS if s in self.coverage.steps or s == slug]
+        i = min(max(shown.index(slug) + by, 0), len(shown) - 1)
+        self.step = shown[i]
+
     # ------------------------------------------------------------------ state -------------
+    def _follow_session(self) -> None:
+        """The steps the session's frames allow (:func:`ccdcore.guide.session_plan`)."""
+        self.coverage = session_plan(self.state.session)
     def _session_defaults(self) -> None:
         session = self.state.session
         if session is None:
@@ -195,11 +212,16 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     def _on_session(self, *events: Any) -> None:
         self._invalidate("session", include=True)
         self._session_defaults()
+        self._follow_session()
         if self.auto:
             pn.state.execute(self.run_step)
 
     @param.depends("bits", "gain", "read_noise_e", "exposure_half_ms", "pixels", watch=True)
     def _on_plan_inputs(self) -> None:
+        self.steps["plan"].replan()
+
+    @param.depends("coverage", watch=True)
+    def _on_coverage(self) -> None:
         self.steps["plan"].replan()
 
     @param.depends("exclude", "robust", watch=True)
@@ -221,16 +243,19 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         if gates != self.gates:
             self.gates = gates
 
-    @param.depends("gates", watch=True)
+    @param.depends("gates", "coverage", watch=True)
     def _render_progress(self) -> None:
         in_document(self.doc, self._draw_progress)
 
     @batched
     def _draw_progress(self) -> None:
-        done = sum(1 for s in SLUGS if s in self.gates)
+        shown = self.coverage.steps
+        done = sum(1 for s in shown if s in self.gates)
+        self.progress.max = len(shown)
         self.progress.value = done
-        self.progress_text.object = f"{done} of {len(STEPS)} steps checked"
+        self.progress_text.object = f"{done} of {len(shown)} steps checked"
         for i, s in enumerate(STEPS, start=1):
+            self.step_buttons[s.slug].visible = s.slug in shown or s.slug == self.step
             gate = self.gates.get(s.slug)
             status = gate.status if gate else None
             b = self.step_buttons[s.slug]

@@ -1,5 +1,8 @@
-"""Step 1, plan: the capture plan (:mod:`ccdcore.capture`) from the page's inputs, with its
-checklist and ``session.toml`` to download."""
+"""Step 1, plan: what the loaded session's frames allow (:func:`ccdcore.guide.session_plan`:
+the steps shown, what is missing and why), and, with no session or a lab session, the capture
+plan (:mod:`ccdcore.capture`) from the page's inputs with its checklist and ``session.toml`` to
+download. A session of flats or of a bracket is not given a lab plan sized from default camera
+figures: its gate is :meth:`ccdcore.guide.SessionPlan.gate`."""
 from __future__ import annotations
 
 import io
@@ -12,7 +15,7 @@ import panel as pn
 
 from ccdcore.capture import CapturePlan, plan_captures
 from ccdcore.errors import CcdError
-from ccdcore.guide import Gate, GateStatus
+from ccdcore.guide import Gate, GateStatus, SessionPlan
 
 from ._common import Step, table
 
@@ -34,6 +37,14 @@ def plan_rows(plan: CapturePlan) -> pd.DataFrame:
                      "exposures (ms)": ", ".join(f"{t * 1e3:.3g}" for t in exps[:8])
                      + (" …" if len(exps) > 8 else ""), "rule": g.rule})
     return pd.DataFrame(rows)
+
+
+def coverage_markdown(cover: SessionPlan) -> str:
+    """What the session's frames allow, as Markdown: the summary and what is missing."""
+    lines = [f"**{cover.summary[0].upper() + cover.summary[1:]}.**"]
+    if cover.missing:
+        lines += ["", "Missing:"] + [f"- {m}" for m in cover.missing]
+    return "\n".join(lines)
 
 
 class PlanStep(Step):
@@ -63,10 +74,15 @@ class PlanStep(Step):
             callback=lambda: self._text(CapturePlan.to_toml), filename="session.toml",
             label="Download session.toml (file names to capture)", color="default",
             css_classes=["ccd-wt-toml-download"])
-        return [inputs, self.use_session, self.plan_table,
-                pn.Row(self.checklist_download, self.toml_download),
-                pn.Card(self.checklist, title="Printable checklist", collapsed=True,
-                        sizing_mode="stretch_width")]
+        self.coverage = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                         css_classes=["ccd-wt-coverage"])
+        self.lab = pn.Column(inputs, self.use_session, self.plan_table,
+                             pn.Row(self.checklist_download, self.toml_download),
+                             pn.Card(self.checklist, title="Printable checklist",
+                                     collapsed=True, sizing_mode="stretch_width"),
+                             sizing_mode="stretch_width", margin=0,
+                             css_classes=["ccd-wt-lab-plan"])
+        return [self.coverage, self.lab]
 
     def _text(self, render: Any) -> io.BytesIO | None:
         plan = self.page.plan
@@ -76,8 +92,16 @@ class PlanStep(Step):
         self.replan()
 
     def replan(self) -> None:
-        """The plan from the page's inputs (and the session's camera), then its gate."""
+        """What the session allows; with no session or a lab session the plan from the page's
+        inputs (and the session's camera); then the gate."""
         page, session = self.page, self.page.state.session
+        cover = page.coverage
+        self.coverage.object = coverage_markdown(cover)
+        self.lab.visible = cover.lab_plan
+        if not cover.lab_plan:
+            self.results.plan = None
+            self.set_gate(cover.gate())
+            return
         try:
             plan = plan_captures(
                 int(page.bits), float(page.gain), read_noise_e=float(page.read_noise_e),
@@ -94,7 +118,8 @@ class PlanStep(Step):
             GateStatus.PASS, f"{plan.n_frames} frames to capture; predicted σ(A)/A = "
                              f"{plan.gain_rel_err:.2%}, K̂ from n1 = "
                              f"{plan.fixed_pattern.n1_required} × n2 = "
-                             f"{plan.fixed_pattern.n2_required} frames", tuple(plan.notes)))
+                             f"{plan.fixed_pattern.n2_required} frames",
+            tuple(plan.notes) + tuple(f"missing: {m}" for m in cover.missing)))
 
     def draw(self, found: PlanResult) -> None:
         self.plan_table.object = found.rows

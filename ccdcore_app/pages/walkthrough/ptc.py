@@ -222,7 +222,8 @@ class PtcStep(Step, param.Parameterized):
         return found
 
     async def _with_emva(self, session: Session, noise: Any, gate: Gate) -> Gate:
-        """The EMVA 1288 figures (``results.emva``), and ``gate`` with their notes. The frames
+        """The EMVA 1288 figures (``results.emva``), and the gate judged with their linearity
+        error (:func:`ccdcore.guide.ptc_gate` with ``emva``) and their notes. The frames
         are read once per session; a refit (levels left out, robust mode, fit range) changes
         only σ_d from the photon-transfer intercept."""
         from ccdcore.datasheet import with_photon_transfer
@@ -238,6 +239,7 @@ class PtcStep(Step, param.Parameterized):
             notes: tuple[str, ...] = (
                 f"the EMVA 1288 figures could not be made: {state.error}",)
         else:
+            gate = guide.ptc_gate(noise, emva=figures)      # judged with the datasheet's LE
             notes = tuple(f"EMVA 1288: {n}" for n in figures.notes)
         return Gate(gate.status, gate.summary, gate.reasons + notes, gate.next)
 
