@@ -75,7 +75,8 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
-from ccdcore.change import ChangeOptions, detect, session_change  # noqa: E402
+from ccdcore.change import ChangeOptions, detect  # noqa: E402
+from ccdcore.change_session import session_change  # noqa: E402
 from ccdcore.io import read_image  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore.simulate.change import DEFAULT_M, simulate  # noqa: E402

@@ -51,9 +51,11 @@ detect(E_ref, sigma_ref, E_tgt, sigma_tgt, options)
     Sec. 5 on two radiance maps with their sigmas.
 prediction_d2(E_ref, sigma_ref, E_tgt, sigma_tgt, M, M_cov)
     d² of every pixel under one transform.
-session_change(session, options, calib=None, reducer=None), ChangeInputs
-    Both brackets of a session turned into radiance (the response estimated from the reference
-    bracket or taken from a calibration product) and :func:`detect`; what it gave detect.
+ChangeInputs
+    What :func:`ccdcore.change_session.session_change` gave :func:`detect` (both roles of a
+    session as radiance with sigma, the response's and the noise's sources).
+small_regions(mask, min_region)
+    The changed regions smaller than ``min_region`` pixels.
 
 The numerical kernels (d² and its compiled RGB pass, generalised least squares, the FAST-LTS
 search) are in :mod:`ccdcore.change_kernels`.
@@ -62,7 +64,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -71,11 +72,10 @@ from scipy import stats
 
 from .change_kernels import design_normal, error_d2, gls, lts
 from .errors import CcdError
-from .progress import Progress, silent, within
-from .reduce import STREAMED, Reducer
+from .progress import Progress, silent
 
 __all__ = ["ChangeOptions", "Cluster", "ChangeResult", "ChangeInputs", "detect", "prediction_d2",
-           "session_change", "LABEL_CHANGE", "LABEL_UNDETERMINED"]
+           "LABEL_CHANGE", "LABEL_UNDETERMINED", "small_regions"]
 
 LABEL_CHANGE = 255
 LABEL_UNDETERMINED = 254
@@ -113,6 +113,11 @@ class ChangeOptions:
         "explain" a new object of one colour and texture.
     seed
         Seed of the LTS search's random subsets.
+    min_region
+        Smallest changed region kept (pixels, 8-connected); smaller ones are labelled
+        unchanged (0) with a note. 1 keeps every pixel (the paper's per-pixel test, the default
+        for brackets); frame sets default to a 3 x 3 block
+        (:data:`ccdcore.change_frames.FRAME_MIN_REGION`).
     """
 
     pfa: float = 0.01
@@ -124,6 +129,7 @@ class ChangeOptions:
     consistency: float = 1.5
     max_condition: float = 30.0
     seed: int = 0
+    min_region: int = 1
 
     def check(self) -> None:
         if not 0.0 < float(self.pfa) < 0.5:
@@ -135,6 +141,9 @@ class ChangeOptions:
             raise CcdError("coverage", f"LTS coverage must lie in [0.1, 0.9], got {self.coverage}")
         if float(self.min_pixels) <= 0:
             raise CcdError("min_pixels", "must be positive")
+        if int(self.min_region) < 1:
+            raise CcdError("min_region", f"the smallest changed region is at least 1 pixel, got "
+                                         f"{self.min_region}")
 
 
 @dataclass(frozen=True)
@@ -160,7 +169,9 @@ class Cluster:
 class ChangeInputs:
     """What :func:`session_change` gave :func:`detect`: both brackets' radiance maps E and
     their sigma (eqs. 9, 19; H×W×channels, float64), the ``channels``, where the response came
-    from (``source``) and the frames of both brackets (``files``, reference first)."""
+    from (``source``) and the frames of both brackets (``files``, reference first); where the
+    noise (sigma) came from (``noise``) and each role's kind, ``"bracket"`` or ``"frames"``
+    (``kinds``; :mod:`ccdcore.change_frames`)."""
 
     E_ref: NDArray[np.float64]
     sigma_ref: NDArray[np.float64]
@@ -174,6 +185,8 @@ class ChangeInputs:
     response: Any = None
     #: per role, the bracket's own exposures as estimated (``None``: the listed ones taken)
     exposures: dict[str, Any] = field(default_factory=dict)
+    noise: str = ""
+    kinds: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -194,6 +207,10 @@ class ChangeResult:
     pfa: float
     predicted: NDArray[np.float64]
     notes: tuple[str, ...] = ()
+    #: where the response and the noise came from, in words (``"response"``, ``"noise"``)
+    sources: dict[str, str] = field(default_factory=dict)
+    #: smallest changed region kept (``ChangeOptions.min_region``)
+    min_region: int = 1
     labels: NDArray[np.uint8] = field(init=False)
     threshold: float = field(init=False)
 
@@ -202,6 +219,12 @@ class ChangeResult:
         counts = [int(np.count_nonzero(self.labels == c.label)) for c in self.clusters]
         self.clusters = [Cluster(c.label, c.M, c.M_cov, n, c.d2_median)
                          for c, n in zip(self.clusters, counts)]
+        if self.min_region > 1:
+            n = int(np.count_nonzero(self.d2_best > self.threshold)) - int(
+                np.count_nonzero(self.labels == LABEL_CHANGE))
+            self.notes = tuple(self.notes) + ((
+                f"{n} changed pixels in regions under {self.min_region} pixels labelled "
+                "unchanged (min_region)",) if n else ())
 
     # -- the threshold ------------------------------------------------------------------------
     def threshold_for(self, pfa: float) -> float:
@@ -228,6 +251,9 @@ class ChangeResult:
             labels[hit] = c.label
             open_ &= ~hit
         labels[~self.valid] = LABEL_UNDETERMINED
+        if self.min_region > 1:
+            small = small_regions(labels == LABEL_CHANGE, self.min_region)
+            labels[small] = 0
         return labels, thr
 
     def at(self, pfa: float) -> tuple[NDArray[np.uint8], float]:
@@ -267,6 +293,9 @@ class ChangeResult:
             "undetermined_pixels": int(np.count_nonzero(self.labels == LABEL_UNDETERMINED)),
             "labels": {str(k): v for k, v in self.counts().items()},
             "notes": list(self.notes),
+            "min_region": int(self.min_region),
+            **({"response_source": self.sources.get("response"),
+                "noise_source": self.sources.get("noise")} if self.sources else {}),
         }
 
 
@@ -393,6 +422,18 @@ def _as_rows(x: ArrayLike, name: str) -> NDArray[np.float64]:
     if a.ndim != 3:
         raise CcdError(name, f"expected an (H, W) or (H, W, C) radiance map, got shape {a.shape}")
     return a
+
+
+def small_regions(mask: NDArray[np.bool_], min_region: int) -> NDArray[np.bool_]:
+    """The pixels of ``mask`` in 8-connected regions of fewer than ``min_region`` pixels."""
+    from scipy import ndimage
+
+    lab, n = ndimage.label(mask, structure=np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros_like(mask)
+    small = np.bincount(lab.ravel()) < int(min_region)
+    small[0] = False
+    return small[lab]
 
 
 def _threshold(background: NDArray, scale: float, dof: int, pfa: float) -> float:
@@ -578,7 +619,8 @@ def _change_result(E: NDArray, valid: NDArray[np.bool_], fits: list[_Fit], bg: _
         notes.append(f"the background's d² is {bg.scale:.2f} times χ²'s ({dof} degrees of "
                      "freedom): the threshold is calibrated on the background, not taken from χ²")
     return ChangeResult(clusters, d2.reshape(H, W, len(fits)), valid, bg.sample, bg.scale, dof,
-                        float(opts.pfa), predicted.reshape(H, W, C), tuple(notes))
+                        float(opts.pfa), predicted.reshape(H, W, C), tuple(notes),
+                        min_region=int(opts.min_region))
 
 
 def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: ArrayLike,
@@ -613,127 +655,3 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
     res = _change_result(E, valid, fits, bg, dof, opts, notes)
     report(1.0, "done")
     return res
-
-
-def session_change(session: Any, options: ChangeOptions | None = None, *,
-                   calib: str | Path | None = None, bloom_radius: int | None = None,
-                   progress: Progress | None = None, reducer: Reducer | None = None,
-                   band_rows: int | None = None, method: str = "auto",
-                   white_balance: bool = False, exposures: str = "auto"
-                   ) -> tuple[ChangeResult, ChangeInputs]:
-    """Sec. 5 on a session's ``reference`` and ``target`` brackets.
-
-    The response (g and the noise terms) comes from ``calib`` (a calibration product) or is
-    estimated from the reference bracket (sec. 3.2); both brackets are merged with it at their
-    nominal times (eqs. 9, 18, 19). Returns the result and its :class:`ChangeInputs` (both
-    radiance maps with their sigma, the channels, the response's source, the frames).
-    ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
-    half (without ``calib``), :func:`detect` the rest. ``method``, ``white_balance`` and
-    ``exposures`` are :func:`ccdcore.response.methods.response_of`'s, for the reference
-    bracket's response (without ``calib``); each bracket is merged at its own exposures when
-    ``exposures`` asks for them or the images disagree with the listed ones: the reference's
-    from its response, the other brackets' estimated with the curve
-    (:func:`ccdcore.response.exposures.exposures_with_curves`, on frames read here even when a
-    cluster's workers merge them).
-
-    ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
-    reducer (:class:`ccdcore.distributed.DaskReducer`) they run band by band, the workers reading
-    the frames (:func:`ccdcore.response.hdr.merge_bracket`; ``band_rows`` sets the band height):
-    the radiance and sigma maps are bit-identical to the streamed ones, hence so is everything
-    after.  The shapes and sample types are then checked first, from the headers.  What stays
-    in this process: the response estimated from the reference bracket without ``calib`` (it
-    reads the reference frames here, as the streamed path does: the pixel traces of every
-    pixel), and the fit of M and d² (:func:`detect`), which need the whole radiance maps --
-    the streamed path holds them too.
-    """
-    from .response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
-    from .response.exposures import exposures_with_curves
-    from .response.hdr import ResponseModel, merge_bracket
-    from .response.methods import response_of
-
-    radius = DEFAULT_BLOOM_RADIUS if bloom_radius is None else int(bloom_radius)
-    recs = {role: bracket_records(session, None, role=role) for role in ("reference", "target")}
-    first = {role: recs[role][0].relpath for role in recs}
-    red = reducer or STREAMED
-    # the frames the merge takes as read (None: its workers read them); else their headers
-    frames: dict[str, Any] = {role: red.preload(session, recs[role]) for role in recs}
-    described = {role: ([(f.shape, f.dtype) for f in frames[role]] if frames[role] is not None
-                        else [(tuple(h.shape), np.dtype(h.dtype)) for h in
-                              (session.header(r) for r in recs[role])]) for role in recs}
-    (ref_shape, ref_dtype), (tgt_shape, tgt_dtype) = (described["reference"][0],
-                                                      described["target"][0])
-    if ref_shape != tgt_shape:
-        raise CcdError(first["target"], f"shape {tgt_shape} differs from the reference "
-                                        f"bracket's {ref_shape} ({first['reference']}): the "
-                                        "same camera and framing are needed")
-    if ref_dtype != tgt_dtype:
-        raise CcdError(first["target"], f"sample type {tgt_dtype} differs from the reference "
-                                        f"bracket's {ref_dtype}: another camera or bit depth?")
-    for role in recs:
-        shape0, dtype0 = described[role][0]
-        for r, (shape, dtype) in zip(recs[role], described[role]):
-            if shape != shape0 or dtype != dtype0:
-                raise CcdError(r.relpath, f"shape {shape} {dtype} differs from its "
-                                          f"bracket's first frame {shape0} {dtype0}")
-    layout = session.camera.layout
-
-    res = None
-    if calib is not None:
-        from .product import load_product
-
-        models = load_product(calib).response_models(calib)
-        source = f"response of {calib}"
-    else:
-        ref_frames = frames["reference"]
-        if ref_frames is None:
-            ref_frames = [session.read(r) for r in recs["reference"]]
-        brackets = load_bracket(session, None, role="reference", bloom_radius=radius,
-                                frames=ref_frames)
-        del ref_frames
-        res = response_of(brackets, method, bloom_radius=radius, white_balance=white_balance,
-                          exposures=exposures, progress=within(progress, 0.0, 0.5))
-        models = res.models()
-        source = f"response estimated from the reference bracket ({res.method})"
-    levels = {m.levels for m in models.values()}
-    bits = session.camera.bits
-    if bits is not None and levels != {2 ** int(bits)}:
-        raise CcdError(calib or first["reference"], f"the response has {sorted(levels)} codes, "
-                                                    f"the camera {2 ** int(bits)}")
-    out = {}
-    own: dict[str, Any] = {}
-    for role in ("reference", "target"):
-        t = np.asarray([r.exposure for r in recs[role]], np.float64)
-        if role == "reference" and res is not None:
-            own[role] = res.exposures
-            if res.exposures is not None and res.exposures.used == "estimated":
-                t = np.asarray(res.exposures.estimated, np.float64)   # the bracket's own
-        elif exposures != "listed":
-            # a bracket the curve was not fitted to: its own exposures with that curve (read
-            # here when a cluster's workers merge it, as the reference is for its response).
-            # A bracket the estimate cannot use keeps its listed times: the merge and the
-            # detector say what is wrong with it
-            read = frames[role] if frames[role] is not None else \
-                [session.read(r) for r in recs[role]]
-            try:
-                br = load_bracket(session, None, role=role, bloom_radius=radius, frames=read)
-                t, own[role] = exposures_with_curves(br, models, t, exposures)
-            except CcdError:
-                own[role] = None
-            del read
-        else:
-            own[role] = None
-        ms = {ch: ResponseModel(np.asarray(m.g, np.float64), t, np.zeros(t.size),
-                                float(m.sigma_s), float(m.sigma_c1), float(m.sigma_c2))
-              for ch, m in models.items()}
-        out[role] = merge_bracket(recs[role], ms, layout=layout, bloom_radius=radius,
-                                  frames=frames[role], reducer=red, session=session,
-                                  band_rows=band_rows)
-        frames[role] = None
-    inputs = ChangeInputs(out["reference"].radiance, out["reference"].sigma,
-                          out["target"].radiance, out["target"].sigma,
-                          tuple(out["reference"].channels), source,
-                          tuple(r.relpath for role in recs for r in recs[role]), res, own)
-    result = detect(inputs.E_ref, inputs.sigma_ref, inputs.E_tgt, inputs.sigma_tgt,
-                    options, names=(first["reference"], first["target"]),
-                    progress=within(progress, 0.5 if calib is None else 0.1, 1.0))
-    return result, inputs

@@ -143,16 +143,27 @@ def _out_folder(out_dir: Path, names: Sequence[str], session: Any,
     return Path(out_dir)
 
 
+def _count(n: int, kind: str) -> str:
+    """"1 frame", "5 frames" or "7 exposures (a bracket)"."""
+    if kind != "frames":
+        return f"{n} exposures (a bracket)"
+    return f"{n} frame{'s' if n != 1 else ''}"
+
+
 def _cmd_change(args: argparse.Namespace) -> int:
-    from .change import ChangeOptions, session_change
+    from .change import ChangeOptions
+    from .change_session import session_change
+    from .change_frames import FRAME_MIN_REGION, session_kinds
     from .io import write_image, write_map, write_outputs
     from .product import session_inputs
     from .response.brackets import bracket_records
     from .session import open_session
 
     session = open_session(args.session)
-    session.raise_if_invalid()
-    opts = ChangeOptions(pfa=args.pfa)
+    kinds = session_kinds(session)       # every error but a frame set's missing exposures
+    frame_sets = "frames" in kinds.values() or args.response != "auto"
+    opts = ChangeOptions(pfa=args.pfa, min_region=args.min_region if args.min_region is not None
+                         else FRAME_MIN_REGION if frame_sets else 1)
     opts.check()
     names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
@@ -161,7 +172,8 @@ def _cmd_change(args: argparse.Namespace) -> int:
     with reducer_of(args) as reducer:
         res, inputs = session_change(session, opts, calib=args.calib,
                                      bloom_radius=args.bloom_radius, reducer=reducer,
-                                     method=args.method, **response_options(args))
+                                     method=args.method, response=args.response,
+                                     **response_options(args))
         scheduler = reducer.description
     workers_note(args.workers, len(records), len(records) * int(res.labels.size))
     change = np.where(res.labels == 255, 255, 0).astype(np.uint8)
@@ -175,14 +187,19 @@ def _cmd_change(args: argparse.Namespace) -> int:
     summary = res.to_dict()
     if args.json:
         rv = inputs.response
-        print_json({"source": inputs.source, "channels": list(inputs.channels),
+        print_json({"source": inputs.source, "noise": inputs.noise, "kinds": inputs.kinds,
+                    "channels": list(inputs.channels),
                     **summary, "files": [str(p) for p in paths], "scheduler": scheduler,
                     "verdict": None if rv is None or rv.verdict is None
                     else rv.verdict.to_dict(),
                     "exposures": {role: None if ex is None else ex.summary().to_dict()
                                   for role, ex in inputs.exposures.items()}})
         return 0
-    print(f"change detection (Tsin et al. 2001, sec. 5), {inputs.source}")
+    print("change detection (Tsin et al. 2001, sec. 5), "
+          + ", ".join(f"{role}: {_count(len([f for f in records if f.role == role]), kind)}"
+                      for role, kind in inputs.kinds.items()))
+    say("response", inputs.source)
+    say("noise", inputs.noise)
     for role, ex in inputs.exposures.items():
         print_exposures(ex, role, table=False)
     if inputs.response is not None:
@@ -377,13 +394,21 @@ def add_hdr(sub: Any) -> None:
 def add_change(sub: Any) -> None:
     p = add_verb(sub, "change",
                  "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
-                 _cmd_change, needs="reference and target brackets (roles reference, target)")
+                 _cmd_change, needs="reference and target frames or brackets (roles reference, "
+                                    "target)")
     p.add_argument("session", type=Path, help=SESSION_HELP)
     p.add_argument("--pfa", type=float, default=0.01,
                    help="false-alarm probability per background pixel (default 0.01)")
     p.add_argument("--calib", type=Path,
                    help="a calibration product with a response (default: estimate it from "
-                        "the reference bracket)")
+                        "a bracket of the session, else assume the sRGB curve)")
+    p.add_argument("--response", choices=("auto", "srgb"), default="auto",
+                   help="auto (default): the product's response, else one estimated from a "
+                        "bracket of the session, else the sRGB curve, stated as an "
+                        "assumption; srgb: the sRGB standard curve whatever the session holds")
+    p.add_argument("--min-region", type=int, default=None, metavar="PIXELS",
+                   help="smallest changed region kept, 8-connected (default: 9, a 3 x 3 block, "
+                        "for single frames or frame sets; 1, every pixel, for two brackets)")
     response_args(p, "without --calib: ")
     _bloom_arg(p)
     p.add_argument("-o", "--out-dir", type=Path, required=True,

@@ -175,7 +175,7 @@ class Results(param.Parameterized):
     change = param.Dict(default={}, doc=(
         "The Change detection page's results: the detector's options (a frozen ChangeOptions) -> "
         "(ccdcore.change.ChangeResult, inputs: the radiance maps with their sigmas) of "
-        "ccdcore.change.session_change."))
+        "ccdcore.change_session.session_change."))
 
     def __init__(self, **params: Any):
         params.setdefault("flat", FlatResults())

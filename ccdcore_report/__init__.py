@@ -6,7 +6,7 @@ and the provenance, in a file that opens offline (docs/report.md).
 The report is built from a :class:`ccdcore.product.CalibrationProduct` (its JSON summaries and
 float32 maps) and, when given, a change-detection result; nothing in it is estimated here. From a
 session, the product is made first (:func:`ccdcore.product.calibrate`) and, when the session has
-``reference`` and ``target`` brackets, the change masks (:func:`ccdcore.change.session_change`).
+``reference`` and ``target`` brackets, the change masks (:func:`ccdcore.change_session.session_change`).
 BokehJS (Bokeh's own code only) and every figure's data are inlined: no script, style sheet, font
 or image is fetched from anywhere.
 

@@ -67,7 +67,7 @@ def _skipped_product(session: Session) -> CalibrationProduct:
 
 def _calibrate(session: Session, progress: Progress) -> tuple[CalibrationProduct, Any]:
     """The product of ``session`` and, with reference and target brackets, its change result
-    (``(result, inputs)`` of :func:`ccdcore.change.session_change`)."""
+    (``(result, inputs)`` of :func:`ccdcore.change_session.session_change`)."""
     session.raise_if_invalid()
     with_change = _has_change(session)
     share = 0.6 if with_change else 0.95
@@ -78,7 +78,7 @@ def _calibrate(session: Session, progress: Progress) -> tuple[CalibrationProduct
                                                      prefix="calibrate: "))
     change = None
     if with_change:
-        from ccdcore.change import session_change
+        from ccdcore.change_session import session_change
 
         progress(share, "change detection")
         change = session_change(session, progress=within(progress, share, 0.95,
@@ -190,11 +190,11 @@ def build_report(source: Any, *, product: CalibrationProduct | None = None, chan
         The session's calibration product when it is already made: nothing is then computed
         (a change result is drawn only when ``change`` is given). Without it, a session is
         calibrated (:func:`ccdcore.product.calibrate`) and, when it has ``reference`` and
-        ``target`` brackets, change detection runs (:func:`ccdcore.change.session_change`,
+        ``target`` brackets, change detection runs (:func:`ccdcore.change_session.session_change`,
         default options).
     change
         A :class:`ccdcore.change.ChangeResult`, or the ``(result, inputs)`` pair
-        :func:`~ccdcore.change.session_change` returns.
+        :func:`~ccdcore.change_session.session_change` returns.
     progress
         A :class:`ccdcore.progress.Progress`, ``progress(fraction, message)``, called as the
         computation goes (fraction of the whole, 0 to 1).

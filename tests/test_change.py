@@ -25,6 +25,7 @@ from scipy import stats
 
 from ccdcore import change as CH
 from ccdcore import change_kernels as CK
+from ccdcore.change_session import session_change
 from ccdcore.cli import main
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image, write_image
@@ -39,7 +40,7 @@ def scene(tmp_path_factory):
     truth = json.loads((root / "truth.json").read_text())
     changed = np.asarray(read_image(root / "truth/change_mask.png")) > 0
     shadow = np.asarray(read_image(root / "truth/shadow_mask.png"))
-    result, inputs = CH.session_change(open_session(root), CH.ChangeOptions(pfa=0.01))
+    result, inputs = session_change(open_session(root), CH.ChangeOptions(pfa=0.01))
     return root, truth, changed, shadow, result, inputs
 
 

@@ -22,7 +22,8 @@ import pytest
 
 from ccdcore import distributed as ccd_dist  # noqa: E402
 from ccdcore.distributed import DaskReducer  # noqa: E402
-from ccdcore.change import ChangeOptions, session_change  # noqa: E402
+from ccdcore.change import ChangeOptions  # noqa: E402
+from ccdcore.change_session import session_change  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.io import read_image, write_image  # noqa: E402

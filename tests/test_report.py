@@ -354,7 +354,8 @@ def load_product_of(tmp: Path, demo: str) -> CalibrationProduct:
 
 
 def test_change_has_the_change_section(tmp_path):
-    from ccdcore.change import LABEL_CHANGE, session_change
+    from ccdcore.change import LABEL_CHANGE
+    from ccdcore.change_session import session_change
 
     code, _, err = run("report", str(ASSETS / "change"), "-o", str(tmp_path / "c.html"))
     assert code == 0, err
@@ -426,7 +427,7 @@ def test_emva1288_figures_with_missing_keys_are_refused_and_none_is_no_section(h
 
 # ------------------------------------------------------------------------------ properties -----
 def test_building_from_a_product_computes_nothing(h94, monkeypatch):
-    import ccdcore.change
+    import ccdcore.change_session
     import ccdcore_report.build
 
     def refuse(*a, **k):
@@ -434,7 +435,7 @@ def test_building_from_a_product_computes_nothing(h94, monkeypatch):
 
     monkeypatch.setattr(ccdcore_report.build, "calibrate", refuse)
     monkeypatch.setattr(ccdcore_report.build, "estimate_all", refuse)
-    monkeypatch.setattr(ccdcore.change, "session_change", refuse)
+    monkeypatch.setattr(ccdcore.change_session, "session_change", refuse)
     session = open_session(ASSETS / "healey94")
     text = build_report(session, product=h94["product"])
     assert section(text, "noise") == section(h94["html"], "noise")

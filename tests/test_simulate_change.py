@@ -178,3 +178,31 @@ def test_apply_transform_uses_row_vectors():
     E = np.array([[1.0, 0.0, 0.0]])
     M = np.arange(9.0).reshape(3, 3)
     np.testing.assert_array_equal(change.apply_transform(E, M), [[0.0, 1.0, 2.0]])  # first row
+
+
+def test_frame_pair_is_a_video_pair_with_truth(tmp_path):
+    """The single-frame pairs (ccdcore.simulate.change_frames): 8-bit frames, reproducible for a
+    seed, an illumination change with automatic gain, the truth mask of the inserted objects,
+    a plain session folder without exposure; the change preset's bytes are not touched."""
+    import json
+
+    from ccdcore.session import open_session
+    from ccdcore.simulate.change_frames import frame_pair, write_frame_pair
+
+    a, b = frame_pair(4, n_reference=2), frame_pair(4, n_reference=2)
+    assert all(np.array_equal(x, y) for x, y in zip(a["reference"], b["reference"]))
+    assert len(a["reference"]) == 2 and len(a["target"]) == 1
+    z = a["reference"][0]
+    assert z.dtype == np.uint8 and z.shape == (128, 160, 3)
+    assert not np.array_equal(a["reference"][0], a["reference"][1])      # own noise each
+    bg = ~a["mask"]
+    assert a["target"][0][bg].mean() < z[bg].mean() - 10                  # the light dimmed
+    assert 0 < a["mask"].sum() < 0.3 * a["mask"].size
+    assert not frame_pair(4, n_objects=0)["mask"].any()
+    truth = write_frame_pair(tmp_path / "p", 4)
+    assert json.loads((tmp_path / "p" / "truth.json").read_text()) == truth
+    s = open_session(tmp_path / "p")
+    assert s.roles() == {"reference": 1, "target": 1}
+    assert np.load(tmp_path / "p" / "truth" / "change_mask.npy").sum() == truth["changed_pixels"]
+    with pytest.raises(CcdError, match="unknown option"):
+        frame_pair(0, colour=1)

@@ -2,7 +2,7 @@
 calibrated false-alarm rate (Tsin, Ramesh & Kanade 2001, sec. 5).
 
 The session's ``reference`` and ``target`` brackets become HDR radiance with per-pixel sigma;
-:func:`ccdcore.change.session_change` fits the colour transform M of the background (E' = E M,
+:func:`ccdcore.change_session.session_change` fits the colour transform M of the background (E' = E M,
 eq. 20) and of each shade of shadow, computes every pixel's d² under them and labels the pixels
 at a chosen false-alarm probability. The page shows the reference, the target and the predicted
 target (the reference under the background's new light) tone-mapped for display only, the d²
@@ -20,7 +20,7 @@ ChangePage
 create_page(state)
     The registry entry point.
 compute_change(session, options, progress)
-    :func:`ccdcore.change.session_change` with the app's progress tracker.
+    :func:`ccdcore.change_session.session_change` with the app's progress tracker.
 PFA_STEPS
     The slider's false-alarm probabilities (label -> value), log-spaced 1e-4 ... 0.2.
 no_brackets_message(missing)
@@ -41,7 +41,8 @@ import panel as pn
 import param
 
 from ccdcore.change import (LABEL_CHANGE, LABEL_UNDETERMINED, ChangeInputs, ChangeOptions,
-                            ChangeResult, session_change)
+                            ChangeResult)
+from ccdcore.change_session import session_change
 from ccdcore.common import format_pm
 from ccdcore.progress import Progress
 from ccdcore.session import Session
@@ -83,11 +84,29 @@ def no_brackets_message(missing: list[str]) -> str:
             "`exposure` in seconds. The bundled **change** demo has both.")
 
 
+def page_options(session: Session) -> ChangeOptions:
+    """The page's settings: P = :data:`DEFAULT_PFA`, and for single frames or frame sets
+    (:func:`ccdcore.change_frames.role_kind`) the smallest changed region of the CLI's default
+    (:data:`ccdcore.change_frames.FRAME_MIN_REGION`); a role that is neither is left to
+    :func:`compute_change` to report."""
+    from ccdcore.change_frames import FRAME_MIN_REGION, role_kind
+    from ccdcore.errors import CcdError
+
+    try:
+        kinds = [role_kind(session.by_role(r)) for r in ("reference", "target")
+                 if hasattr(session, "by_role") and session.by_role(r)]
+    except CcdError:
+        kinds = []
+    return ChangeOptions(pfa=DEFAULT_PFA, min_region=FRAME_MIN_REGION if "frames" in kinds
+                         else 1)
+
+
 def compute_change(session: Session, options: ChangeOptions | None = None,
                    progress: Progress | None = None) -> tuple[ChangeResult, dict[str, Any]]:
-    """:func:`ccdcore.change.session_change` reporting to ``progress`` (the app's
-    :class:`ccdcore.progress.Tracker`, which also stops it when cancelled)."""
-    return session_change(session, options or ChangeOptions(pfa=DEFAULT_PFA), progress=progress)
+    """:func:`ccdcore.change_session.session_change` reporting to ``progress`` (the app's
+    :class:`ccdcore.progress.Tracker`, which also stops it when cancelled); single frames or
+    frame sets of either role go through :func:`ccdcore.change_frames.frames_change`."""
+    return session_change(session, options or page_options(session), progress=progress)
 
 
 def _table(css_class: str) -> pn.pane.DataFrame:
@@ -298,7 +317,7 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
             self._set_error(no_brackets_message(missing))
             return
         self.content.visible = True
-        options = ChangeOptions(pfa=DEFAULT_PFA)
+        options = page_options(session)
         entry = self._cache.get(options)
         if entry is None:
             self._computing = True
@@ -360,8 +379,11 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
             "scaled by s, the background's median d² over χ²'s. The threshold (solid orange "
             "line) is the sample's 1 - P quantile; the bars beyond it are the background's "
             "false alarms. The dotted line is the plain χ² quantile.")
-        notes = [(f"- Radiance: {inputs.source} "
-                  f"({len(inputs.files)} frames)"),
+        kinds = ", ".join(f"{role} {'frames' if k == 'frames' else 'bracket'}"
+                          for role, k in inputs.kinds.items())
+        notes = [(f"- Response: {inputs.source} "
+                  f"({len(inputs.files)} frames{'; ' + kinds if kinds else ''})"),
+                 f"- Noise: {inputs.noise or 'not stated'}",
                  (f"- The clusters were fitted at P = {res.pfa:g}; the slider re-thresholds "
                   "the same clusters (`ChangeResult.at`), it does not fit M again.")]
         notes += [f"- {n}" for n in res.notes]

@@ -305,3 +305,26 @@ def test_a_session_opened_while_computing_is_shown_next(shown, assets, monkeypat
     _run(page.refresh())
     assert page.result is None and "'reference'" in page.error and page.error_alert.visible
     assert state.results.change == {}
+
+
+def test_single_frames_session_shows_the_result_and_its_sources(tmp_path):
+    """A plain folder of one reference and one target PNG (no exposure, as video frames come):
+    the page computes through the frame-set path and names the response and noise sources."""
+    from ccdcore.change_frames import FRAME_MIN_REGION
+    from ccdcore.simulate.change_frames import write_frame_pair
+
+    root = tmp_path / "frames"
+    write_frame_pair(root, 0)
+    state = AppState(allowed_roots=[tmp_path.resolve()])
+    assert state.load(root)
+    page = ChangePage(state, auto=False)
+    _run(page.refresh())
+    assert page.error == "" and page.result is not None and page.content.visible
+    assert page.inputs.kinds == {"reference": "frames", "target": "frames"}
+    assert page.result.min_region == FRAME_MIN_REGION
+    notes = page.notes_pane.object
+    assert "- Response: assumed: the sRGB standard curve" in notes
+    assert "- Noise: reference: assumed" in notes
+    page.__panel__().get_root(Document())
+    page.pfa = 0.05                                      # re-thresholds without a traceback
+    assert page.count_number.value == np.count_nonzero(page.result.at(0.05)[0] == LABEL_CHANGE)

@@ -82,7 +82,7 @@ def test_change_labels_are_drawn_in_the_apps_colours(page: Page, reports, assets
     from PIL import Image
 
     from ccdcore_app.change_plots import label_colour
-    from ccdcore.change import session_change
+    from ccdcore.change_session import session_change
     from ccdcore.session import open_session
 
     result, _ = session_change(open_session(assets / "change"))
