@@ -57,7 +57,7 @@ __all__ = ["STEPS", "StepInfo", "GateStatus", "Gate", "FIXES", "session_gate", "
            "Verification", "held_out_frames", "verify", "HOT_DEAD_LIMIT", "ZERO_DARK_LIMIT",
            "Q_RESOLVED", "PTC_DEVIATION_PASS", "PTC_DEVIATION_FAIL", "LINEARITY_PASS",
            "LINEARITY_FAIL", "GAIN_ERROR_LIMIT", "ptc_deviation", "ptc_linearity",
-           "SessionPlan", "session_plan", "MISSING", "LAB_ROLES"]
+           "SessionPlan", "session_plan", "MISSING", "LAB_ROLES", "STATUS_LABELS"]
 
 #: fraction of hot + dead pixels above which the dark step warns
 HOT_DEAD_LIMIT = 0.005
@@ -169,9 +169,25 @@ class Gate:
     def __post_init__(self) -> None:
         object.__setattr__(self, "status", GateStatus(self.status))
 
+    @property
+    def label(self) -> str:
+        """The status in the words every surface shows it with (:data:`STATUS_LABELS`)."""
+        return STATUS_LABELS[self.status]
+
+    def line(self) -> str:
+        """``"Passed with warnings: <summary>"``: the verdict in one line, the same on every
+        surface (the Walkthrough, the Photon transfer page, ``ccdcore ptc``, the report)."""
+        return f"{self.label}: {self.summary}"
+
     def to_dict(self) -> dict[str, Any]:
-        return {"status": self.status.value, "summary": self.summary,
+        return {"status": self.status.value, "label": self.label, "summary": self.summary,
                 "reasons": list(self.reasons), "next": list(self.next)}
+
+
+#: the words of each gate status, on every surface
+STATUS_LABELS: dict[GateStatus, str] = {
+    GateStatus.PASS: "Passed", GateStatus.WARN: "Passed with warnings",
+    GateStatus.FAIL: "Failed", GateStatus.SKIP: "Skipped"}
 
 
 #: the fix of each validation problem code, ``{code: fix}`` (:class:`ProblemCode`, whose members

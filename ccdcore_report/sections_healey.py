@@ -14,6 +14,7 @@ import math
 
 from ccdcore.common import format_pm
 from ccdcore.darkmap import DarkSummary
+from ccdcore.guide import ptc_gate
 from ccdcore.kmap_kernels import FixedPatternSummary
 from ccdcore.planning import PlanSummary
 from ccdcore.ptc_fit import PhotonTransferSummary
@@ -25,25 +26,16 @@ from .html import Doc, bullets, facts, finite, num, para, table, value_text
 __all__ = ["noise_section", "dark_section", "fixed_pattern_section", "plan_section",
            "correction_section", "scene_section"]
 
-_VERDICTS = {
-    "acceptable": "the line \u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C fits the points "
-                  "within their errors",
-    "poor": "a poor fit: the points scatter more than their errors allow (Q < 0.05)",
-    "model rejected": "the model is rejected (Q < 0.001): the points do not lie on a straight "
-                      "line within their errors",
-}
-
-
 # ---------------------------------------------------------------------------------------------
 # photon transfer
 # ---------------------------------------------------------------------------------------------
 def _verdict_text(noise: PhotonTransferSummary) -> str:
-    verdict = noise.verdict
-    q = noise.Q
-    if not finite(q):
+    """The photon-transfer gate (:func:`ccdcore.guide.ptc_gate`) in the words every surface
+    shows it with (the Walkthrough, the Photon transfer page, ``ccdcore ptc``)."""
+    if not finite(noise.Q):
         return ("untested: no degrees of freedom are left (as many light levels as the line "
                 "has parameters)")
-    return f"Q = {q:.3g}: {_VERDICTS.get(verdict, verdict)}"
+    return ptc_gate(noise).line()
 
 
 def _noise_facts(noise: PhotonTransferSummary) -> str:

@@ -18,6 +18,7 @@ import pytest
 
 from ccdcore.cli import main
 from ccdcore.common import format_pm
+from ccdcore.guide import ptc_gate
 from ccdcore.emva_results import EmvaSummary
 from ccdcore.errors import CcdError
 from ccdcore.flatfield import correct
@@ -83,7 +84,7 @@ def test_cli_report_of_a_session_holds_the_estimates_as_the_product_has_them(h94
             format_pm(noise.A, noise.A_err, unit="DN/e\u207b"),
             format_pm(noise.sigma_c2, noise.sigma_c2_err, unit="DN\u00b2"),
             format_pm(noise.read_noise_e, noise.read_noise_e_err, unit="e\u207b"),
-            f"{noise.chi2:.4g}", f"Q = {noise.Q:.3g}: the line",
+            f"{noise.chi2:.4g}", ptc_gate(noise).line(),
             f"with {noise.dof} degrees of freedom",
             format_pm(dark.mean, dark.mean_sem, unit="DN"),
             f"{dark.spatial_std:.4g} DN", f"{fp.spatial_std:.4g}",

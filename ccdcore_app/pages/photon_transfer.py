@@ -43,6 +43,7 @@ import param
 
 from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
+from ccdcore.guide import GateStatus, ptc_gate
 from ccdcore.noise import (EMVA_FIT_FRACTION, ROBUST_Z, USER_EXCLUDED, PhotonTransfer, PtcPoint,
                            photon_transfer, ptc_points)
 from ccdcore.session import FrameRecord, Session
@@ -81,18 +82,9 @@ _BLACK_SOURCES = {
     "given": "given",
 }
 
-_VERDICTS = {
-    "acceptable": ("success", "Fit acceptable",
-                   "the line \u03c3\u00b2_N = A\u00b7\u03bc + \u03c3\u00b2_C explains the points "
-                   "within their error bars."),
-    "poor": ("warning", "Poor fit",
-             "the points scatter about the line more than their error bars allow (Q < 0.05). "
-             "Look at the residuals for a level off the line; exclude it or try robust mode."),
-    "model rejected": ("danger", "Model rejected",
-                       "the points are not on one line within their errors (Q < 0.001). Look "
-                       "for saturated, non-linear or disturbed levels in the residuals and the "
-                       "log-log view; exclude them or try robust mode."),
-}
+#: the alert of each gate status
+_ALERTS = {GateStatus.PASS: "success", GateStatus.WARN: "warning", GateStatus.FAIL: "danger",
+           GateStatus.SKIP: "info"}
 
 
 _NAV_NOTE = ("Levels the estimator leaves out (clipped, beyond the linear range) stay out "
@@ -138,19 +130,21 @@ def parameter_frame(result: PhotonTransfer, shape: tuple[int, int] | None = None
 
 
 def verdict_message(result: PhotonTransfer) -> tuple[str, str]:
-    """``(alert_type, markdown)`` reading the fit's Q (``PhotonTransfer.verdict``) for a person:
-    acceptable → success, poor → warning, model rejected → danger, untested → info."""
-    stats = (f"Q = {format_pm(result.Q)} (\u03c7\u00b2 = {format_pm(result.chi2)} on "
-             f"{result.dof} degree{'s' if result.dof != 1 else ''} of freedom)")
-    if result.verdict in _VERDICTS:
-        kind, head, text = _VERDICTS[result.verdict]
-        worst = result.worst_levels(2) if result.verdict != "acceptable" else []
-        if worst:
-            text += " Largest residuals: " + ", ".join(
-                f"level {level} ({z:+.1f} \u03c3)" for level, z in worst) + "."
-        return kind, f"**{head}** \u2014 {stats}: {text}"
-    return "info", (f"**Fit untested** \u2014 {result.verdict}: with as many parameters as "
-                    "levels the line passes through the points; add light levels to test it.")
+    """``(alert_type, markdown)``: the photon-transfer gate of :func:`ccdcore.guide.ptc_gate`,
+    the verdict the Walkthrough, ``ccdcore ptc`` and the report show in the same words (the
+    line against stated tolerances of its deviation, with χ² and Q), with the levels furthest
+    from the line when it does not pass."""
+    gate = ptc_gate(result)
+    text = f"**{gate.label}** \u2014 {gate.summary}"
+    if gate.reasons:
+        text += "\n\n" + "\n".join(f"- {r}" for r in gate.reasons)
+    worst = result.worst_levels(2) if gate.status != GateStatus.PASS else []
+    if worst:
+        text += "\n- largest residuals: " + ", ".join(
+            f"level {level} ({z:+.1f} \u03c3)" for level, z in worst)
+    if gate.next:
+        text += "\n\n**Next:** " + "; ".join(gate.next)
+    return _ALERTS[gate.status], text
 
 
 def _level_label(p: PtcPoint) -> str:

@@ -15,6 +15,7 @@ from ccdcore_app.pages.photon_transfer import (NO_PTC_MESSAGE, PhotonTransferPag
                                        verdict_message)
 from ccdcore_app.state import AppState
 from ccdcore.common import check_roi, format_pm
+from ccdcore.guide import ptc_gate
 from ccdcore.errors import CcdError
 from ccdcore.io import write_image
 from ccdcore.noise import USER_EXCLUDED, photon_transfer
@@ -82,7 +83,7 @@ def test_demo_fit_equals_photon_transfer(state, healey94, demo_pt):
     assert set(table["symbol"]) >= {"A", "1/A", "\u03c3\u00b2_C", "\u03c3_R", "A\u00b7\u03c3_R",
                                      "q\u00b2/12", "b\u2080", "\u03c7\u00b2", "\u03bd", "Q"}
     assert page.verdict_alert.visible and page.verdict_alert.alert_type == "success"
-    assert "acceptable" in page.verdict_alert.object.lower()
+    assert page.verdict_alert.object.startswith("**Passed**")
     drawn_points, drawn_fit = page.drawn                  # what the three plots draw
     assert len(drawn_points) == 8 and drawn_fit is page.result
     assert len(page.points_table.object) == 8
@@ -266,19 +267,26 @@ def test_format_pm_and_verdicts(demo_pt):
     assert format_pm(12346.0, 678.0) == "12350 \u00b1 680"
     assert format_pm(float("nan"), 1.0) == "n/a"
     assert format_pm(2.5) == "2.5"
+    # the page shows the gate of ccdcore.guide in the Walkthrough's words (one verdict)
     kind, text = verdict_message(demo_pt)
-    assert kind == "success" and format_pm(demo_pt.Q) in text
-    for verdict, expected in (("poor", "warning"), ("model rejected", "danger"),
-                              ("untested (no degrees of freedom)", "info")):
-        assert verdict_message(dataclasses.replace(demo_pt, verdict=verdict))[0] == expected
-    # a poor fit names the two levels farthest off the line, in σ (what to exclude or check)
-    z = {p.level: (p.var - (demo_pt.A * p.mu + demo_pt.sigma_c2)) / p.var_err
-         for p in demo_pt.points if p.used}
+    gate = ptc_gate(demo_pt)
+    assert kind == "success" and text.startswith(f"**{gate.label}** \u2014 {gate.summary}")
+    assert gate.label == "Passed" and f"Q = {demo_pt.Q:.3g}" in text
+    # a level 30 % off the line, resolved by its errors: failed, naming the two worst levels
+    used = [p for p in demo_pt.points if p.used]
+    bad = used[len(used) // 2]
+    points = tuple(dataclasses.replace(p, var=p.var * 1.3) if p is bad else p
+                   for p in demo_pt.points)
+    off = dataclasses.replace(demo_pt, points=points, chi2=1e4, Q=1e-30)
+    kind, text = verdict_message(off)
+    assert kind == "danger" and text.startswith("**Failed**")
+    assert ptc_gate(off).summary in text
+    z = {p.level: (p.var - (off.A * p.mu + off.sigma_c2)) / p.var_err
+         for p in off.points if p.used}
     worst = sorted(z, key=lambda lv: -abs(z[lv]))[:2]
-    assert demo_pt.worst_levels(2) == [(lv, z[lv]) for lv in worst]
-    text = verdict_message(dataclasses.replace(demo_pt, verdict="poor"))[1]
-    assert text.endswith("Largest residuals: " + ", ".join(
-        f"level {lv} ({z[lv]:+.1f} \u03c3)" for lv in worst) + ".")
+    assert off.worst_levels(2) == [(lv, z[lv]) for lv in worst] and worst[0] == bad.level
+    assert "largest residuals: " + ", ".join(
+        f"level {lv} ({z[lv]:+.1f} \u03c3)" for lv in worst) in text
     frame = parameter_frame(demo_pt, (192, 256))
     assert "full frame (256 \u00d7 192 px)" in frame.iloc[-1]["value"]
     assert "from the manifest" in frame[frame["symbol"] == "b\u2080"].iloc[0]["value"]

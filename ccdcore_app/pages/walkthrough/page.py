@@ -75,9 +75,7 @@ def gate_markdown(gate: Gate | None) -> str:
     """A gate as Markdown: its summary, why, and what to do next."""
     if gate is None:
         return "Not run yet."
-    label = {GateStatus.PASS: "Passed", GateStatus.WARN: "Passed with warnings",
-             GateStatus.FAIL: "Failed", GateStatus.SKIP: "Skipped"}[gate.status]
-    lines = [f"**{label}:** {gate.summary}"]
+    lines = [f"**{gate.label}:** {gate.summary}"]
     if gate.reasons:
         lines += [""] + [f"- {r}" for r in gate.reasons]
     if gate.next:
