@@ -286,3 +286,14 @@ def test_out_of_memory_is_one_line_naming_the_input(capsys, tmp_path, monkeypatc
     assert code == 2
     line = one_line(err)
     assert "not enough memory" in line and "3.18 GiB" in line and str(root) in line
+
+
+@pytest.mark.parametrize("preset, size", [("healey94", "16x16"), ("change", "8x8")])
+def test_simulate_too_small_names_size(capsys, tmp_path, preset, size):
+    """A frame too small for a preset's layout is refused naming --size and the smallest size
+    that works, not an internal option the user never gave."""
+    code, out, err = run(capsys, "simulate", preset, tmp_path / "s", "--size", size)
+    assert code == 2
+    line = one_line(err)
+    assert line.startswith("ccdcore simulate: error: size: ") and "--size" in line
+    assert not (tmp_path / "s").exists()

@@ -188,7 +188,9 @@ def scene_layout(rng: np.random.Generator, shape: tuple[int, int], n_objects: in
         nrows = math.ceil(n / ncols)
         cw, ch = w // ncols, h // nrows
         if cw < 8 or ch < 8:
-            raise CcdError("n_objects", f"{n} objects do not fit a {w}x{h} frame")
+            raise CcdError("size", f"{w}x{h} is too small for {n} objects of at least 8x8 "
+                                   f"pixels each: give a larger --size (e.g. "
+                                   f"{8 * ncols}x{8 * nrows} or more), or fewer n_objects")
         cells = rng.permutation(ncols * nrows)[:n]
         for i, cell in enumerate(sorted(int(c) for c in cells)):
             r, c = divmod(cell, ncols)

@@ -254,7 +254,9 @@ def _check_args(w: int, h: int, n_dark: int, ptc_frames: int, n1: int, n2: int, 
     _check(1 <= int(bits) <= 16, "bits", f"bit depth must be 1..16, got {bits}")
     _check(A > 0 and read_noise_e >= 0 and sigma_K >= 0, "A/read_noise_e/sigma_K",
            "A must be positive and the noise parameters non-negative")
-    _check(2 * scene_margin < min(w, h) - 2, "scene_margin", "margin leaves no ROI")
+    _check(2 * scene_margin < min(w, h) - 2, "size",
+           f"{w}x{h} leaves no scene ROI inside the scene margin of {scene_margin} pixels: give "
+           f"at least {2 * scene_margin + 3} pixels a side (--size), or a smaller scene_margin")
     _check(len(scene_levels) >= 1 and all(0 < f < 1.5 for f in scene_levels), "scene_levels",
            "give at least one scene level as a fraction of the usable range in (0, 1.5)")
 
