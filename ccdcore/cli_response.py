@@ -54,6 +54,9 @@ def print_response(res: Any) -> None:
     for z in codes:
         print(f"  {z:>7} " + " ".join(
             f"{format_pm(float(r.g[z]), float(r.g_err[z])):>20}" for r in res.responses))
+    say("", "noise terms of eq. 7, σ² = σ_s²·(g − b) + σ_c1² + g'²·σ_c2², in the units each "
+            "term needs: σ_s in √g (its variance grows with the signal g), σ_c1 in units of g "
+            "(the signal scale above), σ_c2 in DN (codes, before the curve)")
     for ch, r in zip(res.channels, res.responses):
         noise = ", ".join(f"{label} = {format_pm(v, e, unit=u)}" for label, v, e, u in (
             ("shot noise σ_s", r.sigma_s, r.sigma_s_err, "√g"),
@@ -61,8 +64,7 @@ def print_response(res: Any) -> None:
             ("output/read noise σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
         state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
                  + ("" if r.converged else ", not converged"))
-        say(channel_name(ch), f"noise (eq. 7: σ² = σ_s²·(g − b) + σ_c1² + g'²·σ_c2²) "
-                              f"{noise or 'not estimated'}; {state}")
+        say(channel_name(ch), f"noise {noise or 'not estimated'}; {state}")
         if r.white_balance:
             say(channel_name(ch), "white balance, per exposure: gain a_k/t_k (relative to the "
                                   "nominal time; gauge: zero mean and trend of the logs) and "
@@ -307,7 +309,8 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
         print_json({"source": source, "channels": list(out.channels),
                     "files": [str(p) for p in paths],
                     "flags": {"ok": int(np.sum(out.flag_image() == 0)),
-                              "flagged": int(np.sum(out.flag_image() != 0))},
+                              "flagged": int(np.sum(out.flag_image() != 0)),
+                              **out.flag_counts()},
                     "scheduler": scheduler,
                     "verdict": None if res is None or res.verdict is None
                     else res.verdict.to_dict(),
@@ -325,6 +328,10 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
             print_exposures(calib_exposures, table=False)
         if scheduler != STREAMED_NAME:
             print(f"  merged on {scheduler}")
+        for line in out.describe():
+            say("", line)
+        say("written", "radiance, its sigma (float EXR, one channel per colour) and the flags "
+                       "(PNG: 0 merged, 1 dark bound, 2 saturated bound, 3 from bloomed codes)")
         for p in paths:
             print(f"  {p}")
     return 0

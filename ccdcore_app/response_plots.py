@@ -98,7 +98,7 @@ class ResponseFigure:
     """g(z) per method, the chosen method's band, the true curve; sources updated in place."""
 
     def __init__(self, methods: Sequence[str], labels: dict[str, str], *, height: int = 420):
-        from bokeh.models import ColumnDataSource, HoverTool, Legend
+        from bokeh.models import ColumnDataSource, HoverTool, Legend, LegendItem
         from bokeh.plotting import figure
 
         self.fig = figure(height=height, sizing_mode="stretch_width",
@@ -122,7 +122,11 @@ class ResponseFigure:
             self.lines[m] = line
             items.append((labels.get(m, m), [line]))
         self.truth_line = truth_line
-        self.fig.add_layout(Legend(items=items, location="top_left"))
+        self.legend = Legend(items=[LegendItem(label=label, renderers=r) for label, r in items],
+                             location="top_left")
+        # the truth's entry only where there is a truth (a simulation), never on a real bracket
+        self.legend.items[0].visible = False
+        self.fig.add_layout(self.legend)
         self.fig.add_tools(HoverTool(renderers=list(self.lines.values()),
                                      tooltips=[("z", "@z"), ("g", "@g{0.00000}"),
                                                ("± 1σ", "@err{0.00000}")]))
@@ -149,10 +153,9 @@ class ResponseFigure:
             self.band.data = {"z": [], "lo": [], "hi": []}
         if truth is None:
             self.truth.data = {"z": [], "g": []}
-            self.truth_line.visible = False
         else:
             self.truth.data = {"z": np.arange(truth.size), "g": truth}
-            self.truth_line.visible = True
+        self.truth_line.visible = self.legend.items[0].visible = truth is not None
 
     def curve(self, method: str) -> NDArray:
         """The g shown for ``method`` (tests)."""

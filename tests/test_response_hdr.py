@@ -7,7 +7,7 @@ import pytest
 from ccdcore.errors import CcdError
 from ccdcore.io import read_image
 from ccdcore.response.hdr import (FLAG_BLOOMED, FLAG_DARK, FLAG_OK, FLAG_SATURATED,
-                                  ResponseModel, merge, noise_sigma)
+                                  HdrResult, ResponseModel, merge, noise_sigma)
 from ccdcore.session import open_session
 from ccdcore.simulate.tsin import simulate
 
@@ -98,3 +98,24 @@ def test_colour_channels_and_bad_input():
         merge([rgb[0][..., 0]] * 3, models["R"])
     with pytest.raises(CcdError, match="integer codes"):
         merge([np.zeros((3, 3)), np.zeros((3, 3))], models["R"])
+
+
+def test_flag_counts_and_the_description_that_hdr_prints():
+    """flags.png's pixels by flag, counted over the channels' largest flag, and the lines
+    ``hdr`` prints: the radiance's scale, its percentiles over merged pixels, the flags."""
+    flags = np.zeros((4, 5, 3), np.uint8)
+    flags[0, 0, 1] = FLAG_DARK
+    flags[1, 1, :] = FLAG_SATURATED
+    flags[2, 2, 2] = FLAG_BLOOMED
+    flags[2, 2, 0] = FLAG_DARK                   # the largest flag of the pixel counts
+    radiance = np.tile(np.arange(1.0, 21.0).reshape(4, 5)[..., None], (1, 1, 3))
+    res = HdrResult(radiance, 0.05 * radiance, flags, np.ones(flags.shape, np.int16),
+                    ("R", "G", "B"), "rgb")
+    assert res.flag_counts() == {"merged": 17, "dark": 1, "saturated": 1, "bloomed": 1}
+    lines = res.describe()
+    assert "no absolute unit" in lines[0]
+    ok = radiance[flags == FLAG_OK]
+    lo, med, hi = np.percentile(ok, [1, 50, 99])
+    assert f"E {lo:.3g} … {hi:.3g}" in lines[1] and f"median {med:.3g}" in lines[1]
+    assert "median 5 %" in lines[1]
+    assert lines[2].startswith("flags.png: 17 merged (85 %), 1 dark") and "1 saturated" in lines[2]

@@ -110,6 +110,37 @@ class HdrResult:
         """One flag per pixel (the largest over the channels): what ``flags.png`` holds."""
         return self.flags if self.flags.ndim == 2 else self.flags.max(axis=2)
 
+    def flag_counts(self) -> dict[str, int]:
+        """Pixels of :meth:`flag_image` by flag: ``merged``, ``dark`` (an upper bound: dark in
+        every image), ``saturated`` (a lower bound), ``bloomed`` (merged from codes the
+        blooming mask had removed)."""
+        counts = np.bincount(self.flag_image().ravel(), minlength=4)
+        return {name: int(counts[f]) for name, f in (
+            ("merged", FLAG_OK), ("dark", FLAG_DARK), ("saturated", FLAG_SATURATED),
+            ("bloomed", FLAG_BLOOMED))}
+
+    def describe(self) -> list[str]:
+        """What the radiance is, in a few lines: its scale and range, its relative error, and
+        the pixels flagged (the words ``hdr`` prints)."""
+        ok = (self.flags == FLAG_OK) & np.isfinite(self.radiance) & (self.radiance > 0)
+        lines = ["radiance E = g(z)/t per pixel: the relative exposure per second on the "
+                 "response's own scale (g(z_hi) = 0.9), no absolute unit; sigma the same "
+                 "units (eq. 19)"]
+        if ok.any():
+            e = self.radiance[ok]
+            rel = self.sigma[ok] / e
+            lo, med, hi = np.percentile(e, [1, 50, 99])
+            lines.append(f"merged pixels: E {lo:.3g} … {hi:.3g} (1st to 99th percentile, "
+                         f"median {med:.3g}; a range of {hi / lo:.3g}), relative error σ_E/E "
+                         f"median {100 * float(np.median(rel)):.2g} %")
+        c = self.flag_counts()
+        total = max(1, sum(c.values()))
+        lines.append(f"flags.png: {c['merged']} merged ({100 * c['merged'] / total:.3g} %), "
+                     f"{c['dark']} dark in every image (1: an upper bound), {c['saturated']} "
+                     f"saturated in every image (2: a lower bound), {c['bloomed']} merged from "
+                     "codes the blooming mask had removed (3)")
+        return lines
+
 
 def noise_sigma(model: ResponseModel, z: ArrayLike, k: int) -> NDArray[np.float64]:
     """σ(a_k, z) of eq. 7 (linear shot term) for codes ``z`` of image ``k``, in units of g."""

@@ -569,3 +569,17 @@ def test_the_simulators_truth_is_drawn_on_the_reported_scale(wrong_root):
     _, z_hi = reference_codes(256)
     assert drawn[z_hi] == pytest.approx(z_hi / 255, rel=1e-12)
     np.testing.assert_allclose(drawn / drawn[z_hi], truth / truth[z_hi], rtol=1e-12)
+
+
+def test_the_truths_legend_entry_only_where_there_is_a_truth():
+    """A simulation shows its truth's line and legend entry; a bracket without truth.json (a
+    real camera's) shows neither."""
+    from ccdcore_app.response_plots import ResponseFigure
+
+    curves = ResponseFigure(list(METHODS), {m: m for m in METHODS})
+    g = np.linspace(0.0, 1.0, 256)
+    curves.show({"tsin": (g, 0.01 * g)}, "tsin", False, truth=g ** 1.2)
+    assert curves.truth_line.visible and curves.legend.items[0].visible
+    assert curves.legend.items[0].label.value == "simulator's truth"
+    curves.show({"tsin": (g, 0.01 * g)}, "tsin", False, truth=None)
+    assert not curves.truth_line.visible and not curves.legend.items[0].visible
