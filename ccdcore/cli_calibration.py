@@ -13,6 +13,7 @@ from typing import Any, Iterable, Sequence
 
 from .channels import LAYOUTS, is_bayer
 from .cli_response import response_args, response_options
+from .cli_session import role_arg
 from .cli_common import (SESSION_HELP, WIDTH, add_verb, channel_name, cluster_args, json_flag,
                          print_json, reducer_of, say, workers_note, workers_note_for)
 from .common import Roi, float_or_nan, format_pm
@@ -156,16 +157,41 @@ def _print_product(product: Any, folder: Path) -> None:
         if name == "dark":
             for note in summary.notes:
                 say("dark note", note, indent="    ")
+        elif name == "flat_field":
+            for note in summary.notes:
+                say("flat note", note, indent="    ")
+            if summary.held_out is not None and summary.held_out.verdict != "pass":
+                say("warning", "flat field: the held-out flat keeps more nonuniformity than "
+                    "its noise allows: " + summary.held_out.text(), indent="    ")
         elif name == "response":
             for w in summary.warnings:
                 say("warning", f"response: {w}")
     if product.emva1288 is not None:
         _print_emva(product.emva1288)
     print(f"  maps           {', '.join(sorted(product.maps)) or 'none (curves only)'}")
+    for names, used in frames_text(product.frames):
+        say(f"frames of {names}", used, indent="    ")
     for warning in product.warnings:
         say("warning", warning)
     for note in product.notes:
         say("note", note)
+
+
+def frames_text(frames: dict[str, Sequence[str]]) -> list[tuple[str, str]]:
+    """The frames each map was made from, compactly: maps made from the same frames share a
+    line; a list is its count and, per folder and file-name pattern, the first and last name
+    (``"26 frames: bias-Neg5-Vis.00000000.BIAS.FIT … darks-expos60s-Neg5-Vis.00000000.DARK.FIT"``
+    for long lists; every name up to 4)."""
+    by: dict[tuple[str, ...], list[str]] = {}
+    for name in sorted(frames):
+        by.setdefault(tuple(frames[name]), []).append(name)
+    out = []
+    for used, names in by.items():
+        n = len(used)
+        shown = (", ".join(used) if n <= 4 else
+                 f"{', '.join(used[:2])} … {used[-1]}")
+        out.append((", ".join(names), f"{n} frame{'s' if n != 1 else ''}: {shown}"))
+    return out
 
 
 #: the datasheet's sections as the calibrate summary labels them (15 characters at most)
@@ -204,7 +230,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .product import PRODUCT_FILE, calibrate, session_inputs
     from .session import open_session
 
-    session = open_session(args.session)
+    session = open_session(args.session, role=args.role)
     inputs = session_inputs(session)
     # before the work: the product's files must not be (or hold) the session's
     check_outputs(args.out, {PRODUCT_FILE: False, "maps": True}, inputs)
@@ -442,7 +468,10 @@ def add_calibrate(sub: Any) -> None:
     p.add_argument("--dark-exposure", type=_seconds, metavar="SECONDS", default=None,
                    help="with dark frames at several exposures, make the dark reference and "
                         "its hot and dead pixel maps from those at this exposure (default: the "
-                        "one nearest the fixed-pattern, flat or ptc frames' median exposure)")
+                        "one nearest the fixed-pattern, flat or ptc frames' median exposure; "
+                        "with darks and biases at two or more exposures, the dark model's dark "
+                        "at this exposure, default the frames' median exposure)")
+    role_arg(p)
     p.add_argument("-o", "--out", type=Path, required=True,
                    help="product folder to write (new, empty, or an earlier product, which "
                         "is replaced whole: its calibration.json and maps/, so maps this "

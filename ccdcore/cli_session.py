@@ -108,7 +108,7 @@ def _group_text(row: dict) -> str:
 def _cmd_session(args: argparse.Namespace) -> int:
     from .session import draft_manifest, open_session
 
-    session = open_session(args.session)
+    session = open_session(args.session, role=args.role)
     draft = draft_manifest(session) if args.draft else None
     if args.json:
         out = session.to_dict()
@@ -184,6 +184,19 @@ def add_simulate(sub: Any) -> None:
     json_flag(p)
 
 
+def role_arg(p: Any) -> None:
+    """``--role ROLE``: every image of a plain folder takes that role (``ccdcore session`` and
+    ``ccdcore calibrate``)."""
+    # no choices= here: building the parser must not import ccdcore.session (startup time);
+    # open_folder refuses an unknown role in one line
+    p.add_argument("--role", default=None, metavar="ROLE",
+                   help="for a plain folder of images without session.toml: take every image "
+                        "as a frame of this role (dark, ptc, fixed_pattern, flat, bracket, "
+                        "scene, reference, target), e.g. --role flat for a camera's flat "
+                        "fields named as the camera named them (with --draft, the draft says "
+                        "so)")
+
+
 def add_session(sub: Any) -> None:
     p = add_verb(sub, "session", "inspect and validate a capture session", _cmd_session,
                  needs="any session; exits 2 when it has errors")
@@ -191,6 +204,7 @@ def add_session(sub: Any) -> None:
     p.add_argument("--draft", action="store_true",
                    help="write session.toml.draft beside the frames (a manifest to review, e.g. "
                         "for a plain folder or a descriptor)")
+    role_arg(p)
     json_flag(p)
 
 

@@ -33,17 +33,22 @@ as_dark_map(dark, where="dark")
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any, Sequence
 
 import numpy as np
 from scipy import special
 
 from .darkmap import DarkReference, as_dark_map
+from .darkmodel import DarkModel, select_darks
 from .errors import CcdError
 from .reduce import STREAMED, Reducer
+from .session.temperature import TEMPERATURE_TOLERANCE, temperatures_text
 from .stats import MomentsResult
 
-__all__ = ["DarkReference", "dark_reference", "as_dark_map", "exposures_text", "nearest_exposure"]
+__all__ = ["DarkReference", "dark_reference", "dark_reference_from_model", "reference_model",
+           "as_dark_map",
+           "exposures_text", "nearest_exposure"]
 
 #: false-alarm probability per pixel of the "noisy" (temporal variance) rule
 NOISY_ALPHA = 1e-6
@@ -61,13 +66,18 @@ def _check_mono(a: np.ndarray, where: str | None) -> None:
         raise CcdError(where, f"expected a 2-D frame, got shape {a.shape}")
 
 
-def _session_darks(session: Any, exposure: float | None) -> tuple[list, float | None, list[str]]:
+def _session_darks(session: Any, exposure: float | None,
+                   temperature: float | None = None) -> tuple[list, float | None, list[str]]:
     recs = list(session.dark_frames())
     where = str(getattr(session, "root", "session"))
     if not recs:
         raise CcdError(where, "no dark frames (role = 'dark'): the dark reference D̂_D of "
                               "sec. V-A needs lens-capped frames")
-    notes: list[str] = []
+    recs, other, target, notes = select_darks(session, recs, temperature)
+    if not recs:
+        raise CcdError(where, f"no dark frames within {TEMPERATURE_TOLERANCE:g} °C of "
+                              f"{target:g} °C (the dark frames are at "
+                              f"{temperatures_text([r.temperature for r in other])})")
     exposures = sorted({r.exposure for r in recs if r.exposure is not None})
     if exposure is not None:
         recs = [r for r in recs if r.exposure is not None and math.isclose(r.exposure, exposure,
@@ -106,7 +116,8 @@ def nearest_exposure(exposures: Sequence[float], target: float) -> float:
 
 def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
                    noisy_factor: float = 1.0, exposure: float | None = None,
-                   reducer: Reducer | None = None) -> DarkReference:
+                   reducer: Reducer | None = None,
+                   temperature: float | None = None) -> DarkReference:
     """Average dark frames into the dark reference image D̂_D(a, b) (sec. V-A, eq. 43).
 
     Parameters
@@ -121,6 +132,11 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
         Multiplies the χ² threshold of the temporal-variance ("noisy"/RTS) rule; ``inf`` disables.
     exposure
         With a session whose darks have several exposures, the exposure to use (seconds).
+    temperature
+        With a session: use only the darks within
+        :data:`~ccdcore.session.temperature.TEMPERATURE_TOLERANCE` of this temperature (°C);
+        default the temperature of the frames they correct (flat, fixed-pattern, ptc), else
+        the one most darks share (:func:`ccdcore.darkmodel.select_darks`; noted).
     reducer
         Runs the moments (:mod:`ccdcore.reduce`; default streamed here). On a Dask cluster
         (:class:`ccdcore.distributed.DaskReducer`) they are reduced in bands of rows, each
@@ -140,7 +156,7 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
     """
     session = frames_or_session if _is_session(frames_or_session) else None
     if session is not None:
-        items, exp, notes = _session_darks(session, exposure)
+        items, exp, notes = _session_darks(session, exposure, temperature)
     else:
         items, exp, notes = frames_or_session, exposure, []
         if isinstance(items, np.ndarray) and items.ndim == 2:
@@ -149,7 +165,49 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
     res, _ = (reducer or STREAMED).moments(
         items, what="dark", session=session, check=lambda name, a: _check_mono(a, name),
         name=lambda k: f"dark frame {k}", empty="no dark frames given")
-    return _reference(res, exp, notes, hot_sigma, noisy_factor)
+    ref = _reference(res, exp, notes, hot_sigma, noisy_factor)
+    if session is not None:
+        ref = replace(ref, frames=tuple(r.relpath for r in items))
+    return ref
+
+
+def reference_model(session: Any, wanted: float | None) -> DarkModel | None:
+    """The dark model (:func:`ccdcore.darkmodel.session_dark_model`) the dark reference at
+    exposure ``wanted`` should come from, or ``None`` when the darks are averaged as they are:
+    ``None`` when ``wanted`` is unknown, when the darks at the matched temperature have fewer
+    than two exposures (or one without an exposure), or when two or more of them are at
+    ``wanted`` itself (their average is D̂_D of sec. V-A)."""
+    from .darkmodel import session_dark_model
+
+    if wanted is None:
+        return None
+    recs, _, target, _ = select_darks(session, session.dark_frames(), None)
+    exps = {r.exposure for r in recs}
+    exact = [r for r in recs if r.exposure is not None
+             and math.isclose(r.exposure, wanted, rel_tol=1e-6)]
+    if len(exps) < 2 or None in exps or len(exact) >= 2:
+        return None
+    return session_dark_model(session, temperature=target)
+
+
+def dark_reference_from_model(model: DarkModel, exposure: float, *, hot_sigma: float = 6.0,
+                              noisy_factor: float = 1.0,
+                              notes: tuple[str, ...] = ()) -> DarkReference:
+    """The dark reference D̂_D at ``exposure`` from the dark model o + c·t (sec. V-A, eq. 43;
+    :mod:`ccdcore.darkmodel`): D̂_D = o + c·t, the temporal variance σ²_N = φ·σ²(t) of one
+    frame at t (``var_map``), the model's own error variance (``err_var_map``, which
+    :attr:`DarkReference.sem_map` uses) and the hot/dead rules of :func:`dark_reference` with
+    ``s`` = the frames fitted (the noisy rule's χ² then has s − 1 degrees of freedom where the
+    fit leaves s − 2: a slightly looser threshold)."""
+    t = float(exposure)
+    res = MomentsResult(mean=model.dark_at(t), var=model.noise_var_at(t), n=model.n)
+    lead = [f"from the dark model o + c·t of {model.n} frames ("
+            f"{exposures_text(model.exposures)}"
+            + ("" if model.temperature is None else f", {model.temperature:g} °C")
+            + f") at {t:g} s", *notes, *model.notes]
+    ref = _reference(res, t, lead, hot_sigma, noisy_factor)
+    return replace(ref, frames=model.frames, err_var_map=model.error_var_at(t),
+                   model=model.summary())
 
 
 def _reference(res: MomentsResult, exp: float | None, notes: list[str], hot_sigma: float,

@@ -19,14 +19,15 @@ as_dark_map(dark, where="dark")
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .common import json_safe
+from .darkmodel import DarkModelSummary
 from .errors import CcdError
-from .records import Record, Row
+from .records import OMIT_NONE, Record, Row
 
 __all__ = ["DarkReference", "DarkSummary", "as_dark_map"]
 
@@ -54,6 +55,13 @@ class DarkReference:
         Exposure time of the dark frames (seconds) when known and common, else ``None``.
     notes
         Diagnostics (rules skipped, frames of several exposures ...).
+    frames
+        Relative paths of the dark frames it was made from (when known).
+    err_var_map
+        The error variance of D̂_D per pixel when it is not ``var_map/s`` (a dark from the
+        dark model o + c·t, :mod:`ccdcore.darkmodel`), else ``None``.
+    model
+        The dark model's summary when D̂_D came from it.
     """
 
     mean_map: np.ndarray
@@ -67,6 +75,9 @@ class DarkReference:
     dead_rule: str
     exposure: float | None = None
     notes: tuple[str, ...] = ()
+    frames: tuple[str, ...] = ()
+    err_var_map: np.ndarray | None = None
+    model: DarkModelSummary | None = None
 
     @property
     def shape(self) -> tuple[int, ...]:
@@ -74,7 +85,10 @@ class DarkReference:
 
     @property
     def sem_map(self) -> np.ndarray:
-        """Standard error of D̂_D per pixel, ``sqrt(var_map / s)`` (σ_N/√s, sec. V-A)."""
+        """Standard error of D̂_D per pixel, ``sqrt(var_map / s)`` (σ_N/√s, sec. V-A), or the
+        dark model's (``sqrt(err_var_map)``)."""
+        if self.err_var_map is not None:
+            return np.sqrt(self.err_var_map)
         return np.sqrt(self.var_map / self.s)
 
     @property
@@ -106,7 +120,7 @@ class DarkReference:
             spatial_std_good=json_safe(float(self.mean_map[good].std())) if good.any() else None,
             n_hot=int(self.hot_mask.sum()), n_dead=int(self.dead_mask.sum()),
             hot_rule=self.hot_rule, dead_rule=self.dead_rule,
-            exposure=json_safe(self.exposure), notes=tuple(self.notes))
+            exposure=json_safe(self.exposure), notes=tuple(self.notes), model=self.model)
 
     def to_dict(self) -> dict[str, Any]:
         """Summary statistics only (no maps), JSON-friendly: :meth:`summary` as its JSON
@@ -145,6 +159,8 @@ class DarkSummary(Record):
     exposure: float | None = None
     #: diagnostics (rules skipped, frames of several exposures ...)
     notes: tuple[str, ...] = ()
+    #: the dark model o + c·t D̂_D came from (:mod:`ccdcore.darkmodel`), when it did
+    model: DarkModelSummary | None = field(default=None, metadata=OMIT_NONE)
 
     def rows(self) -> tuple[Row, ...]:
         """The headline figures: frames, exposure, mean level, spatial spread, temporal noise,
@@ -161,7 +177,7 @@ class DarkSummary(Record):
                 "mean per-pixel variance (eq. 43)"),
             Row("hot pixels", self.n_hot, meaning=self.hot_rule),
             Row("dead pixels", self.n_dead, meaning=self.dead_rule),
-        )
+        ) + (() if self.model is None else self.model.rows())
 
 
 def as_dark_map(dark: DarkReference | np.ndarray | float, where: str = "dark") -> np.ndarray:

@@ -62,7 +62,13 @@ FlatChannelSummary, FlatFieldSummary
 flat_field(dark_frames, base_frames, ...)
     G and O from dark and base frames (eqs. 1–4).
 flat_field_from_session(session, ...)
-    The same from a session: setting, darks at the base exposure, ``base="auto"``.
+    The same from a session: setting, darks at the base exposure and temperature (or the dark
+    model o + c·t of :mod:`ccdcore.darkmodel`, or DL_0 = 0 without darks), ``base="auto"``.
+FlatDark, session_dark(session, groups, key, ...)
+    The dark image DL_0 chosen for a flat group.
+held_out_check(session, groups, key, dark, ...)
+    G, O from all flats of a group but one; that one corrected against the noise floor
+    (:mod:`ccdcore.flatcheck`).
 correct(frame, G, O)
     DL_c = O + G·DL as float32 (for saved maps).
 BaseRecommendation, recommend_base(session, ...)
@@ -85,7 +91,7 @@ SettingsComparison, KMapComparison), correct and the three defaults are defined 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
@@ -93,8 +99,11 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import uniform_filter
 
 from .channels import channel_names, channel_slices, check_layout, split_channels
-from .common import named_frames, sort_key
+from .common import group_by, named_frames, sort_key
 from .darkframe import DarkReference
+from .darkmodel import DarkModel, select_darks, session_dark_model
+from .flatcheck import HELD_OUT_FACTOR, HeldOutCheck, held_out_figures
+from .session.temperature import TEMPERATURE_TOLERANCE, temperatures_text
 from .errors import CcdError
 from .flatfield_results import (NOISE_LIMIT, WINDOW, ZERO_LIMIT, BaseRecommendation, BaseStudy,
                                 FlatChannel, FlatChannelSummary, FlatField, FlatFieldSummary,
@@ -107,7 +116,7 @@ __all__ = ["FlatChannel", "FlatField", "FlatChannelSummary", "FlatFieldSummary",
            "flat_field_from_session", "correct", "BaseRecommendation", "recommend_base",
            "BaseStudy", "base_image_study", "ZeroDark", "zero_dark", "SettingsComparison",
            "compare_dark_settings", "KMapComparison", "compare_with_k_map", "NOISE_LIMIT",
-           "WINDOW", "ZERO_LIMIT"]
+           "WINDOW", "ZERO_LIMIT", "FlatDark", "session_dark", "held_out_check"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -263,30 +272,133 @@ def _gain_offset(dark: MomentsResult, dname: str, base: MomentsResult, bname: st
 
 
 def _pick_darks(session: Any, setting: str | None, gain: float | None,
-                exposure: float | None) -> tuple[tuple, float | None, list[str]]:
-    groups = session.dark_groups(setting=setting, gain=gain)
+                exposure: float | None, recs: Sequence[Any] | None = None
+                ) -> tuple[tuple, float | None, list[str]]:
+    """Dark frames at ``exposure`` (of ``recs``, default every dark of the setting and gain)."""
+    groups = (session.dark_groups(setting=setting, gain=gain) if recs is None
+              else group_by(recs, lambda r: r.exposure))
     where = str(session.root)
     if not groups:
         raise CcdError(where, "no dark frames (role = 'dark')"
                        + (f" with setting = {setting!r}" if setting else "")
                        + ": the flat-field correction needs the dark image DL_0")
     if exposure is not None:
-        for t, recs in groups.items():
+        for t, rs in groups.items():
             if t is not None and math.isclose(t, exposure, rel_tol=1e-6):
-                return recs, t, []
+                return rs, t, []
     if None in groups:
         return groups[None], None, ["dark frames without exposure time used"]
     if len(groups) == 1:
-        t, recs = next(iter(groups.items()))
-        return recs, t, [f"dark frames at {t} s used for base frames at {exposure} s"]
+        t, rs = next(iter(groups.items()))
+        return rs, t, [f"dark frames at {t} s used for base frames at {exposure} s"]
     have = ", ".join(str(t) for t in groups)
     raise CcdError(where, f"no dark frames at exposure {exposure} s (have {have} s); pass "
                           "dark_exposure=")
 
 
+@dataclass(frozen=True, eq=False)
+class FlatDark:
+    """The dark image DL_0 chosen for a flat group (:func:`session_dark`).
+
+    ``source`` is what :func:`flat_field` takes (dark records, or the moments of the model or
+    of zero); ``kind`` is ``None`` (dark frames averaged), ``"model"`` or ``"zero"``."""
+
+    source: Any
+    exposure: float | None
+    notes: tuple[str, ...]
+    frames: tuple[str, ...]
+    kind: str | None = None
+    model: DarkModel | None = None
+
+    def text(self) -> str:
+        """DL_0 in a few words, for the held-out check's record."""
+        at = "" if self.exposure is None else f" at {self.exposure:g} s"
+        return {"zero": "zero dark (DL_0 = 0)", "model": f"dark model o + c·t{at}"}.get(
+            self.kind or "", f"{len(self.frames)} dark frames{at}")
+
+
+def session_dark(session: Any, groups: Mapping, key: tuple, *, setting: str | None = None,
+                 gain: float | None = None, dark_exposure: float | None = None,
+                 dark_model: DarkModel | None = None) -> FlatDark:
+    """DL_0 for the flat group ``key`` of ``groups``: darks matched to its temperature.
+
+    * no dark frames at all (and no ``dark_model``): de Lasarte's zero-dark form, DL_0 = 0
+      (noted);
+    * darks (biases included) within the temperature tolerance of the flats
+      (:func:`ccdcore.darkmodel.select_darks`) with two or more frames at the flats' exposure
+      (or at ``dark_exposure`` when named), or at one exposure only: their average, as eqs.
+      1-4 take DL_0 (:func:`_pick_darks`);
+    * otherwise, matched darks at two or more exposures: the dark model o + c·t
+      (:mod:`ccdcore.darkmodel`) at the flats' exposure (``dark_model`` when given and at the
+      flats' temperature, else fitted; a session without darks uses a given model as it
+      is), not the
+      darks of the nearest exposure; ``dark_exposure`` then serves the dark reference only
+      (noted when it differs).
+
+    Raises
+    ------
+    CcdError
+        Darks but none within the tolerance of the flats' temperature (naming both).
+    """
+    recs = list(session.select("dark", setting=setting, gain=gain))
+    base_recs = groups[key]
+    t_base = key[1]
+    if not recs and dark_model is None:
+        shape = session.header(base_recs[0]).shape
+        zero = MomentsResult(mean=np.zeros(shape), var=np.zeros(shape), n=0)
+        return FlatDark(zero, None, ("no dark frames: the flat field is made in de Lasarte's "
+                                     "zero-dark form, DL_0 = 0 (eqs. 1-4 with a zero dark "
+                                     "image; the camera's black level, if any, stays in the "
+                                     "frames and in G)",), (), "zero")
+    temps = [r.temperature for r in base_recs if r.temperature is not None]
+    target = float(np.median(temps)) if temps else None
+    if recs:                  # a model given is reused only where the darks call for one
+        given = dark_model if dark_model is not None and (
+            target is None or dark_model.temperature is None
+            or abs(dark_model.temperature - target) <= TEMPERATURE_TOLERANCE) else None
+        dark_model = None
+        matched, other, target, notes = select_darks(session, recs, target)
+        if not matched:
+            raise CcdError(str(session.root), f"no dark frames within {TEMPERATURE_TOLERANCE:g} "
+                                              f"°C of the flats' {target:g} °C (the dark frames "
+                                              "are at "
+                                              f"{temperatures_text([r.temperature for r in other])}"
+                                              "): the flat field needs darks at its temperature")
+        exps = {r.exposure for r in matched}
+        want = t_base if dark_exposure is None else dark_exposure
+        exact = [r for r in matched if want is not None and r.exposure is not None
+                 and math.isclose(r.exposure, want, rel_tol=1e-6)]
+        if len(exps) >= 2 and None not in exps and len(exact) < 2:
+            dark_model = given or session_dark_model(session, temperature=target,
+                                                     setting=setting, gain=gain)
+        else:
+            picked, t_used, more = _pick_darks(session, setting, gain,
+                                               t_base if dark_exposure is None else dark_exposure,
+                                               matched)
+            if dark_exposure is not None and t_base is not None and t_used is not None and \
+                    not math.isclose(t_used, t_base, rel_tol=1e-6):
+                more = [*more, f"DL_0 from the {len(picked)} dark frames at {t_used:g} s, as "
+                               f"named (the base flats are at {t_base:g} s)"]
+            return FlatDark(picked, t_used, tuple(notes + more),
+                            tuple(r.relpath for r in picked))
+    t = 0.0 if t_base is None else float(t_base)
+    notes = [f"DL_0 from the dark model o + c·t of {dark_model.n} biases and darks (exposures "
+             + ", ".join(f"{x:g}" for x in dark_model.exposures) + " s"
+             + ("" if dark_model.temperature is None else f", {dark_model.temperature:g} °C")
+             + f") at the flats' {t:g} s", *dark_model.notes]
+    if t_base is None:
+        notes.append("the flats have no exposure time: the model's offset (t = 0) is DL_0")
+    if dark_exposure is not None and not math.isclose(dark_exposure, t, rel_tol=1e-6):
+        notes.append(f"dark_exposure {dark_exposure:g} s is not used for the flat field: its "
+                     f"DL_0 is the model's dark at the flats' own {t:g} s")
+    return FlatDark(dark_model.moments_at(t), t, tuple(notes), dark_model.frames, "model",
+                    dark_model)
+
+
 def flat_field_from_session(session: Any, *, setting: str | None = None,
                             base: tuple[Any, Any] | str = "auto", gain: float | None = None,
                             dark_exposure: float | None = None, reducer: Reducer | None = None,
+                            dark_model: DarkModel | None = None, held_out: bool = False,
                             **options: Any) -> FlatField:
     """:func:`flat_field` from a session's frames.
 
@@ -304,9 +416,18 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
         Gain setting, when the session has several.
     dark_exposure
         Exposure of the dark frames; default the base frames' exposure (a single dark exposure,
-        or darks without exposure, are used as they are, noted).
+        or darks without exposure, are used as they are, noted).  With darks at two or more
+        exposures the dark model serves instead, at the base exposure (:func:`session_dark`).
     reducer
         Runs the averages (see :func:`flat_field`; bit-identical maps on a cluster).
+    dark_model
+        A :class:`~ccdcore.darkmodel.DarkModel` to take DL_0 from (at the base exposure);
+        default: fitted when the matched darks have two or more exposures.
+    held_out
+        Also make the held-out check (:func:`held_out_check`) into ``FlatField.held_out``.
+
+    Only darks within the temperature tolerance of the base flats are used; with no dark
+    frames at all, DL_0 = 0 (de Lasarte's zero-dark form, noted; ``dark_source = "zero"``).
     **options
         ``k``, ``noise_limit``, ``window`` of :func:`flat_field`.
     """
@@ -326,12 +447,57 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
         if key not in groups:
             raise CcdError("base", f"no flat group (level, exposure) = {key}; have "
                                    f"{', '.join(map(str, groups))}")
-    t = key[1] if dark_exposure is None else dark_exposure
-    darks, t_used, more = _pick_darks(session, setting, gain, t)
-    ff = flat_field(darks, groups[key], layout=session.camera.layout, reducer=reducer,
+    dark = session_dark(session, groups, key, setting=setting, gain=gain,
+                        dark_exposure=dark_exposure, dark_model=dark_model)
+    ff = flat_field(dark.source, groups[key], layout=session.camera.layout, reducer=reducer,
                     session=session, **options)
-    return replace(ff, base_key=key, setting=setting, dark_exposure=t_used,
-                   notes=tuple(notes + more) + ff.notes)
+    ff = replace(ff, base_key=key, setting=setting, dark_exposure=dark.exposure,
+                 notes=tuple(notes) + dark.notes + ff.notes, dark_source=dark.kind,
+                 dark_model=dark.model, base_frames=tuple(r.relpath for r in groups[key]),
+                 dark_frames=dark.frames)
+    if held_out:
+        ff = replace(ff, held_out=held_out_check(session, groups, key, dark, **options))
+    return ff
+
+
+def held_out_check(session: Any, groups: Mapping, key: tuple, dark: FlatDark, *,
+                   factor: float = HELD_OUT_FACTOR, hold_out: int = -1,
+                   **options: Any) -> HeldOutCheck | None:
+    """The held-out check (:mod:`ccdcore.flatcheck`) of flat group ``key``: G, O from all its
+    flats but one (``hold_out``, an index into the group's frames, default the last), that
+    one corrected and its SNUP compared with the noise floor; ``None`` with fewer than three
+    flats (two to fit with a variance, one to hold out).  ``dark`` is the :class:`FlatDark`
+    of the group (the same DL_0 as the maps').  Streamed: the fitted flats are read once more,
+    the held-out one once."""
+    recs = list(groups[key])
+    if len(recs) < 3:
+        return None
+    held = recs.pop(hold_out)
+    scaled = PixelMoments()
+    lay = check_layout(session.header(held).shape, session.camera.layout, held.relpath)
+    ref: dict[str, float] = {}
+
+    def frames() -> Iterable[tuple[Any, NDArray]]:
+        # each fitted flat also goes, scaled to the first one's level per channel, into the
+        # moments whose variance is the floor's temporal noise (a lamp's frame-to-frame level
+        # change is not pixel noise)
+        for rec, frame in session.iter_frames(recs):
+            a = np.array(frame, dtype=np.float64)
+            for c, idx in channel_slices(a.shape, lay).items():
+                m = float(a[idx].mean())
+                a[idx] *= ref.setdefault(c, m) / m if m else 1.0
+            scaled.add(a, name=rec.relpath)
+            yield rec, frame
+    src = dark.source
+    if not isinstance(src, (MomentsResult, DarkReference)):
+        src = session.iter_frames(list(src))          # dark records: read them
+    ff = flat_field(src, frames(), layout=session.camera.layout, **options)
+    level, t = key
+    group = (f"level {'–' if level is None else level}, exposure "
+             + ("–" if t is None else f"{t:g} s"))
+    return held_out_figures(ff, session.read(held), n_fit=len(recs), held_out=held.relpath,
+                            group=group, dark=dark.text(), factor=factor,
+                            temporal_var=scaled.result().var)
 
 
 # --------------------------------------------------------------------------------------------
@@ -410,17 +576,21 @@ def recommend_base(session: Any, *, setting: str | None = None, gain: float | No
 
 def _base_maps(session, setting, gain, keys, groups, **options
                ) -> dict[tuple, tuple[NDArray[np.float32], NDArray[np.float32], str, float]]:
-    """``(G, O, layout, mean base level over channels)`` of each candidate base, darks at its
-    exposure.  Only the float32 G and O are kept (not the float64 means and variances of
-    DL_0 and DL_B), and one dark average at a time: candidates are taken by dark exposure."""
-    darks = {key: _pick_darks(session, setting, gain, key[1])[:2] for key in keys}
+    """``(G, O, layout, mean base level over channels)`` of each candidate base, its DL_0
+    chosen by :func:`session_dark` (darks at its exposure and temperature, the dark model or
+    zero).  Only the float32 G and O are kept (not the float64 means and variances of DL_0 and
+    DL_B), and one dark average at a time: candidates are taken by dark exposure."""
+    darks = {key: session_dark(session, groups, key, setting=setting, gain=gain)
+             for key in keys}
     out = {}
-    dark_t, dark = object(), None
-    for key in sorted(keys, key=lambda k: sort_key(darks[k][1])):
-        recs, t = darks[key]
-        if t != dark_t:
-            dark_t, dark = t, None
-            dark = _moments(STREAMED, session.iter_frames(recs), "dark", None, None)[0]
+    dark_id, dark = object(), None
+    for key in sorted(keys, key=lambda k: sort_key(darks[k].exposure)):
+        fd = darks[key]
+        ident = (fd.kind, fd.exposure, fd.frames)
+        if ident != dark_id:
+            dark_id = ident
+            dark = fd.source if fd.kind is not None else \
+                _moments(STREAMED, session.iter_frames(fd.source), "dark", None, None)[0]
         ff = flat_field(dark, session.iter_frames(groups[key]), layout=session.camera.layout,
                         **options)
         out[key] = (ff.G, ff.O, ff.layout, float(np.mean([c.base_level for c in ff.channels])))
@@ -661,21 +831,22 @@ def compare_with_k_map(session: Any, *, setting: str | None = None, gain: float 
     lay = ff.layout
     dark_cache: dict[Any, NDArray] = {}
 
-    def dark_at(t):
-        recs, tt, _ = _pick_darks(session, setting, gain, t)
-        if tt not in dark_cache:
-            dark_cache[tt] = _moments(STREAMED, session.iter_frames(recs), "dark", None,
-                                      None)[0].mean
-        return dark_cache[tt]
+    def dark_at(key):
+        fd = session_dark(session, groups, key, setting=setting, gain=gain)
+        ident = (fd.kind, fd.exposure, fd.frames)
+        if ident not in dark_cache:
+            dark_cache[ident] = fd.source.mean if fd.kind is not None else _moments(
+                STREAMED, session.iter_frames(fd.source), "dark", None, None)[0].mean
+        return dark_cache[ident]
 
     e = {key: _moments(STREAMED, session.iter_frames(groups[key]), "flat", None, None)[0].mean
-         - dark_at(key[1]) for key in configs}
+         - dark_at(key) for key in configs}
     K = np.empty(ff.shape, np.float64)
     for c, idx in channel_slices(ff.shape, lay).items():
         fp = fixed_pattern_map({key: np.ascontiguousarray(v[idx]) for key, v in e.items()},
                                np.zeros(np.shape(K[idx])), window=window, p=p)
         K[idx] = fp.K
-    d_eval = dark_at(evaluate[1])
+    d_eval = dark_at(evaluate)
     acc = PixelMoments()
     sn: dict[str, dict[str, list[float]]] = {}
     for r, frame in session.iter_frames(groups[evaluate]):

@@ -27,16 +27,18 @@ NOISE_LIMIT, WINDOW, ZERO_LIMIT
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .common import json_safe
+from .darkmodel import DarkModelSummary
 from .errors import CcdError
+from .flatcheck import HeldOutCheck
 from .map_names import MapName
-from .records import Record, Row
+from .records import OMIT_NONE, Record, Row
 from .stats import MomentsResult
 from .uniformity import Linearity
 
@@ -139,6 +141,14 @@ class FlatFieldSummary(Record):
     dark_exposure: float | None
     #: decisions taken (setting chosen, base recommended, zero-clipped dark image ...)
     notes: tuple[str, ...]
+    #: where DL_0 came from when not the average of dark frames at the flats' exposure:
+    #: ``"model"`` (the dark model o + c·t at the base exposure, :mod:`ccdcore.darkmodel`) or
+    #: ``"zero"`` (no dark frames: de Lasarte's zero-dark form, DL_0 = 0); absent otherwise
+    dark_source: str | None = field(default=None, metadata=OMIT_NONE)
+    #: the dark model's summary when DL_0 came from it
+    dark_model: DarkModelSummary | None = field(default=None, metadata=OMIT_NONE)
+    #: the held-out check (:mod:`ccdcore.flatcheck`) when made
+    held_out: HeldOutCheck | None = field(default=None, metadata=OMIT_NONE)
 
     def base_text(self) -> str:
         """The base image as the report names it: ``"level 3, exposure 0.04 s"``."""
@@ -148,9 +158,24 @@ class FlatFieldSummary(Record):
         return (f"level {'–' if level is None else level}, exposure "
                 + ("–" if t is None else f"{t:g} s"))
 
+    def _dark_row(self) -> Row:
+        """The dark image DL_0: frames averaged, the dark model at an exposure, or zero."""
+        at = "" if self.dark_exposure is None else f", exposure {self.dark_exposure:g} s"
+        if self.dark_source == "zero":
+            return Row("dark image", 0, None, "frames", "no dark frames: de Lasarte's zero-dark "
+                       "form, DL_0 = 0 (the black level stays in G and O)", "zero (DL_0 = 0)")
+        if self.dark_source == "model":
+            m = self.dark_model
+            return Row("dark image", self.n_dark, None, "frames",
+                       f"DL_0 = o + c·t from the dark model of {self.n_dark} biases and darks"
+                       + ("" if m is None or m.temperature is None
+                          else f" at {m.temperature:g} °C") + at,
+                       f"dark model ({self.n_dark} frames)")
+        return Row("dark image", self.n_dark, None, "frames", "frames averaged into DL_0" + at)
+
     def rows(self) -> tuple[Row, ...]:
-        """The offset setting, the base and dark images, the flagged pixels, k per channel and
-        the largest fraction of dark pixels at 0."""
+        """The offset setting, the base and dark images, the flagged pixels, k per channel,
+        the held-out check and the largest fraction of dark pixels at 0."""
         out = [Row("correction", None, None, "", "corrected = O + G·raw, pixel by pixel, which "
                    "removes the dark image, the PRNU and the vignetting", "DL_c = O + G·DL"),
                Row("offset setting", None, None, "", "the camera offset setting the maps are for",
@@ -158,15 +183,15 @@ class FlatFieldSummary(Record):
                Row("base image", self.n_base, None, "frames",
                    "the flat group averaged into DL_B",
                    f"{self.base_text()} ({self.n_base} frames)"),
-               Row("dark image", self.n_dark, None, "frames", "frames averaged into DL_0"
-                   + ("" if self.dark_exposure is None
-                      else f", exposure {self.dark_exposure:g} s")),
+               self._dark_row(),
                Row("flagged pixels", self.n_flagged, None, "pixels",
                    f"DL_B − DL_0 not above {self.noise_limit:g}·σ: G taken from the "
                    f"{self.window}×{self.window} neighbourhood")]
         out += [Row(f"k, {c.name}", c.k, None, "DN",
                     "target level k of the channel (eq. 3: G = k / (DL_B − DL_0))")
                 for c in self.channels]
+        if self.held_out is not None:
+            out += list(self.held_out.rows())
         zeros = [c.dark_zero_fraction for c in self.channels if c.dark_zero_fraction is not None]
         if zeros:
             worst = max(zeros)
@@ -201,6 +226,15 @@ class FlatField:
         The base group ``(level, exposure)``, offset setting and dark exposure when known.
     notes
         Decisions taken (setting chosen, zero-clipped dark image ...).
+    dark_source
+        ``None`` (DL_0 the average of dark frames), ``"model"`` (the dark model o + c·t at the
+        base exposure, :mod:`ccdcore.darkmodel`) or ``"zero"`` (no dark frames: DL_0 = 0).
+    dark_model
+        The :class:`~ccdcore.darkmodel.DarkModel` when DL_0 came from it.
+    held_out
+        The held-out check (:mod:`ccdcore.flatcheck`), when made.
+    base_frames, dark_frames
+        Relative paths of the frames averaged into DL_B and into (or fitted for) DL_0.
     """
 
     G: NDArray[np.float32]
@@ -216,6 +250,11 @@ class FlatField:
     setting: str | None = None
     dark_exposure: float | None = None
     notes: tuple[str, ...] = ()
+    dark_source: str | None = None
+    dark_model: Any = None
+    held_out: HeldOutCheck | None = None
+    base_frames: tuple[str, ...] = ()
+    dark_frames: tuple[str, ...] = ()
 
     flag_rule = ("flagged where DL_B − DL_0 <= c·sqrt(s²_B/n_B + s²_0/n_0); there "
                  "G = k / (mean DL_B − DL_0 of the unflagged pixels of the channel in a "
@@ -235,7 +274,8 @@ class FlatField:
     def G_rel_err(self) -> NDArray[np.float64]:
         """Per-pixel relative standard error of G from the temporal noise of DL_B and DL_0:
         σ_G/G = σ_Δ/Δ (NaN where flagged or where one frame gives no variance)."""
-        sd = np.sqrt(self.base.var / self.base.n + self.dark.var / self.dark.n)
+        dvar = self.dark.var / self.dark.n if self.dark.n > 0 else 0.0
+        sd = np.sqrt(self.base.var / self.base.n + dvar)
         with np.errstate(divide="ignore", invalid="ignore"):
             out = sd / (self.base.mean - self.dark.mean)
         out[self.flags] = np.nan
@@ -266,7 +306,9 @@ class FlatField:
             n_flagged=int(self.flags.sum()), noise_limit=json_safe(self.noise_limit),
             window=int(self.window), flag_rule=self.flag_rule, base=base,
             setting=self.setting, dark_exposure=json_safe(self.dark_exposure),
-            notes=tuple(str(n) for n in self.notes))
+            notes=tuple(str(n) for n in self.notes), dark_source=self.dark_source,
+            dark_model=None if self.dark_model is None else self.dark_model.summary(),
+            held_out=self.held_out)
 
     def to_dict(self) -> dict[str, Any]:
         """Summary (no maps), JSON-friendly: :meth:`summary` as a dict."""

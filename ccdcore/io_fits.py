@@ -10,14 +10,14 @@ from __future__ import annotations
 import contextlib
 import warnings
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
 from .errors import CcdError, ImageReadError, ImageWriteError
 from .io_base import LAYOUTS, ImageHeader, float_or_none, int_or, one_line
 
-__all__ = ["fits_header", "read_fits", "read_fits_region", "fits_to_write"]
+__all__ = ["fits_header", "fits_temperature", "read_fits", "read_fits_region", "fits_to_write"]
 
 
 # ---- reading --------------------------------------------------------------------------------
@@ -57,6 +57,18 @@ def _fits_dtype(header, path: Path | None = None) -> np.dtype:
     return np.dtype(table[bitpix])
 
 
+def fits_temperature(h: Any) -> float | None:
+    """The sensor temperature (°C) a FITS header states: the set point ``SET-TEMP`` when
+    present (the temperature the camera regulates to, the same for every frame of a run), else
+    the measured ``CCD-TEMP`` (or ``CCDTEMP``); the measured one stays in the header's
+    attributes."""
+    for key in ("SET-TEMP", "CCD-TEMP", "CCDTEMP"):
+        t = float_or_none(h.get(key))
+        if t is not None:
+            return t
+    return None
+
+
 def fits_header(path: Path) -> ImageHeader:
     hdul, hdu = _fits_hdu(path)
     try:
@@ -71,7 +83,7 @@ def fits_header(path: Path) -> ImageHeader:
         return ImageHeader(path=path, width=width, height=height, channels=channels, dtype=dtype,
                            bits=bits, layout=LAYOUTS.get(channels, f"{channels}-channel"),
                            exposure=exposure, gain=float_or_none(h.get("GAIN", h.get("EGAIN"))),
-                           temperature=float_or_none(h.get("CCD-TEMP", h.get("CCDTEMP"))),
+                           temperature=fits_temperature(h),
                            format="fits", attributes=attrs)
     finally:
         hdul.close()

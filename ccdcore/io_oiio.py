@@ -128,7 +128,9 @@ def header_from_spec(path: Path, spec, format_name: str) -> ImageHeader:
     return ImageHeader(path=path, width=spec.width, height=spec.height,
                        channels=spec.nchannels, dtype=dtype, bits=int(bits),
                        layout=LAYOUTS.get(spec.nchannels, f"{spec.nchannels}-channel"),
-                       exposure=exposure, gain=gain, temperature=None,
+                       exposure=exposure, gain=gain,
+                       temperature=float_or_none(attrs.get("Exif:Temperature",
+                                                           attrs.get("Exif:AmbientTemperature"))),
                        format=format_name, attributes=attrs)
 
 

@@ -65,7 +65,7 @@ __all__ = ["CalibrationProduct", "Estimates", "Skipped", "Requirement", "REQUIRE
            "requirement", "missing_frames", "estimate_all", "scene_error_terms", "budget_inputs",
            "calibrate", "load_product", "apply_product", "COMPRESSIONS", "PRODUCT_FILE",
            "ESTIMATE_STEPS", "session_inputs", "map_problem", "MapName", "ProductEstimates",
-           "Provenance"]
+           "Provenance", "frames_used", "wanted_dark_exposure"]
 
 #: the steps of :func:`estimate_all` in order, with the overall fraction at which each starts
 #: (its ``progress`` receives ``progress(start, name)`` at each, :class:`ccdcore.progress.Steps`;
@@ -124,10 +124,12 @@ REQUIREMENTS: tuple[Requirement, ...] = (
                 "the scene variation V_S of uniform patches (sec. VI)",
                 "uniform surface patches at several light levels (role = scene, patch = NAME "
                 "or an roi)", patches=True),
-    Requirement("flat_field", ("flat", "dark"),
-                "the flat-field gain/offset maps G, O (de Lasarte et al. 2007)",
+    Requirement("flat_field", ("flat",),
+                "the flat-field gain/offset maps G, O (de Lasarte et al. 2007; without dark "
+                "frames in the zero-dark form DL_0 = 0)",
                 "flat fields of a uniform source (role = flat, level, exposure) and dark frames "
-                "at their exposure"),
+                "(and biases) at their temperature, at their exposure or at two or more "
+                "exposures"),
     Requirement("response", ("bracket",),
                 "the inverse response g and the noise terms (Tsin et al. 2001, sec. 3.2)",
                 "an exposure bracket of a static scene (role = bracket, one exposure per "
@@ -200,7 +202,7 @@ def scene_error_terms(dark: DarkReference, fixed_pattern: FixedPattern) -> dict[
     configurations' levels), through which K̂ absorbed the D̂_D error (eq. 46).
     """
     levels = np.asarray(fixed_pattern.config_levels, dtype=np.float64)
-    return {"dark_var": dark.var_map / dark.s, "K_var": float(np.mean(fixed_pattern.K_var)),
+    return {"dark_var": dark.sem_map ** 2, "K_var": float(np.mean(fixed_pattern.K_var)),
             "fp_level": float(1.0 / np.mean(1.0 / levels))}
 
 
@@ -325,7 +327,7 @@ def _emva_figures(run: _Run) -> None:
 def _dark_reference(run: _Run) -> None:
     """``dark`` frames of a mono camera: D̂_D with hot/dead flags, at the fixed-pattern frames'
     exposure when the darks have several."""
-    from .darkframe import dark_reference
+    from .darkframe import dark_reference, dark_reference_from_model, reference_model
 
     session = run.session
     if session.roles().get("dark") and session.camera.layout != Layout.MONO:
@@ -335,6 +337,16 @@ def _dark_reference(run: _Run) -> None:
         return
 
     def make() -> DarkReference:
+        wanted = run.dark_exposure if run.dark_exposure is not None else \
+            wanted_dark_exposure(session)[0]
+        model = reference_model(session, wanted)
+        run.made["dark_model"] = model          # reused by the flat field where it applies
+        if model is not None and wanted is not None:
+            why = "as named" if run.dark_exposure is not None else \
+                "the median exposure of the %s frames" % wanted_dark_exposure(session)[1]
+            return dark_reference_from_model(model, wanted, notes=(
+                f"D̂_D at {wanted:g} s ({why}) from the dark model: fewer than two dark "
+                "frames at that exposure",))
         exposure, note = dark_exposure_for(session, run.dark_exposure)
         ref = dark_reference(session, exposure=exposure, reducer=run.reducer)
         return replace(ref, notes=(note, *ref.notes)) if note else ref
@@ -345,6 +357,17 @@ def _dark_reference(run: _Run) -> None:
 _DARK_MATCH_ROLES = ("fixed_pattern", "flat", "ptc")
 
 
+def wanted_dark_exposure(session: Session) -> tuple[float | None, str | None]:
+    """The median exposure of the fixed-pattern frames, else of the flats, else of the ptc
+    frames, with that role (``(None, None)`` when none has an exposure): the exposure the dark
+    reference is wanted at."""
+    for role in _DARK_MATCH_ROLES:
+        times = [r.exposure for r in session.by_role(role) if r.exposure is not None]
+        if times:
+            return float(np.median(times)), role
+    return None, None
+
+
 def dark_exposure_for(session: Session, named: float | None = None
                       ) -> tuple[float | None, str | None]:
     """The exposure of the dark frames the dark reference (and its hot and dead pixel maps) is
@@ -353,23 +376,23 @@ def dark_exposure_for(session: Session, named: float | None = None
     of the flats, else of the ptc frames (an EMVA 1288 set: the bright frames, whose spatial
     set dominates the median); with none of those, the exposure with the most dark frames."""
     from .darkframe import exposures_text, nearest_exposure
+    from .darkmodel import select_darks
 
-    darks = [r.exposure for r in session.dark_frames() if r.exposure is not None]
+    matched = select_darks(session, session.dark_frames(), None)[0]
+    darks = [r.exposure for r in matched if r.exposure is not None]
     have = sorted(set(darks))
     if named is not None:
         return float(named), (f"dark frames at {exposures_text(have)}: the dark reference is "
                               f"made at {named:g} s, as named" if len(have) > 1 else None)
     if len(have) <= 1:
         return None, None
-    for role in _DARK_MATCH_ROLES:
-        times = [r.exposure for r in session.by_role(role) if r.exposure is not None]
-        if times:
-            target = float(np.median(times))
-            chosen = nearest_exposure(have, target)
-            return chosen, (f"dark frames at {exposures_text(have)}: the dark reference is made "
-                            f"at {chosen:g} s, the nearest to the {role.replace('_', '-')} "
-                            f"frames' median exposure {target:g} s (name another with "
-                            "--dark-exposure)")
+    target, role = wanted_dark_exposure(session)
+    if target is not None and role is not None:
+        chosen = nearest_exposure(have, target)
+        return chosen, (f"dark frames at {exposures_text(have)}: the dark reference is made "
+                        f"at {chosen:g} s, the nearest to the {role.replace('_', '-')} "
+                        f"frames' median exposure {target:g} s (name another with "
+                        "--dark-exposure)")
     counts = {t: darks.count(t) for t in have}
     chosen = max(have, key=lambda t: (counts[t], t))
     return chosen, (f"dark frames at {exposures_text(have)}: the dark reference is made at "
@@ -425,8 +448,9 @@ def _flat_field(run: _Run) -> None:
     """``flat`` frames and darks: the G/O maps."""
     from .flatfield import flat_field_from_session
 
-    run.attempt("flat_field", (), lambda: flat_field_from_session(run.session, base="auto",
-                                                                  reducer=run.reducer))
+    run.attempt("flat_field", (), lambda: flat_field_from_session(
+        run.session, base="auto", reducer=run.reducer, dark_exposure=run.dark_exposure,
+        dark_model=run.made.get("dark_model"), held_out=True))
 
 
 def _response(run: _Run) -> None:
@@ -563,7 +587,32 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     return CalibrationProduct(
         maps=maps, estimates=estimates, camera=session.camera, provenance=provenance,
         skipped=e.skipped, warnings=e.plan_warnings,
-        emva1288=None if e.emva1288 is None else e.emva1288.summary())
+        emva1288=None if e.emva1288 is None else e.emva1288.summary(),
+        frames=frames_used(e, session, maps))
+
+
+def frames_used(e: Estimates, session: Session, maps: Mapping[MapName, Any]
+                ) -> dict[str, tuple[str, ...]]:
+    """Each map -> the relative paths of the frames it was made from (section 3 of the darks
+    and flats issue): the dark reference's darks (or the dark model's frames), K̂'s
+    fixed-pattern frames and darks, the flat field's base flats and the darks of DL_0."""
+    out: dict[str, tuple[str, ...]] = {}
+    dark = tuple(e.dark.frames) if e.dark is not None else ()
+    for name in (MapName.DARK, MapName.DARK_VAR, MapName.HOT, MapName.DEAD):
+        if name in maps and dark:
+            out[name] = dark
+    fp = tuple(r.relpath for r in session.by_role("fixed_pattern")) + dark
+    for name in (MapName.K, MapName.K_VAR, MapName.N1_USED):
+        if name in maps and fp:
+            out[name] = fp
+    if e.flat is not None:
+        base, d0 = tuple(e.flat.base_frames), tuple(e.flat.dark_frames)
+        for name, used in ((MapName.FLAT_G, base + d0), (MapName.FLAT_O, base + d0),
+                           (MapName.FLAT_FLAGS, base + d0), (MapName.FLAT_DARK, d0),
+                           (MapName.FLAT_BASE, base)):
+            if name in maps and used:
+                out[name] = used
+    return out
 
 
 def _assembled(e: Estimates, *, roi: tuple[int, int, int, int] | None, window: int,

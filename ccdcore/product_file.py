@@ -110,6 +110,10 @@ class CalibrationProduct:
         The EMVA 1288 figures (:class:`ccdcore.emva_results.EmvaSummary`, the top-level key
         ``"emva1288"`` of ``calibration.json``), or ``None`` when the session has no photon
         counts (the key is then absent).
+    frames
+        Map name -> the relative paths of the session frames it was made from (the top-level
+        key ``"frames"`` of ``calibration.json``, one list per map; absent in products of
+        earlier releases).
 
     Every field is typed: JSON happens only in :meth:`to_dict` and :func:`load_product`.
     """
@@ -122,6 +126,7 @@ class CalibrationProduct:
     warnings: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     emva1288: EmvaSummary | None = None
+    frames: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     # -------------------------------------------------------------------------------------
     def to_dict(self) -> JsonDict:
@@ -131,6 +136,8 @@ class CalibrationProduct:
                          "estimates": self.estimates.to_dict()}
         if self.emva1288 is not None:
             out["emva1288"] = self.emva1288.to_dict()
+        if self.frames:
+            out["frames"] = {name: list(self.frames[name]) for name in sorted(self.frames)}
         out.update({"skipped": [s.to_dict() for s in self.skipped],
                     "provenance": self.provenance.to_dict(), "warnings": list(self.warnings),
                     "notes": list(self.notes)})
@@ -355,6 +362,10 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
         if not isinstance(doc.get(key, kind()), kind):
             raise CcdError(manifest, f"'{key}' must be a JSON {kind.__name__.replace('dict', 'object')}")
     made, provenance, figures = _records_of(doc, manifest)
+    frames = doc.get("frames", {})
+    if not (isinstance(frames, dict) and all(
+            isinstance(v, list) and all(isinstance(x, str) for x in v) for v in frames.values())):
+        raise CcdError(manifest, "'frames' must map each map name to a list of relative paths")
     try:
         skipped = tuple(Skipped.from_dict(d) for d in doc.get("skipped", ()))
     except (KeyError, TypeError, AttributeError):
@@ -374,4 +385,5 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
                               provenance=provenance, skipped=skipped,
                               warnings=tuple(str(n) for n in doc.get("warnings", ())),
                               notes=tuple(str(n) for n in doc.get("notes", ())),
-                              emva1288=figures)
+                              emva1288=figures,
+                              frames={str(k): tuple(v) for k, v in frames.items()})

@@ -288,3 +288,41 @@ def kmap_frame(comparison: KMapComparison) -> pd.DataFrame:
                         "high-pass residual K\u0302 (%)": pct(r["residual_hf_K_pct"])})
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def dark_text(flat: Any) -> str:
+    """The dark image DL_0 of a :class:`~ccdcore.flatfield.FlatField` in words (markdown): the
+    dark frames averaged, the dark model o + c·t (its frames, temperature and exposure), or
+    de Lasarte's zero-dark form when there were no darks."""
+    if flat.dark_source == "zero":
+        return ("**Dark image DL_0:** zero — no dark frames, so the flat field is made in de "
+                "Lasarte's zero-dark form (DL_0 = 0); the camera's black level stays in G and O")
+    at = "without exposure time" if flat.dark_exposure is None else \
+        f"at {flat.dark_exposure:g} s"
+    if flat.dark_source == "model":
+        m = flat.dark_model
+        temp = "" if m.temperature is None else f" at {m.temperature:g} °C"
+        return (f"**Dark image DL_0:** the dark model o + c·t {at}, fitted per pixel on "
+                f"{m.n} biases and darks{temp} (exposures "
+                f"{', '.join(f'{t:g}' for t in m.exposures)} s; median current "
+                f"{np.median(m.current):.4g} DN/s, {int(m.hot_current.sum())} hot pixels; "
+                f"{len(m.excluded)} darks at other temperatures left out)")
+    n = flat.dark.n
+    return (f"**Dark image DL_0:** {n} dark frame{'s' if n != 1 else ''} {at} (they follow "
+            "the base exposure)")
+
+
+def held_out_frame(check: Any) -> pd.DataFrame:
+    """The held-out check (:class:`ccdcore.flatcheck.HeldOutCheck`) per channel: SNUP of the
+    corrected held-out flat, the noise floor, their ratio, and the verdict."""
+    if check is None:
+        return pd.DataFrame()
+
+    def pct(v: Any) -> str:
+        return "–" if v is None else f"{v:.4g}"
+    return pd.DataFrame([{"channel": c.name, "SNUP before (%)": pct(c.snup_raw),
+                          "SNUP after (%)": pct(c.snup), "floor (%)": pct(c.floor),
+                          "SNUP / floor": "–" if c.ratio is None else f"{c.ratio:.3f}",
+                          "verdict": ("pass" if c.ratio is not None and c.ratio <= check.factor
+                                      else "warn")}
+                         for c in check.channels])

@@ -274,8 +274,10 @@ def test_bad_input(sim, tmp_path):
         ff.correct(np.ones((8, 8, 3)), where="x.tif")
     with pytest.raises(CcdError, match="no flat group"):
         flat_field_from_session(session, setting="NZDI", base=(9, 1.0))
-    with pytest.raises(CcdError, match="no dark frames at exposure"):
-        flat_field_from_session(session, setting="NZDI", base=(3, 0.04), dark_exposure=0.5)
+    # darks at several exposures but none at the one named: the dark model serves, noted
+    ff_m = flat_field_from_session(session, setting="NZDI", base=(3, 0.04), dark_exposure=0.5)
+    assert ff_m.dark_source == "model"
+    assert any("0.5 s is not used for the flat field" in n for n in ff_m.notes)
     with pytest.raises(CcdError, match="setting = 'XYZ'"):
         flat_field_from_session(session, setting="XYZ")
     # a session without darks, and one without flats
@@ -287,8 +289,11 @@ def test_bad_input(sim, tmp_path):
         w.add_frame(f"flat/g{i}.tif", np.full((8, 8), 200, np.uint8), role="flat", level=1,
                     exposure=0.02)
     w.finish({})
-    with pytest.raises(CcdError, match="no dark frames"):
-        flat_field_from_session(open_session(tmp_path / "nodark"), base=(1, 0.01))
+    # no darks: de Lasarte's zero-dark form (DL_0 = 0), noted
+    ff0 = flat_field_from_session(open_session(tmp_path / "nodark"), base=(1, 0.01))
+    assert ff0.dark_source == "zero" and not ff0.dark.mean.any() and ff0.dark.n == 0
+    assert any("zero-dark" in n for n in ff0.notes)
+    assert ff0.summary().dark_source == "zero"
     w = SessionWriter(tmp_path / "noflat", camera={"bits": 8, "layout": "mono"})
     w.add_frame("dark/d.tif", np.full((8, 8), 10, np.uint8), role="dark", exposure=0.01)
     w.finish({})

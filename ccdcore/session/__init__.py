@@ -68,7 +68,8 @@ def _is_emva_descriptor(path: Path) -> bool:
     return False
 
 
-def open_session(path: str | Path, *, check_pixels: bool = False) -> Session:
+def open_session(path: str | Path, *, check_pixels: bool = False,
+                 role: str | None = None) -> Session:
     """Open a capture session.
 
     Parameters
@@ -80,6 +81,11 @@ def open_session(path: str | Path, *, check_pixels: bool = False) -> Session:
     check_pixels
         Also decode every frame once (streamed) to find truncated or corrupt pixel data, see
         :meth:`Session.verify_pixels`.  By default only headers are read.
+    role
+        For a plain folder of images only: every image takes this role (e.g. ``"flat"`` for a
+        camera's flat fields named as the camera named them), see
+        :func:`~ccdcore.session.folder.open_folder`.  Refused for a manifest or a descriptor,
+        whose roles are written in them.
 
     Returns
     -------
@@ -97,9 +103,12 @@ def open_session(path: str | Path, *, check_pixels: bool = False) -> Session:
         raise CcdError(p, "does not exist")
     if not p.is_dir() and not p.is_file():  # opening a FIFO to sniff it would block forever
         raise CcdError(p, "is a FIFO/special file, not a folder, session.toml or descriptor")
+    if role is not None and not (p.is_dir() and not (p / MANIFEST_NAME).exists()):
+        raise CcdError(p, f"--role {role} applies to a plain folder of images; this session's "
+                          "roles are written in its manifest or descriptor")
     if p.is_dir():
         manifest = p / MANIFEST_NAME
-        session = open_manifest(manifest) if manifest.exists() else open_folder(p)
+        session = open_manifest(manifest) if manifest.exists() else open_folder(p, role)
     elif p.suffix.lower() == ".toml":
         session = open_manifest(p)
     elif _is_emva_descriptor(p):

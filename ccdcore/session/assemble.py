@@ -18,6 +18,7 @@ from ..errors import ImageReadError
 from ..io import ImageHeader, check_pixel_limit, pixel_limit, read_header
 from .records import (EXPOSURE_ROLES, MAX_EXPOSURE, MIN_EXPOSURE, ROLES, UNIFORM_ROLES, Camera,
                       FrameRecord, Problem, ProblemCode, Session)
+from .temperature import temperature_problems
 
 __all__ = ["Candidate", "path_problem", "assemble"]
 
@@ -160,6 +161,7 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
                                    **meta))
 
     problems.extend(_cross_frame_problems(records, headers, camera))
+    problems.extend(temperature_problems(records))
     return Session(root=root, manifest_path=manifest_path, source=source, camera=camera,
                    frames=tuple(records), problems=tuple(problems), headers=headers)
 

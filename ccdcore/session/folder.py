@@ -26,7 +26,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from ..channels import LAYOUTS
-from ..errors import ImageReadError
+from ..errors import CcdError, ImageReadError
 from ..io import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
 from .assemble import Candidate, assemble, path_problem
 from .records import MANIFEST_NAME, ROLES, Camera, Problem, ProblemCode, Session
@@ -387,8 +387,18 @@ def _find_brackets(relpaths: list[str], named: dict[str, str | None], headers: _
     return out
 
 
-def open_folder(folder: Path) -> Session:
+def _declared(role: str | None) -> str | None:
+    """The role given on the command line (``--role``), checked."""
+    if role is not None and role not in ROLES:
+        raise CcdError("--role", f"unknown role {role!r}; choose one of {', '.join(ROLES)}")
+    return role
+
+
+def open_folder(folder: Path, role: str | None = None) -> Session:
     """Open a plain folder of images as a session (no manifest).
+
+    ``role`` (one of ROLES, e.g. ``"flat"``; ``--role flat``) gives every image that role,
+    whatever its names say; the rest of this docstring is what happens without it.
 
     Roles come from the first folder name under the root (:data:`ROLE_SYNONYMS`), else from the
     first word of the file name for the calibration roles (:data:`FILE_ROLE_WORDS`:
@@ -420,7 +430,7 @@ def open_folder(folder: Path) -> Session:
     folder's name); its bit depth is the deepest integer frame's and its layout the frames'
     (``rgb`` for colour JPEG/PNG/TIFF, a Bayer pattern for raw files).
     """
-    root = folder.resolve()
+    root, declared = folder.resolve(), _declared(role)
     problems: list[Problem] = []
     candidates: list[Candidate] = []
     relpaths = _folder_images(root)
@@ -432,7 +442,7 @@ def open_folder(folder: Path) -> Session:
     by_file_name = 0
     for rel in relpaths:
         parts = rel.split("/")
-        named[rel] = ROLE_SYNONYMS.get(parts[0].lower()) if len(parts) > 1 else None
+        named[rel] = declared or (ROLE_SYNONYMS.get(parts[0].lower()) if parts[1:] else None)
         if named[rel] is None:      # not in a folder named for a role: the file name may say
             named[rel] = file_name_role(parts[-1])
             by_file_name += named[rel] is not None
@@ -483,7 +493,9 @@ def open_folder(folder: Path) -> Session:
     summary = ", ".join(f"{role}: {n}" for role, n in session.roles().items())
     if relpaths:
         how = "folder names and EXIF exposure times" if brackets.from_exif else "folder names"
-        if by_file_name:
+        if declared is not None:
+            how = f"the role given (every image is a {declared} frame, as declared by --role)"
+        elif by_file_name:
             how += f", and the file names of {by_file_name} frame{'s' if by_file_name != 1 else ''}"
         found = (f"; exposure brackets: {'; '.join(brackets.notes)}" if brackets.notes else "")
         if ptc_how == "exposure":

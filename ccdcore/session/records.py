@@ -198,6 +198,10 @@ class ProblemCode(StrEnum):
                                             "exposure in a manifest")
     DESCRIPTOR_LINE = "descriptor-line", "correct the descriptor line the message names"
     DESCRIPTOR_SIZE = "descriptor-size", "re-export the image at the size of the `n` line"
+    TEMPERATURE_MISMATCH = ("temperature-mismatch", "capture dark frames (and biases) at the "
+                                                    "sensor temperature of the frames they "
+                                                    "correct, within the tolerance the message "
+                                                    "gives")
 
 
 @dataclass(frozen=True)

@@ -249,6 +249,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
         self.setup_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
         self.channel_table = _table(pd.DataFrame(), "ccd-flat-channels")
+        self.held_pane = pn.pane.Markdown("", sizing_mode="stretch_width")
+        self.held_table = _table(pd.DataFrame(), "ccd-flat-held-out")
         self.flag_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         self.notes_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
 
@@ -317,6 +319,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             pn.FlexBox(self.setting_select, self.base_select, self.channel_select,
                        sizing_mode="stretch_width"),
             self.recommend_alert, self.setup_pane, self.channel_table, self.flag_pane,
+            self.held_pane, self.held_table,
             title="Correction: dark and base images", sizing_mode="stretch_width",
             collapsible=False)
         before_after = pn.Card(
@@ -530,7 +533,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         if rec is not None:
             self.recommend_alert.object = (
                 f"**Recommended base image: {flat_plots.group_label(rec.key)}** \u2014 "
-                f"{rec.reason}.\n\n<small>Rule: {rec.rule}.</small>")
+                f"{rec.reason}.\n\n*Rule: {rec.rule}.*")
             self.recommend_alert.visible = True
         else:
             self.recommend_alert.visible = False
@@ -548,7 +551,8 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         try:
             flat, error = await self._get(self._cache.fields, (setting, tuple(key)),
                                           flat_field_from_session, session, setting=setting,
-                                          base=key, label="flat-field maps G, O")
+                                          base=key, held_out=True,
+                                          label="flat-field maps G, O")
             if not self._current(session, base_generation=generation):
                 return
             self.flat = flat
@@ -647,16 +651,23 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
             self.flag_pane.object = ""
             self.g_pane.object = self.o_pane.object = None
             self.notes_pane.object = ""
+            self.held_pane.object = ""
+            self.held_table.object = pd.DataFrame()
             return
         n_base = flat.base.n
-        dark_t = "without exposure time" if flat.dark_exposure is None else \
-            f"at {flat.dark_exposure:g} s"
         self.setup_pane.object = (
             f"**Base image DL_B:** {flat_plots.group_label(flat.base_key)} "
             f"({n_base} frame{'s' if n_base != 1 else ''} averaged) \u00b7 "
-            f"**Dark image DL_0:** {flat.dark.n} dark frame{'s' if flat.dark.n != 1 else ''} "
-            f"{dark_t} (they follow the base exposure)"
+            + flat_plots.dark_text(flat)
             + (f" \u00b7 **setting** {flat.setting}" if flat.setting else ""))
+        check = flat.held_out
+        self.held_pane.object = (
+            "**Held-out check:** not made (it needs three or more flats in the base group)"
+            if check is None else
+            f"**Held-out check: {check.verdict}** \u2014 {check.held_out} corrected with maps "
+            f"from the other {check.n_fit} flats of the group; {check.rule} "
+            f"(factor {check.factor:g}).")
+        self.held_table.object = flat_plots.held_out_frame(check)
         self.channel_table.object = pd.DataFrame([
             {"channel": c.name, "k (DN)": f"{c.k:.2f}", "\u27e8DL_0\u27e9 (DN)":
              f"{c.dark_level:.2f}", "\u27e8DL_B\u27e9 (DN)": f"{c.base_level:.2f}",

@@ -233,7 +233,7 @@ def test_no_session_is_an_info_alert():
     assert page.info_alert.visible and "No session loaded" in page.info_alert.object
 
 
-def test_flats_without_darks_show_an_error_and_the_page_keeps_working(tmp_path, assets):
+def test_flats_without_darks_use_the_zero_dark_form_and_the_page_keeps_working(tmp_path, assets):
     root = tmp_path / "nodark"
     rng = np.random.default_rng(11)
     entries = []
@@ -249,7 +249,10 @@ def test_flats_without_darks_show_an_error_and_the_page_keeps_working(tmp_path, 
     assert state.load(root), state.error
     page = FlatFieldPage(state, auto=False)
     _run(page.refresh())
-    assert page.error_alert.visible and "dark" in page.error_alert.object
+    # no darks: the flat field is made in de Lasarte's zero-dark form, and the page says so
+    assert not page.error_alert.visible, page.error_alert.object
+    assert page.flat is not None and page.flat.dark_source == "zero"
+    assert "zero-dark form (DL_0 = 0)" in page.setup_pane.object
     assert page.recommendation is not None         # the linearity part still shows
     assert page.lin_pane.object is not None
     # the page keeps working: open the demo next
@@ -301,3 +304,58 @@ def test_an_rgb_session_after_a_mono_one_sets_channel_options_and_value_together
     assert list(page.param.channel.objects) == ["R", "G", "B"]
     assert page.channel == "R" and page.channel_select.value == "R"
     assert list(page.channel_select.options) == ["R", "G", "B"]
+
+
+def test_cooled_ccd_darks_at_several_exposures_and_temperatures_show_the_dark_model(tmp_path):
+    """An SBIG-like set (biases, darks at 5 exposures and 2 temperatures, flats at 23 s): the
+    page shows the flat field with DL_0 from the dark model at the flats' temperature and the
+    held-out check, without a traceback."""
+    from ccdcore.simulate.ccdlab import simulate
+
+    root = tmp_path / "lab"
+    simulate(root, seed=5, size=(48, 32))
+    state = AppState(allowed_roots=[tmp_path.resolve()])
+    assert state.load(root), state.error
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert not page.error_alert.visible, page.error_alert.object
+    flat = page.flat
+    assert flat.dark_source == "model" and flat.dark_model.temperature == -5.0
+    assert "dark model o + c·t at 23 s" in page.setup_pane.object
+    assert "-5 °C" in page.setup_pane.object and "16 darks at other temperatures" in \
+        page.setup_pane.object
+    assert "Held-out check: pass" in page.held_pane.object
+    table = page.held_table.object
+    assert list(table["verdict"]) == ["pass"]
+    assert float(table["SNUP / floor"][0]) == pytest.approx(flat.held_out.channels[0].ratio,
+                                                            abs=1e-3)
+
+
+def test_camera_files_declared_as_flats_show_the_zero_dark_flat_field(tmp_path):
+    """A DSLR's flats named as the camera named them, opened with the flat role declared
+    (``--role flat``): two aperture groups, no darks, the zero-dark note and the held-out
+    check within the base group."""
+    from ccdcore.session import open_session
+
+    root = tmp_path / "dslr"
+    rng = np.random.default_rng(2)
+    y, x = np.mgrid[0:24, 0:32]
+    r2 = ((x - 16) ** 2 + (y - 12) ** 2) / (16 ** 2 + 12 ** 2)
+    k = 0
+    for t, corner in ((1 / 320, 0.8), (1 / 350, 0.9)):
+        for _ in range(5):
+            level = np.array([120.0, 130.0, 190.0]) * (1 - (1 - corner) * r2)[..., None]
+            frame = level + rng.normal(0, 1.5, level.shape)
+            write_image(root / f"DSC_{k:04d}.tif", np.clip(np.rint(frame), 0, 255)
+                        .astype(np.uint8), exposure=t)
+            k += 1
+    state = AppState(allowed_roots=[tmp_path.resolve()])
+    session = open_session(root, role="flat")
+    assert state._apply(root, session, "")
+    page = FlatFieldPage(state, auto=False)
+    _run(page.refresh())
+    assert not page.error_alert.visible, page.error_alert.object
+    assert page.flat.dark_source == "zero" and page.flat.layout == "rgb"
+    assert "zero-dark form" in page.setup_pane.object
+    assert list(page.held_table.object["channel"]) == ["R", "G", "B"]
+    assert page.flat.held_out.n_fit == 4
