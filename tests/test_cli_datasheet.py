@@ -13,6 +13,7 @@ import dataclasses
 import io
 import json
 import os
+import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -29,6 +30,7 @@ from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 import ccdcore.datasheet_files as datasheet_files  # noqa: E402
 from ccdcore.cli import main  # noqa: E402
 from ccdcore.common import format_pm  # noqa: E402
+from ccdcore.io import RECORD  # noqa: E402
 from ccdcore.datasheet import emva_figures  # noqa: E402
 from ccdcore.datasheet_files import CSV_COLUMNS, PLOT_FORMATS, PLOTS  # noqa: E402
 from ccdcore.emva_sheet import DATASHEET, datasheet_rows  # noqa: E402
@@ -49,9 +51,10 @@ def run(capsys, *argv):
 
 
 def tree(folder: Path) -> dict[str, bytes]:
-    """Every file under ``folder`` (relative path -> bytes)."""
+    """Every file under ``folder`` (relative path -> bytes) but the record of what ccdcore wrote
+    there (RECORD, rewritten by every run)."""
     return {str(p.relative_to(folder)): p.read_bytes()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+            for p in sorted(folder.rglob("*")) if p.is_file() and p.name != RECORD}
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +103,8 @@ def healey(tmp_path_factory):
 def test_every_file_is_written_and_every_plot_is_a_png_and_an_svg(sheet, figures):
     out, stdout, stderr = sheet
     assert datasheet_files.plot_plan(figures).skipped == ()     # the set has every plot's data
-    assert sorted(p.name for p in out.iterdir()) == ["datasheet.csv", "datasheet.json", "plots"]
+    assert sorted(p.name for p in out.iterdir()) == [RECORD, "datasheet.csv", "datasheet.json",
+                                                     "plots"]
     expected = sorted(f"{name}.{fmt}" for name in PLOTS for fmt in PLOT_FORMATS)
     assert sorted(p.name for p in (out / "plots").iterdir()) == expected
     assert len(PLOTS) == 16 and "skipped plot" not in stderr
@@ -249,12 +253,8 @@ def test_plots_without_data_are_skipped_and_said_and_the_old_set_goes(capsys, em
     product = _product_with(emva_set, tmp_path / "p", no_spatial_one_dark_exposure)
     capsys.readouterr()
     out = tmp_path / "ds"
-    (out / "plots").mkdir(parents=True)
-    # an earlier, complete datasheet in the folder, and a file of the user's
-    for name in ("datasheet.csv", "datasheet.json"):
-        (out / name).write_bytes((sheet[0] / name).read_bytes())
-    for p in (sheet[0] / "plots").iterdir():
-        (out / "plots" / p.name).write_bytes(p.read_bytes())
+    # an earlier, complete datasheet in the folder (a run of ours), and a file of the user's
+    shutil.copytree(sheet[0], out)
     (out / "mine.txt").write_text("keep")
     code, stdout, err = run(capsys, "datasheet", product, "-o", out)
     assert code == 0, err
@@ -279,9 +279,7 @@ def test_plots_without_data_are_skipped_and_said_and_the_old_set_goes(capsys, em
 def test_a_failure_while_writing_leaves_the_earlier_set_untouched(capsys, emva_set, sheet,
                                                                   tmp_path, monkeypatch):
     out = tmp_path / "ds"
-    out.mkdir()
-    for name in ("datasheet.csv", "datasheet.json"):
-        (out / name).write_bytes((sheet[0] / name).read_bytes())
+    shutil.copytree(sheet[0], out)                 # an earlier datasheet of ours
     before = tree(out)
     real, calls = datasheet_files._render, []
 
@@ -349,7 +347,7 @@ def test_csv_and_json_need_no_plotting_package(figures, tmp_path):
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [str(tmp_path / "ds" / "datasheet.csv"),
                                   str(tmp_path / "ds" / "datasheet.json")]
-    assert sorted(os.listdir(tmp_path / "ds")) == ["datasheet.csv", "datasheet.json"]
+    assert sorted(os.listdir(tmp_path / "ds")) == [RECORD, "datasheet.csv", "datasheet.json"]
     assert "plots" not in json.loads((tmp_path / "ds" / "datasheet.json").read_text())
 
 

@@ -119,6 +119,8 @@ def _untyped(tp) -> bool:
     origin, args = typing.get_origin(tp), typing.get_args(tp)
     if origin is dict:
         value = args[1]
+        if value == tuple[str, ...]:                 # names (a map's frames): fully typed
+            return False
         return not (dataclasses.is_dataclass(value) or value is np.ndarray) or _untyped(value)
     return any(_untyped(a) for a in args if a is not Ellipsis)
 

@@ -117,7 +117,7 @@ def test_white_balance_prints_gains_and_offsets_with_errors(capsys):
 
 
 def test_change_labels_the_colour_transform(capsys, tmp_path, monkeypatch):
-    import ccdcore.change as change
+    import ccdcore.change_session as change
 
     got = []
     real = change.session_change
