@@ -46,6 +46,7 @@ def _roi(text: str) -> Roi:
 # verbs
 # --------------------------------------------------------------------------------------------
 def _cmd_ptc(args: argparse.Namespace) -> int:
+    from .guide import ptc_gate
     from .noise import EMVA_FIT_FRACTION, photon_transfer
 
     with reducer_of(args) as reducer:
@@ -55,7 +56,7 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     workers_note(args.workers, sum(2 * p.n_pairs for p in res.points),
                  sum(2 * p.n_pairs * p.n_pixels for p in res.points))
     if args.json:
-        print_json(res.to_dict())
+        print_json({**res.to_dict(), "gate": ptc_gate(res).to_dict()})
         return 0
     print(f"photon transfer of {res.source or args.session}, "
           + (f"ROI {Roi(*res.roi)} (X,Y,W,H)" if res.roi else "whole frame"))
@@ -73,7 +74,9 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
           f"{format_pm(res.read_noise_e, res.read_noise_e_err, unit='e⁻')}; quantisation "
           f"q²/12 = {res.quantisation_dn2:.4g} DN²)")
     print(f"fit         χ² = {res.chi2:.4g} with {res.dof} degrees of freedom, Q = {res.Q:.3g} "
-          f"(chance of so large a χ² if the line fits): {res.verdict}")
+          "(chance of so large a χ² if the line fits)")
+    gate = ptc_gate(res)
+    say("verdict", gate.line(), indent="")       # the Walkthrough's and the page's words
     print(f"black level b0 = {res.black_level_dn:.4g} DN ({res.black_level_source})")
     if args.robust:
         dropped = res.robust_dropped
@@ -81,7 +84,9 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
               "refitted, one at a time; " + (
                   f"dropped level{'s' if len(dropped) != 1 else ''} "
                   f"{', '.join(map(str, dropped))}" if dropped else "no level dropped"))
-    advice = _ptc_advice(res, robust=bool(args.robust))
+    for reason in gate.reasons[1:]:
+        say("", reason, indent="  ")
+    advice = _ptc_advice(res, gate, robust=bool(args.robust))
     if advice:
         say("advice", advice, indent="")
     for note in res.notes:
@@ -89,15 +94,14 @@ def _cmd_ptc(args: argparse.Namespace) -> int:
     return 0
 
 
-def _ptc_advice(res: Any, *, robust: bool) -> str:
-    """What to do when the photon-transfer line does not fit its points (verdict poor or
-    model rejected), naming the worst levels; empty when the fit is acceptable."""
-    if res.verdict not in ("poor", "model rejected"):
+def _ptc_advice(res: Any, gate: Any, *, robust: bool) -> str:
+    """What to do when the photon-transfer gate (:func:`ccdcore.guide.ptc_gate`) does not pass,
+    naming the worst levels; empty when it passes."""
+    if gate.status == "pass":
         return ""
     named = ", ".join(f"level {level} ({z:+.1f} σ)" for level, z in res.worst_levels(2))
     top = max((p.mu for p in res.points if p.used and p.var_err > 0), default=float("nan"))
-    steps = [f"the fit is {res.verdict}: the points scatter about the line more than their "
-             f"errors allow (largest residuals: {named or 'none'})",
+    steps = [f"{gate.label.lower()}: {gate.summary} (largest residuals: {named or 'none'})",
              f"leave out levels near saturation (--exclude LEVEL; the brightest used level has "
              f"a mean of {top:.4g} DN above b0) and levels in the dark floor",
              "check the fit range with a region of uniform light (--roi X,Y,W,H)"]

@@ -163,13 +163,6 @@ class LineFit:
 #: the covariance of (A, σ²_C) (eq. 66) as stored: two rows of two numbers, ``None`` for NaN
 CovRows = tuple[tuple[float | None, float | None], tuple[float | None, float | None]]
 
-#: the plain reading of each verdict of the fit (:attr:`PhotonTransferSummary.verdict`)
-_VERDICTS = {
-    "acceptable": "the line σ²_N = A·μ + σ²_C fits the points within their errors",
-    "poor": "the points scatter more than their errors allow (Q < 0.05)",
-    "model rejected": "the points do not lie on a straight line within their errors "
-                      "(Q < 0.001)",
-}
 
 
 @dataclass(frozen=True)
@@ -269,7 +262,9 @@ class PhotonTransferSummary(Record):
 
     def rows(self) -> tuple[Row, ...]:
         """The headline figures: A, the conversion gain, σ²_C, the read noise, b₀, the fit's
-        χ², Q and verdict, and the levels used."""
+        χ², Q and the gate's verdict (the Walkthrough's words), and the levels used."""
+        from .gates import ptc_gate
+
         used = sum(1 for p in self.points if p.used)
         return (
             Row("gain A", self.A, self.A_err, "DN/e⁻", "DN per electron (slope of eq. 41)"),
@@ -285,8 +280,9 @@ class PhotonTransferSummary(Record):
             Row("χ²", self.chi2, None, "", f"with {self.dof} degrees of freedom (eq. 42)"),
             Row("goodness of fit Q", self.Q, None, "",
                 "chance of so large a χ² if the line fits (eq. 67)"),
-            Row("verdict", meaning=_VERDICTS.get(self.verdict, "no test of the fit"),
-                text=self.verdict),
+            Row("verdict", meaning="the photon-transfer gate (ccdcore.gates.ptc_gate): the "
+                                   "line's deviation from its points against stated "
+                                   "tolerances", text=ptc_gate(self).line()),
             Row("levels used", used, None, "", f"of {len(self.points)} light levels; "
                                                f"{self.fit_range}"),
         )

@@ -26,6 +26,7 @@ import pytest
 from ccdcore.common import json_safe
 from ccdcore.darkframe import dark_reference
 from ccdcore.darkmap import DarkSummary
+from ccdcore.gates import ptc_gate
 from ccdcore.errors import CcdError
 from ccdcore.fixedpattern import correction_check, fixed_pattern_map
 from ccdcore.kmap_kernels import FixedPatternSummary
@@ -139,7 +140,7 @@ def test_photon_transfer_rows(est):
     assert _row(rows, "read noise in DN").value == pt.read_noise_dn
     assert _row(rows, "χ²").value == pt.chi2 and str(pt.dof) in _row(rows, "χ²").meaning
     assert _row(rows, "goodness of fit Q").value == pt.Q
-    assert _row(rows, "verdict").text == pt.verdict
+    assert _row(rows, "verdict").text == ptc_gate(pt).line()     # the Walkthrough's words
     assert _row(rows, "levels used").value == sum(p.used for p in pt.points)
     point_rows = pt.points[0].summary().rows()
     _check_rows(point_rows)
