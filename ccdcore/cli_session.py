@@ -157,9 +157,15 @@ def _cmd_app(args: argparse.Namespace) -> int:
 
     if args.session is not None and not Path(args.session).exists():
         raise CcdError(args.session, "session not found")
+    if args.role is not None:
+        if args.session is None:
+            raise CcdError("--role", "give the folder whose images take the role")
+        from .session import open_session
+
+        open_session(args.session, role=args.role)   # a wrong role or a manifest: one line
     check_port(args.port)  # a busy port is one line, before "serving on" is claimed
     print(f"serving the ccdcore app on http://127.0.0.1:{args.port} (Ctrl+C to stop)", flush=True)
-    serve(args.session, port=args.port, show=False)
+    serve(args.session, port=args.port, show=False, role=args.role)
     return 0
 
 
@@ -226,3 +232,4 @@ def add_app(sub: Any) -> None:
     p.add_argument("session", nargs="?", default=None,
                    help="session to open (default: the bundled demo)")
     p.add_argument("--port", type=_port, default=5006, help="port, 1..65535 (default 5006)")
+    role_arg(p)

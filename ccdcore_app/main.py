@@ -232,7 +232,8 @@ def host_allowed(host: str | None, hosts: Iterable[str] | None) -> bool:
 
 def create_app(session_path: str | Path | None = None, *,
                allowed_roots: Iterable[str | Path] | None = None,
-               hosts: Iterable[str] | None = None) -> pn.viewable.Viewable:
+               hosts: Iterable[str] | None = None,
+               role: str | None = None) -> pn.viewable.Viewable:
     """Build a fresh app for one browser session.
 
     Parameters
@@ -248,6 +249,9 @@ def create_app(session_path: str | Path | None = None, *,
         When served, the ``name:port`` addresses the server listens on: a request naming
         another host in its ``Host`` header gets one line saying so instead of the app
         (:func:`host_allowed`); ``None`` (a script, a test): no check.
+    role
+        Every image of ``session_path``, a plain folder, is a frame of this role
+        (``ccdcore app FOLDER --role flat``).
 
     Returns
     -------
@@ -311,13 +315,13 @@ def create_app(session_path: str | Path | None = None, *,
         # not served (a script or a test), or served and known to open quickly: open it now,
         # so that the first view is drawn with the session (drawing the page empty and then
         # its tables, alerts and texts made the browser lay the page out twice)
-        _timed_load(state, session_path)
+        _timed_load(state, session_path, role)
     if served:
 
         async def _first_view() -> None:  # served: the page shows first, then progress
             if session_path is not None and not quick:
                 start = time.perf_counter()
-                await state.load_async(str(session_path))
+                await state.load_async(str(session_path), role)
                 _record_open(session_path, time.perf_counter() - start)
             start_warm_up()               # the other pages' imports, once the first is drawn
 
@@ -350,14 +354,14 @@ def _record_open(session_path: str | Path, seconds: float) -> None:
     _open_seconds[key] = max(_open_seconds.get(key, 0.0), seconds)
 
 
-def _timed_load(state: AppState, session_path: str | Path) -> bool:
+def _timed_load(state: AppState, session_path: str | Path, role: str | None = None) -> bool:
     start = time.perf_counter()
-    ok = state.load(str(session_path))
+    ok = state.load(str(session_path), role)
     _record_open(session_path, time.perf_counter() - start)
     return ok
 
 
-def measure_open(session_path: str | Path | None) -> None:
+def measure_open(session_path: str | Path | None, role: str | None = None) -> None:
     """Open ``session_path`` once (outside any browser session) to learn how long it takes."""
     if session_path is None:
         return
@@ -365,7 +369,7 @@ def measure_open(session_path: str | Path | None) -> None:
 
     start = time.perf_counter()
     try:
-        open_session_cached(Path(session_path).expanduser().resolve())
+        open_session_cached(Path(session_path).expanduser().resolve(), role)
     except Exception:   # the page says what is wrong, at each visit
         return
     _record_open(session_path, time.perf_counter() - start)
@@ -472,18 +476,19 @@ def check_port(port: int, address: str = "127.0.0.1") -> None:
 
 
 def serve(session_path: str | Path | None = None, port: int = 5006, show: bool = False,
-          threaded: bool = False, address: str = "127.0.0.1") -> Any:
+          threaded: bool = False, address: str = "127.0.0.1", role: str | None = None) -> Any:
     """Serve the app on ``address:port`` (default 127.0.0.1:5006).
 
     The first page's module is imported before the server listens; :func:`warm_up` imports
     the other pages' modules in a background thread once a first browser session has drawn its
     first view (earlier, the imports competed with that first view for the interpreter; later,
     a page's first visit would wait for them). ``threaded=True`` returns the running server thread (stop it with
-    ``pn.state.kill_all_servers()``); otherwise this blocks until interrupted.
+    ``pn.state.kill_all_servers()``); otherwise this blocks until interrupted. ``role``: every
+    image of ``session_path``, a plain folder, is a frame of that role.
     """
     check_port(port, address)
     prepare_first_page()
-    measure_open(session_path)
+    measure_open(session_path, role)
     # Bokeh checks every model of a page's document before sending it (warnings for a
     # developer: W-1000 ...), some 40-70 ms of each first view's HTML; the tests keep it
     from bokeh.settings import settings as bokeh_settings
@@ -495,7 +500,7 @@ def serve(session_path: str | Path | None = None, port: int = 5006, show: bool =
     origins = [f"{address}:{port}", f"localhost:{port}", f"127.0.0.1:{port}"]
 
     def app() -> pn.viewable.Viewable:  # a plain function: Panel calls it per session
-        return create_app(session_path, hosts=origins)
+        return create_app(session_path, hosts=origins, role=role)
 
     return pn.serve({"/": app}, port=port, address=address, show=show, threaded=threaded,
                     title="ccdcore", liveness=True, websocket_origin=origins, start=True,

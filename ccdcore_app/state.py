@@ -246,23 +246,25 @@ def session_signature(path: Path, session: Session) -> tuple:
     return tuple(_stat(p) for p in paths)
 
 
-def open_session_cached(path: Path) -> Session:
+def open_session_cached(path: Path, role: str | None = None) -> Session:
     """:func:`ccdcore.session.open_session`, once per process while none of the files it read
     changed: opening reads the header of every frame (0.07 s for the 96 frames of the demo,
     on each first view of a served session); a copy of the opened session, checked against
-    :func:`session_signature`, takes a few milliseconds. Each caller gets its own copy."""
+    :func:`session_signature`, takes a few milliseconds. Each caller gets its own copy.
+    ``role``: every image of a plain folder is a frame of that role (``open_session``'s)."""
+    key = (path, role)
     with _OPENED_LOCK:
-        hit = _OPENED.get(path)
+        hit = _OPENED.get(key)
     if hit is not None:
         signature, session = hit
         if session_signature(path, session) == signature:
             with _OPENED_LOCK:
-                _OPENED.move_to_end(path)
+                _OPENED.move_to_end(key)
             return copy.deepcopy(session)
-    session = open_session(path)
+    session = open_session(path, role=role)
     signature = session_signature(path, session)
     with _OPENED_LOCK:
-        _OPENED[path] = (signature, copy.deepcopy(session))
+        _OPENED[key] = (signature, copy.deepcopy(session))
         while len(_OPENED) > OPENED_MAX:
             _OPENED.popitem(last=False)
     return session
@@ -320,14 +322,16 @@ class AppState(param.Parameterized):
             raise CcdError(p, f"outside the folders this app may open ({roots})")
         return p
 
-    def _open(self, path: str | Path) -> tuple[Path, Session | None, str]:
-        """Open a session without touching any parameter (safe in a worker thread).
+    def _open(self, path: str | Path, role: str | None = None
+              ) -> tuple[Path, Session | None, str]:
+        """Open a session without touching any parameter (safe in a worker thread); ``role``:
+        every image of a plain folder is a frame of that role (a camera folder of flats).
 
         Returns the resolved path, the session (None on failure) and the error message.
         """
         try:
             p = self.check_allowed(path)
-            return p, open_session_cached(p), ""
+            return p, open_session_cached(p, role), ""
         except CcdError as err:
             return Path(str(path)), None, str(err)
         except Exception as err:  # a bug or an OS error must not reach the user as a traceback
@@ -358,19 +362,21 @@ class AppState(param.Parameterized):
         self.progress = -1
         self.busy = True
 
-    def load(self, path: str | Path) -> bool:
-        """Open the session at ``path`` (in this thread); True on success.
+    def load(self, path: str | Path, role: str | None = None) -> bool:
+        """Open the session at ``path`` (in this thread); True on success. ``role``: every
+        image of a plain folder is a frame of that role (``ccdcore app FOLDER --role flat``).
 
-        On bad input (path outside ``allowed_roots``, missing, not a session, TOML syntax error)
-        the current session stays loaded and ``error`` says what is wrong.
+        On bad input (path outside ``allowed_roots``, missing, not a session, TOML syntax error,
+        a role given for a session with a manifest) the current session stays loaded and
+        ``error`` says what is wrong.
         """
         self._start(path)
-        return self._apply(*self._open(path))
+        return self._apply(*self._open(path, role))
 
-    async def load_async(self, path: str | Path) -> bool:
+    async def load_async(self, path: str | Path, role: str | None = None) -> bool:
         """:meth:`load` with the opening (header reads of every frame) in a worker thread."""
         self._start(path)
-        result = await asyncio.to_thread(self._open, path)
+        result = await asyncio.to_thread(self._open, path, role)
         return self._apply(*result)
 
     def close(self) -> None:

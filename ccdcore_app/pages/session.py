@@ -218,6 +218,14 @@ def _problem_alert(problem: Any) -> pn.pane.Alert:
                          alert_type=kind, sizing_mode="stretch_width", margin=(2, 5))
 
 
+#: the role choices of a plain folder's images (label -> role; None: from the names)
+ROLE_CHOICES: dict[str, str | None] = {
+    "as their folder and file names say": None,
+    **{f"all {name}": role for name, role in (
+        ("flat fields", "flat"), ("dark frames", "dark"), ("one exposure bracket", "bracket"),
+        ("scenes", "scene"))}}
+
+
 #: the channel choices of a colour frame (label -> channel)
 _COLOUR_CHANNELS = {"R": "R", "G": "G", "B": "B", "Luminance": plots.LUMINANCE}
 
@@ -272,6 +280,13 @@ class SessionPage(pn.viewable.Viewer):
             placeholder="/path/to/session", sizing_mode="stretch_width", min_width=300)
         self.open_path_button = pn.widgets.Button(label="Open", color="primary",
                                                   align="end", width=140)
+        # a plain folder's roles come from its folder and file names; a camera folder of flats
+        # (or darks, or a bracket) is declared here without writing a manifest
+        self.role_select = pn.widgets.Select(
+            label="Images of a plain folder are", options=ROLE_CHOICES, value=None,
+            width=260, align="end", css_classes=["ccd-role-choice"],
+            description="A folder without session.toml: its roles come from folder and file "
+                        "names, or every image takes the role chosen here (e.g. flats)")
         roots = {self._root_label(r): str(r) for r in self.state.allowed_roots if r.is_dir()}
         self.root_select = pn.widgets.Select(label="Browse in", options=roots, width=320)
         # the file browser is built when its card is first expanded (it is collapsed on the
@@ -427,7 +442,8 @@ class SessionPage(pn.viewable.Viewer):
         browse_card.param.watch(lambda event: event.new or self._show_browser(), "collapsed")
         open_card = pn.Card(
             pn.Row(self.demo_select, self.open_demo_button),
-            pn.Row(self.path_input, self.open_path_button, sizing_mode="stretch_width"),
+            pn.Row(self.path_input, self.role_select, self.open_path_button,
+                   sizing_mode="stretch_width"),
             browse_card,
             title="Open a session", sizing_mode="stretch_width", collapsible=False)
         # the Calibration product tab gets its panel on its first visit (the first page draws
@@ -497,9 +513,9 @@ class SessionPage(pn.viewable.Viewer):
             holder.objects = [self.preview_body]
 
     # ============================================================ opening sessions =========
-    async def _open(self, path: str | Path) -> None:
+    async def _open(self, path: str | Path, role: str | None = None) -> None:
         self.notice_alert.visible = False
-        await self.state.load_async(path)
+        await self.state.load_async(path, role)
 
     async def _on_open_demo(self, event: Any = None) -> None:
         name = self.demo_select.value
@@ -509,7 +525,8 @@ class SessionPage(pn.viewable.Viewer):
         await self._open(demo_sessions()[name])
 
     async def _on_open_path(self, event: Any = None) -> None:
-        await self._open(self.path_input.value_input or self.path_input.value)
+        await self._open(self.path_input.value_input or self.path_input.value,
+                         self.role_select.value)
 
     async def _on_open_selected(self, event: Any = None) -> None:
         chosen = self.file_selector.value

@@ -20,6 +20,7 @@ from ccdcore_app.state import AppState, is_allowed
 from ccdcore.io import write_image
 from ccdcore.session import open_session
 from _coro import run as _run
+from conftest import make_session as make_manifest_session
 
 
 @pytest.fixture
@@ -347,3 +348,34 @@ def test_histogram_counts_read_as_plain_numbers(state, healey94):
     assert isinstance(axis.formatter, NumeralTickFormatter) and axis.formatter.format == "0,0"
     assert page.hist_view.source.data["top"].sum() == page._plane.size
 
+
+
+def _camera_flats(root: Path, n: int = 4) -> Path:
+    """A camera's folder of flat fields named as the camera named them (no manifest)."""
+    rng = np.random.default_rng(11)
+    root.mkdir(parents=True)
+    for i in range(n):
+        frame = np.clip(rng.normal(2000.0, 20.0, (24, 32)), 0, 4095).astype(np.uint16)
+        write_image(root / f"IMG_{1000 + i}.tif", frame, exposure=0.01, bits=12)
+    return root
+
+
+def test_a_camera_folder_opens_as_flats_from_the_page_and_from_the_command_line(state,
+                                                                                 tmp_path):
+    """Named as the camera named them the images read as scenes; the page's role choice (and
+    create_app's role, what ``ccdcore app FOLDER --role flat`` serves) makes them flats; a
+    role for a session with a manifest is an alert, and the page keeps its session."""
+    root = _camera_flats(tmp_path / "card")
+    page = SessionPage(state)
+    page.path_input.value = str(root)
+    _run(page._on_open_path())
+    assert state.session.roles() == {"scene": 4}
+    page.role_select.value = "flat"
+    _run(page._on_open_path())
+    assert state.session.roles() == {"flat": 4} and not page.error_alert.visible
+    page.path_input.value = str(make_manifest_session(tmp_path / "with_manifest"))
+    _run(page._on_open_path())
+    assert page.error_alert.visible and "applies to a plain folder" in page.error_alert.object
+    assert state.session.roles() == {"flat": 4}
+    app = create_app(root, allowed_roots=[tmp_path], role="flat")
+    assert app.app_state.session.roles() == {"flat": 4}
