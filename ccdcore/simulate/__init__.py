@@ -25,6 +25,11 @@ Presets (each a module with ``simulate(out_dir, *, seed, size, **options) -> dic
     at every exposure, spatial sets; a known dark current and DSNU/PRNU maps with row, column and
     pixel parts; written as an EMVA1288 descriptor and a manifest.
 
+``ccdlab``
+    A cooled astronomy CCD as labs capture it (:mod:`ccdcore.simulate.ccdlab`): biases, darks
+    at several exposures and two sensor temperatures (dark current doubling every few degrees,
+    hot pixels), flats at one exposure, FITS headers with ``SET-TEMP`` and ``CCD-TEMP``.
+
 Every preset writes a capture session (``session.toml`` + frames) and ``truth.json``. The same seed
 gives the same bytes whatever the CPU's vector features (AVX2, AVX-512, NEON): what feeds a digital
 number is computed with basic arithmetic and the CPU-independent functions of
@@ -56,6 +61,7 @@ PRESETS: dict[str, str] = {
     "tsin01-camera": "tsin_camera",
     "change": "change",
     "emva1288": "emva",
+    "ccdlab": "ccdlab",
 }
 
 

@@ -28,7 +28,7 @@ Frames (role; manifest keys ``exposure``, ``temperature``):
 ``truth.json``: the parameters, ``maps``: ``truth/offset.exr`` (o, DN), ``truth/current_<T>.exr``
 (c_T, DN/s, per temperature), ``truth/flatfield.exr`` (F, mean 1), ``truth/hot.exr`` (0/1).
 
-This preset is not in the ``ccdcore simulate`` registry; call :func:`simulate` from Python.
+The preset ``ccdlab`` of ``ccdcore simulate``.
 
 Public objects
 --------------
