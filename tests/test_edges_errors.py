@@ -297,3 +297,36 @@ def test_simulate_too_small_names_size(capsys, tmp_path, preset, size):
     line = one_line(err)
     assert line.startswith("ccdcore simulate: error: size: ") and "--size" in line
     assert not (tmp_path / "s").exists()
+
+
+@pytest.mark.parametrize("body, what", [
+    ("a" + ".b" * 100_000 + " = 1", "dotted parts"),
+    ("[" + "t." * 40 + "u]\nx = 1", "dotted parts"),
+    ("a = " + "[" * 40 + "]" * 40, "nested too deeply"),
+    ("a = " + "{b = " * 40 + "1" + "}" * 40, "nested too deeply")])
+def test_a_manifest_beyond_any_is_refused_before_parsing(capsys, tmp_path, body, what):
+    """A dotted key of 100 000 parts (the TOML reader is quadratic in them: it took all 24 GB)
+    or nesting beyond any manifest's is one line naming session.toml, before the parser runs."""
+    import tomllib
+
+    root = manifest(tmp_path / "s", body)
+    calls = []
+    real = tomllib.loads
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tomllib, "loads", lambda text: calls.append(1) or real(text))
+        code, out, err = run(capsys, "session", root)
+    assert code == 2 and not calls
+    line = one_line(err)
+    assert "session.toml" in line and what in line
+
+
+def test_an_ordinary_manifest_passes_the_bounds(tmp_path):
+    """Dots and brackets inside strings and comments, float values, arrays and inline tables of
+    an ordinary manifest are not counted."""
+    from ccdcore.session.manifest import bound_problem
+
+    text = ('schema = 1  # a.b.c.d.e.f.g.h.i.j.k.l.m.n.o.p.q.r.s\n[camera]\n'
+            'name = "a.b.c.d.e.f.g.h.i.j.k.l.m.n.o.p.q.r.s [[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[[["\n'
+            '[[frames]]\npath = "x.y.z.tif"\nroi = [1, 2, 3, 4]\nexposure = 0.01\n'
+            'note = \'c:\\\\a.b.c\'\nx = {a.b = 1.5, c = [1.5, [2.5, 3.5]]}\n')
+    assert bound_problem(text) is None

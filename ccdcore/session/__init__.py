@@ -55,16 +55,23 @@ __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "ROLE_SYNONYMS", "Camer
 
 
 def _is_emva_descriptor(path: Path) -> bool:
-    """True when the first non-comment, non-blank line of ``path`` starts with ``v``."""
+    """True when the first non-comment, non-blank line of ``path`` starts with ``v`` (read line
+    by line: a descriptor may open with any amount of comments; at most
+    :data:`ccdcore.session.emva.MAX_DESCRIPTOR_BYTES` are read looking for it)."""
+    from .emva import MAX_DESCRIPTOR_BYTES
+
     try:
         with path.open("r", encoding="utf-8", errors="replace") as f:
-            head = f.read(65536)  # a descriptor starts with a few short lines
+            read = 0
+            for line in f:
+                read += len(line)
+                if read > MAX_DESCRIPTOR_BYTES:
+                    return False
+                line = line.strip()
+                if line and not line.startswith("#"):
+                    return line.split()[0] == "v"
     except OSError:
         return False
-    for line in head.splitlines():
-        line = line.strip()
-        if line and not line.startswith("#"):
-            return line.split()[0] == "v"
     return False
 
 

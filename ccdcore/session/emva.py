@@ -37,7 +37,11 @@ from ..errors import CcdError, ImageReadError
 from .assemble import Candidate, assemble
 from .records import Camera, Problem, ProblemCode, Session
 
-__all__ = ["open_emva_descriptor"]
+__all__ = ["open_emva_descriptor", "MAX_DESCRIPTOR_BYTES"]
+
+
+#: the largest descriptor read (a series of 1000 points with its file names is under 1 MB)
+MAX_DESCRIPTOR_BYTES = 64 * 2 ** 20
 
 
 class _LineError(Exception):
@@ -94,6 +98,10 @@ def open_emva_descriptor(path: str | Path) -> Session:
     """
     desc = Path(path)
     try:
+        size = desc.stat().st_size
+        if size > MAX_DESCRIPTOR_BYTES:
+            raise CcdError(desc, f"{size / 2 ** 20:.0f} MB, larger than any EMVA1288 descriptor "
+                                 f"(at most {MAX_DESCRIPTOR_BYTES // 2 ** 20} MB)")
         lines = desc.read_text(encoding="utf-8").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise CcdError(desc, f"cannot read the EMVA1288 descriptor: {exc}") from None

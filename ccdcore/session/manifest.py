@@ -21,7 +21,8 @@ from .assemble import Candidate, assemble
 from .records import (FLAGS, MAX_EXPOSURE, MAX_INTENSITY, META_KEYS, MIN_EXPOSURE, ROLES, SCHEMA,
                       Camera, Problem, ProblemCode, Session)
 
-__all__ = ["open_manifest", "parse_legacy_note"]
+__all__ = ["open_manifest", "parse_legacy_note", "bound_problem", "MAX_MANIFEST_BYTES", "MAX_KEY_PARTS",
+           "MAX_NESTING"]
 
 _CAMERA_KEYS = ("name", "bits", "layout", "black_level")
 _FRAME_KEYS = frozenset(("path", "role") + META_KEYS)
@@ -192,6 +193,52 @@ def _glob(root: Path, pattern: str) -> tuple[list[str], int]:
     return sorted(images), others
 
 
+#: the largest manifest read (a session of 100 000 frames is about 10 MB of TOML)
+MAX_MANIFEST_BYTES = 64 * 2 ** 20
+#: the most parts of one dotted key or table name (``a.b.c``): a manifest's deepest is three;
+#: Python's TOML reader takes time and memory quadratic in them (100 000 parts: 24 GB)
+MAX_KEY_PARTS = 16
+#: the deepest nesting of arrays and inline tables (a manifest's deepest is two)
+MAX_NESTING = 32
+
+
+#: the tokens of a manifest's structure: strings and comments (skipped whole) and the
+#: characters that make keys, nesting and lines
+_TOKENS = re.compile(r'"""[\s\S]*?"""|\'\'\'[\s\S]*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*'
+                     r"|[\[\]{}=.,\n]")
+
+
+def bound_problem(text: str) -> str | None:
+    """Why a manifest's text is beyond what any manifest holds (checked before parsing, in one
+    linear scan: a dotted key or table name of many parts, arrays or tables nested deep), or
+    None. Strings and comments are skipped, so a path or a note with dots or brackets never
+    counts."""
+    depth = parts = 0
+    in_key = True                  # at a line's start, after "{" or ",": a key may follow
+    for m in _TOKENS.finditer(text):
+        c = m.group()
+        if len(c) != 1:
+            continue                           # a string or a comment
+        if c == ".":
+            if in_key:
+                parts += 1
+                if parts >= MAX_KEY_PARTS:
+                    return f"a key or table name of more than {MAX_KEY_PARTS} dotted parts"
+        elif c == "=":
+            in_key, parts = False, 0
+        elif c in "\n,{":
+            in_key, parts = (c != "\n" or depth == 0) or in_key, 0
+            if c == "{":
+                depth += 1
+        elif c == "[":
+            depth += 1
+        else:                                  # "]" or "}"
+            depth = max(0, depth - 1)
+        if depth > MAX_NESTING:
+            return f"arrays or tables nested too deeply (more than {MAX_NESTING} levels)"
+    return None
+
+
 def _read_toml(manifest_path: Path) -> dict:
     """The manifest as a dict, or one :class:`CcdError` line naming it.
 
@@ -204,12 +251,21 @@ def _read_toml(manifest_path: Path) -> dict:
     if manifest_path.exists() and not manifest_path.is_file():
         raise CcdError(manifest_path, "is a FIFO/special file, not a manifest file")
     try:
+        size = manifest_path.stat().st_size
+        if size > MAX_MANIFEST_BYTES:
+            raise CcdError(manifest_path, f"{size / 2 ** 20:.0f} MB, larger than any manifest "
+                                          f"(at most {MAX_MANIFEST_BYTES // 2 ** 20} MB): not a "
+                                          "session.toml?")
         text = manifest_path.read_bytes().decode("utf-8-sig")  # a byte-order mark is fine
     except UnicodeDecodeError as exc:
         raise CcdError(manifest_path, f"not UTF-8 text (byte {exc.start}): save the manifest "
                                       "as UTF-8") from None
     except OSError as exc:
         raise CcdError(manifest_path, f"cannot read the manifest: {exc.strerror or exc}") from None
+    bound = bound_problem(text)
+    if bound:
+        raise CcdError(manifest_path, f"{bound}, beyond what any manifest holds (a corrupt or "
+                                      "hostile file?)")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
