@@ -8,6 +8,7 @@ FITS goes through astropy rather than OpenImageIO because OpenImageIO's FITS plu
 from __future__ import annotations
 
 import contextlib
+import math
 import warnings
 from pathlib import Path
 from typing import Any, Iterator
@@ -28,7 +29,11 @@ def _fits_hdu(path: Path):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            hdul = fits.open(path, memmap=False, lazy_load_hdus=False)
+            # the stored values: the scaling is applied here (_scaled), in the precision the
+            # physical values need (astropy scales bytes and words in float32, where a BZERO of
+            # 1e300 overflows to inf)
+            hdul = fits.open(path, memmap=False, lazy_load_hdus=False,
+                             do_not_scale_image_data=True)
     except Exception as exc:  # astropy raises OSError/ValueError/TypeError for bad files
         raise ImageReadError(path, f"cannot read FITS file: {one_line(str(exc))}") from None
     for hdu in hdul:
@@ -39,22 +44,32 @@ def _fits_hdu(path: Path):
 
 
 def _fits_dtype(header, path: Path | None = None) -> np.dtype:
+    """The sample type of the physical values ``BZERO + BSCALE · stored`` (FITS 4.0 sec. 4.4.2,
+    the scaling astropy applies when it reads): the unsigned conventions (``BZERO`` 2^15, 2^31
+    on signed words; -128 on bytes for signed) as integers, any other scaling as floats wide
+    enough for its range (float64 beyond float32's, or for 32- and 64-bit words)."""
     bitpix = int_or(header.get("BITPIX"), 0)
-    bzero = header.get("BZERO", 0)
-    bscale = header.get("BSCALE", 1)
-    if bscale == 1 and bitpix == 16 and bzero == 32768:
-        return np.dtype("uint16")
-    if bscale == 1 and bitpix == 32 and bzero == 2**31:
-        return np.dtype("uint32")
-    if bscale == 1 and bitpix == 8:
-        return np.dtype("uint8")
-    table = {16: "int16", 32: "int32", 64: "int64", -32: "float32", -64: "float64"}
-    if bitpix not in table and bitpix != 8:
+    bzero = float_or_none(header.get("BZERO", 0))
+    bscale = float_or_none(header.get("BSCALE", 1))
+    if bzero is None or bscale is None or not (math.isfinite(bzero) and math.isfinite(bscale)) \
+            or bscale == 0:
+        raise ImageReadError(path, f"FITS BZERO = {header.get('BZERO')!r}, BSCALE = "
+                                   f"{header.get('BSCALE')!r}: not a scaling of the stored "
+                                   "values (finite, BSCALE non-zero)")
+    table = {8: "uint8", 16: "int16", 32: "int32", 64: "int64", -32: "float32", -64: "float64"}
+    if bitpix not in table:
         raise ImageReadError(path, f"FITS BITPIX = {header.get('BITPIX')!r} is not a FITS "
                                    "sample type")
-    if bscale != 1 or bzero != 0:
-        return np.dtype("float32")
-    return np.dtype(table[bitpix])
+    if bscale == 1:
+        unsigned = {16: (2.0 ** 15, "uint16"), 32: (2.0 ** 31, "uint32"), 8: (-128.0, "int8")}
+        if bitpix in unsigned and bzero == unsigned[bitpix][0]:
+            return np.dtype(unsigned[bitpix][1])
+        if bzero == 0:
+            return np.dtype(table[bitpix])
+    stored = 3.4e38 if bitpix < 0 else 2.0 ** bitpix
+    reach = abs(bzero) + abs(bscale) * stored
+    wide = reach > 3.0e38 or bitpix in (32, 64, -64)
+    return np.dtype("float64" if wide else "float32")
 
 
 def fits_temperature(h: Any) -> float | None:
@@ -103,18 +118,30 @@ def _fits_data(path: Path) -> Iterator[None]:
                              ) from None
 
 
-def _fits_to_hwc(data, header: ImageHeader) -> np.ndarray:
+def _scaled(raw: np.ndarray, fits_header: Any, dtype: np.dtype) -> np.ndarray:
+    """The physical values ``BZERO + BSCALE · stored`` as ``dtype`` (:func:`_fits_dtype`):
+    integer offsets in integers, anything else in float64 before the cast."""
+    bzero = float(fits_header.get("BZERO", 0) or 0)
+    bscale = float(fits_header.get("BSCALE", 1))
+    if bscale == 1 and bzero == 0:
+        return raw.astype(dtype, copy=False)
+    if bscale == 1 and dtype.kind in "iu" and bzero == int(bzero):
+        return (raw.astype(np.int64) + int(bzero)).astype(dtype)
+    return (raw.astype(np.float64) * bscale + bzero).astype(dtype, copy=False)
+
+
+def _fits_to_hwc(data, header: ImageHeader, fits_header: Any) -> np.ndarray:
     data = np.asarray(data)
     if data.ndim == 3:  # FITS cubes are (C, H, W)
         data = np.moveaxis(data, 0, -1)
-    return np.ascontiguousarray(data).astype(header.dtype, copy=False)
+    return np.ascontiguousarray(_scaled(data, fits_header, header.dtype))
 
 
 def read_fits(path: Path, header: ImageHeader) -> np.ndarray:
     hdul, hdu = _fits_hdu(path)
     try:
         with _fits_data(path):
-            return _fits_to_hwc(hdu.data, header)
+            return _fits_to_hwc(hdu.data, header, hdu.header)
     finally:
         hdul.close()
 
@@ -126,7 +153,8 @@ def read_fits_region(path: Path, header: ImageHeader, box) -> np.ndarray:
     try:
         lead = (slice(None),) * (int_or(hdu.header.get("NAXIS"), 2) - 2)
         with _fits_data(path):
-            return _fits_to_hwc(hdu.section[lead + (slice(y, y + h), slice(x, x + w))], header)
+            return _fits_to_hwc(hdu.section[lead + (slice(y, y + h), slice(x, x + w))], header,
+                                hdu.header)
     finally:
         hdul.close()
 

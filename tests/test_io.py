@@ -8,6 +8,7 @@ import pytest
 
 from ccdcore.errors import CcdError, ImageReadError, ImageWriteError, MethodNotAvailable
 from ccdcore.io import (atomic_path, atomic_write_text, read_frame, read_header, read_image,
+                        read_region,
                         write_image, write_map)
 
 RNG = np.random.default_rng(20260)
@@ -175,3 +176,41 @@ def test_errors_are_value_errors_with_where():
     err = CcdError("frames[2]", "unknown role 'drak'")
     assert isinstance(err, ValueError)
     assert str(err) == "frames[2]: unknown role 'drak'"
+
+
+@pytest.mark.parametrize("bitpix_data, bzero, bscale, expected, dtype", [
+    (np.array([[44, 10]], np.uint8), 256, 1, [[300.0, 266.0]], "float32"),
+    (np.array([[1, 2]], np.uint8), 1e300, 1, [[1e300, 1e300]], "float64"),
+    (np.array([[0, 255]], np.uint8), -128, 1, [[-128, 127]], "int8"),
+    (np.array([[0, 255]], np.uint8), 0, 1, [[0, 255]], "uint8"),
+    (np.array([[-32768, 32767]], np.int16), 32768, 1, [[0, 65535]], "uint16"),
+    (np.array([[2, 4]], np.int16), 10.0, 0.5, [[11.0, 12.0]], "float32"),
+    (np.array([[-2 ** 31, 2 ** 31 - 1]], np.int32), 2 ** 31, 1, [[0, 2 ** 32 - 1]], "uint32")])
+def test_fits_physical_values_follow_bzero_and_bscale(tmp_path, bitpix_data, bzero, bscale,
+                                                      expected, dtype):
+    """FITS 4.0 sec. 4.4.2: the value is BZERO + BSCALE x stored, for every BITPIX (an 8-bit
+    physical 300 was read as 44, a BZERO of 1e300 as zeros); whole frames and regions alike."""
+    from astropy.io import fits
+
+    hdu = fits.PrimaryHDU()
+    hdu.data = bitpix_data
+    hdu.header["BZERO"], hdu.header["BSCALE"] = bzero, bscale
+    path = tmp_path / "f.fits"
+    hdu.writeto(path, output_verify="silentfix")
+    assert fits.getdata(path, do_not_scale_image_data=True).tolist() == bitpix_data.tolist()
+    got = read_image(path)
+    assert got.dtype == np.dtype(dtype) and read_header(path).dtype == np.dtype(dtype)
+    np.testing.assert_array_equal(got, np.asarray(expected, dtype))
+    np.testing.assert_array_equal(read_region(path, 1, 0, 1, 1), got[:, 1:])
+
+
+def test_fits_scaling_that_is_no_scaling_is_refused(tmp_path):
+    from astropy.io import fits
+
+    hdu = fits.PrimaryHDU()
+    hdu.data = np.zeros((2, 2), np.int16)
+    hdu.header["BSCALE"] = 0.0
+    path = tmp_path / "z.fits"
+    hdu.writeto(path, output_verify="silentfix")
+    with pytest.raises(CcdError, match="BSCALE"):
+        read_image(path)

@@ -404,7 +404,7 @@ def test_numpy_warnings_do_not_escape(tmp_path):
     from astropy.io import fits
 
     hdu = fits.PrimaryHDU(np.array([[1e300, 1.0], [np.nan, -1e300]]))
-    hdu.header["BSCALE"] = 2.0                     # scaled: read as float32, so 1e300 overflows
+    hdu.header["BSCALE"] = 2.0                     # scaled: its physical values need float64
     hdu.writeto(tmp_path / "scaled.fits")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -412,7 +412,7 @@ def test_numpy_warnings_do_not_escape(tmp_path):
         write_map(tmp_path / "m.fits", np.array([[1e300, 1.0]]))
         assert np.isinf(read_image(tmp_path / "m.exr")[0, 0])
         data = read_image(tmp_path / "scaled.fits")
-        assert data.dtype == np.float32 and np.isinf(data[0, 0])
+        assert data.dtype == np.float64 and data[0, 0] == 2e300 and data[1, 1] == -2e300
 
 
 QUIET_SCRIPT = textwrap.dedent("""
