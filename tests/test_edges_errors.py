@@ -330,3 +330,23 @@ def test_an_ordinary_manifest_passes_the_bounds(tmp_path):
             '[[frames]]\npath = "x.y.z.tif"\nroi = [1, 2, 3, 4]\nexposure = 0.01\n'
             'note = \'c:\\\\a.b.c\'\nx = {a.b = 1.5, c = [1.5, [2.5, 3.5]]}\n')
     assert bound_problem(text) is None
+
+
+def test_one_channel_frames_under_an_rgb_layout_are_an_error(capsys, tmp_path):
+    """layout = "rgb" on one-channel frames was accepted and read them as colour (the
+    photon-transfer figures changed): now an error naming each frame, its code the fix."""
+    root = tmp_path / "s"
+    root.mkdir()
+    rng = np.random.default_rng(5)
+    for i in range(2):
+        write_image(root / f"d{i}.tif", rng.integers(90, 110, (8, 8)).astype(np.uint16), bits=12)
+    (root / "session.toml").write_text(
+        'schema = 1\n[camera]\nbits = 12\nlayout = "rgb"\n\n'
+        + "".join(f'[[frames]]\npath = "d{i}.tif"\nrole = "dark"\nexposure = 0.01\n\n'
+                  for i in range(2)))
+    session = open_session(root)
+    found = [p for p in session.problems if p.code == "layout"]
+    assert [p.where for p in found] == ["d0.tif", "d1.tif"] and not session.ok
+    assert "has 1 channel, where [camera] layout = 'rgb' needs 3" in found[0].message
+    code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c")
+    assert code == 2 and "layout" in err

@@ -14,6 +14,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any, Callable
 
 from ..common import format_size, group_by
+from ..channels import Layout
 from ..errors import ImageReadError
 from ..io import ImageHeader, check_pixel_limit, pixel_limit, read_header
 from .records import (EXPOSURE_ROLES, MAX_EXPOSURE, MIN_EXPOSURE, ROLES, UNIFORM_ROLES, Camera,
@@ -179,6 +180,25 @@ def _missing_exposure(cand: Candidate, source: str) -> str:
                if png else ""))
 
 
+def _layout_problems(records: list[FrameRecord], headers: dict[Path, ImageHeader],
+                     camera: Camera) -> list[Problem]:
+    """One-channel frames under ``[camera] layout = "rgb"``, which needs three (they were
+    read as colour and changed every figure silently; a colour frame under a one-channel
+    layout is refused where it is used, naming the layout)."""
+    if camera.layout != Layout.RGB:
+        return []
+    want, out = 3, []
+    for r in records:
+        hdr = headers.get(r.path)
+        if hdr is None or hdr.channels != 1:
+            continue
+        has = f"{hdr.channels} channel{'s' if hdr.channels != 1 else ''}"
+        out.append(Problem(r.relpath, f"has {has}, where [camera] layout = "
+                                      f"{camera.layout!r} needs {want}",
+                           code=ProblemCode.LAYOUT, roles=(r.role,)))
+    return out
+
+
 def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageHeader],
                           camera: Camera) -> list[Problem]:
     """Shape / dtype / bit-depth consistency within roles, bits vs camera, ptc level sizes."""
@@ -212,6 +232,7 @@ def _cross_frame_problems(records: list[FrameRecord], headers: dict[Path, ImageH
                 out.append(Problem(r.relpath, f"{hdr.bits}-bit data but camera.bits = "
                                               f"{camera.bits}", code=ProblemCode.BIT_DEPTH,
                                    roles=(r.role,)))
+    out += _layout_problems(records, headers, camera)
     for level, recs in group_by((r for r in records if r.role == "ptc" and r.level is not None),
                                 lambda r: r.level).items():
         if len(recs) < 2:

@@ -180,6 +180,8 @@ class ProblemCode(StrEnum):
     MISMATCH = ("mismatch", "capture every frame of a role with the same size, bit depth and "
                             "sample type")
     BIT_DEPTH = "bit-depth", "set [camera] bits to the depth the data use"
+    LAYOUT = ("layout", "set [camera] layout to what the frames hold: mono for one channel, rgb "
+                        "for three, bayer-rggb (or another mosaic) for a raw one-channel mosaic")
     PTC_SINGLE_FRAME = ("ptc-single-frame", "capture a second frame at that light level (pairs "
                                             "are differenced)")
     NO_FRAMES = ("no-frames", "list the frames in session.toml (the capture plan writes a "
