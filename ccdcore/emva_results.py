@@ -31,7 +31,7 @@ from .common import json_safe
 from .emva_dark import DarkCurrent, DarkCurrentSummary
 from .emva_spatial import (NonuniformitySplit, NonuniformitySplitSummary, SpatialPlots,
                            SpatialPlotsSummary)
-from .records import OMIT_NONE, Record, Row
+from .records import OMIT_NONE, Record, Row, positive_problems
 
 __all__ = ["EmvaFigures", "EmvaPoint", "DarkPoint", "SpatialSet", "EmvaSummary", "SheetRow",
            "DATASHEET", "HEADLINE", "datasheet_rows",
@@ -345,6 +345,10 @@ class EmvaSummary(Record):
     nonuniformity_split: NonuniformitySplitSummary | None = None
     #: the arrays of the spatial section's plots (``None`` without spatial sets)
     spatial_plots: SpatialPlotsSummary | None = None
+
+    def value_problems(self) -> list[tuple[str, str]]:
+        """The system gain K must be positive (sec. 6.6), its error not negative."""
+        return positive_problems(self, ("K",), ("K_err",))
 
     def rows(self) -> tuple[Row, ...]:
         """The headline figures (:data:`HEADLINE`: K, η, σ_d, μ_e.sat, DR in

@@ -749,6 +749,15 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
         if shape is not None and header.shape != shape:
             raise CcdError(src, f"image shape {header.shape} differs from the calibration "
                                 f"maps' {shape}")
+        bits = product.camera.bits
+        if bits is not None and header.dtype.kind in "ui":
+            # a container wider than the camera's (16-bit words for an 8-bit camera), or a
+            # depth stated beyond the camera's (a 14-bit raw for a 12-bit product)
+            container = header.dtype.itemsize * 8
+            if container > 8 * -(-bits // 8) or bits < header.bits < container:
+                raise CcdError(src, f"{header.bits}-bit {header.dtype} data, but the product "
+                                    f"was made for a {bits}-bit camera: another camera or "
+                                    "setting? (apply a product of the same camera)")
     with output_set(out_dir, inputs=inputs) as tmp:   # all images as one set, or none
         for src, dst in zip(images, targets):
             attrs = ({"compression": compression}

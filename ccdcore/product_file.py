@@ -345,8 +345,13 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     if not manifest.is_file():
         raise CcdError(folder, f"not a calibration product (no {PRODUCT_FILE})")
     root = manifest.parent
+    def not_json(constant: str) -> None:
+        # a product writes a figure it cannot state as null, never as NaN or Infinity
+        raise ValueError(f"{constant} is not a number a product holds (a value it cannot "
+                         "state is null): a damaged or hand-edited product")
+
     try:
-        doc = json.loads(manifest.read_bytes().decode("utf-8-sig"))
+        doc = json.loads(manifest.read_bytes().decode("utf-8-sig"), parse_constant=not_json)
     except (OSError, ValueError) as exc:
         raise CcdError(manifest, f"cannot read the product description: {exc}") from None
     except RecursionError:

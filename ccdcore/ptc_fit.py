@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike
 
 from .common import float_or_nan, json_safe
 from .errors import CcdError
-from .records import Record, Row
+from .records import Record, Row, positive_problems
 
 __all__ = ["PtcPoint", "PtcPointSummary", "PhotonTransferSummary", "LineFit",
            "weighted_line_fit", "goodness_of_fit", "data_reason", "saturation_reasons",
@@ -259,6 +259,11 @@ class PhotonTransferSummary(Record):
     #: saturation, the paper's range) and in words
     fit_fraction: float | None = None
     fit_range: str = "every level below saturation (the paper's range)"
+
+    def value_problems(self) -> list[tuple[str, str]]:
+        """The gain A must be positive (the slope of eq. 41), its error and σ²_C's not
+        negative."""
+        return positive_problems(self, ("A",), ("A_err", "sigma_c2_err"))
 
     def rows(self) -> tuple[Row, ...]:
         """The headline figures: A, the conversion gain, σ²_C, the read noise, b₀, the fit's

@@ -42,7 +42,7 @@ import numpy as np
 from .common import format_pm
 from .errors import CcdError
 
-__all__ = ["Record", "OMIT_NONE", "Row", "rows_text"]
+__all__ = ["Record", "OMIT_NONE", "Row", "rows_text", "positive_problems"]
 
 R = TypeVar("R", bound="Record")
 
@@ -79,6 +79,12 @@ class Record:
         """The JSON object: fields in order under their keys, records and tuples converted,
         NaN and infinities as ``None`` (strict JSON)."""
         return {key: _to_json(value) for key, value in self.items()}
+
+    def value_problems(self) -> list[tuple[str, str]]:
+        """``(key, problem)`` of every value outside what the record can hold (a gain that is
+        not positive ...): checked by :meth:`from_dict` after the types. None by default;
+        records with such limits override it."""
+        return []
 
     @classmethod
     def from_dict(cls: type[R], d: Any, where: Any = None, path: str = "") -> R:
@@ -121,7 +127,26 @@ def _record_of(cls: type[R], d: Any, where: Any, path: str) -> R:
                 continue
             raise CcdError(where, f"{_join(path, key)!r} is missing")
         values[f.name] = _from_json(hints[f.name], d[key], where, _join(path, key))
-    return cls(**values)
+    record = cls(**values)
+    for key, problem in record.value_problems():
+        raise CcdError(where, f"{_join(path, key)!r} {problem}")
+    return record
+
+
+def positive_problems(record: Any, keys: tuple[str, ...], errors: tuple[str, ...] = ()
+                      ) -> list[tuple[str, str]]:
+    """:meth:`Record.value_problems` of values that must be finite and positive (``keys``) and
+    of standard errors that must be finite and non-negative when given (``errors``)."""
+    out = []
+    for key in keys:
+        v = getattr(record, key)
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            out.append((key, f"is {v!r}: must be a finite positive number"))
+    for key in errors:
+        v = getattr(record, key)
+        if v is not None and not (math.isfinite(v) and v >= 0):
+            out.append((key, f"is {v!r}: a standard error must be finite and not negative"))
+    return out
 
 
 def _join(path: str, key: Any) -> str:

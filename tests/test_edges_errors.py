@@ -17,7 +17,7 @@ import pytest
 
 from ccdcore.cli import main
 from ccdcore.errors import CcdError
-from ccdcore.io import write_image
+from ccdcore.io import read_image, write_image
 from ccdcore.product import load_product
 from ccdcore.response.brackets import MAX_BLOOM_RADIUS, bloom_mask, check_times
 from ccdcore.session import open_session
@@ -350,3 +350,66 @@ def test_one_channel_frames_under_an_rgb_layout_are_an_error(capsys, tmp_path):
     assert "has 1 channel, where [camera] layout = 'rgb' needs 3" in found[0].message
     code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c")
     assert code == 2 and "layout" in err
+
+
+@pytest.fixture(scope="module")
+def h94_product(tmp_path_factory):
+    from ccdcore.product import calibrate
+    from ccdcore.simulate import simulate
+
+    root = tmp_path_factory.mktemp("p") / "s"
+    simulate("healey94", root, seed=3, size=(48, 32), n1=2, n2=1)
+    out = root.parent / "calib"
+    calibrate(root).save(out)
+    return root, out
+
+
+@pytest.mark.parametrize("edit, what", [
+    (lambda d: d["estimates"]["noise"].__setitem__("A", float("nan")), "NaN is not a number"),
+    (lambda d: d["estimates"]["noise"].__setitem__("A", float("inf")), "Infinity is not a number"),
+    (lambda d: d["estimates"]["noise"].__setitem__("A", -1.0),
+     "'estimates.noise.A' is -1.0: must be a finite positive number"),
+    (lambda d: d["estimates"]["noise"].__setitem__("A_err", -0.5), "a standard error must be")])
+def test_a_product_with_impossible_figures_is_refused(capsys, h94_product, tmp_path, edit, what):
+    """A product never writes NaN or Infinity (a figure it cannot state is null) nor a gain
+    that is not positive: such a calibration.json is damaged, and apply and report say so in
+    one line (they exited 0 and printed K = nan)."""
+    import json
+    import shutil
+
+    root, calib = h94_product
+    bad = tmp_path / "bad"
+    shutil.copytree(calib, bad)
+    doc = json.loads((bad / "calibration.json").read_text())
+    edit(doc)
+    (bad / "calibration.json").write_text(json.dumps(doc))
+    frame = next((root / "scene").iterdir())
+    for argv in (("apply", bad, frame, "-o", tmp_path / "o"), ("report", bad, "-o",
+                                                                tmp_path / "r.html")):
+        code, out, err = run(capsys, *argv)
+        assert code == 2 and what in one_line(err) and "calibration.json" in err
+
+
+def test_an_emva_gain_that_is_not_positive_is_refused():
+    """The EMVA 1288 system gain K of a stored datasheet must be positive."""
+    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva_results import EmvaSummary
+
+    doc = emva_figures(open_session(Path(__file__).parents[1] / "assets" / "emva1288")).summary(
+    ).to_dict()
+    assert EmvaSummary.from_dict(doc, "calibration.json", "emva1288").K > 0
+    for bad in (-1.0, 0.0):
+        with pytest.raises(CcdError, match=f"'emva1288.K' is {bad}"):
+            EmvaSummary.from_dict({**doc, "K": bad}, "calibration.json", "emva1288")
+
+
+def test_a_frame_deeper_than_the_products_camera_is_refused(capsys, h94_product, tmp_path):
+    """A 16-bit frame applied to an 8-bit camera's product (it was applied silently); an
+    8-bit frame of the same size is corrected."""
+    root, calib = h94_product
+    shape = read_image(next((root / "dark").iterdir())).shape
+    deep = write_image(tmp_path / "deep.tif", np.full(shape, 300, np.uint16), bits=16)
+    code, out, err = run(capsys, "apply", calib, deep, "-o", tmp_path / "o")
+    assert code == 2 and "16-bit uint16 data" in one_line(err) and "8-bit camera" in err
+    ok = write_image(tmp_path / "ok.tif", np.full(shape, 30, np.uint8), bits=8)
+    assert run(capsys, "apply", calib, ok, "-o", tmp_path / "o2")[0] == 0
