@@ -261,9 +261,17 @@ class PhotonTransferSummary(Record):
     fit_range: str = "every level below saturation (the paper's range)"
 
     def value_problems(self) -> list[tuple[str, str]]:
-        """The gain A must be positive (the slope of eq. 41), its error and σ²_C's not
-        negative."""
-        return positive_problems(self, ("A",), ("A_err", "sigma_c2_err"))
+        """The gain A finite, and positive unless the summary states no gain (a fit whose slope
+        came out negative is stored with a null conversion gain, and said so); the errors of A
+        and σ²_C finite and not negative."""
+        out = positive_problems(self, (), ("A_err", "sigma_c2_err"))
+        if not math.isfinite(self.A):
+            out.append(("A", f"is {self.A!r}: must be a finite number"))
+        elif self.A <= 0 and self.conversion_gain_e_per_dn is not None:
+            out.append(("A", f"is {self.A!r}, not positive, yet the conversion gain is "
+                             f"stated ({self.conversion_gain_e_per_dn!r}): the gain of eq. 41 "
+                             "is a positive slope"))
+        return out
 
     def rows(self) -> tuple[Row, ...]:
         """The headline figures: A, the conversion gain, σ²_C, the read noise, b₀, the fit's

@@ -368,7 +368,7 @@ def h94_product(tmp_path_factory):
     (lambda d: d["estimates"]["noise"].__setitem__("A", float("nan")), "NaN is not a number"),
     (lambda d: d["estimates"]["noise"].__setitem__("A", float("inf")), "Infinity is not a number"),
     (lambda d: d["estimates"]["noise"].__setitem__("A", -1.0),
-     "'estimates.noise.A' is -1.0: must be a finite positive number"),
+     "'estimates.noise.A' is -1.0, not positive, yet the conversion gain is stated"),
     (lambda d: d["estimates"]["noise"].__setitem__("A_err", -0.5), "a standard error must be")])
 def test_a_product_with_impossible_figures_is_refused(capsys, h94_product, tmp_path, edit, what):
     """A product never writes NaN or Infinity (a figure it cannot state is null) nor a gain
