@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
@@ -84,6 +85,12 @@ def check_file(path: Path) -> None:
         raise ImageReadError(path, "file not found")
     if path.is_dir():
         raise ImageReadError(path, "is a folder, not an image file")
+    if not path.is_file():
+        mode = path.stat().st_mode
+        what = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device"
+                if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "a socket"
+                if stat.S_ISSOCK(mode) else "not a regular file")
+        raise ImageReadError(path, f"is {what}, not an image file")
     if path.stat().st_size == 0:
         raise ImageReadError(path, "empty file (0 bytes)")
     if path.suffix.lower() not in IMAGE_EXTENSIONS:

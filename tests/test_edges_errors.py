@@ -413,3 +413,14 @@ def test_a_frame_deeper_than_the_products_camera_is_refused(capsys, h94_product,
     assert code == 2 and "16-bit uint16 data" in one_line(err) and "8-bit camera" in err
     ok = write_image(tmp_path / "ok.tif", np.full(shape, 30, np.uint8), bits=8)
     assert run(capsys, "apply", calib, ok, "-o", tmp_path / "o2")[0] == 0
+
+
+def test_a_fifo_given_as_a_frame_is_named_as_one(capsys, h94_product, tmp_path):
+    """A FIFO is refused as what it is (it was called an empty file), without blocking."""
+    import os
+
+    root, calib = h94_product
+    fifo = tmp_path / "pipe.tif"
+    os.mkfifo(fifo)
+    code, out, err = run(capsys, "apply", calib, fifo, "-o", tmp_path / "o")
+    assert code == 2 and "is a FIFO (named pipe), not an image file" in one_line(err)
