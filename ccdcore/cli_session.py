@@ -55,14 +55,18 @@ def _port(text: str) -> int:
     return n
 
 
-def _print_problems(problems: Sequence[Any], label: str, limit: int = 3) -> None:
+def _print_problems(problems: Sequence[Any], label: str, limit: int = 3,
+                    drafted: bool = False) -> None:
     """Each problem on its own line; beyond ``limit`` of one kind (code), the first ``limit``
-    and a count of the rest, so a thousand-frame session stays readable."""
+    and a count of the rest, so a thousand-frame session stays readable. ``drafted``: the
+    manifest draft was just written, and the advice points at it."""
+    from .session.folder import after_draft
+
     shown: dict[str, int] = {}
     for p in problems:
         shown[p.code] = shown.get(p.code, 0) + 1
         if shown[p.code] <= limit:
-            say(label, str(p))
+            say(label, after_draft(str(p)) if drafted else str(p))
     for code, n in shown.items():
         if n > limit:
             say(label, f"… and {n - limit} more of the same kind ({code}); "
@@ -122,8 +126,8 @@ def _cmd_session(args: argparse.Namespace) -> int:
               f"{cam.layout}, {len(session.frames)} frames")
         for row in session.groups_table():
             print(f"  {row['role']:<14} {_group_text(row)}")
-        _print_problems(session.errors, "error")
-        _print_problems(session.warnings, "warning")
+        _print_problems(session.errors, "error", drafted=draft is not None)
+        _print_problems(session.warnings, "warning", drafted=draft is not None)
         if draft is not None:
             print(f"manifest draft written to {draft}: check it, then rename it session.toml")
         n = len(session.errors)

@@ -424,3 +424,17 @@ def test_a_fifo_given_as_a_frame_is_named_as_one(capsys, h94_product, tmp_path):
     os.mkfifo(fifo)
     code, out, err = run(capsys, "apply", calib, fifo, "-o", tmp_path / "o")
     assert code == 2 and "is a FIFO (named pipe), not an image file" in one_line(err)
+
+
+def test_an_emva_descriptor_opening_with_64_kb_of_comments_is_one(tmp_path):
+    """A descriptor may open with any amount of comments (it was refused as "not a session"
+    when the first 64 KB were comments)."""
+    import shutil
+
+    src = Path(__file__).parents[1] / "assets" / "emva1288"
+    root = Path(shutil.copytree(src, tmp_path / "e"))
+    desc = root / "EMVA1288descriptor.txt"
+    desc.write_text("# a comment line of a lab's own header\n" * 3000 + desc.read_text())
+    assert desc.stat().st_size > 100_000
+    session = open_session(desc)
+    assert session.source == "emva1288" and session.roles()["ptc"] > 0

@@ -13,6 +13,7 @@ import pytest
 import ccdcore.cli_common as cli_common
 import ccdcore.cli_response as cli_response
 from ccdcore.cli import main
+from ccdcore.io import write_image
 
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets"
@@ -218,3 +219,19 @@ def test_apply_says_what_was_applied(capsys, h94_product, tmp_path):
     assert flat == ("applied to 1 image (listed above, float32): dark reference subtracted and "
                     "the fixed pattern divided out with the maps dark, K: corrected = "
                     f"(raw − D̂_D)/K̂ (eq. 51); product {h94_product}")
+
+
+def test_session_draft_advice_points_at_the_draft_it_wrote(capsys, tmp_path):
+    """``session --draft`` told the user to run ``session --draft``: once the draft is written,
+    the plain folder's advice points at it; without --draft it names the command."""
+    rng = np.random.default_rng(4)
+    for i in range(3):
+        write_image(tmp_path / f"IMG_{i}.png", rng.integers(0, 255, (8, 8, 3)).astype(np.uint8))
+    code, out, err = run(capsys, "session", tmp_path)
+    flat = " ".join(out.split())
+    assert "write a manifest draft with `ccdcore session FOLDER --draft`" in flat
+    code, out, err = run(capsys, "session", tmp_path, "--draft")
+    flat = " ".join(out.split())
+    assert code == 0 and "--draft" not in flat.split("manifest draft written to")[0]
+    assert "check the manifest draft written below and save it as session.toml" in flat
+    assert (tmp_path / "session.toml.draft").is_file()

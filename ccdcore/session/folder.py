@@ -31,7 +31,26 @@ from ..io import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
 from .assemble import Candidate, assemble, path_problem
 from .records import MANIFEST_NAME, ROLES, Camera, Problem, ProblemCode, Session
 
-__all__ = ["ROLE_SYNONYMS", "FILE_ROLE_WORDS", "file_name_role", "open_folder"]
+__all__ = ["ROLE_SYNONYMS", "FILE_ROLE_WORDS", "file_name_role", "open_folder", "after_draft",
+           "WRITE_DRAFT", "WRITE_MANIFEST"]
+
+#: the advice of a plain folder's warnings, and what it becomes once the draft is written
+#: (:func:`after_draft`)
+WRITE_DRAFT = "write a manifest draft with `ccdcore session FOLDER --draft` and save it as " \
+              f"{MANIFEST_NAME}"
+WRITE_MANIFEST = "write a manifest (ccdcore session FOLDER --draft)"
+_AFTER_DRAFT = {WRITE_DRAFT: f"check the manifest draft written below and save it as "
+                             f"{MANIFEST_NAME}",
+                WRITE_MANIFEST: "edit the manifest draft written below,"}
+
+
+def after_draft(text: str) -> str:
+    """A plain folder's warning once ``ccdcore session FOLDER --draft`` has written the draft:
+    its advice points at the draft instead of the command just run."""
+    for advice, done in _AFTER_DRAFT.items():
+        text = text.replace(advice, done)
+    return text
+
 
 #: folder name (lower case) -> role, for plain folders without a manifest
 ROLE_SYNONYMS: dict[str, str] = {
@@ -352,9 +371,9 @@ def _find_brackets(relpaths: list[str], named: dict[str, str | None], headers: _
                 out.problems.append(Problem(
                     unit + "/" if unit else ".",
                     f"the {len(rels)} images in {label} are read as scenes, not as an "
-                    f"exposure bracket: {why}. If they are a bracket, write a manifest "
-                    "(ccdcore session FOLDER --draft) giving each frame role = \"bracket\" and "
-                    "its exposure (in a bracket only the exposure time changes)",
+                    f"exposure bracket: {why}. If they are a bracket, {WRITE_MANIFEST} giving "
+                    "each frame role = \"bracket\" and its exposure (in a bracket only the "
+                    "exposure time changes)",
                     severity="warning",
                     code=ProblemCode.NOT_A_BRACKET, roles=("bracket", "scene")))
             if not take:
@@ -504,8 +523,7 @@ def open_folder(folder: Path, role: str | None = None) -> Session:
                       f"one exposure time and gain form one level's pairs)")
         note = (f"no {MANIFEST_NAME}: roles inferred from {how} ({summary}){found}; exposures "
                 f"from file headers for {n_exp} of {len(relpaths)} frames, camera "
-                f"'{name}', bits = {bits}, layout = {layout}; check them, write a manifest "
-                f"draft with `ccdcore session FOLDER --draft` and save it as {MANIFEST_NAME}")
+                f"'{name}', bits = {bits}, layout = {layout}; check them, {WRITE_DRAFT}")
         extra = [Problem(str(root), note, "warning", code=ProblemCode.FOLDER_INFERRED)]
     else:
         extra = [Problem(str(root), f"no image files found (looked for "
