@@ -258,9 +258,31 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         print_json(out)
     else:
         _print_product(product, folder)
-    for skip in product.skipped:  # on stderr, so --json stays one object on stdout
-        say(f"skipped {skip.estimate}", skip.reason, file=sys.stderr)
+    _print_skipped(product.skipped)
     return 0
+
+
+def _print_skipped(skipped: Sequence[Any]) -> None:
+    """The estimates not made, on stderr (``--json`` stays one object on stdout): each with
+    its reason, but those whose frames the session holds none of (a photo card's darks, EMVA
+    sets, fixed-pattern cards) in one line, their needs in ``--json``'s ``skipped``."""
+    from .product import requirement
+
+    def absent(skip: Any) -> bool:
+        try:
+            roles = set(requirement(skip.estimate).roles)
+        except KeyError:
+            return False
+        return skip.code == "missing-frames" and roles <= set(skip.roles)
+
+    for skip in skipped:
+        if not absent(skip):
+            say(f"skipped {skip.estimate}", skip.reason, file=sys.stderr)
+    names = [skip.estimate for skip in skipped if absent(skip)]
+    if names:
+        say("not made", f"{', '.join(names)}: the session holds none of the frames they need "
+                        "(--json lists, under \"skipped\", what to capture for each)",
+            file=sys.stderr)
 
 
 def _product_manifest(path: Path) -> Path | None:

@@ -235,3 +235,21 @@ def test_session_draft_advice_points_at_the_draft_it_wrote(capsys, tmp_path):
     assert code == 0 and "--draft" not in flat.split("manifest draft written to")[0]
     assert "check the manifest draft written below and save it as session.toml" in flat
     assert (tmp_path / "session.toml.draft").is_file()
+
+
+def test_a_photo_card_gets_one_line_for_what_it_never_meant_to_have(capsys, tmp_path):
+    """A bracket alone: the estimates whose frames it holds none of are one line on stderr
+    (their needs in --json), not eight blocks about darks and EMVA sets."""
+    from ccdcore.simulate import simulate
+
+    root = tmp_path / "b"
+    simulate("tsin01", root, seed=1, size=(48, 32))
+    code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c")
+    assert code == 0, err
+    flat = " ".join(err.split())
+    assert "not made: noise, emva1288, dark, fixed_pattern, plan, correction_check, scene, " \
+           "flat_field: the session holds none of the frames they need" in flat
+    assert "skipped dark" not in flat and "capture an EMVA1288 descriptor" not in flat
+    code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c2", "--json")
+    skipped = {s["estimate"]: s for s in json.loads(out)["skipped"]}
+    assert "lens-capped frames" in skipped["dark"]["reason"]
