@@ -87,6 +87,9 @@ _ALERTS = {GateStatus.PASS: "success", GateStatus.WARN: "warning", GateStatus.FA
            GateStatus.SKIP: "info"}
 
 
+#: the height of the levels' list before it scrolls (px)
+LEVEL_LIST_HEIGHT = 260
+
 _NAV_NOTE = ("Levels the estimator leaves out (clipped, beyond the linear range) stay out "
              "whatever their tick; the points table says why.")
 
@@ -269,14 +272,18 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
         for widget in (self.x_input, self.y_input, self.w_input, self.h_input):
             widget.param.watch(self._on_roi_inputs, "value")
 
+        # a measured EMVA 1288 set has a hundred levels: their list scrolls in a box of its
+        # own, so the page's figure stays in the first view whatever the session's size
+        self.level_box = pn.Column(self.level_select, height=LEVEL_LIST_HEIGHT, scroll=True,
+                                   sizing_mode="stretch_width", css_classes=["ccd-ptc-levels"])
         levels_card = pn.Card(
             pn.pane.Markdown("Untick a level to leave it out; the fit follows at once.",
                              margin=(0, 10)),
-            self.level_select, self.all_levels_button, pn.layout.Divider(),
+            self.level_box, self.all_levels_button, pn.layout.Divider(),
             self.robust_checkbox, self.robust_pane, self.emva_checkbox,
             pn.pane.Markdown(_NAV_NOTE, styles={"font-size": "0.85em", "color": "#6c757d"}),
             title="Levels", width=320, collapsible=False)
-        fit_card = pn.Card(self.verdict_alert, self.parameter_table, title="Noise model",
+        fit_card = pn.Card(self.parameter_table, title="Noise model",
                            sizing_mode="stretch_width", collapsible=False)
         roi_inputs = pn.Column(
             pn.pane.Markdown("Drag a box on the frame (box-select tool) or type the region; "
@@ -289,10 +296,15 @@ class PhotonTransferPage(PageMessages, pn.viewable.Viewer):
             pn.Row(pn.Column(self.frame_select, self.preview_pane, sizing_mode="stretch_width"),
                    roi_inputs, sizing_mode="stretch_width"),
             title="Region of interest", sizing_mode="stretch_width", collapsible=False)
+        # the verdict, then the figure beside the levels: the first view at 1400 x 900 shows
+        # both whatever the number of levels (the parameters follow)
         self.content = pn.Column(
-            pn.Row(fit_card, levels_card, sizing_mode="stretch_width"),
-            pn.Card(self.plot_tabs, title="Photon-transfer curve", sizing_mode="stretch_width",
-                    collapsible=False),
+            self.verdict_alert,
+            pn.Row(pn.Card(self.plot_tabs, title="Photon-transfer curve",
+                           sizing_mode="stretch_width", collapsible=False,
+                           css_classes=["ccd-ptc-curve-card"]),
+                   levels_card, sizing_mode="stretch_width"),
+            fit_card,
             pn.Card(self.points_table, title="Points (one per light level)",
                     sizing_mode="stretch_width"),
             self.roi_card,
