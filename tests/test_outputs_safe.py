@@ -2,6 +2,7 @@
 damaged product, no temporary folder left behind ("Honest at the edges: nothing lost")."""
 from __future__ import annotations
 
+import inspect
 import json
 import os
 import shutil
@@ -361,19 +362,23 @@ _KILL_AT = textwrap.dedent("""
             os.kill(os.getpid(), signal.SIGKILL)
         real(a, b)
     outs.os.replace = replace
-    def writer(text):
-        def write(path):
-            path = Path(path)
-            if path.suffix:
-                path.write_text(text)
-            else:
-                path.mkdir()
-                (path / "p.png").write_text(text)
-        return write
     outs.write_outputs(sys.argv[1], {n: writer("new " + n) for n in
                                      ("a.txt", "b.txt", "plots", "c.txt")}, last="c.txt")
     print("done")
 """)
+
+
+def writer(text: str):
+    """A writer of one entry of a set: a file holding ``text``, or (no suffix) a folder with a
+    file holding it (the same code runs in the killed process: :data:`_KILL_AT`)."""
+    def write(path):
+        path = Path(path)
+        if path.suffix:
+            path.write_text(text)
+        else:
+            path.mkdir()
+            (path / "p.png").write_text(text)
+    return write
 
 
 def _state(folder: Path) -> dict[str, str]:
@@ -389,16 +394,7 @@ def test_a_run_killed_at_any_moment_of_the_swap_leaves_one_whole_set(tmp_path):
     from ccdcore.io_outputs import recover_swaps, remove_stale_temporaries
 
     def earlier(folder: Path) -> None:
-        def write(text):
-            def w(path):
-                path = Path(path)
-                if path.suffix:
-                    path.write_text(text)
-                else:
-                    path.mkdir()
-                    (path / "p.png").write_text(text)
-            return w
-        write_outputs(folder, {n: write("old " + n) for n in ("a.txt", "plots", "c.txt")},
+        write_outputs(folder, {n: writer("old " + n) for n in ("a.txt", "plots", "c.txt")},
                       last="c.txt")
         (folder / "mine.txt").write_text("the user's")
 
@@ -407,7 +403,10 @@ def test_a_run_killed_at_any_moment_of_the_swap_leaves_one_whole_set(tmp_path):
         folder = tmp_path / f"k{k}"
         earlier(folder)
         old = _state(folder)
-        proc = subprocess.run([sys.executable, "-c", _KILL_AT, str(folder), str(k)], cwd=ROOT,
+        script = _KILL_AT.replace(
+            "outs.os.replace = replace", "outs.os.replace = replace\n"
+            + textwrap.dedent(inspect.getsource(writer)))
+        proc = subprocess.run([sys.executable, "-c", script, str(folder), str(k)], cwd=ROOT,
                               capture_output=True, text=True, timeout=120)
         finished = "done" in proc.stdout
         remove_stale_temporaries(folder)          # what the next write does first
