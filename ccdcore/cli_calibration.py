@@ -126,15 +126,23 @@ def _print_rows(title: str, rows: Iterable[Row]) -> None:
     label_w = min(max((_width(r.label) for r in rows), default=0), _LABEL_WIDTH)
     value_w = min(max((_width(r.shown) for r in rows), default=0), _VALUE_WIDTH)
     print(f"  {title}")
+    indent = " " * (8 + label_w + value_w)
     for r in rows:
-        head = f"    {_padded(r.label, label_w)}  {_padded(r.shown, value_w)}"
-        if not r.meaning:
-            print(head.rstrip())
-            continue
-        print("\n".join(textwrap.wrap(
-            r.meaning, width=WIDTH, initial_indent=head + "  ",
-            subsequent_indent=" " * (8 + label_w + value_w),
-            break_long_words=False, break_on_hyphens=False)))
+        meaning = textwrap.wrap(r.meaning, width=max(20, WIDTH - len(indent)),
+                                break_long_words=False, break_on_hyphens=False) \
+            if r.meaning else []
+        if _width(r.shown) > value_w:
+            # a value wider than its column (a verdict's line) has the row's first lines to
+            # itself, the meaning in its own column below: the columns never break
+            for i, line in enumerate(textwrap.wrap(r.shown, width=WIDTH - 6 - label_w,
+                                                   break_long_words=False)):
+                print(f"    {_padded(r.label if i == 0 else '', label_w)}  {line}")
+            lines = [("", "", text) for text in meaning]
+        else:
+            lines = [(r.label if i == 0 else "", r.shown if i == 0 else "", text)
+                     for i, text in enumerate(meaning or [""])]
+        for label, value, text in lines:
+            print(f"    {_padded(label, label_w)}  {_padded(value, value_w)}  {text}".rstrip())
 
 
 def _width(text: str) -> int:

@@ -253,3 +253,19 @@ def test_a_photo_card_gets_one_line_for_what_it_never_meant_to_have(capsys, tmp_
     code, out, err = run(capsys, "calibrate", root, "-o", tmp_path / "c2", "--json")
     skipped = {s["estimate"]: s for s in json.loads(out)["skipped"]}
     assert "lens-capped frames" in skipped["dark"]["reason"]
+
+
+def test_calibrate_rows_keep_their_columns(capsys, tmp_path):
+    """A value wider than its column (the photon-transfer verdict's line) takes the row's first
+    line to itself: no line of the summary runs past the width, and every meaning starts in
+    the meaning column."""
+    from ccdcore.cli_common import WIDTH
+
+    code, out, err = run(capsys, "calibrate", ASSETS / "healey94", "-o", tmp_path / "h")
+    assert code == 0, err
+    lines = out.splitlines()
+    assert max(len(line) for line in lines) <= WIDTH
+    verdict = next(i for i, line in enumerate(lines) if line.strip().startswith("verdict"))
+    assert "Passed: the points agree with the line within their errors" in lines[verdict]
+    column = next(line for line in lines if "chance of so large" in line).index("chance of so")
+    assert lines[verdict + 1].index("the photon-transfer gate") == column
