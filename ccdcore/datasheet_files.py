@@ -54,6 +54,7 @@ from .emva_spatial import SpatialPlotsSummary
 from .errors import require_extra
 
 __all__ = ["write_datasheet", "datasheet_csv", "datasheet_document", "plot_plan", "PlotPlan",
+           "draw_plot",
            "PLOTS", "CSV_FILE", "JSON_FILE", "PLOTS_FOLDER", "CSV_COLUMNS", "PLOT_FORMATS",
            "OUTPUTS"]
 
@@ -462,6 +463,15 @@ _ALL: tuple[_Plot, ...] = (
 )
 #: every plot of a datasheet, in the standard's order (file stems in ``plots/``)
 PLOTS: tuple[str, ...] = tuple(p.name for p in _ALL)
+
+
+def draw_plot(name: str, fig: Any, emva: EmvaSummary) -> None:
+    """Draw the datasheet plot ``name`` (one of :data:`PLOTS`) of ``emva`` on the matplotlib
+    figure ``fig`` (what the files hold; the tests read the drawn data back)."""
+    by_name = {p.name: p for p in _ALL}
+    if name not in by_name:
+        raise KeyError(f"no datasheet plot {name!r}; the plots are {', '.join(PLOTS)}")
+    by_name[name].draw(fig, emva)
 
 
 @dataclass(frozen=True)
