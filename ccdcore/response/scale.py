@@ -6,8 +6,8 @@ same images with ``E / s``; with free offsets (white balance on) so is a shift. 
 every method's ``g`` on one documented scale (docs/response.md):
 
 * the **scale** puts ``g(z_hi) = z_hi / (levels - 1)`` at the reference code
-  ``z_hi = round(0.9 (levels - 1))`` (230 for 8 bits, half to even): g reads as "fraction of full scale" near
-  the top, where every bracket has data;
+  ``z_hi = round(0.9 (levels - 1))`` (230 for 8 bits: 229.5 rounds half to even): g reads as
+  "fraction of full scale" near the top, where every bracket has data;
 * where the offsets are free too (white balance on), an offset of g and one of the radiance
   are free as well; estimators fit with ``g(z_lo)`` fixed too, at ``z_lo = round(0.2 (levels -
   1))`` (51 for 8 bits: the two fixed points of sec. 3.2), and report the offsets b_k of
