@@ -465,23 +465,36 @@ def _channel_means(frames: Frames, layout: str | None, what: str) -> tuple[dict,
 
 
 def _group_stats(frames: Frames, layout: str | None, full_scale: float | None, what: str):
-    acc = PixelMoments()
+    """A flat group's per-channel mean level, 0.1 and 99.9 percentiles of its average frame and
+    saturated fraction. Only the average is needed here, so the frames are summed (one float64
+    frame held, added in place), not reduced to per-pixel moments: a DSLR's 10 MP flats took
+    1.3 GB in the moments' arrays and their temporaries."""
+    total: NDArray[np.float64] | None = None
+    n = 0
     at_fs: dict[str, int] = {}
     name = layout
     for fname, arr in named_frames(frames, what):
         name = check_layout(arr.shape, layout, fname)
-        acc.add(arr, name=fname)
+        if total is None:
+            total = np.zeros(arr.shape, np.float64)
+        elif arr.shape != total.shape:
+            raise CcdError(fname, f"shape {arr.shape} differs from the group's {total.shape}")
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            raise CcdError(fname, "holds NaN or infinite values")
+        np.add(total, arr, out=total)
+        n += 1
         if full_scale is not None:
             for c, v in split_channels(arr, name).items():
                 at_fs[c] = at_fs.get(c, 0) + int(np.count_nonzero(v >= full_scale))
-    if acc.n == 0:
+    if total is None:
         raise CcdError(what, "has no frames")
-    mean = acc.result().mean
+    acc_n = n
+    mean = np.divide(total, n, out=total)
     out = {}
     for c, v in split_channels(mean, name).items():
         lo, hi = np.percentile(v, [0.1, 99.9])
-        out[c] = (float(v.mean()), float(lo), float(hi), at_fs.get(c, 0) / (v.size * acc.n))
-    return out, name, acc.n
+        out[c] = (float(v.mean()), float(lo), float(hi), at_fs.get(c, 0) / (v.size * acc_n))
+    return out, name, acc_n
 
 
 def _grow_fit(x: NDArray, y: NDArray, tol: float, abs_tol: float) -> tuple[float, float, int]:
