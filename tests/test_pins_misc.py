@@ -463,7 +463,7 @@ def test_dark_plots_need_two_exposure_times(times, drawn):
 def _plotted(name, emva):
     """(points' x, points' y, line's x, line's y) of the datasheet plot ``name`` drawn on a
     matplotlib figure (the line: None without a dark current)."""
-    pytest.importorskip("matplotlib")
+    # matplotlib is the datasheet extra, part of the test extra: never skipped
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
