@@ -3,6 +3,7 @@ contract is in ``docs/cli.md``; :mod:`ccdcore.cli` runs them)."""
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -57,11 +58,21 @@ def print_response(res: Any) -> None:
     say("", "noise terms of eq. 7, σ² = σ_s²·(g − b) + σ_c1² + g'²·σ_c2², in the units each "
             "term needs: σ_s in √g (its variance grows with the signal g), σ_c1 in units of g "
             "(the signal scale above), σ_c2 in DN (codes, before the curve)")
+    top = res.levels - 1
+
+    def term(label: str, v: float, e: float | None, unit: str, full: float) -> str:
+        # an error beyond the whole range of its unit (the codes for σ_c2, full scale for g)
+        # says the bracket does not determine the term: said so, not printed as a figure
+        if e is not None and math.isfinite(e) and e > full:
+            return f"{label} not determined by this bracket ({format_pm(v, e, unit=unit)})"
+        return f"{label} = {format_pm(v, e, unit=unit)}"
+
     for ch, r in zip(res.channels, res.responses):
-        noise = ", ".join(f"{label} = {format_pm(v, e, unit=u)}" for label, v, e, u in (
-            ("shot noise σ_s", r.sigma_s, r.sigma_s_err, "√g"),
-            ("dark/input noise σ_c1", r.sigma_c1, r.sigma_c1_err, "g"),
-            ("output/read noise σ_c2", r.sigma_c2, r.sigma_c2_err, "DN")) if v is not None)
+        noise = ", ".join(term(label, v, e, u, full) for label, v, e, u, full in (
+            ("shot noise σ_s", r.sigma_s, r.sigma_s_err, "√g", 1.0),
+            ("dark/input noise σ_c1", r.sigma_c1, r.sigma_c1_err, "g", 1.0),
+            ("output/read noise σ_c2", r.sigma_c2, r.sigma_c2_err, "DN", float(top)))
+            if v is not None)
         state = (f"{r.iterations} iteration{'s' if r.iterations != 1 else ''}"
                  + ("" if r.converged else ", not converged"))
         say(channel_name(ch), f"noise {noise or 'not estimated'}; {state}")

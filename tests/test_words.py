@@ -269,3 +269,23 @@ def test_calibrate_rows_keep_their_columns(capsys, tmp_path):
     assert "Passed: the points agree with the line within their errors" in lines[verdict]
     column = next(line for line in lines if "chance of so large" in line).index("chance of so")
     assert lines[verdict + 1].index("the photon-transfer gate") == column
+
+
+def test_a_noise_term_the_bracket_does_not_determine_is_said_so(capsys, monkeypatch):
+    """σ_c2 = 0 ± 240000 DN printed as a figure: an error beyond its unit's whole range (the
+    codes for σ_c2) is said to leave the term undetermined."""
+    import ccdcore.response.methods as methods
+
+    real = methods.session_response
+
+    def vague(*a, **k):
+        res = real(*a, **k)
+        first = dataclasses.replace(res.responses[0], sigma_c2=0.0, sigma_c2_err=240000.0)
+        return dataclasses.replace(res, responses=(first,) + tuple(res.responses[1:]))
+    monkeypatch.setattr(methods, "session_response", vague)
+    code, out, err = run(capsys, "response", ASSETS / "tsin01", "--method", "debevec")
+    assert code == 0, err
+    flat = " ".join(out.split())
+    assert "output/read noise σ_c2 not determined by this bracket (0 ± 240000 DN)" in flat
+    assert flat.count("output/read noise σ_c2 = ") == len(dataclasses.replace(
+        real(ASSETS / "tsin01", "debevec")).channels) - 1
