@@ -241,8 +241,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.setting_select = pn.widgets.Select.from_param(self.param.offset,
                                                            label="Offset setting", width=180)
         self.base_select = pn.widgets.Select.from_param(
-            self.param.base, label="Base image (level \u00b7 exposure)",
-            sizing_mode="stretch_width", min_width=320)
+            self.param.base, label="Base image (level \u00b7 exposure)", width=460)
         self.channel_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.channel, label="Channel", color="default", align="end", width=220)
         self.param.watch(self._on_channel, "channel")
@@ -259,6 +258,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         self.frame_select = pn.widgets.Select.from_param(
             self.param.frame, label="Frame (any flat of the setting)", sizing_mode="stretch_width")
         self.snup_title = pn.pane.Markdown("", sizing_mode="stretch_width", margin=(0, 10))
+        self.rule_pane = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
         self.snup_table = _table(pd.DataFrame(), "ccd-flat-snup")
         self.frame_alert = pn.pane.Alert("", alert_type="danger", visible=False,
                                          sizing_mode="stretch_width")
@@ -315,16 +315,21 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
 
     def _build_content(self) -> None:
         """The page's content: the correction, before and after, the analyses' tabs, notes."""
+        # the choices first, then the figure (before and after), then the correction's
+        # details: the first view at 1400 x 900 shows the corrected frame
         setup = pn.Card(
             pn.FlexBox(self.setting_select, self.base_select, self.channel_select,
                        sizing_mode="stretch_width"),
-            self.recommend_alert, self.setup_pane, self.channel_table, self.flag_pane,
-            self.held_pane, self.held_table,
+            self.recommend_alert,
             title="Correction: dark and base images", sizing_mode="stretch_width",
             collapsible=False)
+        details = pn.Card(
+            self.rule_pane, self.setup_pane, self.channel_table, self.flag_pane, self.held_pane,
+            self.held_table, title="The correction's inputs and its held-out check",
+            sizing_mode="stretch_width", collapsible=False)
         before_after = pn.Card(
-            self.frame_select, self.frame_alert, self.snup_title, self.snup_table,
-            self.pair_pane, self.readout,
+            self.frame_select, self.frame_alert, self.pair_pane, self.readout, self.snup_title,
+            self.snup_table,
             title="Before and after correction (linked zoom)", sizing_mode="stretch_width",
             collapsible=False)
         self.tabs = pn.Tabs(
@@ -355,7 +360,7 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
                        sizing_mode="stretch_width")),
             sizing_mode="stretch_width", dynamic=True)
         self.content = pn.Column(
-            setup, self.zero_alert, before_after,
+            setup, self.zero_alert, before_after, details,
             pn.Card(self.tabs, title="Analyses", sizing_mode="stretch_width",
                     collapsible=False),
             pn.Card(self.notes_pane, title="Notes", sizing_mode="stretch_width",
@@ -533,9 +538,11 @@ class FlatFieldPage(PageMessages, pn.viewable.Viewer):
         if rec is not None:
             self.recommend_alert.object = (
                 f"**Recommended base image: {flat_plots.group_label(rec.key)}** \u2014 "
-                f"{rec.reason}.\n\n*Rule: {rec.rule}.*")
+                f"{rec.reason}.")
+            self.rule_pane.object = f"*How the base image is recommended: {rec.rule}.*"
             self.recommend_alert.visible = True
         else:
+            self.rule_pane.object = ""
             self.recommend_alert.visible = False
 
     async def show_base(self) -> None:

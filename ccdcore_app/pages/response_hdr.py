@@ -231,7 +231,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
                                                css_classes=["ccd-response-exposures"])
         self.progress_bar, self.progress_text, self.progress_row = progress_row("ccd-response-progress")
         self.method_select = pn.widgets.RadioButtonGroup.from_param(
-            self.param.method, color="default", css_classes=["ccd-response-method"])
+            self.param.method, color="default", css_classes=["ccd-response-method"],
+            width=820)
         self.compare_button = pn.widgets.Button(
             label="Compare all methods", color="primary", variant="outline",
             width=190, css_classes=["ccd-response-compare"],
@@ -248,7 +249,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             self.param.white_balance, name="Estimate white balance a_k, b_k (sec. 3.2)")
         self.exposures_select = pn.widgets.RadioButtonGroup.from_param(
             self.param.exposures, color="default", css_classes=["ccd-response-exposure-mode"],
-            description=self.param.exposures.doc)
+            description=self.param.exposures.doc, width=300, align="center")
         self.curves = ResponseFigure([AUTO, *METHODS], LABELS)
         self.pool_hist = PoolHistogram()
         self.curve_note = pn.pane.Markdown("", sizing_mode="stretch_width", styles=_MUTED)
@@ -280,11 +281,13 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
 
     def _cards(self) -> list[pn.viewable.Viewable]:
         """The page's cards: curves with the controls, agreement, noise, pool, HDR, notes."""
+        # the controls in two rows, so that the curves are in the first view at 1400 x 900
         controls = pn.FlexBox(self.method_select, self.compare_button, self.channel_select,
-                              self.compare_box, sizing_mode="stretch_width")
+                              sizing_mode="stretch_width")
         options = pn.FlexBox(pn.pane.Markdown("Exposures:", margin=(12, 4, 0, 10)),
-                             self.exposures_select, self.wb_box, self.bloom_input,
-                             sizing_mode="stretch_width")
+                             self.exposures_select, self.compare_box, self.wb_box,
+                             self.bloom_input, sizing_mode="stretch_width",
+                             align_items="center")
         return [
             pn.Card(controls, options, self.exposures_note,
                     pn.pane.Bokeh(self.curves.fig, sizing_mode="stretch_width"),
