@@ -144,6 +144,9 @@ class ResponseFigure:
                 src.data = {"z": [], "g": [], "err": []}
             self.lines[m].visible = (m == chosen) or compare
             self.lines[m].glyph.line_width = 3 if m == chosen else 1.5
+        # a legend entry only for a curve drawn (a method not computed has none)
+        for item, m in zip(self.legend.items[1:], self.sources):
+            item.visible = m in curves and self.lines[m].visible
         self.band_area.glyph.fill_color = METHOD_COLOURS.get(chosen, "gray")
         if chosen in curves:
             g, err = curves[chosen]

@@ -583,3 +583,9 @@ def test_the_truths_legend_entry_only_where_there_is_a_truth():
     assert curves.legend.items[0].label.value == "simulator's truth"
     curves.show({"tsin": (g, 0.01 * g)}, "tsin", False, truth=None)
     assert not curves.truth_line.visible and not curves.legend.items[0].visible
+    # only the curves drawn have an entry: not the methods not computed
+    shown = [item.label.value for item in curves.legend.items if item.visible]
+    assert shown == ["tsin"]
+    curves.show({"tsin": (g, 0.01 * g), "debevec": (g, 0.01 * g)}, "tsin", True)
+    assert [item.label.value for item in curves.legend.items if item.visible] == ["tsin",
+                                                                                  "debevec"]
