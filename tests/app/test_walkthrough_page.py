@@ -231,6 +231,8 @@ def test_the_steps_follow_what_the_session_holds(assets: Path, tmp_path: Path) -
     shown = [s for s, b in page.step_buttons.items() if b.visible]
     assert shown == ["plan", "session", "response", "export"]
     assert page.progress.max == 4
+    # the titles count the steps listed, not every step the Walkthrough knows
+    assert page.title_panes["response"].object == "### Step 3 of 4: Response curve and HDR"
     page.go("session", +1)                        # Next skips the steps a bracket lacks
     assert page.step == "response"
     page.go("response", -1)
@@ -247,3 +249,4 @@ def test_the_steps_follow_what_the_session_holds(assets: Path, tmp_path: Path) -
     assert lab.state.load(str(assets / "tsin01"))
     assert lab.coverage.kind == "bracket" and lab.plan is None
     assert lab.gates["plan"].summary == cover.gate().summary
+    assert lab.title_panes["export"].object.startswith("### Step 4 of 4: ")

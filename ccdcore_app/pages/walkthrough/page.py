@@ -151,7 +151,9 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         #: one step object per step, in the order of :data:`ccdcore.guide.STEPS`
         self.steps: dict[str, Step] = {slug: cls(self) for slug, cls in STEP_TYPES.items()}
         self.gate_panes: dict[str, pn.pane.Alert] = {}
+        self.title_panes: dict[str, pn.pane.Markdown] = {}
         self.panels = {s.slug: self._build_panel(i, s) for i, s in enumerate(STEPS, start=1)}
+        self._retitle()
 
     def _build_panel(self, i: int, s: StepInfo) -> pn.Column:
         """Step ``i``'s panel: title, plain words, the symbols card, its body, gate, back/next."""
@@ -166,9 +168,10 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
         back.on_click(lambda e, slug=s.slug: self.go(slug, -1))
         nxt.on_click(lambda e, slug=s.slug: self.go(slug, +1))
         self.gate_panes[s.slug] = gate
+        self.title_panes[s.slug] = pn.pane.Markdown(f"### {s.title}",
+                                                    css_classes=["ccd-wt-title"])
         return pn.Column(
-            pn.pane.Markdown(f"### Step {i} of {len(STEPS)}: {s.title}",
-                             css_classes=["ccd-wt-title"]),
+            self.title_panes[s.slug],
             pn.pane.Markdown(s.plain, sizing_mode="stretch_width"),
             pn.Card(pn.pane.Markdown(s.details, sizing_mode="stretch_width"),
                     title="Symbols and equations", collapsed=True, sizing_mode="stretch_width"),
@@ -198,6 +201,16 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
     def _follow_session(self) -> None:
         """The steps the session's frames allow (:func:`ccdcore.guide.session_plan`)."""
         self.coverage = session_plan(self.state.session)
+
+    def _retitle(self) -> None:
+        """Each step's title counts the steps listed for this session ("Step 2 of 4"), not
+        every step the Walkthrough knows."""
+        shown = [slug for slug in SLUGS if slug in self.coverage.steps]
+        for info in STEPS:
+            pane = self.title_panes[info.slug]
+            pane.object = (f"### Step {shown.index(info.slug) + 1} of {len(shown)}: "
+                           f"{info.title}" if info.slug in shown else f"### {info.title}")
+
     def _session_defaults(self) -> None:
         session = self.state.session
         if session is None:
@@ -220,6 +233,7 @@ class WalkthroughPage(PageMessages, pn.viewable.Viewer):
 
     @param.depends("coverage", watch=True)
     def _on_coverage(self) -> None:
+        self._retitle()
         self.steps["plan"].replan()
 
     @param.depends("exclude", "robust", watch=True)
