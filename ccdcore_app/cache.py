@@ -82,6 +82,8 @@ import numpy as np
 import ccdcore
 from ccdcore.session import Session
 
+from .cache_limits import MAX_INDEX_BYTES, entry_size_problem
+
 __all__ = ["ResultCache", "cache_folder", "code_version", "default_cache", "max_bytes",
            "entry_size_problem", "MAX_INDEX_BYTES",
            "fingerprint",
@@ -423,43 +425,6 @@ def content_hash(session: Session) -> str:
 # ---------------------------------------------------------------------------------------------
 # the folder
 # ---------------------------------------------------------------------------------------------
-#: the largest content-hash index read (this cache writes a few hundred bytes per session)
-MAX_INDEX_BYTES = 16 * 2 ** 20
-
-
-def entry_size_problem(path: str | os.PathLike) -> str | None:
-    """Why an entry may not be loaded, from its declared sizes alone, or None.
-
-    Entries are written uncompressed (``np.savez``): every member is stored, and each array's
-    header declares exactly the bytes its member holds. A member compressed (a few MB that
-    inflate to GB), or an array header declaring more bytes than its member holds (NumPy would
-    allocate the declared size first), is not an entry of this cache, and nothing of it is
-    read."""
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            for info in zf.infolist():
-                if info.compress_type != zipfile.ZIP_STORED or \
-                        info.file_size != info.compress_size:
-                    return f"{info.filename}: compressed ({info.compress_size} bytes declared " \
-                           f"to inflate to {info.file_size})"
-                if not info.filename.endswith(".npy"):
-                    continue
-                with zf.open(info) as f:
-                    version = np.lib.format.read_magic(f)
-                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                                   else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = read_header(f, max_header_size=2 ** 16)
-                    declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
-                if declared > info.file_size:
-                    return f"{info.filename}: declares {declared} bytes in a member of " \
-                           f"{info.file_size}"
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as err:
-        return f"unreadable: {err}"
-    return None
-
-
 def unsafe_folder(folder: Path, root: Path) -> str | None:
     """Why ``folder`` (``root`` or a folder inside it) may not hold the cache, or None: each
     folder from ``root`` down to ``folder`` must be a real folder owned by this user and not
