@@ -164,9 +164,11 @@ def _cmd_app(args: argparse.Namespace) -> int:
     if args.role is not None:
         if args.session is None:
             raise CcdError("--role", "give the folder whose images take the role")
-        from .session import open_session
+        from ccdcore_app.state import open_session_cached
 
-        open_session(args.session, role=args.role)   # a wrong role or a manifest: one line
+        # a wrong role or a manifest: one line before serving; opened through the app's cache
+        # of opened sessions, so the server's first opening reads no header again
+        open_session_cached(Path(args.session).expanduser().resolve(), args.role)
     check_port(args.port)  # a busy port is one line, before "serving on" is claimed
     print(f"serving the ccdcore app on http://127.0.0.1:{args.port} (Ctrl+C to stop)", flush=True)
     serve(args.session, port=args.port, show=False, role=args.role)
