@@ -29,15 +29,23 @@ objects) none. The steps:
    are searched again, with a smaller LTS coverage; a cluster is kept when it has at least
    ``min_pixels`` members and its members' median d² is that of the noise (at most
    ``consistency`` times the background's); the search stops at the first one that is not.
-5. **Labels**: 0 unchanged (the dominant cluster), 1..n the further clusters (shadows), 255
-   change, 254 undetermined (no radiance: saturated or dark in every exposure of either
-   bracket, which the merge flags). A pixel takes the first cluster whose d² is under the
-   threshold. :meth:`ChangeResult.at` re-thresholds for another P without refitting M.
+5. **Shades of the background's light** (RGB): a pixel no cluster explains whose target is the
+   background's prediction times one factor k, E' = k Ê M₀ with k in ``ChangeOptions.shade``
+   (0.5-2 by default), is a shade -- a soft shadow or penumbra, a wall nearer the lamp --
+   when that model's d² (C - 1 degrees of freedom) is under the scaled χ² threshold
+   (:func:`ccdcore.change_kernels.shade_d2`).
+6. **Labels**: 0 unchanged (the dominant cluster), 1..n the further clusters (shadows), 253
+   shade of the background's light, 255 change, 254 undetermined (no radiance: saturated or
+   dark in every exposure of either bracket, which the merge flags). A pixel takes the first
+   cluster whose d² is under the threshold, else the shade when it passes.
+   :meth:`ChangeResult.at` re-thresholds for another P without refitting M.
 
 Departures from the paper, each for a stated reason (docs/change.md): the threshold's calibration
 on the background (the paper only says an empirical step is needed); the consistency test for
 further clusters (the paper stops when the statistic exceeds the χ² threshold, which an LTS fit
-to a handful of changed pixels can pass); the label 254, which the paper does not need.
+to a handful of changed pixels can pass); the shades of step 5 (the paper's shades are
+clusters of one M each, which a soft shadow's continuum of shades does not form); the labels
+253 and 254, which the paper does not need.
 
 Public objects
 --------------
@@ -70,15 +78,21 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from .change_kernels import design_normal, error_d2, gls, lts
+from .change_kernels import design_normal, error_d2, gls, lts, shade_d2
 from .errors import CcdError
 from .progress import Progress, silent
 
 __all__ = ["ChangeOptions", "Cluster", "ChangeResult", "ChangeInputs", "detect", "prediction_d2",
-           "LABEL_CHANGE", "LABEL_UNDETERMINED", "small_regions"]
+           "LABEL_CHANGE", "LABEL_UNDETERMINED", "LABEL_SHADE", "SHADE_LOOSEST_P",
+           "small_regions"]
 
 LABEL_CHANGE = 255
 LABEL_UNDETERMINED = 254
+#: a shade of the background's light (step 5): E' = k Ê M₀
+LABEL_SHADE = 253
+#: the loosest false-alarm probability the shade test is prepared for (the app's slider's end):
+#: pixels under the threshold at this P are not tested, so at a looser P they stay change
+SHADE_LOOSEST_P = 0.2
 #: the wide gate that defines the background's sample: χ² quantile 1 - GATE_P (times the scale)
 GATE_P = 1e-6
 #: candidates of the LTS search refined by C-steps (the best by their trimmed cost)
@@ -118,6 +132,11 @@ class ChangeOptions:
         unchanged (0) with a note. 1 keeps every pixel (the paper's per-pixel test, the default
         for brackets); frame sets default to a 3 x 3 block
         (:data:`ccdcore.change_frames.FRAME_MIN_REGION`).
+    shade
+        (k_min, k_max): a pixel no cluster explains whose target is the background's prediction
+        times one factor k in this range, with that model's d² under the threshold, is a shade
+        of the background's light (label 253), not change. RGB only; ``None``: off (every such
+        pixel change, as in the paper).
     """
 
     pfa: float = 0.01
@@ -130,6 +149,7 @@ class ChangeOptions:
     max_condition: float = 30.0
     seed: int = 0
     min_region: int = 1
+    shade: tuple[float, float] | None = (0.5, 2.0)
 
     def check(self) -> None:
         if not 0.0 < float(self.pfa) < 0.5:
@@ -144,6 +164,11 @@ class ChangeOptions:
         if int(self.min_region) < 1:
             raise CcdError("min_region", f"the smallest changed region is at least 1 pixel, got "
                                          f"{self.min_region}")
+        if self.shade is not None:
+            lo, hi = (float(v) for v in self.shade)
+            if not 0.0 < lo < 1.0 < hi < math.inf:
+                raise CcdError("shade", f"the shade's factors must satisfy 0 < k_min < 1 < k_max, "
+                                        f"got {lo:g}, {hi:g}")
 
 
 @dataclass(frozen=True)
@@ -211,6 +236,11 @@ class ChangeResult:
     sources: dict[str, str] = field(default_factory=dict)
     #: smallest changed region kept (``ChangeOptions.min_region``)
     min_region: int = 1
+    #: the shade's factor range (``ChangeOptions.shade``), its factor k and d² per pixel (NaN
+    #: where not tested: under the threshold at :data:`SHADE_LOOSEST_P`); ``None``: no test
+    shade: tuple[float, float] | None = None
+    shade_k: NDArray[np.float64] | None = None
+    shade_d2: NDArray[np.float64] | None = None
     labels: NDArray[np.uint8] = field(init=False)
     threshold: float = field(init=False)
 
@@ -221,7 +251,8 @@ class ChangeResult:
                          for c, n in zip(self.clusters, counts)]
         if self.min_region > 1:
             n = int(np.count_nonzero(self.d2_best > self.threshold)) - int(
-                np.count_nonzero(self.labels == LABEL_CHANGE))
+                np.count_nonzero(self.labels == LABEL_CHANGE)) - int(
+                np.count_nonzero(self.labels == LABEL_SHADE))
             self.notes = tuple(self.notes) + ((
                 f"{n} changed pixels in regions under {self.min_region} pixels labelled "
                 "unchanged (min_region)",) if n else ())
@@ -234,6 +265,12 @@ class ChangeResult:
     def chi2_threshold(self, pfa: float | None = None) -> float:
         """The χ² quantile 1 - P, without the calibration."""
         return float(stats.chi2.isf(self.pfa if pfa is None else pfa, self.dof))
+
+    def shade_threshold(self, pfa: float | None = None) -> float:
+        """The shade test's threshold: s times the χ² quantile 1 - P with C - 1 degrees of
+        freedom (one factor k fitted per pixel)."""
+        p = self.pfa if pfa is None else pfa
+        return float(self.scale * stats.chi2.isf(p, max(self.dof - 1, 1)))
 
     def observed_pfa(self, threshold: float) -> float:
         """The fraction of the background's sample above ``threshold``."""
@@ -250,6 +287,12 @@ class ChangeResult:
             hit = open_ & (self.d2[..., k] <= thr)
             labels[hit] = c.label
             open_ &= ~hit
+        if self.shade is not None and self.shade_d2 is not None and self.shade_k is not None:
+            lo, hi = self.shade
+            with np.errstate(invalid="ignore"):
+                hit = open_ & (self.shade_d2 <= self.shade_threshold(pfa)) & (
+                    self.shade_k > lo) & (self.shade_k < hi)
+            labels[hit] = LABEL_SHADE
         labels[~self.valid] = LABEL_UNDETERMINED
         if self.min_region > 1:
             small = small_regions(labels == LABEL_CHANGE, self.min_region)
@@ -290,6 +333,9 @@ class ChangeResult:
             "background_d2_mean_all": float(np.mean(self.background))
             if self.background.size else None,
             "changed_pixels": int(np.count_nonzero(self.labels == LABEL_CHANGE)),
+            "shade_pixels": int(np.count_nonzero(self.labels == LABEL_SHADE)),
+            "shade": list(self.shade) if self.shade is not None else None,
+            "shade_threshold": self.shade_threshold() if self.shade is not None else None,
             "undetermined_pixels": int(np.count_nonzero(self.labels == LABEL_UNDETERMINED)),
             "labels": {str(k): v for k, v in self.counts().items()},
             "notes": list(self.notes),
@@ -602,9 +648,35 @@ def _further_clusters(rows: _Rows, bg: _Background, min_px: int, opts: ChangeOpt
     return fits
 
 
+def _shades(rows: _Rows, fits: list[_Fit], bg: _Background, valid: NDArray[np.bool_],
+            opts: ChangeOptions, dof: int) -> tuple[NDArray | None, NDArray | None]:
+    """Step 5: the shade's factor k and d² (maps) of the pixels no cluster explains at
+    :data:`SHADE_LOOSEST_P` (or the requested P, if looser); ``(None, None)`` when the test is
+    off or the frames are not RGB."""
+    if opts.shade is None or dof != 3:
+        return None, None
+    best = np.min(np.stack([f.d2 for f in fits], axis=1), axis=1)
+    thr = _threshold(bg.sample, bg.scale, dof, max(float(opts.pfa), SHADE_LOOSEST_P))
+    idx = np.flatnonzero(best > thr)
+    k_rows = np.full(best.size, np.nan)
+    d2_rows = np.full(best.size, np.nan)
+    if idx.size:
+        sub = rows.take(idx)
+        f0 = fits[0]
+        k_rows[idx], d2_rows[idx] = shade_d2(sub.E, sub.Et, sub.var, sub.var_t, f0.M, f0.M_cov)
+    maps = []
+    for v in (k_rows, d2_rows):
+        out = np.full(valid.shape, np.nan)
+        out[valid] = v
+        maps.append(out)
+    return maps[0], maps[1]
+
+
 def _change_result(E: NDArray, valid: NDArray[np.bool_], fits: list[_Fit], bg: _Background,
-                   dof: int, opts: ChangeOptions, notes: list[str]) -> ChangeResult:
-    """Step 5: every cluster's d² as maps, the clusters with their medians, the predicted
+                   dof: int, opts: ChangeOptions, notes: list[str],
+                   shades: tuple[NDArray | None, NDArray | None] = (None, None)
+                   ) -> ChangeResult:
+    """Step 6: every cluster's d² as maps, the clusters with their medians, the predicted
     target, and the labels (made by :class:`ChangeResult`)."""
     H, W, C = E.shape
     d2 = np.full((H * W, len(fits)), np.inf)
@@ -620,7 +692,10 @@ def _change_result(E: NDArray, valid: NDArray[np.bool_], fits: list[_Fit], bg: _
                      "freedom): the threshold is calibrated on the background, not taken from χ²")
     return ChangeResult(clusters, d2.reshape(H, W, len(fits)), valid, bg.sample, bg.scale, dof,
                         float(opts.pfa), predicted.reshape(H, W, C), tuple(notes),
-                        min_region=int(opts.min_region))
+                        min_region=int(opts.min_region),
+                        shade=None if shades[0] is None or opts.shade is None
+                        else (float(opts.shade[0]), float(opts.shade[1])),
+                        shade_k=shades[0], shade_d2=shades[1])
 
 
 def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: ArrayLike,
@@ -636,7 +711,8 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
     The steps of the module docstring, each a function: the inputs checked
     (:func:`_checked_maps`, :func:`_valid_pixels`), the dominant cluster and the calibrated
     threshold (steps 1-3, :func:`_background`), the further clusters (step 4,
-    :func:`_further_clusters`) and the result with its labels (step 5, :func:`_change_result`).
+    :func:`_further_clusters`), the shades of the background's light (step 5,
+    :func:`_shades`) and the result with its labels (step 6, :func:`_change_result`).
     """
     opts = options or ChangeOptions()
     opts.check()
@@ -651,7 +727,9 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
     report(0.05, "fitting the background's transform (LTS)")
     bg = _background(rows, opts, rng, c2, dof)
     fits = [bg.fit] + _further_clusters(rows, bg, min_px, opts, rng, c2, report)
+    report(0.85, "testing the unexplained pixels for shades of the background's light")
+    shades = _shades(rows, fits, bg, valid, opts, dof)
     report(0.9, "labels and the predicted target")
-    res = _change_result(E, valid, fits, bg, dof, opts, notes)
+    res = _change_result(E, valid, fits, bg, dof, opts, notes, shades)
     report(1.0, "done")
     return res

@@ -20,6 +20,8 @@ gls(E, Et, var, var_t, w, M0, iters=3, corrected=False)
     M by generalised least squares and the inverse of the normal matrix.
 lts(E, Et, var, var_t, coverage, trials, rng, refined)
     FAST-LTS for M: the transform of the largest group of rows, and its trimmed cost.
+shade_d2(E, Et, var, var_t, M, M_cov=None)
+    Every row's factor k of the shade E' = k E M and its d² (C - 1 degrees of freedom).
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from numpy.typing import NDArray
 
 from .errors import CcdError
 
-__all__ = ["error_d2", "design_normal", "gls", "lts"]
+__all__ = ["error_d2", "design_normal", "gls", "lts", "shade_d2"]
 
 
 # -- the model of eq. 20 and its error --------------------------------------------------------
@@ -70,6 +72,88 @@ def _error_cov(E: NDArray, var: NDArray, var_t: NDArray, M: NDArray,
         EE = (E[:, :, None] * E[:, None, :]).reshape(n, C * C)
         S += (EE @ Mc).reshape(n, C, C)
     return S
+
+
+def shade_d2(E: NDArray, Et: NDArray, var: NDArray, var_t: NDArray, M: NDArray,
+             M_cov: NDArray | None = None, iters: int = 4) -> tuple[NDArray, NDArray]:
+    """The shade of the transform M that explains each row best: E' = k E M with one factor k
+    per row, and its d² (χ² with C - 1 degrees of freedom at the truth).
+
+    A shade of one light (a soft shadow, a penumbra, a part of the wall nearer the lamp) scales
+    the light's radiance without changing its colour, so it scales the prediction E M. The
+    error's covariance is eq. 20's first-order propagation with k in it,
+    Σ_e(k) = k² (Mᵀ Σ_E M + J Σ_M Jᵀ) + Σ_E'; k is its generalised least squares estimate,
+    k = (Pᵀ Σ_e⁻¹ E') / (Pᵀ Σ_e⁻¹ P) with P = E M, iterated ``iters`` times with Σ_e at the
+    last k, from k = 1. Returns (k, d²) per row; NaN where the prediction is 0 in every
+    channel. RGB rows only (C = 3; one colour is what tells a shade from an object), in a
+    compiled pass (a 3 x 3 Cholesky factor per row)."""
+    n, C = E.shape
+    if C != 3:
+        raise CcdError("channels", f"a shade needs RGB rows (C = 3), got C = {C}")
+    A = _error_cov(E, var, np.zeros_like(var_t), M, M_cov)
+    P = E @ M
+    k = np.full(n, np.nan)
+    d2 = np.full(n, np.nan)
+    _shade_rgb(np.ascontiguousarray(A), np.ascontiguousarray(P), np.ascontiguousarray(Et),
+               np.ascontiguousarray(var_t), int(iters), k, d2)
+    return k, d2
+
+
+@numba.njit(cache=True)
+def _shade_rgb(A, P, Et, var_t, iters, k_out, d2_out):  # pragma: no cover - compiled
+    n = A.shape[0]
+    S = np.empty((3, 3))
+    L = np.zeros((3, 3))
+    y = np.empty(3)
+    for r in range(n):
+        k = 1.0
+        good = False
+        for it in range(iters + 1):
+            for i in range(3):
+                for j in range(3):
+                    S[i, j] = k * k * A[r, i, j]
+                S[i, i] += var_t[r, i]
+            # Cholesky S = L Lᵀ
+            ok = True
+            for j in range(3):
+                acc = S[j, j]
+                for m in range(j):
+                    acc -= L[j, m] * L[j, m]
+                if not acc > 0.0:
+                    ok = False
+                    break
+                L[j, j] = math.sqrt(acc)
+                for i in range(j + 1, 3):
+                    acc = S[i, j]
+                    for m in range(j):
+                        acc -= L[i, m] * L[j, m]
+                    L[i, j] = acc / L[j, j]
+            if not ok:
+                good = False
+                break
+            # whitened P, E' and error: L⁻¹ x by forward substitution
+            pw0 = P[r, 0] / L[0, 0]
+            pw1 = (P[r, 1] - L[1, 0] * pw0) / L[1, 1]
+            pw2 = (P[r, 2] - L[2, 0] * pw0 - L[2, 1] * pw1) / L[2, 2]
+            tw0 = Et[r, 0] / L[0, 0]
+            tw1 = (Et[r, 1] - L[1, 0] * tw0) / L[1, 1]
+            tw2 = (Et[r, 2] - L[2, 0] * tw0 - L[2, 1] * tw1) / L[2, 2]
+            if it == iters:
+                y[0] = tw0 - k * pw0
+                y[1] = tw1 - k * pw1
+                y[2] = tw2 - k * pw2
+                d2_out[r] = y[0] * y[0] + y[1] * y[1] + y[2] * y[2]
+                break
+            den = pw0 * pw0 + pw1 * pw1 + pw2 * pw2
+            if not den > 0.0:
+                good = False
+                break
+            k = (pw0 * tw0 + pw1 * tw1 + pw2 * tw2) / den
+            good = True
+        if good:
+            k_out[r] = k
+        else:
+            d2_out[r] = np.nan
 
 
 def _chol_inv(S: NDArray) -> tuple[NDArray, NDArray]:

@@ -164,7 +164,7 @@ def _count(n: int, kind: str) -> str:
 
 
 def _cmd_change(args: argparse.Namespace) -> int:
-    from .change import ChangeOptions
+    from .change import LABEL_SHADE, ChangeOptions
     from .change_session import session_change
     from .change_frames import FRAME_MIN_REGION, session_kinds
     from .io import write_image, write_map, write_outputs
@@ -176,7 +176,7 @@ def _cmd_change(args: argparse.Namespace) -> int:
     kinds = session_kinds(session)       # every error but a frame set's missing exposures
     frame_sets = "frames" in kinds.values() or args.response != "auto"
     opts = ChangeOptions(pfa=args.pfa, min_region=args.min_region if args.min_region is not None
-                         else FRAME_MIN_REGION if frame_sets else 1)
+                         else FRAME_MIN_REGION if frame_sets else 1, shade=args.shade)
     opts.check()
     names = ("change_mask.png", "labels.png", "d2.exr", "predicted_target.exr")
     records = [r for role in ("reference", "target") for r in bracket_records(session, role=role)]
@@ -239,14 +239,19 @@ def _cmd_change(args: argparse.Namespace) -> int:
         for k, row, err in zip(channels, c.M, np.sqrt(np.diag(c.M_cov)).reshape(c.M.shape)):
             print(f"    {'ref ' + k:<9}" + "".join(f"{f'{v:.4f} ± {e:.4f}':>18}"
                                                    for v, e in zip(row, err)))
+    if res.shade is not None:
+        lo, hi = res.shade
+        print(f"  shades of the background's light (its prediction times one factor "
+              f"{lo:g}-{hi:g}: soft shadows, penumbrae): {summary['shade_pixels']} pixels, "
+              f"labelled {LABEL_SHADE}, not change (--shade off counts them as change)")
     print(f"  changed pixels {summary['changed_pixels']}, undetermined "
           f"{summary['undetermined_pixels']}; background mean d² "
           f"{summary['background_d2_mean']:.2f}")
     for n in res.notes:
         print(f"  note: {n}")
-    say("written", "change mask (255 = changed), labels (0 background, 1.. shadows, 255 "
-                   "changed, 254 undetermined), d² under the best cluster, predicted target "
-                   "radiance")
+    say("written", "change mask (255 = changed), labels (0 background, 1.. shadows, 253 "
+                   "shades of the background's light, 255 changed, 254 undetermined), d² under "
+                   "the best cluster, predicted target radiance")
     for p in paths:
         print(f"  {p}")
     return 0
@@ -409,6 +414,20 @@ def add_hdr(sub: Any) -> None:
     json_flag(p)
 
 
+def _shade_range(text: str) -> tuple[float, float] | None:
+    """``--shade``: ``off`` or ``K_MIN,K_MAX`` with 0 < K_MIN < 1 < K_MAX."""
+    if text.strip().lower() == "off":
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected K_MIN,K_MAX (e.g. 0.5,2) or off, got "
+                                         f"{text!r}") from None
+    if not 0.0 < lo < 1.0 < hi < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected 0 < K_MIN < 1 < K_MAX, got {text!r}")
+    return lo, hi
+
+
 def add_change(sub: Any) -> None:
     p = add_verb(sub, "change",
                  "illumination-invariant change and shadow masks (Tsin et al. sec. 5)",
@@ -427,6 +446,10 @@ def add_change(sub: Any) -> None:
     p.add_argument("--min-region", type=int, default=None, metavar="PIXELS",
                    help="smallest changed region kept, 8-connected (default: 9, a 3 x 3 block, "
                         "for single frames or frame sets; 1, every pixel, for two brackets)")
+    p.add_argument("--shade", type=_shade_range, default=(0.5, 2.0), metavar="K_MIN,K_MAX",
+                   help="a pixel whose target is the background's prediction times one factor "
+                        "k in this range is a shade of the light (a soft shadow), not change "
+                        "(default 0.5,2; colour frames); off: every such pixel is change")
     response_args(p, "without --calib: ")
     _bloom_arg(p)
     p.add_argument("-o", "--out-dir", type=Path, required=True,

@@ -26,9 +26,9 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ccdcore.change import LABEL_CHANGE, LABEL_UNDETERMINED
-from ccdcore_report.figures import (BACKGROUND_COLOUR, CHANGE_COLOUR, UNDETERMINED_COLOUR,
-                                     label_colour)
+from ccdcore.change import LABEL_CHANGE, LABEL_SHADE, LABEL_UNDETERMINED
+from ccdcore_report.figures import (BACKGROUND_COLOUR, CHANGE_COLOUR, SHADE_COLOUR,
+                                     UNDETERMINED_COLOUR, label_colour, label_name)
 
 from . import plots
 from .batch import batched
@@ -39,22 +39,11 @@ __all__ = ["RgbView", "D2Histogram", "log_colours", "tone_map_rgb", "white_point
            "BACKGROUND_COLOUR"]
 
 #: label -> colour: the report's (one home, :mod:`ccdcore_report.figures`)
-LABEL_COLOURS = {LABEL_CHANGE: CHANGE_COLOUR, LABEL_UNDETERMINED: UNDETERMINED_COLOUR}
+LABEL_COLOURS = {LABEL_CHANGE: CHANGE_COLOUR, LABEL_UNDETERMINED: UNDETERMINED_COLOUR,
+                 LABEL_SHADE: SHADE_COLOUR}
 #: colour of the above-threshold bars and the threshold line
 ABOVE_COLOUR = CHANGE_COLOUR
 BELOW_COLOUR = "#4a6fa5"
-
-
-def label_name(label: int) -> str:
-    """What label ``label`` means (sec. 5)."""
-    label = int(label)
-    if label == LABEL_CHANGE:
-        return "change"
-    if label == LABEL_UNDETERMINED:
-        return "undetermined"
-    if label == 0:
-        return "unchanged (background)"
-    return f"shadow {label}"
 
 
 def _rgb(colour: str) -> NDArray[np.float64]:

@@ -80,25 +80,28 @@ SHADOW_COLOURS = ("#0072B2", "#56B4E9", "#CC79A7", "#009E73", "#E69F00")
 CHANGE_COLOUR = "#D55E00"
 UNDETERMINED_COLOUR = "#F0E442"
 BACKGROUND_COLOUR = "#d9d9d9"
+#: a shade of the background's light (label 253): a darker grey than the background's
+SHADE_COLOUR = "#8c8c8c"
 
 
 def label_colour(label: int) -> str:
     """The colour of a change label (Tsin et al. sec. 5), in the report and on the app's
     Change detection page."""
-    from ccdcore.change import LABEL_CHANGE, LABEL_UNDETERMINED
+    from ccdcore.change import LABEL_CHANGE, LABEL_SHADE, LABEL_UNDETERMINED
 
     label = int(label)
     fixed = {0: BACKGROUND_COLOUR, LABEL_CHANGE: CHANGE_COLOUR,
-             LABEL_UNDETERMINED: UNDETERMINED_COLOUR}
+             LABEL_UNDETERMINED: UNDETERMINED_COLOUR, LABEL_SHADE: SHADE_COLOUR}
     return fixed.get(label) or SHADOW_COLOURS[(label - 1) % len(SHADOW_COLOURS)]
 
 
 def label_name(label: int) -> str:
     """What a change label means, as the report's legend and cluster table say it."""
-    from ccdcore.change import LABEL_CHANGE, LABEL_UNDETERMINED
+    from ccdcore.change import LABEL_CHANGE, LABEL_SHADE, LABEL_UNDETERMINED
 
     return {0: "unchanged (background)", LABEL_CHANGE: "change",
-            LABEL_UNDETERMINED: "undetermined (no radiance)"}.get(label, f"shadow {label}")
+            LABEL_UNDETERMINED: "undetermined (no radiance)",
+            LABEL_SHADE: "shade of the background's light"}.get(label, f"shadow {label}")
 
 
 @dataclass(frozen=True)

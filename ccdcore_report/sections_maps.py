@@ -148,6 +148,10 @@ def _change_facts(summary: Mapping[str, Any]) -> str:
          "median background d\u00b2 over \u03c7\u00b2's median"),
         ("background mean d\u00b2", num(summary.get("background_d2_mean"), ".3g"), ""),
         ("changed pixels", summary.get("changed_pixels"), ""),
+        ("shade pixels", summary.get("shade_pixels") if summary.get("shade") else "not tested",
+         "the background's light times one factor "
+         f"{summary['shade'][0]:g}–{summary['shade'][1]:g} (soft shadows), not change"
+         if summary.get("shade") else "mono frames or the test turned off"),
         ("undetermined pixels", summary.get("undetermined_pixels"),
          "no radiance in one of the brackets"),
     ])

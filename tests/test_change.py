@@ -238,3 +238,48 @@ def test_cli_change_bad_input(capsys, tmp_path):
     code, out, err = run(capsys, "change", other, "-o", tmp_path / "z")
     assert code == 2 and out == "" and "Traceback" not in err
     assert "target/k00.tif" in err and "sample type" in err
+
+
+def test_shade_factor_and_d2_against_a_direct_computation():
+    """The shade of step 5, E' = k E M per row: k is the generalised least squares factor with
+    Σ_e(k) = k² (Mᵀ Σ_E M + J Σ_M Jᵀ) + Σ_E' (checked against numpy at the returned k: the
+    gradient of d²(k) with Σ_e held there vanishes), and on rows drawn from the model d² has
+    the mean of χ² with C - 1 = 2 degrees of freedom (20 000 rows: sd of the mean 0.014)."""
+    rng = np.random.default_rng(11)
+    n, C = 20000, 3
+    M = np.array([[0.9, 0.03, 0.0], [0.02, 0.8, 0.05], [0.0, 0.04, 0.7]])
+    k_true = rng.uniform(0.5, 1.6, n)
+    E_true = rng.uniform(0.1, 0.8, (n, C))
+    var = (0.01 * E_true) ** 2 + 1e-5
+    var_t = (0.012 * (E_true @ M)) ** 2 + 1e-5
+    E = E_true + np.sqrt(var) * rng.standard_normal((n, C))
+    Et = k_true[:, None] * (E_true @ M) + np.sqrt(var_t) * rng.standard_normal((n, C))
+    k, d2 = CK.shade_d2(E, Et, var, var_t, M, np.zeros((9, 9)))
+    assert np.all(np.isfinite(k)) and np.all(np.isfinite(d2))
+    assert np.mean(d2) == pytest.approx(2.0, abs=0.05)
+    # k within its own error of the truth: the error of k is about 1 % here
+    assert np.median(np.abs(k / k_true - 1)) < 0.01
+    Mc = 1e-6 * np.eye(9)
+    k, d2 = CK.shade_d2(E[:50], Et[:50], var[:50], var_t[:50], M, Mc)
+    for i in range(0, 50, 7):
+        J = np.kron(E[i][:, None], np.eye(C)).T
+        A = M.T @ np.diag(var[i]) @ M + J @ Mc @ J.T
+        S = k[i] ** 2 * A + np.diag(var_t[i])
+        P = E[i] @ M
+        e = Et[i] - k[i] * P
+        assert d2[i] == pytest.approx(e @ np.linalg.solve(S, e), rel=1e-6)
+        assert abs(P @ np.linalg.solve(S, e)) < 1e-6 * abs(P @ np.linalg.solve(S, Et[i]))
+
+
+def test_shade_threshold_has_one_degree_of_freedom_less(scene):
+    r = scene[4]
+    assert r.shade == (0.5, 2.0)
+    assert r.shade_threshold(0.01) == pytest.approx(r.scale * stats.chi2.isf(0.01, 2))
+    assert r.to_dict()["shade_pixels"] == int(np.count_nonzero(r.labels == CH.LABEL_SHADE))
+
+
+def test_shade_option_checked():
+    for bad in ((1.2, 2.0), (0.5, 0.9), (0.0, 2.0)):
+        with pytest.raises(CcdError, match="shade"):
+            CH.ChangeOptions(shade=bad).check()
+    CH.ChangeOptions(shade=None).check()

@@ -17,6 +17,12 @@ brings a dim frame partly back up), shot noise ``sigma_shot`` √(signal) and re
 ``sigma_read`` (both in units of full well, before the curve), the curve, rounding to 8 bits.
 Each of ``n_reference`` / ``n_target`` frames draws its own noise.
 
+Soft shadows (``n_shadows``, what the lobby's person taught: the shadow cast on the wall and
+floor beside them is a penumbra, the light scaled by a factor that runs smoothly from
+``shadow_depth`` at its core to 1 at its edge, a continuum of shades no single M describes):
+the target's light there is k(x) E M with a Gaussian fall-off of k. They are not change: the
+truth holds them apart (``shadow`` in the result, ``truth/shadow_mask.npy``: k < 0.97).
+
 Public objects
 --------------
 frame_pair(seed, size, ...)
@@ -51,6 +57,7 @@ PAIR_DEFAULTS: dict[str, Any] = {
     "exposure": 0.6,               # signal at full well per unit radiance
     "sigma_shot": 0.004, "sigma_read": 0.002,
     "n_objects": 2, "object_size": 0.22,
+    "n_shadows": 0, "shadow_depth": 0.6, "shadow_size": 0.08,
 }
 
 
@@ -76,6 +83,21 @@ def _objects(rng: np.random.Generator, shape: tuple[int, int], n: int, size: flo
     return mask, rad, boxes
 
 
+def _soft_shadows(rng: np.random.Generator, shape: tuple[int, int], n: int, depth: float,
+                  size: float) -> NDArray[np.float64]:
+    """The light's factor k(x) of ``n`` soft shadows: 1 - (1 - depth) exp(-r²/2) around a random
+    centre, r in units of ``size`` × height (the smallest factor of overlapping shadows)."""
+    h, w = shape
+    k = np.ones(shape)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for _ in range(int(n)):
+        cy, cx = rng.uniform(0.15, 0.85) * h, rng.uniform(0.15, 0.85) * w
+        s = float(size) * h * rng.uniform(0.7, 1.3)
+        r2 = ((yy - cy) ** 2 + (0.7 * (xx - cx)) ** 2) / (s * s)
+        k = np.minimum(k, 1.0 - (1.0 - float(depth)) * np.exp(-0.5 * r2))
+    return k
+
+
 def frame_pair(seed: int = 0, size: tuple[int, int] = (160, 128), **options: Any
                ) -> dict[str, Any]:
     """A single-frame change pair (or a few frames each), in memory.
@@ -93,7 +115,9 @@ def frame_pair(seed: int = 0, size: tuple[int, int] = (160, 128), **options: Any
     -------
     dict
         ``reference``, ``target`` (lists of (H, W, 3) uint8 frames), ``mask`` (bool, the
-        inserted objects), ``M`` (the light's transform, eq. 20), ``options``, ``boxes``.
+        inserted objects), ``M`` (the light's transform, eq. 20), ``options``, ``boxes``,
+        ``shade`` (the soft shadows' factor k per pixel, 1 outside them) and ``shadow`` (bool,
+        k < 0.97 outside the objects).
     """
     opts = {**PAIR_DEFAULTS, **options}
     unknown = sorted(set(opts) - set(PAIR_DEFAULTS))
@@ -108,6 +132,9 @@ def frame_pair(seed: int = 0, size: tuple[int, int] = (160, 128), **options: Any
     M = M + float(opts["mix"]) * float(opts["gain"]) * (1.0 - np.eye(3))
     Et = E @ M
     mask, rad, boxes = _objects(rng, shape, int(opts["n_objects"]), float(opts["object_size"]))
+    shade = _soft_shadows(rng, shape, int(opts["n_shadows"]), float(opts["shadow_depth"]),
+                          float(opts["shadow_size"])) if int(opts["n_shadows"]) else np.ones(shape)
+    Et = Et * shade[..., None]
     Et[mask] = rad[mask]
     tone = SrgbKneeTone()
 
@@ -121,7 +148,7 @@ def frame_pair(seed: int = 0, size: tuple[int, int] = (160, 128), **options: Any
     ref = [shoot(E, k) for _ in range(int(opts["n_reference"]))]
     tgt = [shoot(Et, k * float(opts["auto_gain"])) for _ in range(int(opts["n_target"]))]
     return {"reference": ref, "target": tgt, "mask": mask, "M": M, "options": opts,
-            "boxes": boxes}
+            "boxes": boxes, "shade": shade, "shadow": (shade < 0.97) & ~mask}
 
 
 def write_frame_pair(out_dir: str | Path, seed: int = 0, size: tuple[int, int] = (160, 128),
@@ -138,12 +165,14 @@ def write_frame_pair(out_dir: str | Path, seed: int = 0, size: tuple[int, int] =
             write_image(root / role / f"{stem}_{i:02d}.png", z)
     (root / "truth").mkdir(parents=True, exist_ok=True)
     np.save(root / "truth" / "change_mask.npy", pair["mask"])  # an image would read as a frame
+    np.save(root / "truth" / "shadow_mask.npy", pair["shadow"])
     truth = {"preset": "change-frames", "seed": int(seed), "size": [int(size[0]), int(size[1])],
              "paper": "Tsin, Ramesh & Kanade 2001, sec. 5, eq. 20",
              "tone": "srgb-knee (gamma 2.4, toe 0.01, knee 0.8, headroom 2)",
              "M": pair["M"].tolist(), "boxes": pair["boxes"],
              "options": {k: list(v) if isinstance(v, tuple) else v
                          for k, v in pair["options"].items()},
-             "changed_pixels": int(pair["mask"].sum())}
+             "changed_pixels": int(pair["mask"].sum()),
+             "shadow_pixels": int(pair["shadow"].sum())}
     (root / "truth.json").write_text(json.dumps(truth, indent=1))
     return truth

@@ -40,7 +40,7 @@ import pandas as pd
 import panel as pn
 import param
 
-from ccdcore.change import (LABEL_CHANGE, LABEL_UNDETERMINED, ChangeInputs, ChangeOptions,
+from ccdcore.change import (LABEL_CHANGE, LABEL_SHADE, LABEL_UNDETERMINED, ChangeInputs, ChangeOptions,
                             ChangeResult)
 from ccdcore.change_session import session_change
 from ccdcore.common import format_pm
@@ -443,8 +443,11 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
             ("Scale s of the background's d²", f"{res.scale:.4g}"),
             ("Changed pixels", (f"{n_change:,} of {labels.size:,} "
                                 f"({_percent(n_change / max(labels.size, 1))})")),
-            ("Shadow pixels",
-             f"{sum(n for k, n in counts.items() if 0 < k < LABEL_UNDETERMINED):,}"),
+            ("Shadow pixels (further clusters)",
+             f"{sum(n for k, n in counts.items() if 0 < k < LABEL_SHADE):,}"),
+            ("Shade pixels (the background's light times one factor)",
+             "not tested (mono frames or --shade off)" if res.shade is None else
+             f"{int(counts.get(LABEL_SHADE, 0)):,}, factor {res.shade[0]:g}-{res.shade[1]:g}"),
             ("Undetermined pixels", f"{int(counts.get(LABEL_UNDETERMINED, 0)):,}"),
         ]
         self.details.object = "| | |\n|---|---|\n" + "\n".join(
@@ -459,6 +462,8 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
     def _legend_html(self, counts: dict[int, int], total: int) -> str:
         res = self.result
         shown = [c.label for c in res.clusters] + [LABEL_CHANGE]
+        if counts.get(LABEL_SHADE, 0):
+            shown.insert(-1, LABEL_SHADE)
         if counts.get(LABEL_UNDETERMINED, 0):
             shown.append(LABEL_UNDETERMINED)
         rows = []
