@@ -118,10 +118,12 @@ def print_exposures(estimate: Any, label: str = "", table: bool = True) -> None:
 
 def print_verdict(res: Any) -> None:
     """The response's verdict (:mod:`ccdcore.response.verdict`), the words every surface
-    shows."""
+    shows: its line, then the frames' registration and the moving pixels."""
     v = res.verdict
     if v is not None:
         say("verdict", v.line())
+        for line in v.details():
+            say("", line)
 
 
 def response_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -131,10 +133,11 @@ def response_options(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _cmd_response(args: argparse.Namespace) -> int:
-    from .response.methods import session_response
+    from .response.bracket_fit import session_response
 
     res = session_response(args.session, args.method, stack=args.stack,
-                           bloom_radius=args.bloom_radius, **response_options(args))
+                           bloom_radius=args.bloom_radius, align=args.align,
+                           **response_options(args))
     if args.json:
         print_json(res.to_dict())
     else:
@@ -258,13 +261,10 @@ def _cmd_change(args: argparse.Namespace) -> int:
 
 
 def _cmd_hdr(args: argparse.Namespace) -> int:
-    from .reduce import READ_AHEAD
     from .io import write_image, write_map, write_outputs
-    from .product import load_product, session_inputs
-    from .response.brackets import check_times, bracket_records, load_bracket
-    from .response.exposures import exposures_with_curves
+    from .product import session_inputs
+    from .response.brackets import bracket_records
     from .response.hdr import merge_bracket
-    from .response.methods import response_of
     from .session import open_session
 
     session = open_session(args.session)
@@ -273,48 +273,17 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     names = ("radiance.exr", "sigma.exr", "flags.png")
     workers_note_for(args.workers, session, records)
     folder = _out_folder(args.out_dir, names, session, args.calib)
-    res = calib_exposures = None
     with reducer_of(args) as reducer:
-        # read once here for the traces and the merge; with a calibration only when the
-        # merge wants the frames as read (streamed)
-        frames = (reducer.preload(session, records) if args.calib is not None
-                  else [f for _, f in session.iter_frames(records, read_ahead=READ_AHEAD)])
-        if frames is None:
-            # the workers read the frames: only what the calibration's models need here
-            files = [r.relpath for r in records]
-            if session.camera.bits is None:
-                raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] "
-                                         "bits in the manifest (the response has 2**bits "
-                                         "values)")
-            levels = 2 ** int(session.camera.bits)
-            times = np.sort(check_times([r.exposure for r in records], files), kind="stable")
-        else:
-            brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,
-                                    frames=frames)
-            first = next(iter(brackets.values()))
-            levels, times = first.levels, first.t
-        if args.calib is not None:
-            models = load_product(args.calib).response_models(args.calib)
-            for ch, m in models.items():
-                if m.levels != levels:
-                    raise CcdError(args.calib, f"its response has {m.levels} codes, the "
-                                               f"bracket's camera {levels}: another camera?")
-            times, calib_exposures = exposures_with_curves(
-                brackets if frames is not None else None, models, times, args.exposures)
-            for ch, m in models.items():
-                # the product's a, b were its own bracket's: take this one's exposures
-                models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s,
-                                     m.sigma_c1, m.sigma_c2)
-            source = f"response of {args.calib}"
-        else:
-            res = response_of(brackets, args.method, bloom_radius=args.bloom_radius,
-                              **response_options(args))
-            models = res.models()
-            source = f"response estimated from this bracket ({res.method})"
+        models, source, res, calib_exposures, frames, records, moving, alignment = \
+            _hdr_models(args, session, records, reducer)
         out = merge_bracket(records, models, layout=session.camera.layout,
                             bloom_radius=args.bloom_radius, frames=frames, reducer=reducer,
                             session=session)
-        frames = brackets = None      # not needed for writing (460 MB at 17 MP x 9)
+        if moving is not None:
+            from .response.moving import merge_moving
+
+            out = merge_moving(out, frames, models, moving, bloom_radius=args.bloom_radius)
+        frames = None      # not needed for writing (460 MB at 17 MP x 9)
         scheduler = reducer.description
     paths = write_outputs(folder, {   # as one set: never new and old files mixed
         names[0]: lambda p: write_map(p, out.radiance),
@@ -324,33 +293,101 @@ def _cmd_hdr(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"source": source, "channels": list(out.channels),
                     "files": [str(p) for p in paths],
+                    "frames": [r.relpath for r in records],
                     "flags": {"ok": int(np.sum(out.flag_image() == 0)),
                               "flagged": int(np.sum(out.flag_image() != 0)),
                               **out.flag_counts()},
                     "scheduler": scheduler,
                     "verdict": None if res is None or res.verdict is None
                     else res.verdict.to_dict(),
+                    "registration": None if alignment is None else alignment.to_dict(),
+                    "moving": None if moving is None else moving.to_dict(),
                     "exposures": (res.exposures.summary().to_dict()
                                   if res is not None and res.exposures is not None else
                                   calib_exposures.summary().to_dict()
                                   if calib_exposures is not None else None)})
+        return 0
+    print(f"HDR radiance of {len(records)} exposures ({source}), channels "
+          f"{', '.join(out.channels)}")
+    if res is not None:
+        print_exposures(res.exposures)
+        print_verdict(res)
     else:
-        print(f"HDR radiance of {len(records)} exposures ({source}), channels "
-              f"{', '.join(out.channels)}")
-        if res is not None:
-            print_exposures(res.exposures)
-            print_verdict(res)
-        else:
-            print_exposures(calib_exposures, table=False)
-        if scheduler != STREAMED_NAME:
-            print(f"  merged on {scheduler}")
-        for line in out.describe():
-            say("", line)
-        say("written", "radiance, its sigma (float EXR, one channel per colour) and the flags "
-                       "(PNG: 0 merged, 1 dark bound, 2 saturated bound, 3 from bloomed codes)")
-        for p in paths:
-            print(f"  {p}")
+        print_exposures(calib_exposures, table=False)
+        for line in (alignment.describe() if alignment is not None else
+                     "registration: not tried (frames read by the cluster's workers)",
+                     moving.describe() if moving is not None else ""):
+            if line:
+                say("", line)
+    if scheduler != STREAMED_NAME:
+        print(f"  merged on {scheduler}")
+    for line in out.describe():
+        say("", line)
+    say("written", "radiance, its sigma (float EXR, one channel per colour) and the flags "
+                   "(PNG: 0 merged, 1 dark bound, 2 saturated bound, 3 from bloomed codes, "
+                   "4 from one exposure where something moved)")
+    for p in paths:
+        print(f"  {p}")
     return 0
+
+
+def _hdr_models(args: argparse.Namespace, session: Any, records: list, reducer: Any
+                ) -> tuple[Any, ...]:
+    """``hdr``'s response: the calibration's curves at this bracket's exposures, or the fit of
+    :func:`ccdcore.response.bracket_fit.fit_bracket` (registered, moving pixels left out).
+    Returns the models, their source in words, the response result (``None`` with a
+    calibration), the calibration's exposure estimate, the frames (``None``: read by the
+    workers), their records, the moving pixels and the registration."""
+    from .product import load_product
+    from .reduce import READ_AHEAD
+    from .response.bracket_fit import fit_bracket, register_frames
+    from .response.brackets import check_times, load_bracket
+    from .response.exposures import exposures_with_curves
+    from .response.moving import find_moving
+
+    # read once here for the traces and the merge; with a calibration only when the merge
+    # wants the frames as read (streamed)
+    frames = (reducer.preload(session, records) if args.calib is not None
+              else [f for _, f in session.iter_frames(records, read_ahead=READ_AHEAD)])
+    if args.calib is None:
+        fit = fit_bracket(session, args.stack, method=args.method, frames=frames,
+                          align=args.align, bloom_radius=args.bloom_radius,
+                          **response_options(args))
+        res = fit.result
+        return (res.models(), f"response estimated from this bracket ({res.method})", res,
+                None, fit.frames, fit.records, fit.moving, fit.alignment)
+    alignment = moving = brackets = None
+    if frames is None:
+        # the workers read the frames: only what the calibration's models need here
+        files = [r.relpath for r in records]
+        if session.camera.bits is None:
+            raise CcdError(files[0], "the camera's bit depth is unknown: give [camera] "
+                                     "bits in the manifest (the response has 2**bits values)")
+        levels = 2 ** int(session.camera.bits)
+        times = np.sort(check_times([r.exposure for r in records], files), kind="stable")
+    else:
+        frames, alignment, no_data, keep = register_frames(
+            frames, [r.relpath for r in records], args.align)
+        records = [records[k] for k in keep]
+        brackets = load_bracket(session, args.stack, bloom_radius=args.bloom_radius,
+                                frames=frames, records=records, exclude=no_data)
+        first = next(iter(brackets.values()))
+        levels, times = first.levels, first.t
+    models = load_product(args.calib).response_models(args.calib)
+    for ch, m in models.items():
+        if m.levels != levels:
+            raise CcdError(args.calib, f"its response has {m.levels} codes, the bracket's "
+                                       f"camera {levels}: another camera?")
+    times, calib_exposures = exposures_with_curves(brackets, models, times, args.exposures)
+    for ch, m in models.items():
+        # the product's a, b were its own bracket's: take this one's exposures
+        models[ch] = type(m)(m.g, times.copy(), np.zeros(times.size), m.sigma_s, m.sigma_c1,
+                             m.sigma_c2)
+    if frames is not None:
+        moving = find_moving(frames, models, layout=session.camera.layout,
+                             names=[r.relpath for r in records], bloom_radius=args.bloom_radius)
+    return (models, f"response of {args.calib}", None, calib_exposures, frames, records,
+            moving, alignment)
 
 
 # --------------------------------------------------------------------------------------------
@@ -369,6 +406,10 @@ def _bracket_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("session", type=Path, help=SESSION_HELP)
     p.add_argument("--stack", type=int, default=None,
                    help="which bracket of the session (its 'stack'; default the first)")
+    p.add_argument("--align", choices=("auto", "off"), default="auto",
+                   help="register the frames to the bracket's middle one before the fit and the "
+                        "merge (auto, the default: frames that moved are resampled, a tripod "
+                        "bracket is left as it is; off: taken as they are)")
     _bloom_arg(p)
 
 

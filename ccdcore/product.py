@@ -455,7 +455,7 @@ def _flat_field(run: _Run) -> None:
 
 def _response(run: _Run) -> None:
     """A ``bracket``: the inverse response g and the noise terms."""
-    from .response.methods import session_response
+    from .response.bracket_fit import session_response
 
     if run.response:
         run.attempt("response", (), lambda: session_response(run.session,
@@ -485,7 +485,7 @@ def estimate_all(session: Session, *, roi: tuple[int, int, int, int] | None = No
     ``noise`` may pass an already computed photon-transfer result (e.g. with levels the user
     excluded in the app) instead of computing it here; ``response=False`` leaves the response
     of a bracket out, ``emva1288=False`` the EMVA 1288 figures (their steps are then empty);
-    ``response_options`` are :func:`ccdcore.response.methods.session_response`'s (``method``,
+    ``response_options`` are :func:`ccdcore.response.bracket_fit.session_response`'s (``method``,
     ``white_balance``, ``exposures``).
     The EMVA 1288 figures need photon counts: a session whose ptc frames have none skips them
     as ``not-applicable``.

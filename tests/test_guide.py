@@ -181,7 +181,7 @@ def test_verify_skips_a_session_without_uniform_frames() -> None:
 def test_response_gate_reports_the_hdr_merge() -> None:
     from ccdcore.response.brackets import bracket_records
     from ccdcore.response.hdr import FLAG_OK, merge
-    from ccdcore.response.methods import session_response
+    from ccdcore.response.bracket_fit import session_response
 
     s = open_session(ASSETS / "tsin01")
     res = session_response(s)

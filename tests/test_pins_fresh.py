@@ -138,7 +138,7 @@ def test_flag_counts_name_each_flag_by_its_value():
     shape = flags.shape
     res = HdrResult(radiance=np.ones(shape), sigma=np.full(shape, 0.1), flags=flags,
                     used=np.ones(shape, np.int16), channels=("Y",), layout="mono")
-    assert res.flag_counts() == {"merged": 5, "dark": 4, "saturated": 1, "bloomed": 2}
+    assert res.flag_counts() == {"merged": 5, "dark": 4, "saturated": 1, "bloomed": 2, "moving": 0}
     text = " ".join(res.describe())
     assert "5 merged" in text and "4 dark in every image" in text
     assert "1 saturated in every image" in text and "2 merged from codes" in text

@@ -111,7 +111,7 @@ def test_flag_counts_and_the_description_that_hdr_prints():
     radiance = np.tile(np.arange(1.0, 21.0).reshape(4, 5)[..., None], (1, 1, 3))
     res = HdrResult(radiance, 0.05 * radiance, flags, np.ones(flags.shape, np.int16),
                     ("R", "G", "B"), "rgb")
-    assert res.flag_counts() == {"merged": 17, "dark": 1, "saturated": 1, "bloomed": 1}
+    assert res.flag_counts() == {"merged": 17, "dark": 1, "saturated": 1, "bloomed": 1, "moving": 0}
     lines = res.describe()
     assert "no absolute unit" in lines[0]
     ok = radiance[flags == FLAG_OK]

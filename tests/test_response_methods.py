@@ -14,7 +14,8 @@ from ccdcore.errors import CcdError
 from ccdcore.io import read_image
 from ccdcore.product import calibrate, load_product
 from ccdcore.response.brackets import load_bracket
-from ccdcore.response.methods import METHODS, response_of, session_response
+from ccdcore.response.bracket_fit import session_response
+from ccdcore.response.methods import METHODS, response_of
 from ccdcore.response.scale import reference_codes, rms_error
 from ccdcore.session import open_session
 

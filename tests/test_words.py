@@ -274,7 +274,7 @@ def test_calibrate_rows_keep_their_columns(capsys, tmp_path):
 def test_a_noise_term_the_bracket_does_not_determine_is_said_so(capsys, monkeypatch):
     """σ_c2 = 0 ± 240000 DN printed as a figure: an error beyond its unit's whole range (the
     codes for σ_c2) is said to leave the term undetermined."""
-    import ccdcore.response.methods as methods
+    import ccdcore.response.bracket_fit as methods
 
     real = methods.session_response
 

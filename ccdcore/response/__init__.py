@@ -29,6 +29,15 @@ Modules
 :mod:`ccdcore.response.hdr_merge`
     The merge itself on frames in memory, the kernel both paths run (its names are re-exported by
     :mod:`ccdcore.response.hdr`).
+:mod:`ccdcore.response.align`
+    Handheld brackets: each frame registered to the middle one across exposures (a sub-pixel
+    shift and a small rotation, with errors), resampled only where it moved.
+:mod:`ccdcore.response.moving`
+    Moving objects: pixels whose exposures disagree beyond the noise model, merged from one
+    exposure; the suspects left out of the fit.
+:mod:`ccdcore.response.bracket_fit`
+    A session's bracket registered, its suspects left out, fitted, its moving pixels found:
+    what every verb and page that fits a bracket runs.
 :mod:`ccdcore.response.names`
     The methods' names, the exposure modes and the blooming limits, for the command line's
     parser: it imports nothing, and this package loads each public name from its submodule on
@@ -45,7 +54,9 @@ if TYPE_CHECKING:  # what a type checker sees; at run time the names load on fir
     from .brackets import BracketData, bracket_data, load_bracket, preprocess
     from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
     from .hdr import HdrResult, ResponseModel, merge
-    from .methods import METHODS, ResponseResult, response_of, session_response
+    from .methods import METHODS, ResponseResult, response_of
+    from .bracket_fit import fit_bracket, session_response
+    from .align import apply_alignment, estimate_alignment
     from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
     from .scale import normalize, reference_codes, rms_error
 
@@ -53,7 +64,7 @@ __all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "Classic
            "debevec", "robertson", "mitsunaga_nayar", "HdrResult", "ResponseModel", "merge",
            "normalize", "reference_codes", "rms_error", "METHODS", "ResponseResult",
            "response_of", "session_response", "ChannelResponse", "TsinOptions", "estimate",
-           "noise_terms"]
+           "noise_terms", "fit_bracket", "estimate_alignment", "apply_alignment"]
 
 #: each public name -> the submodule that defines it, imported on first use (SPEC 1's lazy
 #: loading): ``import ccdcore.response.names`` (the command line) loads no estimator
@@ -61,15 +72,17 @@ _HOMES = {name: module for module, names in {
     "brackets": ("BracketData", "bracket_data", "load_bracket", "preprocess"),
     "classic": ("ClassicFit", "debevec", "mitsunaga_nayar", "robertson"),
     "hdr": ("HdrResult", "ResponseModel", "merge"),
-    "methods": ("METHODS", "ResponseResult", "response_of", "session_response"),
+    "methods": ("METHODS", "ResponseResult", "response_of"),
+    "bracket_fit": ("fit_bracket", "session_response"),
+    "align": ("estimate_alignment", "apply_alignment"),
     "tsin": ("ChannelResponse", "TsinOptions", "estimate", "noise_terms"),
     "scale": ("normalize", "reference_codes", "rms_error"),
 }.items() for name in names}
 
 #: the submodules, which ``ccdcore.response.<name>`` also loads on first use
-_SUBMODULES = ("agreement", "brackets", "classic", "classic_common", "exposures", "hdr",
-               "hdr_merge", "methods", "names", "scale", "tsin", "tsin_gauge", "tsin_kernels",
-               "tsin_noise", "tsin_notes", "verdict")
+_SUBMODULES = ("agreement", "align", "bracket_fit", "brackets", "classic", "classic_common",
+               "exposures", "hdr", "hdr_merge", "methods", "moving", "names", "scale", "tsin",
+               "tsin_gauge", "tsin_kernels", "tsin_noise", "tsin_notes", "verdict")
 
 
 def __getattr__(name: str) -> Any:

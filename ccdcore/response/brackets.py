@@ -300,8 +300,8 @@ def check_times(t: Sequence[Any], files: Sequence[str]) -> NDArray[np.float64]:
 def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
                  layout: str | None = None, bayer_interpolated: bool = False,
                  files: Sequence[str] = (), bloom_radius: int = DEFAULT_BLOOM_RADIUS,
-                 border: int = DEFAULT_BORDER, max_pixels: int | None = FIT_PIXELS
-                 ) -> dict[str, BracketData]:
+                 border: int = DEFAULT_BORDER, max_pixels: int | None = FIT_PIXELS,
+                 exclude: ArrayLike | None = None) -> dict[str, BracketData]:
     """One :class:`BracketData` per channel from frames in memory.
 
     ``frames`` are integer images of one static scene, all the same shape; ``t`` their nominal
@@ -315,6 +315,10 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
     code, so spread over the whole frame; ``pixels`` holds their flat indices); ``None`` keeps
     every one. The masks (boundary, blooming), every check (codes, usable pixels, a constant
     bracket) and the comparagrams ``pair_counts`` see every pixel, one frame at a time.
+
+    ``exclude``: pixels (H, W) left out of the traces as the boundary is: where an aligned
+    frame has no data (:mod:`ccdcore.response.align`) or something moved
+    (:mod:`ccdcore.response.moving`).
     """
     files = tuple(str(f) for f in files) or tuple(f"frame {k}" for k in range(len(frames)))
     times = check_times(list(t), files)
@@ -348,7 +352,11 @@ def bracket_data(frames: Sequence[ArrayLike], t: Sequence[float], bits: int, *,
     lay = chan.check_layout(arrays[0].shape, layout, files[0])
     names = list(chan.split_channels(arrays[0], lay))
     count_pairs = levels <= PAIR_LEVELS_MAX and not negative
-    scans = {name: _PlaneScan(levels, bloom_radius, border, len(arrays), count_pairs)
+    drop = None if exclude is None else np.asarray(exclude, bool)
+    if drop is not None and drop.shape != arrays[0].shape[:2]:
+        raise CcdError(files[0], f"the excluded pixels' mask has shape {drop.shape}, the "
+                                 f"frames {arrays[0].shape[:2]}")
+    scans = {name: _PlaneScan(levels, bloom_radius, border, len(arrays), count_pairs, drop)
              for name in names}
 
     def scan(name: str) -> None:          # one frame at a time, every pixel
@@ -384,8 +392,10 @@ class _PlaneScan:
     the pixels with a usable code in any frame, the blooming masks (bit-packed), whether any
     pixel's usable code changes (a constant bracket) and the comparagrams of neighbours."""
 
-    def __init__(self, levels: int, bloom_radius: int, border: int, n: int, pairs: bool):
+    def __init__(self, levels: int, bloom_radius: int, border: int, n: int, pairs: bool,
+                 exclude: NDArray[np.bool_] | None = None):
         self.levels, self.bloom_radius, self.border, self.n = levels, bloom_radius, border, n
+        self.exclude = exclude
         self.shape: tuple[int, int] = (0, 0)
         self.usable_any: NDArray[np.bool_] | None = None
         self.first: NDArray | None = None        # the first usable code of every pixel
@@ -406,6 +416,8 @@ class _PlaneScan:
         self.blooms.append(np.packbits(bloom, axis=None) if bloom.any() else None)
         usable = preprocess(plane, L, bloom_radius=self.bloom_radius, border=self.border,
                             bloom=bloom)
+        if self.exclude is not None:
+            usable &= ~self.exclude
         del bloom
         seen = self.usable_any
         if not self.changed:
@@ -468,6 +480,8 @@ class _PlaneScan:
             inside = (ys >= b) & (ys < h - b) & (xs >= b) & (xs < w - b)
         else:
             inside = np.ones(cols.size, bool)
+        if self.exclude is not None:
+            inside &= ~self.exclude[ys, xs]
         n = len(planes)
         z = np.empty((n, cols.size), np.int32)
         valid = np.empty((n, cols.size), bool)
@@ -520,7 +534,8 @@ def bracket_records(session: Any, stack: Any = None, *, role: str = "bracket") -
 def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
                  bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
                  bayer_interpolated: bool = False, frames: Sequence[ArrayLike] | None = None,
-                 max_pixels: int | None = FIT_PIXELS) -> dict[str, BracketData]:
+                 max_pixels: int | None = FIT_PIXELS, exclude: ArrayLike | None = None,
+                 records: Sequence[Any] | None = None) -> dict[str, BracketData]:
     """The bracket ``stack`` of ``session`` (the first when ``None``) per channel.
 
     Exposure times come from the manifest (``exposure`` of each frame); the bit depth from the
@@ -528,8 +543,10 @@ def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
     interpolated from a Bayer mosaic (eq. 12's extra factor): the manifest does not record it.
     ``frames``: the frames already read, in :func:`bracket_records` order (not read again).
     ``max_pixels``: pixels per channel kept as traces (:func:`bracket_data`; ``None`` every one).
+    ``exclude``: pixels left out of the traces (:func:`bracket_data`). ``records``: the frames'
+    records when not all of the stack's (frames left out), in the order of ``frames``.
     """
-    records = bracket_records(session, stack, role=role)
+    records = bracket_records(session, stack, role=role) if records is None else list(records)
     if hasattr(session, "raise_if_invalid"):
         # the session's own line first: an exposure of 0 or 1e300 is dropped there with its
         # reason, and reading the frames on would only say "missing exposure"
@@ -543,4 +560,5 @@ def load_bracket(session: Any, stack: Any = None, *, role: str = "bracket",
         frames = [session.read(r) for r in records]
     return bracket_data(frames, [r.exposure for r in records], cam.bits, layout=cam.layout,
                         bayer_interpolated=bayer_interpolated, files=files,
-                        bloom_radius=bloom_radius, border=border, max_pixels=max_pixels)
+                        bloom_radius=bloom_radius, border=border, max_pixels=max_pixels,
+                        exclude=exclude)

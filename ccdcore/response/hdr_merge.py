@@ -42,8 +42,13 @@ merge(frames, models, ...)
     Eqs. 9, 18, 19 over a bracket's frames (one model per channel).
 noise_sigma(model, z, k)
     σ(a_k, z) of eq. 7 for codes z of image k.
-FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED
+FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED, FLAG_MOVING
     The flag values (also the codes of ``flags.png``).
+
+A merged radiance can be 0 or below where the true one is near black: eq. 9 averages the
+images' predictions (g(z) - b_k)/a_k, and a dark code's prediction scatters around zero (and a
+fitted curve's toe can lie below it). Such a value with its σ_E says "consistent with black";
+it is not clipped, which would bias every dark pixel upwards.
 """
 from __future__ import annotations
 
@@ -60,9 +65,12 @@ from ..errors import CcdError
 from .brackets import DEFAULT_BLOOM_RADIUS, bloom_mask
 
 __all__ = ["ResponseModel", "HdrResult", "merge", "noise_sigma", "FLAG_OK", "FLAG_DARK",
-           "FLAG_SATURATED", "FLAG_BLOOMED"]
+           "FLAG_SATURATED", "FLAG_BLOOMED", "FLAG_MOVING"]
 
 FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED = 0, 1, 2, 3
+#: merged from one exposure: its exposures disagree beyond the noise model (a moving object;
+#: :mod:`ccdcore.response.moving`)
+FLAG_MOVING = 4
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,11 +121,11 @@ class HdrResult:
     def flag_counts(self) -> dict[str, int]:
         """Pixels of :meth:`flag_image` by flag: ``merged``, ``dark`` (an upper bound: dark in
         every image), ``saturated`` (a lower bound), ``bloomed`` (merged from codes the
-        blooming mask had removed)."""
-        counts = np.bincount(self.flag_image().ravel(), minlength=4)
+        blooming mask had removed), ``moving`` (merged from one exposure: a moving object)."""
+        counts = np.bincount(self.flag_image().ravel(), minlength=5)
         return {name: int(counts[f]) for name, f in (
             ("merged", FLAG_OK), ("dark", FLAG_DARK), ("saturated", FLAG_SATURATED),
-            ("bloomed", FLAG_BLOOMED))}
+            ("bloomed", FLAG_BLOOMED), ("moving", FLAG_MOVING))}
 
     def describe(self) -> list[str]:
         """What the radiance is, in a few lines: its scale and range, its relative error, and
@@ -133,12 +141,19 @@ class HdrResult:
             lines.append(f"merged pixels: E {lo:.3g} … {hi:.3g} (1st to 99th percentile, "
                          f"median {med:.3g}; a range of {hi / lo:.3g}), relative error σ_E/E "
                          f"median {100 * float(np.median(rel)):.2g} %")
+        black = (self.flags == FLAG_OK) & (self.radiance <= 0)
+        if black.any():
+            within = black & (self.radiance >= -2.0 * self.sigma)
+            lines.append(f"{int(np.count_nonzero(black))} merged values at or below 0 (dark "
+                         f"codes scatter around black; {int(np.count_nonzero(within))} of them "
+                         "within 2 σ_E of it): kept, not clipped, so dark pixels stay unbiased")
         c = self.flag_counts()
         total = max(1, sum(c.values()))
         lines.append(f"flags.png: {c['merged']} merged ({100 * c['merged'] / total:.3g} %), "
                      f"{c['dark']} dark in every image (1: an upper bound), {c['saturated']} "
                      f"saturated in every image (2: a lower bound), {c['bloomed']} merged from "
-                     "codes the blooming mask had removed (3)")
+                     f"codes the blooming mask had removed (3), {c['moving']} merged from one "
+                     "exposure because something moved there (4)")
         return lines
 
 

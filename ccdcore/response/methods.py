@@ -26,6 +26,8 @@ ResponseSummary, ResponseScaleSummary
 response_of(brackets, method, ...)
     Estimate every channel of a bracket (:func:`ccdcore.response.brackets.load_bracket`).
 session_response(session, method, ...)
+    (defined in :mod:`ccdcore.response.bracket_fit`, which registers the frames and leaves the
+    moving pixels out first)
     Load a session's bracket and estimate it.
 """
 from __future__ import annotations
@@ -44,7 +46,7 @@ from ..errors import CcdError
 from ..progress import Progress
 from ..records import Record, Row
 from .agreement import Agreement, AgreementSummary, agreement
-from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, BracketData, load_bracket
+from .brackets import DEFAULT_BLOOM_RADIUS, BracketData
 from .classic import debevec, mitsunaga_nayar, robertson
 from .hdr_merge import ResponseModel
 from .names import DEFAULT_METHOD, EXPOSURE_MODES, METHOD_CHOICES, METHOD_NAMES
@@ -54,7 +56,7 @@ from .exposures import ExposureEstimate, ExposureSummary, estimate_exposures
 from .verdict import ResponseVerdict, response_verdict
 
 __all__ = ["METHODS", "Method", "ResponseResult", "ResponseSummary", "ResponseScaleSummary",
-           "MethodComparison", "response_of", "session_response", "JACKKNIFE_BLOCKS", "AUTO",
+           "MethodComparison", "response_of", "JACKKNIFE_BLOCKS", "AUTO",
            "CHALLENGER", "EXPOSURE_MODES"]
 
 #: the default method: sec. 3.2, unless Debevec & Malik's curve predicts the bracket clearly
@@ -511,17 +513,3 @@ def response_of(brackets: Mapping[str, BracketData], method: str = AUTO, *,
                          agreement=runs[kept], exposures=ex, requested=method, selection=why,
                          compared={n: a for n, a in runs.items() if n != kept})
     return replace(res, verdict=response_verdict(res, res.compared))
-
-
-def session_response(session: Any, method: str = AUTO, *, stack: Any = None,
-                     bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
-                     progress: Progress | None = None, white_balance: bool = False,
-                     exposures: str = "auto") -> ResponseResult:
-    """The response of a session's bracket ``stack`` (a path or an open session)."""
-    from ..session import open_session
-
-    if not hasattr(session, "bracket_stacks"):
-        session = open_session(session)
-    brackets = load_bracket(session, stack, bloom_radius=bloom_radius, border=border)
-    return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius,
-                       white_balance=white_balance, exposures=exposures)

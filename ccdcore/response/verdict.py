@@ -76,6 +76,12 @@ class ResponseVerdict(Record):
     frames: tuple[str, ...] = ()
     #: the one next step that helps (a flag of the command), empty when none
     next_step: str = ""
+    #: how the frames were registered before the fit (:meth:`ccdcore.response.align.Alignment.describe`;
+    #: empty when not tried)
+    registration: str = ""
+    #: the pixels whose exposures disagree, left out of the fit and merged from one exposure
+    #: (:meth:`ccdcore.response.moving.MovingPixels.describe`; empty when not tested)
+    moving: str = ""
 
     def line(self) -> str:
         """The verdict in one line, as every surface prints it."""
@@ -86,13 +92,23 @@ class ResponseVerdict(Record):
             out += f"; next step: {self.next_step}"
         return out
 
+    def details(self) -> tuple[str, ...]:
+        """The frames' registration and the moving pixels, a line each (those known)."""
+        return tuple(t for t in (self.registration, self.moving) if t)
+
     @property
     def trusted(self) -> bool:
         return self.status == TRUSTED
 
     def rows(self) -> tuple[Row, ...]:
-        """One row: the status as its value, the whole line as its meaning (wrapped)."""
-        return (Row("verdict", None, None, "", self.line(), self.status),)
+        """The status as its value, the whole line as its meaning (wrapped); then the
+        registration and the moving pixels, where known."""
+        out = [Row("verdict", None, None, "", self.line(), self.status)]
+        if self.registration:
+            out.append(Row("registration", None, None, "", self.registration, ""))
+        if self.moving:
+            out.append(Row("moving objects", None, None, "", self.moving, ""))
+        return tuple(out)
 
 
 def longest_flat_run(g: Any, levels: int) -> int:

@@ -101,6 +101,16 @@ With any of them set, ``truth.json`` also holds ``camera_model`` (the bundle, ev
 the pipeline), ``tone``, ``scene``, ``vignetting``, ``exposure_error``, ``exposure_factor``,
 ``black_level``, ``sharpen`` and ``jpeg``, and each frame its ``exposure_factor``.
 
+Handheld bracket (:mod:`ccdcore.simulate.handheld`, off by default).  ``handheld_shift`` (px)
+and ``handheld_rotation`` (degrees) are the standard deviations of each frame's shift and
+rotation against the middle frame ``n // 2`` (exactly still); ``movers`` objects of height
+``mover_size`` x H cross the scene at ``mover_speed`` px per frame.  The motion applies to the
+scene radiance (rendered with a margin, ``truth/scene_margin.exr``), before vignetting and the
+camera.  ``truth.json`` then holds ``transforms`` (per frame file; the convention in
+``handheld.convention``: content at reference pixel ``p`` appears at ``c + R(theta)(p - c) +
+(dx, dy)``, so ``aligned(x, y) = frame(x + dx, y + dy)``), ``handheld`` and ``movers`` (masks in
+``truth/movers.npy``, ``truth/movers_aligned.npy``, ``truth/moving_mask.npy``).
+
 Reproducibility.  The same seed gives the same bytes whatever the CPU's vector features: ``f`` uses
 the CPU-independent ``pow`` of :mod:`ccdcore.simulate._det` (NumPy's vector ``power`` differs in the
 last bit between AVX2 and AVX-512, which could flip a rounded digital number), blooming sums shifted
@@ -155,6 +165,7 @@ from ..errors import CcdError
 from ..io import write_image
 from . import _det
 from . import camera as _cam
+from . import handheld as _hh
 from ._common import TRUTH_DIGITS, SessionWriter, round_sig
 
 __all__ = ["DEFAULTS", "CAMERA_OPTIONS", "Exposure", "inverse_response", "response",
@@ -195,6 +206,8 @@ DEFAULTS: dict[str, Any] = {
     "sharpen": 0.0,
     "jpeg_quality": None,
     "listed_step_factors": None,
+    # handheld bracket (handheld.py): camera shake and moving objects, off at these values
+    **_hh.DEFAULTS,
 }
 
 #: the options of the camera model: when all are at their defaults the session is the sec. 4.1
@@ -204,7 +217,7 @@ CAMERA_OPTIONS = ("camera", "tone", "tone_gamma", "toe", "knee", "headroom", "sc
                   "listed_step_factors")
 #: options recorded in ``camera_model.options`` only when set (added after sessions were
 #: committed whose truth.json must stay byte for byte the same)
-_RECORDED_WHEN_SET = ("listed_step_factors",)
+_RECORDED_WHEN_SET = ("listed_step_factors", *_hh.DEFAULTS)
 
 SHOT_NOISE_NOTE = ("N_s ~ Normal(0, sigma_s^2 * a_k * E): shot-noise variance proportional to the "
                    "signal (Poisson), so eq. 7 reads sigma^2 = sigma_s^2 a E + sigma_c1^2 + "
@@ -495,6 +508,7 @@ def _check_options(opts: dict[str, Any], size: tuple[int, int]) -> None:
     if q is not None and (isinstance(q, bool) or not isinstance(q, (int, np.integer))
                           or not 1 <= int(q) <= 100):
         raise CcdError("jpeg_quality", f"must be None or an integer in 1..100, got {q!r}")
+    _hh.check_options(opts)
 
 
 def _options(options: dict[str, Any]) -> dict[str, Any]:
@@ -510,26 +524,36 @@ def _options(options: dict[str, Any]) -> dict[str, Any]:
 
 
 def _scene(opts: dict[str, Any], rng: np.random.Generator, seed: int, shape: tuple[int, ...],
-           n_channels: int) -> tuple[NDArray[np.float32], dict[str, Any], NDArray | None, float]:
+           n_channels: int, hh: _hh.Plan | None = None
+           ) -> tuple[NDArray[np.float32], dict[str, Any], NDArray | None, float]:
     """The radiance E the camera sees (given, uniform or structured, times the vignetting),
-    the scene's description, the vignetting map (``None`` without) and its strength."""
+    the scene's description, the vignetting map (``None`` without) and its strength.  A handheld
+    plan ``hh`` gets the scene drawn with its margin (:meth:`handheld.Plan.attach`); E is then
+    the reference frame's crop."""
     scene: dict[str, Any] = {"kind": "uniform"}
+    grown = shape if hh is None else hh.grown(shape)
     if opts["radiance"] is not None:
         E = np.asarray(opts["radiance"], dtype=np.float32)
         if E.shape != shape:
             raise CcdError("radiance", f"expected shape {shape}, got {E.shape}")
+        E = E if hh is None else hh.pad(E)
         scene = {"kind": "given"}
     elif opts["scene"] == "uniform":
-        E = uniform_radiance(rng, shape)
+        E = uniform_radiance(rng, grown)
     else:
         # its own stream: the main generator's draws (white balance, noise) stay where they are
-        E, scene = _cam.structured_scene(np.random.default_rng([int(seed), 1]), shape)
+        E, scene = _cam.structured_scene(np.random.default_rng([int(seed), 1]), grown)
+    if hh is not None:                       # float32: truth/scene_margin.exr is what is warped
+        full = np.asarray(E, dtype=np.float32)
+        E = hh.crop(full)
     vignetting = float(opts["vignetting"])
     V = None
     if vignetting > 0.0:
         V = _cam.vignetting_map(shape, vignetting)
         E = np.asarray(E, dtype=np.float64) * (V if n_channels == 1 else V[..., None])
     E = np.asarray(E, dtype=np.float32)        # what is simulated is what truth/E.exr holds
+    if hh is not None:
+        hh.attach(full, V)
     return E, scene, V, vignetting
 
 
@@ -559,10 +583,10 @@ class _Shots:
 def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDArray,
                   rng: np.random.Generator, seed: int, opts: dict[str, Any], n_channels: int,
                   camera_model: bool, gamma: float, noise: dict[str, float],
-                  engine: dict[str, Any]) -> _Shots:
+                  engine: dict[str, Any], hh: _hh.Plan | None = None) -> _Shots:
     """Every stack's bracket (sec. 4.1): its white balance, exposure errors (lognormal, and the
     wrong listed steps' cumulative factor) and black level, then one frame per exposure time
-    (with its bloom mask when blooming)."""
+    (with its bloom mask when blooming; each frame's own radiance with a handheld plan)."""
     bayer = opts["bayer"]
     rnd = np.vectorize(round_sig, otypes=[np.float64])
     eps_rng = np.random.default_rng([int(seed), 2])
@@ -589,7 +613,8 @@ def _shoot_stacks(writer: SessionWriter, out_dir: str | Path, E: NDArray, t: NDA
         shots.true_exposure.append(true_exposure)
         stack_blooms = []
         for k in range(t.size):
-            shot = expose(E, a[k], b[k], rng, gamma=gamma, bayer=bayer,
+            shot = expose(E if hh is None else hh.frame_radiance(k), a[k], b[k], rng,
+                          gamma=gamma, bayer=bayer,
                           blooming=bool(opts["blooming"]), bloom_radius=int(opts["bloom_radius"]),
                           bloom_strength=float(opts["bloom_strength"]), **noise, **engine)
             rel = f"bracket/s{j}_k{k:02d}.tif"
@@ -652,7 +677,7 @@ def _camera_model_truth(truth: dict[str, Any], opts: dict[str, Any], tone: Any,
     truth["camera_model"] = {
         "bundle": opts["camera"],
         "options": {k: opts[k] for k in DEFAULTS if k != "radiance"
-                    and (k not in _RECORDED_WHEN_SET or opts[k] is not None)},
+                    and (k not in _RECORDED_WHEN_SET or _differs(opts[k], DEFAULTS[k]))},
         "pipeline": CAMERA_PIPELINE_NOTE,
     }
     truth["tone"] = tone.params()
@@ -713,7 +738,9 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
         ``tone_gamma``, ``toe``, ``knee``, ``headroom``, ``scene``
         (``"uniform"``/``"structured"``), ``vignetting``, ``exposure_error``, ``black_level``,
         ``sharpen``, ``jpeg_quality`` and ``listed_step_factors`` (``{pair: factor}``: pairs
-        whose true exposure ratio differs from the listed one).
+        whose true exposure ratio differs from the listed one); the handheld bracket
+        (module notes): ``handheld_shift``, ``handheld_rotation``, ``movers``, ``mover_size``,
+        ``mover_speed``.
 
     Returns
     -------
@@ -729,9 +756,10 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
     rng = np.random.default_rng(int(seed))
     n_channels = 3 if opts["layout"] == "rgb" else 1
     shape = (height, width) if n_channels == 1 else (height, width, 3)
-    E, scene, V, vignetting = _scene(opts, rng, seed, shape, n_channels)
-    bayer = opts["bayer"]
     t = exposure_times(opts["n_exposures"], opts["ratio"], opts["t_max"])
+    hh = _hh.plan(opts, seed, t.size, (height, width))
+    E, scene, V, vignetting = _scene(opts, rng, seed, shape, n_channels, hh)
+    bayer = opts["bayer"]
     gamma = float(opts["gamma"])
     tone = _cam.make_tone(opts["tone"], gamma=gamma, tone_gamma=float(opts["tone_gamma"]),
                           toe=float(opts["toe"]), knee=float(opts["knee"]),
@@ -749,12 +777,18 @@ def simulate(out_dir: str | Path, *, seed: int = 0, size: tuple[int, int] | None
         writer.add_map("truth/E_effective.exr", effective_radiance(E, bayer))
     if V is not None:
         writer.add_map("truth/vignetting.exr", V)
+    if hh is not None and hh.margin:
+        writer.add_map("truth/scene_margin.exr", hh.scene)
     shots = _shoot_stacks(writer, out_dir, E, t, rng, seed, opts, n_channels, camera_model,
-                          gamma, noise, engine)
+                          gamma, noise, engine, hh)
     truth = _truth(opts, seed, width, height, tone, gamma, t, noise, shots)
     if camera_model:
         _camera_model_truth(truth, opts, tone, scene, vignetting, V, shots, jpeg)
-    return writer.finish(truth, note=_note(opts, seed, camera_model), exact=("g",))
+    note = _note(opts, seed, camera_model)
+    if hh is not None:
+        truth.update(hh.truth(out_dir, shots.frames))
+        note += hh.note()
+    return writer.finish(truth, note=note, exact=("g",))
 
 
 def _differs(value: Any, default: Any) -> bool:

@@ -193,6 +193,12 @@ class MapsPage(MapsTab, SceneTab, PlanningTab, pn.viewable.Viewer):
         self.error_alert = maps_alert("", "danger", css_classes=["ccd-maps-error"])
         self.plan_alert = maps_alert("", "warning", css_classes=["ccd-plan-warning"])
         self.info_alert = maps_alert("", "info", css_classes=["ccd-maps-info"])
+        # what the session cannot give, once maps are shown: one line above, the list folded
+        # (five paragraphs pushed a real CCD's dark map below the first view)
+        self.info_details = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                             css_classes=["ccd-maps-info-details"])
+        self.info_card = pn.Card(self.info_details, title="", collapsed=True, visible=False,
+                                 sizing_mode="stretch_width", css_classes=["ccd-maps-info-card"])
 
     def _build_emva_tab(self) -> None:
         self.emva_note = pn.pane.Markdown("", sizing_mode="stretch_width",
@@ -234,7 +240,7 @@ class MapsPage(MapsTab, SceneTab, PlanningTab, pn.viewable.Viewer):
         return pn.Column(
             pn.pane.Markdown("## Maps", css_classes=["ccd-page-title"]),
             pn.Row(self.compute_button, self.status_pane, sizing_mode="stretch_width"),
-            self.error_alert, self.plan_alert, self.info_alert, self.tab_bar,
+            self.error_alert, self.plan_alert, self.info_alert, self.info_card, self.tab_bar,
             pn.layout.Divider(margin=(0, 10)), self.tab_content,
             sizing_mode="stretch_width", name="Maps", stylesheets=[MAPS_CSS])
 
@@ -419,6 +425,15 @@ class MapsPage(MapsTab, SceneTab, PlanningTab, pn.viewable.Viewer):
             elif session.roles().get("dark") and not self.computing and not self.state.error:
                 lines.insert(0, "Press **Compute maps** to estimate D̂_D, K̂, the plan and V_S.")
             text = "\n\n".join(lines)
+            if est is not None and len(lines) > 1:
+                # maps are shown: the list of what cannot be made folds away
+                self.info_details.object = text
+                self.info_card.param.update(
+                    title=f"{len(lines)} estimates this session's frames cannot give (open "
+                          "for what to capture)", visible=True)
+                self.info_alert.param.update(object="", visible=False)
+                return
+        self.info_card.visible = False
         self.info_alert.object = text
         self.info_alert.visible = bool(text)
 

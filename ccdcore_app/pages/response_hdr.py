@@ -57,8 +57,13 @@ import param
 from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
 from ccdcore.progress import Progress, within
-from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records, load_bracket
+from ccdcore.response.bracket_fit import (finish_fit, fit_bracket, prepare_bracket,
+                                         register_frames)
+from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records
+from ccdcore.response.moving import find_moving, merge_moving
 from ccdcore.response.hdr import FLAG_OK, HdrResult, merge
+from ccdcore.response.hdr_merge import (FLAG_BLOOMED, FLAG_DARK, FLAG_MOVING,
+                                        FLAG_SATURATED)
 from ccdcore.response.methods import AUTO, EXPOSURE_MODES, METHODS, ResponseResult, response_of
 from ccdcore.response.scale import normalize
 from ccdcore.session import Session
@@ -67,7 +72,8 @@ from ccdcore.simulate.truth import find_truth
 from ..batch import batched, in_document
 from ..image_view import view_pane
 from ..response_plots import (TONE_CURVES, VERDICT_ALERTS, PoolHistogram, ResponseFigure,
-                              agreement_rows, dn, hdr_planes, hdr_views, md_text, pair_rows)
+                              agreement_rows, dn, hdr_planes, hdr_views, md_text, pair_rows,
+                              verdict_markdown)
 from ..state import AppState
 from ._choices import set_choices
 from ._messages import PageMessages
@@ -94,6 +100,11 @@ LABELS = {AUTO: AUTO_LABEL, **{name: m.label for name, m in METHODS.items()}}
 #: the names the responses and the HDR are shared (and cached) under, with the options
 RESPONSES_ENTRY = "response_curves"
 HDR_ENTRY = "response_hdr"
+#: flags.png's codes in words (the pointer's readout)
+FLAG_WORDS = {FLAG_DARK: "dark in every image: an upper bound",
+              FLAG_SATURATED: "saturated in every image: a lower bound",
+              FLAG_BLOOMED: "merged from codes next to a saturated pixel",
+              FLAG_MOVING: "merged from one exposure: something moved"}
 
 
 # ----------------------------------------------------------------------------- computing ------
@@ -101,13 +112,13 @@ def compute_response(session: Session, method: str = AUTO,
                      bloom_radius: int = DEFAULT_BLOOM_RADIUS,
                      progress: Progress | None = None, white_balance: bool = False,
                      exposures: str = "auto") -> ResponseResult:
-    """:func:`ccdcore.response.methods.response_of` on the session's first bracket:
-    ``method`` "auto" (the library's default) or a key of :data:`METHODS`; the white-balance
-    gains only where the method estimates them."""
-    brackets = load_bracket(session, bloom_radius=bloom_radius)
-    return response_of(brackets, method, progress=progress, bloom_radius=bloom_radius,
+    """:func:`ccdcore.response.bracket_fit.fit_bracket` on the session's first bracket (its
+    frames registered, its moving pixels left out, both in the verdict): ``method`` "auto"
+    (the library's default) or a key of :data:`METHODS`; the white-balance gains only where the
+    method estimates them."""
+    return fit_bracket(session, method=method, progress=progress, bloom_radius=bloom_radius,
                        white_balance=_white_balance(method, white_balance),
-                       exposures=exposures)
+                       exposures=exposures).result
 
 
 def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS,
@@ -115,16 +126,18 @@ def compute_responses(session: Session, bloom_radius: int = DEFAULT_BLOOM_RADIUS
                       exposures: str = "auto",
                       methods: Iterable[str] | None = None) -> dict[str, ResponseResult]:
     """:func:`compute_response` for each of ``methods`` (default: every method of the
-    registry), each taking an equal part of ``progress``; the bracket is read once."""
-    brackets = load_bracket(session, bloom_radius=bloom_radius)
+    registry), each taking an equal part of ``progress``; the bracket is read, registered and
+    searched for moving pixels once (:func:`ccdcore.response.bracket_fit.prepare_bracket`)."""
+    prepared = prepare_bracket(session, bloom_radius=bloom_radius)
     names = list(METHODS) if methods is None else list(methods)
     out: dict[str, ResponseResult] = {}
     for i, name in enumerate(names):
         sub = within(progress, i / len(names), (i + 1) / len(names),
                      prefix=f"{LABELS[name]}: ")
-        out[name] = response_of(brackets, name, progress=sub, bloom_radius=bloom_radius,
-                                white_balance=_white_balance(name, white_balance),
-                                exposures=exposures)
+        res = response_of(prepared.brackets, name, progress=sub, bloom_radius=bloom_radius,
+                          white_balance=_white_balance(name, white_balance),
+                          exposures=exposures)
+        out[name] = finish_fit(res, prepared).result
     return out
 
 
@@ -135,10 +148,19 @@ def _white_balance(method: str, asked: bool) -> bool:
 
 def compute_hdr(session: Session, result: ResponseResult,
                 bloom_radius: int = DEFAULT_BLOOM_RADIUS) -> HdrResult:
-    """The bracket merged with ``result``'s calibration (eqs. 9, 18, 19)."""
+    """The bracket merged with ``result``'s calibration (eqs. 9, 18, 19): its frames registered
+    as the fit's were, the pixels whose exposures disagree merged from one exposure
+    (:mod:`ccdcore.response.moving`)."""
     frames = [session.read(r) for r in bracket_records(session)]
-    return merge(frames, result.models(), layout=session.camera.layout,
-                 bloom_radius=bloom_radius)
+    frames, _, _, keep = register_frames(frames, [r.relpath for r in
+                                                  bracket_records(session)])
+    if len(keep) != len(result.files):
+        raise CcdError(result.files[0], "the bracket's frames changed since the response")
+    models = result.models()
+    out = merge(frames, models, layout=session.camera.layout, bloom_radius=bloom_radius)
+    moving = find_moving(frames, models, layout=session.camera.layout,
+                         names=list(result.files), bloom_radius=bloom_radius)
+    return merge_moving(out, frames, models, moving, bloom_radius=bloom_radius)
 
 
 def _true_g(session: Session) -> np.ndarray | None:
@@ -661,7 +683,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             self.verdict_alert.object = ""
             self.exposures_note.object = ""
             return
-        self.verdict_alert.param.update(object=md_text(verdict.line()),
+        self.verdict_alert.param.update(object=verdict_markdown(verdict),
                                         alert_type=VERDICT_ALERTS.get(verdict.status, "info"),
                                         visible=True)
         parts = []
@@ -687,12 +709,10 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.rad_view.show(p["display"], clim=(0.0, 1.0))
         self.sig_view.show(p["rel"], clim=(0.0, p["top"]))
         self.rad_pane.visible = self.sig_pane.visible = True
-        n_bad = int(np.count_nonzero(F != FLAG_OK))
         self.hdr_note.object = (
-            f"With the calibration of {md_text(self._hdr_of)}: {E.size - n_bad} pixels "
-            f"merged; {n_bad} flagged (saturated or dark in every image: a bound with σ = ∞; "
-            "or merged from codes next to a saturated pixel). The display curve and exposure "
-            "change the picture only, not the radiance.")
+            f"With the calibration of {md_text(self._hdr_of)}: "
+            + md_text(" ".join(hdr.describe()[1:])) + " The display curve and exposure change "
+            "the picture only, not the radiance.")
 
     def _on_pointer(self, x: float, y: float) -> None:
         E = getattr(self, "_E", None)
@@ -704,7 +724,7 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         if not (0 <= row < E.shape[0] and 0 <= col < E.shape[1]):
             return
         e, s, f = float(self._E[row, col]), float(self._S[row, col]), int(self._F[row, col])
-        flag = "" if f == FLAG_OK else " (flagged)"
+        flag = "" if f == FLAG_OK else f" ({FLAG_WORDS.get(f, 'flagged')})"
         self.readout.object = (f"pixel (row {row}, col {col}): E = "
                                f"{format_pm(e, s) if np.isfinite(s) else f'{e:.5g} (bound)'}"
                                f"{flag}")

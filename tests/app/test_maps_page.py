@@ -529,3 +529,26 @@ def test_histogram_counts_every_finite_value_in_plain_numbers():
     values, bins = map_plots.histogram_input(counts)
     hist.show(values, bins=bins)
     np.testing.assert_array_equal(hist.source.data["top"], [1, 2, 0, 1])   # one bin per value
+
+
+def test_what_a_darks_and_flats_session_cannot_give_folds_below_one_line(tmp_path):
+    """A cooled CCD's biases, darks and flats (no photon-transfer pairs, no fixed-pattern
+    frames): once the dark map is shown, the five estimates it cannot give are one folded card,
+    not five paragraphs pushing the map below the first view (a real CCD's set did)."""
+    from ccdcore.simulate import simulate
+
+    root = tmp_path / "lab"
+    simulate("ccdlab", root, seed=0, size=(64, 48))
+    state = AppState(allowed_roots=[tmp_path.resolve()])
+    assert state.load(root)
+    page = MapsPage(state, auto_compute=False)
+    _run(page.compute())
+    assert state.results.estimates is not None and page.layers
+    lines = missing_sentences(state.session)
+    assert len(lines) > 1
+    assert not page.info_alert.visible
+    assert page.info_card.visible and page.info_card.collapsed
+    assert page.info_card.title.startswith(f"{len(lines)} estimates this session's frames "
+                                           "cannot give")
+    for line in lines:
+        assert line in page.info_details.object

@@ -14,7 +14,7 @@ from playwright.sync_api import Page, expect
 
 import ccdcore_app.cache
 from ccdcore_app.cache import SharedResults
-from ccdcore.response.brackets import load_bracket
+from ccdcore.response.bracket_fit import finish_fit, prepare_bracket
 from ccdcore.response.methods import METHODS, response_of
 from ccdcore.session import open_session
 
@@ -47,21 +47,25 @@ CURVE_AT = """([method, code]) => {
 VERDICT = ".ccd-response-verdict"
 
 
-def _verdict_shown(page: Page, line: str, status: str) -> None:
-    """The verdict alert holds ``line`` exactly, styled by ``status``."""
+def _verdict_shown(page: Page, verdict) -> None:
+    """The verdict alert holds the verdict's line, then its registration and moving pixels,
+    a paragraph each, exactly, styled by its status."""
     alert = page.locator(VERDICT)
-    expect(alert).to_have_text(line, timeout=TIMEOUT)
-    assert alert.locator("p").all_inner_texts() == [line]     # (the text is in a shadow root)
-    kind = {"trusted": "success", "doubtful": "warning", "failed": "danger"}[status]
+    paragraphs = [verdict.line(), *verdict.details()]
+    expect(alert.locator("p").first).to_have_text(paragraphs[0], timeout=TIMEOUT)
+    assert alert.locator("p").all_inner_texts() == paragraphs  # (the text is in a shadow root)
+    kind = {"trusted": "success", "doubtful": "warning", "failed": "danger"}[verdict.status]
     expect(alert).to_have_class(re.compile(rf"\balert-{kind}\b"))
 
 
 def test_default_then_a_chosen_method(page: Page, serve_app, assets, settled_box):
     demo = assets / "tsin01"
-    brackets = load_bracket(open_session(demo))
+    # what the page computes: the bracket registered, its suspects left out, the moving
+    # pixels found (ccdcore.response.bracket_fit)
+    prepared = prepare_bracket(open_session(demo))
     code = 100
-    default = response_of(brackets)
-    debevec = response_of(brackets, "debevec")
+    default = finish_fit(response_of(prepared.brackets), prepared).result
+    debevec = finish_fit(response_of(prepared.brackets, "debevec"), prepared).result
     expected = {name: float(r["L"].g[code] + 2 * r["L"].g_err[code])
                 for name, r in (("auto", default), ("debevec", debevec))}
     assert abs(expected["auto"] - expected["debevec"]) > 1e-4   # the change is visible
@@ -74,7 +78,7 @@ def test_default_then_a_chosen_method(page: Page, serve_app, assets, settled_box
     page.wait_for_function(f"() => ({BAND_AT})({code}) !== null", timeout=TIMEOUT)
     shown = page.evaluate(BAND_AT, code)
     assert np.isclose(shown, expected["auto"], rtol=0, atol=1e-9), (shown, expected)
-    _verdict_shown(page, default.verdict.line(), default.verdict.status)
+    _verdict_shown(page, default.verdict)
     expect(page.locator(".ccd-response-exposures")).to_contain_text(default.selection)
     label = METHODS[default.method].label
     expect(page.get_by_text(re.compile(rf"auto \(default\): {re.escape(label)}: \d+ "
@@ -86,7 +90,7 @@ def test_default_then_a_chosen_method(page: Page, serve_app, assets, settled_box
     page.get_by_role("button", name="Debevec & Malik", exact=True).click()
     page.wait_for_function(
         f"() => Math.abs(({BAND_AT})({code}) - {expected['debevec']}) < 1e-9", timeout=TIMEOUT)
-    _verdict_shown(page, debevec.verdict.line(), debevec.verdict.status)
+    _verdict_shown(page, debevec.verdict)
     expect(page.get_by_text(re.compile(r"Debevec & Malik: 1 iteration"))).to_be_visible(
         timeout=TIMEOUT)
     # the default's curve stays overlaid
@@ -119,7 +123,8 @@ def rgb_bracket(tmp_path_factory):
 def test_rgb_bracket_compares_all_methods_per_channel(page: Page, serve_app, rgb_bracket):
     session = open_session(rgb_bracket)
     assert session.camera.layout == "rgb"
-    debevec = response_of(load_bracket(session), "debevec")
+    prepared = prepare_bracket(session)
+    debevec = finish_fit(response_of(prepared.brackets, "debevec"), prepared).result
     assert debevec.channels == ("R", "G", "B")
     code = 150
     g = {ch: float(debevec[ch].g[code]) for ch in debevec.channels}
@@ -158,7 +163,7 @@ def test_rgb_bracket_compares_all_methods_per_channel(page: Page, serve_app, rgb
         expect(page.locator(".ccd-response-agreement")).to_contain_text(label)
     # the chosen method's pairs of neighbouring images, per channel, and its verdict
     page.get_by_role("button", name="Debevec & Malik", exact=True).click()
-    _verdict_shown(page, debevec.verdict.line(), debevec.verdict.status)
+    _verdict_shown(page, debevec.verdict)
     pairs = page.locator(".ccd-response-pairs")
     expect(pairs).to_contain_text("B: ratio fit/nominal")
     first = a["B"].pairs[0]
@@ -180,9 +185,9 @@ def wrong_bracket(tmp_path_factory):
 
 def test_wrong_listed_exposures_and_the_exposures_choice(page: Page, serve_app,
                                                          wrong_bracket):
-    brackets = load_bracket(open_session(wrong_bracket))
-    default = response_of(brackets)
-    listed = response_of(brackets, exposures="listed")
+    prepared = prepare_bracket(open_session(wrong_bracket))
+    default = finish_fit(response_of(prepared.brackets), prepared).result
+    listed = finish_fit(response_of(prepared.brackets, exposures="listed"), prepared).result
     assert default.exposures.used == "estimated"
     summary = default.exposures.summary()
     runs = summary.off_runs()
@@ -191,7 +196,7 @@ def test_wrong_listed_exposures_and_the_exposures_choice(page: Page, serve_app,
     url = serve_app(wrong_bracket, allowed_roots=[wrong_bracket.parent])
     page.set_viewport_size({"width": 1400, "height": 1200})
     page.goto(url + "/?page=response_hdr")
-    _verdict_shown(page, default.verdict.line(), default.verdict.status)
+    _verdict_shown(page, default.verdict)
     note = page.locator(".ccd-response-exposures")
     expect(note).to_contain_text(summary.line())
     for run in runs:
@@ -199,7 +204,7 @@ def test_wrong_listed_exposures_and_the_exposures_choice(page: Page, serve_app,
 
     page.locator(".ccd-response-exposure-mode").get_by_role(
         "button", name="listed", exact=True).click()
-    _verdict_shown(page, listed.verdict.line(), listed.verdict.status)
+    _verdict_shown(page, listed.verdict)
     expect(note).to_contain_text("exposures: listed")
     expect(note).not_to_contain_text(runs[0])
     expect(page.locator(".ccd-response-error")).to_be_hidden()

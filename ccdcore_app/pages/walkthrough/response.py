@@ -40,7 +40,7 @@ def compute_response(session: Session, progress: Progress | None = None) -> Resp
     radiance with its sigma (eqs. 9, 18, 19)."""
     from ccdcore.response.brackets import bracket_records
     from ccdcore.response.hdr import merge
-    from ccdcore.response.methods import session_response
+    from ccdcore.response.bracket_fit import session_response
 
     res = session_response(session, progress=within(progress, 0.0, 0.9))
     if progress is not None:
