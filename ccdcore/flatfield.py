@@ -107,7 +107,8 @@ from .session.temperature import TEMPERATURE_TOLERANCE, temperatures_text
 from .errors import CcdError
 from .flatfield_results import (NOISE_LIMIT, WINDOW, ZERO_LIMIT, BaseRecommendation, BaseStudy,
                                 FlatChannel, FlatChannelSummary, FlatField, FlatFieldSummary,
-                                KMapComparison, SettingsComparison, ZeroDark, correct)
+                                KMapComparison, SettingsComparison, ZeroDark, correct,
+                                group_words)
 from .reduce import STREAMED, Reducer
 from .stats import MomentsResult, PixelMoments
 from .uniformity import Linearity, linearity, snup
@@ -441,7 +442,7 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
             raise CcdError("base", f"give (level, exposure) or 'auto', got {base!r}")
         rec = recommend_base(session, setting=setting, gain=gain)
         key = rec.key
-        notes.append(f"base {key}: {rec.reason}")
+        notes.append(f"base image: {rec.reason}")
     else:
         key = tuple(base)
         if key not in groups:
@@ -492,9 +493,7 @@ def held_out_check(session: Any, groups: Mapping, key: tuple, dark: FlatDark, *,
     if not isinstance(src, (MomentsResult, DarkReference)):
         src = session.iter_frames(list(src))          # dark records: read them
     ff = flat_field(src, frames(), layout=session.camera.layout, **options)
-    level, t = key
-    group = (f"level {'–' if level is None else level}, exposure "
-             + ("–" if t is None else f"{t:g} s"))
+    group = group_words(key)
     return held_out_figures(ff, session.read(held), n_fit=len(recs), held_out=held.relpath,
                             group=group, dark=dark.text(), factor=factor,
                             temporal_var=scaled.result().var)
@@ -556,17 +555,18 @@ def recommend_base(session: Any, *, setting: str | None = None, gain: float | No
                      "saturated": any(p.saturated_fraction > 0 for p in pts),
                      "in_linear_range": inside, "distance": float(np.mean(dist)) if dist else None})
     pool = [r for r in rows if r["in_linear_range"]]
-    note = ""
+    where = (f"inside the linear range (tolerance {100 * lin.tolerance:g} %), closest to its "
+             "middle")
     if not pool:
         pool = [r for r in rows if not r["saturated"]] or rows
-        note = " (no group could be shown linear: the unsaturated group closest to mid-scale)"
+        where = (f"no group could be shown linear (tolerance {100 * lin.tolerance:g} %): the "
+                 "unsaturated group closest to mid-scale")
     best = min(r["distance"] for r in pool)
     near = [r for r in pool if r["distance"] <= best + 0.05]
     pick = min(near, key=lambda r: (-r["n_frames"], r["distance"]))
     means = ", ".join(f"{c} {m:.1f}" for c, m in pick["mean_dn"].items())
-    reason = (f"flat group level {pick['key'][0]}, exposure {pick['key'][1]} s: mean {means} DN, "
-              f"inside the linear range (tolerance {100 * lin.tolerance:g} %), closest to its "
-              f"middle with {pick['n_frames']} frames{note}")
+    reason = (f"flat group {group_words(pick['key'])}: mean {means} DN, {where}, with "
+              f"{pick['n_frames']} frames")
     for r in rows:
         if not r["in_linear_range"]:
             r["distance"] = None

@@ -44,7 +44,15 @@ from .uniformity import Linearity
 
 __all__ = ["FlatChannel", "FlatField", "FlatChannelSummary", "FlatFieldSummary", "correct",
            "BaseRecommendation", "BaseStudy", "ZeroDark", "SettingsComparison",
-           "KMapComparison", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT"]
+           "KMapComparison", "NOISE_LIMIT", "WINDOW", "ZERO_LIMIT", "group_words"]
+
+
+def group_words(key: Any) -> str:
+    """A flat group's key ``(level, exposure)`` in words: ``"level 3, exposure 0.04 s"``
+    (``–`` for what the frames do not say; the exposure to 6 significant digits)."""
+    level, t = key
+    return (f"level {'–' if level is None else level}, exposure "
+            + ("–" if t is None else f"{t:g} s"))
 
 #: c of the flag rule Δ <= c·σ_Δ
 NOISE_LIMIT = 5.0
@@ -154,9 +162,7 @@ class FlatFieldSummary(Record):
         """The base image as the report names it: ``"level 3, exposure 0.04 s"``."""
         if self.base is None:
             return "n/a"
-        level, t = self.base
-        return (f"level {'–' if level is None else level}, exposure "
-                + ("–" if t is None else f"{t:g} s"))
+        return group_words(self.base)
 
     def _dark_row(self) -> Row:
         """The dark image DL_0: frames averaged, the dark model at an exposure, or zero."""

@@ -106,3 +106,20 @@ def test_role_flag_writes_a_draft_manifest(tmp_path, capsys):
     capsys.readouterr()
     assert main(["session", str(root), "--role", "flat"]) == 2
     assert "plain folder" in capsys.readouterr().err
+
+
+def test_the_base_images_note_is_in_words(tmp_path):
+    """The recommended base's note names its group as the summary does ("level –, exposure
+    0.003125 s"), never a raw key with None or 16 digits, and never says "inside the linear
+    range" of a group it could not show linear."""
+    from ccdcore.flatfield import recommend_base
+
+    folder = tmp_path / "card"
+    _rgb_flats(folder)
+    session = open_session(folder, role="flat")
+    rec = recommend_base(session)
+    assert rec.reason.startswith("flat group level –, exposure 0.00")
+    assert "None" not in rec.reason and "0.0028571428" not in rec.reason
+    assert "0.0031250000" not in rec.reason
+    linear = "inside the linear range" in rec.reason
+    assert linear != ("no group could be shown linear" in rec.reason)
