@@ -212,12 +212,18 @@ def overview_centre(layer: MapLayer) -> float:
     return float(np.median(finite)) if finite.size else 0.0
 
 
+#: the tallest a map is drawn (pixels of the frame)
+MAP_MAX_HEIGHT = 500
+
+
 def layer_view(layer: MapLayer, *, frame_width: int = 380, link: Any = None) -> ImageView:
     """A view for ``layer``'s maps (built once per map key, then fed with :func:`show_layer`):
     its colour map and colour-bar label, the hover symbol; hot/dead flags as three labelled
     categories. ``link``: another view to share the zoom with."""
     flags = layer.kind == "flags"
-    view = ImageView(frame_width=frame_width, max_frame_height=560, cmap=layer.cmap,
+    # at most 500 px high: a square sensor's map (a 1024 x 1024 CCD) then keeps its upper half
+    # in the first view at 1400 x 900 below the page's controls
+    view = ImageView(frame_width=frame_width, max_frame_height=MAP_MAX_HEIGHT, cmap=layer.cmap,
                      label=layer.label, symbol=layer.symbol, title=layer.title,
                      link=link, levels=len(FLAG_COLORS) if flags else None)
     if flags:
