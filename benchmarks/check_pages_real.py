@@ -35,13 +35,13 @@ DATA = Path(os.environ.get("CCDCORE_SHARED", "/work/shared")) / "data"
 WAIT = 240.0
 #: page button, the main figure's selector (None: the page has no single main figure)
 PAGES = [
-    ("Session", ".ccd-groups"),
-    ("Photon transfer", ".ccd-ptc-plot canvas"),
-    ("Maps", ".ccd-maps canvas"),
-    ("Flat field", ".ccd-flat-before canvas"),
-    ("Response & HDR", ".ccd-response-curves canvas"),
-    ("Change detection", ".ccd-change-labels canvas"),
-    ("Walkthrough", None),
+    ("Session", "session", ".ccd-groups"),
+    ("Photon transfer", "photon_transfer", ".ccd-ptc-plot canvas"),
+    ("Maps", "maps", ".ccd-maps canvas"),
+    ("Flat field", "flat_field", ".ccd-flat-before canvas"),
+    ("Response & HDR", "response_hdr", ".ccd-response-curves canvas"),
+    ("Change detection", "change", ".ccd-change-labels canvas"),
+    ("Walkthrough", "walkthrough", None),
 ]
 #: Panel's alerts (pn.pane.Alert) and the pages' own messages
 MESSAGE = ".alert"
@@ -64,8 +64,9 @@ def lobby(tmp: Path) -> Path:
     return root
 
 
-def first_message(page) -> str:
-    for loc in page.locator(MESSAGE).all():
+def first_message(page, slug: str) -> str:
+    """The first non-empty alert shown in the page's own holder (``.ccd-page-SLUG``)."""
+    for loc in page.locator(f".ccd-page-{slug} {MESSAGE}").all():
         try:
             if loc.is_visible():
                 text = " ".join(loc.evaluate(DEEP_TEXT).split())
@@ -76,7 +77,7 @@ def first_message(page) -> str:
     return ""
 
 
-def check_page(page, button: str, figure: str | None) -> tuple[str, str]:
+def check_page(page, button: str, slug: str, figure: str | None) -> tuple[str, str]:
     page.get_by_role("button", name=re.compile(re.escape(button))).click()
     t0 = time.monotonic()
     while time.monotonic() - t0 < WAIT:
@@ -91,8 +92,8 @@ def check_page(page, button: str, figure: str | None) -> tuple[str, str]:
                     ok = box["y"] >= 0 and box["y"] + 0.5 * box["height"] <= 900
                     return (f"figure at y {box['y']:.0f}-{box['y'] + box['height']:.0f} px "
                             f"({time.monotonic() - t0:.0f} s)", "yes" if ok else "NO")
-        msg = first_message(page)
-        if msg and (figure is None or time.monotonic() - t0 > 20):
+        msg = first_message(page, slug)
+        if msg and (figure is None or time.monotonic() - t0 > 60):
             if "Traceback" in msg:
                 return msg, "NO (traceback)"
             return f"message: {msg}", "n/a" if figure is not None else "yes"
@@ -128,8 +129,8 @@ def main() -> int:
                     page = browser.new_page(viewport={"width": 1400, "height": 900})
                     page.goto(server.url)
                     page.get_by_text(re.compile(r"Loaded ")).first.wait_for(timeout=WAIT * 1000)
-                    for button, figure in PAGES:
-                        shown, first = check_page(page, button, figure)
+                    for button, slug, figure in PAGES:
+                        shown, first = check_page(page, button, slug, figure)
                         rows.append(f"| {name} | {button} | {shown} | {first} |")
                         print(rows[-1], flush=True)
                     page.close()

@@ -82,6 +82,9 @@ def response_section(doc: Doc, r: ResponseSummary) -> None:
             # and page shows it
             doc.add(para(f"Verdict: {r.verdict.line()}",
                          f"ccd-report-response-verdict ccd-verdict-{r.verdict.status}"))
+            if r.verdict.details():
+                # the frames' registration and the moving pixels, the verdict's own lines
+                doc.add(bullets(r.verdict.details()))
         if r.selection:
             doc.add(para(f"Method: {r.requested or r.method}: {r.selection}"))
         if r.exposures is not None:

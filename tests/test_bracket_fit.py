@@ -115,3 +115,20 @@ def test_cli_hdr_says_the_registration_and_the_moving_pixels(handheld, tmp_path,
     text = " ".join(capsys.readouterr().out.split())
     assert "frames aligned to" in text and "moving objects:" in text
     assert "4 from one exposure where something moved" in text
+
+
+def test_the_product_and_the_report_say_the_registration(handheld, tmp_path, capsys):
+    """calibrate records the verdict with its registration and moving pixels; the report
+    shows them in the same words (rows of the response section)."""
+    from ccdcore.product import load_product
+
+    assert main(["calibrate", str(handheld), "-o", str(tmp_path / "p")]) == 0
+    v = load_product(tmp_path / "p").estimates.response.verdict
+    assert "aligned to" in v.registration and v.moving.startswith("moving objects:")
+    fit = fit_bracket(open_session(handheld))
+    assert v.registration == fit.result.verdict.registration
+    assert main(["report", str(tmp_path / "p"), "-o", str(tmp_path / "r.html")]) == 0
+    html = (tmp_path / "r.html").read_text()
+    for text in (v.registration, v.moving):
+        assert text.replace("'", "&#x27;") in html or text in html
+    capsys.readouterr()
