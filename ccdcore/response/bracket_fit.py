@@ -18,6 +18,9 @@ fit_bracket(session, stack, ...)
     The steps above.
 session_response(session, method, ...)
     :func:`fit_bracket`'s response of a session (a path or an open session).
+merge_fit(fit)
+    The HDR merge of a :class:`BracketFit`'s own frames with its response, the moving pixels
+    from one exposure.
 prepare_bracket(session, stack, ...), finish_fit(result, prepared)
     The steps before and after the fit, for a caller that fits several methods on one
     bracket (the app's Response & HDR page).
@@ -41,7 +44,7 @@ from ..errors import CcdError
 from ..progress import Progress
 from .brackets import DEFAULT_BLOOM_RADIUS, DEFAULT_BORDER, bracket_records, load_bracket
 
-__all__ = ["BracketFit", "PreparedBracket", "Registration", "session_response", "fit_bracket", "prepare_bracket", "finish_fit",
+__all__ = ["BracketFit", "PreparedBracket", "Registration", "session_response", "merge_fit", "fit_bracket", "prepare_bracket", "finish_fit",
            "register_frames", "ALIGN_CHOICES"]
 
 ALIGN_CHOICES = ("auto", "off")
@@ -249,3 +252,18 @@ def session_response(session: Any, method: str = "auto", *, stack: Any = None,
     return fit_bracket(session, stack, method=method, align=align, moving=moving,
                        bloom_radius=bloom_radius, border=border, progress=progress,
                        white_balance=white_balance, exposures=exposures).result
+
+
+def merge_fit(fit: BracketFit, layout: str | None = None) -> Any:
+    """The HDR radiance (:class:`ccdcore.response.hdr.HdrResult`) of ``fit``'s registered
+    frames with its response (eqs. 9, 18, 19), the moving pixels merged from one exposure
+    (:func:`ccdcore.response.moving.merge_moving`)."""
+    from .hdr_merge import merge
+    from .moving import merge_moving
+
+    res = fit.result
+    models = res.models()
+    out = merge(fit.frames, models, layout=layout, bloom_radius=res.bloom_radius)
+    if fit.moving is None:
+        return out
+    return merge_moving(out, fit.frames, models, fit.moving, bloom_radius=res.bloom_radius)

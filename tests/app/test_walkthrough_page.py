@@ -250,3 +250,14 @@ def test_the_steps_follow_what_the_session_holds(assets: Path, tmp_path: Path) -
     assert lab.coverage.kind == "bracket" and lab.plan is None
     assert lab.gates["plan"].summary == cover.gate().summary
     assert lab.title_panes["export"].object.startswith("### Step 4 of 4: ")
+
+
+def test_the_response_step_says_the_librarys_verdict_with_its_registration(assets: Path) -> None:
+    from ccdcore_app.response_plots import verdict_markdown
+
+    page = _page(assets / "tsin01")
+    _walk(page)
+    res = page.results.response.response
+    assert res.verdict.registration and res.verdict.moving.startswith("moving objects:")
+    step = page.steps["response"]
+    assert step.verdict_alert.object == verdict_markdown(res.verdict)

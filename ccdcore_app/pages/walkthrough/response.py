@@ -36,19 +36,15 @@ class ResponseAndHdr:
 
 
 def compute_response(session: Session, progress: Progress | None = None) -> ResponseAndHdr:
-    """The response of the session's first bracket (Tsin et al. sec. 3.2) and the bracket's HDR
-    radiance with its sigma (eqs. 9, 18, 19)."""
-    from ccdcore.response.brackets import bracket_records
-    from ccdcore.response.hdr import merge
-    from ccdcore.response.bracket_fit import session_response
+    """The response of the session's first bracket (Tsin et al. sec. 3.2; its frames registered,
+    its moving pixels left out) and the bracket's HDR radiance with its sigma (eqs. 9, 18, 19;
+    the moving pixels from one exposure)."""
+    from ccdcore.response.bracket_fit import fit_bracket, merge_fit
 
-    res = session_response(session, progress=within(progress, 0.0, 0.9))
+    fit = fit_bracket(session, progress=within(progress, 0.0, 0.9))
     if progress is not None:
         progress(0.9, "HDR radiance")
-    frames = [session.read(r) for r in bracket_records(session)]
-    hdr = merge(frames, res.models(), layout=session.camera.layout,
-                bloom_radius=res.bloom_radius)
-    return ResponseAndHdr(res, hdr)
+    return ResponseAndHdr(fit.result, merge_fit(fit, session.camera.layout))
 
 
 class ResponseStep(Step):
@@ -99,14 +95,14 @@ class ResponseStep(Step):
     def draw(self, found: ResponseAndHdr) -> None:
         if found.skipped:
             return
-        from ...response_plots import VERDICT_ALERTS, hdr_planes, md_text
+        from ...response_plots import VERDICT_ALERTS, hdr_planes, verdict_markdown
 
         res = found.response
         ch = res.channels[0]
         self.response_fig.show({"tsin": (res[ch].g, res[ch].g_err)}, "tsin", False)
         verdict = res.verdict
         self.verdict_alert.param.update(
-            object="" if verdict is None else md_text(verdict.line()),
+            object="" if verdict is None else verdict_markdown(verdict),
             alert_type="info" if verdict is None else VERDICT_ALERTS.get(verdict.status, "info"),
             visible=verdict is not None)
         self.response_holder.visible = True
