@@ -569,8 +569,8 @@ MISSING: dict[str, str] = {
 class SessionPlan:
     """What a session's frames allow: ``kind`` (``"none"`` without a session, ``"empty"``,
     ``"lab"`` with photon-transfer or fixed-pattern frames, ``"flats"``, ``"bracket"``,
-    ``"darks"``, ``"scenes"``), the ``steps`` shown (slugs of :data:`STEPS`, in order),
-    ``lab_plan`` (whether the full capture plan of :mod:`ccdcore.capture` is proposed), a one
+    ``"darks"``, ``"change"`` (reference or target frames), ``"scenes"``), the ``steps``
+    shown (slugs of :data:`STEPS`, in order), ``lab_plan`` (whether the full capture plan of :mod:`ccdcore.capture` is proposed), a one
     line ``summary`` and ``missing``: what the session lacks and why, in plain words."""
 
     kind: str
@@ -629,6 +629,7 @@ def session_plan(session: Any) -> SessionPlan:
     if has & {"dark", "flat", "bracket"}:
         steps.append("export")
     kind = next((k for k, r in (("flats", "flat"), ("bracket", "bracket"), ("darks", "dark"),
+                                ("change", "reference"), ("change", "target"),
                                 ("scenes", "scene")) if r in has), "empty")
     if kind == "flats":
         if "dark" not in has:
@@ -655,6 +656,8 @@ def session_plan(session: Any) -> SessionPlan:
                "bracket": f"an exposure bracket ({held})",
                "darks": f"dark frames only ({held})",
                "scenes": f"nothing to calibrate from ({held})",
+               "change": f"frames to compare ({held}): change detection runs on the Change "
+                         "detection page and `ccdcore change`; these steps calibrate a camera",
                "empty": "the session holds no frames"}[kind]
     return SessionPlan(kind, tuple(s for s in every if s in steps), False, summary,
                        tuple(missing))

@@ -195,3 +195,18 @@ def test_response_gate_reports_the_hdr_merge() -> None:
     assert f"{int(ok.sum()):,} of {ok.size:,} values merged" in line
     assert f"{med:.3g} %" in line
     assert not any(r.startswith("HDR") for r in guide.response_gate(res).reasons)
+
+
+def test_a_change_session_is_frames_to_compare_not_an_empty_one(tmp_path):
+    """Reference and target frames (a lobby's): the Walkthrough says they are frames to
+    compare on the Change detection page, not that the session holds no frames."""
+    from ccdcore.guide import session_plan
+    from ccdcore.session import open_session
+    from ccdcore.simulate.change_frames import write_frame_pair
+
+    write_frame_pair(tmp_path / "pair", 0, n_reference=3)
+    plan = session_plan(open_session(tmp_path / "pair"))
+    assert plan.kind == "change" and not plan.lab_plan
+    assert plan.summary.startswith("frames to compare (3 reference, 1 target)")
+    assert "Change detection page" in plan.summary
+    assert plan.steps == ("plan", "session")

@@ -74,14 +74,16 @@ td.n { text-align: right; font-variant-numeric: tabular-nums; }
 
 
 def no_brackets_message(missing: list[str]) -> str:
-    """The error shown when the session has no ``missing`` bracket(s)."""
-    which = (f"'{missing[0]}' bracket" if len(missing) == 1 else
-             "'reference' bracket and no 'target' bracket")
-    return (f"this session has no {which}, so there is nothing to compare. Change "
-            "detection needs two exposure brackets of the same static scene from a fixed camera, "
-            "taken under different light: list the first bracket's frames in `session.toml` "
-            "with `role = \"reference\"` and the second's with `role = \"target\"`, each with its "
-            "`exposure` in seconds. The bundled **change** demo has both.")
+    """What the page says when the session has no ``missing`` role(s): with neither, what to
+    capture (an info, as the other pages say it); with one of the two, what is missing."""
+    what = ("a reference and a target of one fixed camera under different light: one frame "
+            "each, a few frames each (their spread gives the noise) or two exposure brackets, "
+            "as folders `reference/` and `target/` or frames of those roles in `session.toml`. "
+            "The bundled **change** demo has both.")
+    if len(missing) > 1:
+        return f"No reference or target frames in this session. Change detection compares {what}"
+    return (f"This session has '{'target' if missing[0] == 'target' else 'reference'}' frames "
+            f"missing, so there is nothing to compare. Change detection compares {what}")
 
 
 def page_options(session: Session) -> ChangeOptions:
@@ -314,7 +316,10 @@ class ChangePage(PageMessages, pn.viewable.Viewer):
         missing = [role for role in ("reference", "target") if not session.bracket_stacks(role)]
         if missing:
             self.content.visible = False
-            self._set_error(no_brackets_message(missing))
+            if len(missing) > 1:          # a session of another kind: what to capture
+                self._info(no_brackets_message(missing))
+            else:                         # half a change session: an error
+                self._set_error(no_brackets_message(missing))
             return
         self.content.visible = True
         options = page_options(session)

@@ -222,12 +222,14 @@ def test_compute_change_passes_the_tracker_straight_through(monkeypatch):
 
 
 def test_session_without_brackets_shows_the_error_and_the_app_goes_on(assets):
-    """tsin01 has one bracket, neither reference nor target: the shared error alert says what
-    to capture, nothing is computed; opening the change demo afterwards works."""
+    """tsin01 has one bracket, neither reference nor target: an info (as the other pages say
+    what a session of another kind lacks) says what to capture, no error; nothing is computed;
+    opening the change demo afterwards works."""
     state, page = _page(assets / "tsin01")
-    assert page.error_alert.visible and page.error_alert.object.startswith("**Error:**")
-    assert "'reference'" in page.error and "'target'" in page.error
-    assert "role = \"reference\"" in page.error
+    assert not page.error_alert.visible and page.error == ""
+    assert page.info_alert.visible
+    assert page.info_alert.object.startswith("No reference or target frames in this session.")
+    assert "`reference/` and `target/`" in page.info_alert.object
     assert not page.content.visible and page.result is None
     assert state.error == "" and not state.busy and state.results.change == {}
     assert state.load(assets / "change")
@@ -289,7 +291,7 @@ def test_cancelled_detection_can_be_started_again(shown, assets, monkeypatch):
 
 def test_a_session_opened_while_computing_is_shown_next(shown, assets, monkeypatch):
     """Another session opened during the computation: its result is dropped and the new
-    session is refreshed (here one without brackets: its error)."""
+    session is refreshed (here one without reference or target frames: what to capture)."""
     _, done, _ = shown
     state = AppState()
     assert state.load(assets / "change")
@@ -303,7 +305,8 @@ def test_a_session_opened_while_computing_is_shown_next(shown, assets, monkeypat
     monkeypatch.setattr(change_page, "compute_change", slow)
     monkeypatch.setattr(change_page.pn.state, "execute", lambda *a, **k: None)
     _run(page.refresh())
-    assert page.result is None and "'reference'" in page.error and page.error_alert.visible
+    assert page.result is None and page.info_alert.visible
+    assert page.info_alert.object.startswith("No reference or target frames")
     assert state.results.change == {}
 
 
@@ -328,3 +331,20 @@ def test_single_frames_session_shows_the_result_and_its_sources(tmp_path):
     page.__panel__().get_root(Document())
     page.pfa = 0.05                                      # re-thresholds without a traceback
     assert page.count_number.value == np.count_nonzero(page.result.at(0.05)[0] == LABEL_CHANGE)
+
+
+def test_half_a_change_session_is_an_error_naming_what_is_missing(tmp_path):
+    """Reference frames without a target: an error that names the missing role (an info is
+    for a session of another kind)."""
+    from ccdcore.simulate.change_frames import write_frame_pair
+
+    root = tmp_path / "half"
+    write_frame_pair(root, 0)
+    shutil.rmtree(root / "target")
+    state = AppState(allowed_roots=[tmp_path.resolve()])
+    assert state.load(root)
+    page = ChangePage(state, auto=False)
+    _run(page.refresh())
+    assert page.error_alert.visible and not page.info_alert.visible
+    assert page.error.startswith("This session has 'target' frames missing")
+    assert page.result is None
