@@ -17,9 +17,10 @@ agreement_rows(named), channel_agreement_rows(agreement), pair_rows(agreement, t
     :mod:`ccdcore_report.agreement`, with ``AGREEMENT_COLUMNS`` and ``dn``).
 md_text(text)
     Any text (file names, the library's sentences) as Markdown that shows it literally.
-verdict_markdown(verdict)
-    A response verdict as the page shows it: its line, then its registration and moving
-    pixels, a paragraph each, in the library's words.
+verdict_markdown(verdict), details_markdown(verdict)
+    A response verdict in the library's words: its line, then its registration and moving
+    pixels, a paragraph each (the Walkthrough); the registration and moving pixels alone, as a
+    list (below the Response & HDR page's curves).
 VERDICT_ALERTS
     A response verdict's status (:mod:`ccdcore.response.verdict`) -> the alert type that shows
     it: trusted ``success``, doubtful ``warning``, failed ``danger``.
@@ -38,7 +39,7 @@ from ccdcore_report.agreement import (AGREEMENT_COLUMNS, agreement_rows, channel
 __all__ = ["ResponseFigure", "PoolHistogram", "tone_map", "histogram", "TONE_CURVES",
            "METHOD_COLOURS", "hdr_views", "hdr_planes", "agreement_rows",
            "channel_agreement_rows", "pair_rows", "AGREEMENT_COLUMNS", "dn", "md_text",
-           "verdict_markdown", "VERDICT_ALERTS"]
+           "verdict_markdown", "details_markdown", "VERDICT_ALERTS"]
 
 #: display curves of the HDR radiance (the data are never changed)
 TONE_CURVES = ("gamma 2.2", "log")
@@ -61,6 +62,12 @@ def verdict_markdown(verdict: Any) -> str:
     """The verdict's line, then its registration and moving pixels (``details()``), a
     Markdown paragraph each, shown as they are (:func:`md_text`)."""
     return "\n\n".join(md_text(t) for t in (verdict.line(), *verdict.details()))
+
+
+def details_markdown(verdict: Any) -> str:
+    """The verdict's registration and moving pixels (``details()``), a Markdown list item
+    each, shown as they are (:func:`md_text`); empty when there are none."""
+    return "\n".join(f"- {md_text(t)}" for t in verdict.details())
 
 
 def tone_map(radiance: NDArray, stops: float = 0.0, curve: str = "gamma 2.2"

@@ -72,8 +72,8 @@ from ccdcore.simulate.truth import find_truth
 from ..batch import batched, in_document
 from ..image_view import view_pane
 from ..response_plots import (TONE_CURVES, VERDICT_ALERTS, PoolHistogram, ResponseFigure,
-                              agreement_rows, dn, hdr_planes, hdr_views, md_text, pair_rows,
-                              verdict_markdown)
+                              agreement_rows, details_markdown, dn, hdr_planes, hdr_views,
+                              md_text, pair_rows)
 from ..state import AppState
 from ._choices import set_choices
 from ._messages import PageMessages
@@ -249,6 +249,10 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         self.verdict_alert = pn.pane.Alert("", alert_type="success", visible=False,
                                            sizing_mode="stretch_width",
                                            css_classes=["ccd-response-verdict"])
+        # the verdict's registration and moving-pixel lines, below the curves (above them they
+        # pushed the curves out of the first view)
+        self.verdict_details = pn.pane.Markdown("", sizing_mode="stretch_width",
+                                                css_classes=["ccd-response-verdict-details"])
         self.exposures_note = pn.pane.Markdown("", sizing_mode="stretch_width",
                                                css_classes=["ccd-response-exposures"])
         self.progress_bar, self.progress_text, self.progress_row = progress_row("ccd-response-progress")
@@ -313,7 +317,8 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
         return [
             pn.Card(controls, options, self.exposures_note,
                     pn.pane.Bokeh(self.curves.fig, sizing_mode="stretch_width"),
-                    self.curve_note, title="Inverse response g(z) with its 2σ band",
+                    self.verdict_details, self.curve_note,
+                    title="Inverse response g(z) with its 2σ band",
                     sizing_mode="stretch_width", collapsible=False),
             pn.Card(pn.pane.Markdown(
                         "Each image predicted from a neighbour through the curve and the "
@@ -682,8 +687,10 @@ class ResponsePage(PageMessages, pn.viewable.Viewer):
             self.verdict_alert.visible = False
             self.verdict_alert.object = ""
             self.exposures_note.object = ""
+            self.verdict_details.object = ""
             return
-        self.verdict_alert.param.update(object=verdict_markdown(verdict),
+        self.verdict_details.object = details_markdown(verdict)
+        self.verdict_alert.param.update(object=md_text(verdict.line()),
                                         alert_type=VERDICT_ALERTS.get(verdict.status, "info"),
                                         visible=True)
         parts = []

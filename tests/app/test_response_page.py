@@ -20,7 +20,7 @@ import ccdcore_app.pages.response_hdr as response_hdr
 from ccdcore_app.cache import SharedResults
 from ccdcore_app.pages.response_hdr import (AUTO_LABEL, LABELS, NO_BRACKET_MESSAGE,
                                             ResponsePage)
-from ccdcore_app.response_plots import VERDICT_ALERTS, md_text, tone_map, verdict_markdown
+from ccdcore_app.response_plots import VERDICT_ALERTS, details_markdown, md_text, tone_map
 from ccdcore_app.state import AppState
 from ccdcore.channels import channel_names
 from ccdcore.errors import CcdError
@@ -79,7 +79,9 @@ def test_the_verdict_is_the_librarys_line(shown):
     _, page = shown
     res = page.responses[AUTO]
     alert = page.verdict_alert
-    assert alert.visible and alert.object == verdict_markdown(res.verdict)
+    assert alert.visible and alert.object == md_text(res.verdict.line())
+    # the registration and the moving pixels, in the library's words, below the curves
+    assert page.verdict_details.object == details_markdown(res.verdict)
     # the registration and the moving pixels, in the library's words, below the line
     assert res.verdict.registration and res.verdict.moving.startswith("moving objects:")
     assert alert.alert_type == VERDICT_ALERTS[res.verdict.status]
@@ -107,7 +109,7 @@ def test_verdict_styles_and_escapes_file_names(rgb_shown):
             page.method = AUTO
             page._render_agreement()
             assert page.verdict_alert.alert_type == alert_type
-            assert page.verdict_alert.object == verdict_markdown(verdict)
+            assert page.verdict_alert.object == md_text(verdict.line())
             text = _rendered(page.verdict_alert)
             assert f"<p>{html.escape(verdict.line(), quote=False)}</p>" in text, text
             assert "<b>" not in text and "<a " not in text and "<em>" not in text
@@ -129,13 +131,13 @@ def test_choosing_a_method_computes_it_and_overlays_it(shown):
     np.testing.assert_allclose(band["lo"], rob["L"].g - 2 * rob["L"].g_err)
     np.testing.assert_array_equal(page.curves.curve("robertson"), rob["L"].g)
     np.testing.assert_array_equal(page.curves.curve(AUTO), default["L"].g)   # overlaid
-    assert page.verdict_alert.object == verdict_markdown(rob.verdict)
+    assert page.verdict_alert.object == md_text(rob.verdict.line())
     assert page.hdr is entry["hdr"]["robertson"]
     # back to the default: nothing recomputed
     page.method = AUTO
     _run(page.show_method())
     assert page.responses[AUTO] is default and page.hdr is entry["hdr"][AUTO]
-    assert page.verdict_alert.object == verdict_markdown(default.verdict)
+    assert page.verdict_alert.object == md_text(default.verdict.line())
 
 
 def test_hdr_readout_reads_radiance_and_sigma(shown):
@@ -204,7 +206,7 @@ def test_white_balance_gains_on_the_page(assets):
     _run(page.refresh())
     assert (3, True, "auto") in state.results.response and KEY in state.results.response
     res = page.responses[AUTO]
-    assert res.requested == AUTO and page.verdict_alert.object == verdict_markdown(res.verdict)
+    assert res.requested == AUTO and page.verdict_alert.object == md_text(res.verdict.line())
     page.method = "tsin"
     _run(page.show_method())
     c = page.responses["tsin"]["L"]
@@ -240,7 +242,7 @@ def test_wrong_listed_exposures_are_estimated_and_named(wrong_root):
     assert md_text(summary.line()) in note
     for run in runs:
         assert f"- {md_text(run)}" in note
-    assert page.verdict_alert.object == verdict_markdown(res.verdict)
+    assert page.verdict_alert.object == md_text(res.verdict.line())
     # listed: the exposures as they are, cached apart; back to auto: nothing recomputed
     default = res
     page.exposures = "listed"
@@ -250,7 +252,7 @@ def test_wrong_listed_exposures_are_estimated_and_named(wrong_root):
     listed = page.responses[AUTO]
     assert listed.exposures is None and listed is not default
     assert "exposures: listed" in page.exposures_note.object
-    assert page.verdict_alert.object == verdict_markdown(listed.verdict)
+    assert page.verdict_alert.object == md_text(listed.verdict.line())
     page.exposures = "estimated"
     page._session = None
     _run(page.refresh())
@@ -397,7 +399,7 @@ def test_agreement_tables_show_every_curve_and_the_chosen_ones_pairs(rgb_shown):
     for method in ("robertson", "debevec"):
         page.method = method
         res = page.responses[method]
-        assert page.verdict_alert.object == verdict_markdown(res.verdict)
+        assert page.verdict_alert.object == md_text(res.verdict.line())
         pairs = page.pairs_table.object
         assert len(pairs) == res.t.size - 1
         t = res.t
