@@ -57,11 +57,11 @@ import param
 from ccdcore.common import format_pm
 from ccdcore.errors import CcdError
 from ccdcore.progress import Progress, within
-from ccdcore.response.bracket_fit import (finish_fit, fit_bracket, prepare_bracket,
-                                         register_frames)
+from ccdcore.response.bracket_fit import (BracketFit, finish_fit, fit_bracket, merge_fit,
+                                         prepare_bracket, register_frames)
 from ccdcore.response.brackets import DEFAULT_BLOOM_RADIUS, bracket_records
-from ccdcore.response.moving import find_moving, merge_moving
-from ccdcore.response.hdr import FLAG_OK, HdrResult, merge
+from ccdcore.response.moving import find_moving
+from ccdcore.response.hdr import FLAG_OK, HdrResult
 from ccdcore.response.hdr_merge import (FLAG_BLOOMED, FLAG_DARK, FLAG_MOVING,
                                         FLAG_SATURATED)
 from ccdcore.response.methods import AUTO, EXPOSURE_MODES, METHODS, ResponseResult, response_of
@@ -151,16 +151,15 @@ def compute_hdr(session: Session, result: ResponseResult,
     """The bracket merged with ``result``'s calibration (eqs. 9, 18, 19): its frames registered
     as the fit's were, the pixels whose exposures disagree merged from one exposure
     (:mod:`ccdcore.response.moving`)."""
-    frames = [session.read(r) for r in bracket_records(session)]
-    frames, _, _, keep = register_frames(frames, [r.relpath for r in
-                                                  bracket_records(session)])
+    records = bracket_records(session)
+    frames, registration, no_data, keep = register_frames(
+        [session.read(r) for r in records], [r.relpath for r in records])
     if len(keep) != len(result.files):
         raise CcdError(result.files[0], "the bracket's frames changed since the response")
-    models = result.models()
-    out = merge(frames, models, layout=session.camera.layout, bloom_radius=bloom_radius)
-    moving = find_moving(frames, models, layout=session.camera.layout,
+    moving = find_moving(frames, result.models(), layout=session.camera.layout,
                          names=list(result.files), bloom_radius=bloom_radius)
-    return merge_moving(out, frames, models, moving, bloom_radius=bloom_radius)
+    fit = BracketFit(result, frames, [records[k] for k in keep], registration, no_data, moving)
+    return merge_fit(fit, session.camera.layout)
 
 
 def _true_g(session: Session) -> np.ndarray | None:
