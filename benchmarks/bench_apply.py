@@ -20,8 +20,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _report  # noqa: E402
 
-from ccdcore.io import write_image  # noqa: E402
-from ccdcore.product import COMPRESSIONS, CalibrationProduct, apply_product  # noqa: E402
+from ccdcore.io.frames import write_image  # noqa: E402
+from ccdcore.product.make import COMPRESSIONS, CalibrationProduct, apply_product  # noqa: E402
 
 
 def main() -> None:

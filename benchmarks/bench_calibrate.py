@@ -5,7 +5,7 @@ Simulates a ``healey94`` session (the simulator's default capture: 16 dark frame
 max-intensity frame; 8-bit TIFF) of ``--size`` x ``--size`` frames into
 ``benchmarks/_data/calibrate_healey94_<size>`` (once, in a child process; gitignored), then runs,
 each time in a fresh process so that the peak RSS is its own, what ``ccdcore calibrate SESSION -o
-OUT`` runs: :func:`ccdcore.product.calibrate` (its progress callback marks the steps) and
+OUT`` runs: :func:`ccdcore.product.make.calibrate` (its progress callback marks the steps) and
 :meth:`CalibrationProduct.save` into a temporary folder.
 
 Each run is a fresh process: its times exclude start-up and imports, its peak RSS (``ru_maxrss``)
@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 SEED = 1
-#: the progress steps of ccdcore.product.estimate_all, in order, and how this script names them
+#: the progress steps of ccdcore.product.make.estimate_all, in order, and how this script names them
 STEPS = (("photon transfer", "photon transfer (eqs. 37-42)"),
          ("dark reference", "dark reference D̂_D (sec. V-A)"),
          ("fixed pattern", "fixed pattern K̂ (eqs. 45-50)"),
@@ -66,7 +66,7 @@ def _rss_mb() -> float:
 
 def run_once(folder: Path) -> dict:
     """One calibrate + save in this (fresh) process: step times, totals, peak RSS."""
-    from ccdcore.product import calibrate
+    from ccdcore.product.make import calibrate
 
     marks: list[tuple[str, float]] = []
     base = _rss_mb()

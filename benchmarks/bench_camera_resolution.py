@@ -117,7 +117,7 @@ def has_cv2(python: str) -> bool:
 
 def run_case(name: str, folder: Path, args: argparse.Namespace, env: dict[str, str]) -> list:
     py = sys.executable
-    ccd = [py, "-c", "import sys; from ccdcore.cli import main; sys.exit(main())"]
+    ccd = [py, "-c", "import sys; from ccdcore.cli.command import main; sys.exit(main())"]
     rows = []
     out = Path(args.work) / f"bench_out_{name}"
     jobs = [("ccdcore", "response", ccd + ["response", str(folder)]),

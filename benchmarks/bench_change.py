@@ -12,8 +12,8 @@ Detectors, each giving a binary change mask:
 
 * **ccdcore sec. 5**: ``session_change(open_session(folder), ChangeOptions(pfa=0.01))`` (response
   estimated from the reference bracket by sec. 3.2, both brackets merged, then
-  :func:`ccdcore.change.detect`); change = label 255 (254, undetermined, counts as no change).
-  Timed twice: the whole ``session_change`` (response + two merges + detection) and
+  :func:`ccdcore.change.detector.detect`); change = label 255 (254, undetermined, counts as no
+  change). Timed twice: the whole ``session_change`` (response + two merges + detection) and
   ``detect`` alone, called again on the same radiance maps (same seed, same result).
 * **ratio**: on the same HDR radiance, r_c = (E'_c / E_c) / median over the frame of that
   ratio, per channel; change where max_c |log r_c| >= tau (pixels without a radiance in either
@@ -75,9 +75,9 @@ sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 import _report  # noqa: E402
 
-from ccdcore.change import ChangeOptions, detect  # noqa: E402
-from ccdcore.change_session import session_change  # noqa: E402
-from ccdcore.io import read_image  # noqa: E402
+from ccdcore.change.detector import ChangeOptions, detect  # noqa: E402
+from ccdcore.change.session import session_change  # noqa: E402
+from ccdcore.io.frames import read_image  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore.simulate.change import DEFAULT_M, simulate  # noqa: E402
 
@@ -384,7 +384,8 @@ def study(root: Path, seeds: list[int], tune_seed: int, M: Any = None) -> None:
     sys.stdout.flush()
 
 
-WATCHED = ("ccdcore/change.py", "ccdcore/response/tsin.py", "ccdcore/response/hdr.py",
+WATCHED = ("ccdcore/change/detector.py", "ccdcore/response/tsin/estimator.py",
+           "ccdcore/response/hdr.py",
            "ccdcore/response/brackets.py", "ccdcore/simulate/change.py")
 
 

@@ -55,7 +55,7 @@ CASES = [  # name, reference frames, target frame, the light of the target ("on"
 
 
 def frame(i: int) -> np.ndarray:
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     return read_image(DATA / f"SwitchLight{i}.bmp")
 
@@ -81,7 +81,7 @@ def run_ccdcore(root: Path) -> tuple[np.ndarray, float, float, dict]:
     dt = time.perf_counter() - t0
     if status != 0:
         raise SystemExit(f"ccdcore change failed on {root}: {err.decode()}")
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     mask = read_image(out / "change_mask.png") > 0
     return mask, dt, usage.ru_maxrss / 1024.0, json.loads(stdout)

@@ -9,7 +9,7 @@ times, in this order:
   :class:`ccdcore.stats.PixelMoments` in this process (today's default path);
 * ``cluster``: ``dark_reference(session, reducer=DaskReducer(client))`` on a ``LocalCluster`` of ``--workers``
   processes (one thread each): bands of rows, each worker reading its bands
-  (:mod:`ccdcore.distributed`). The maps are checked bit-identical to ``streamed``.
+  (:mod:`ccdcore.distributed.client`). The maps are checked bit-identical to ``streamed``.
 
 Peak memory: this process's RSS, sampled every 20 ms (the streamed run holds the maps and the
 read-ahead frames), and every worker process's RSS, sampled the same way by pid (the cluster run;
@@ -42,7 +42,7 @@ import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 def make_data(folder: Path, n: int, w: int, h: int) -> None:
     """N dark-like uint16 frames (a fixed pattern plus noise) and a session.toml, once."""
-    from ccdcore.io import atomic_write_text, write_image
+    from ccdcore.io.frames import atomic_write_text, write_image
 
     stamp = f"{n} {w} {h}"
     if (folder / ".stamp").exists() and (folder / ".stamp").read_text() == stamp:
@@ -114,9 +114,9 @@ def main() -> None:
     import psutil
     from distributed import Client, LocalCluster, get_task_stream
 
-    from ccdcore import distributed as ccd_dist
-    from ccdcore.darkframe import dark_reference
-    from ccdcore.distributed import DaskReducer
+    from ccdcore.distributed import client as ccd_dist
+    from ccdcore.dark.frame import dark_reference
+    from ccdcore.distributed.client import DaskReducer
     from ccdcore.session import open_session
     from ccdcore.stats import PixelMoments
 

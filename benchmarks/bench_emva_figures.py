@@ -205,7 +205,7 @@ def split_truth(dsnu: np.ndarray, prnu: np.ndarray, u_e: np.ndarray | None) -> d
     """The split of the noiseless drawn maps (module docstring): DSNU parts in e⁻, PRNU parts
     in %, the signed variances (e², and relative² for PRNU), and the PRNU parts with the cross
     term of the two maps (``PRNU_exact``, from the generator's mean-electron map ``u_e``)."""
-    from ccdcore.emva_spatial import variance_split
+    from ccdcore.emva.spatial import variance_split
 
     vd = variance_split(dsnu, 0.0, 1)
     vp = variance_split(prnu, 0.0, 1)
@@ -349,7 +349,7 @@ def run_emva(descriptor: Path) -> dict:
 
 
 def run_ccdcore(descriptor: Path, with_ptc: bool) -> dict:
-    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva.datasheet import emva_figures
     from ccdcore.session import open_session
 
     t0 = time.perf_counter()
@@ -380,7 +380,7 @@ def prepare_spatial(descriptor: Path, out: Path) -> None:
     temporal data (``Results1288`` needs them for K)."""
     from emva1288.process import Data1288, LoadImageData, ParseEmvaDescriptorFile
 
-    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva.datasheet import emva_figures
     from ccdcore.session import open_session
 
     f = emva_figures(open_session(descriptor), with_ptc=False)
@@ -408,7 +408,7 @@ def load_spatial(path: Path) -> dict:
 
 
 def ours_split(inp: dict):
-    from ccdcore.emva_spatial import nonuniformity_split, variance_split
+    from ccdcore.emva.spatial import nonuniformity_split, variance_split
 
     return nonuniformity_split(variance_split(inp["b_avg"], float(inp["s2b"]), int(inp["L"])),
                                variance_split(inp["d_avg"], float(inp["s2d"]),
@@ -417,7 +417,7 @@ def ours_split(inp: dict):
 
 
 def ours_dark(inp: dict):
-    from ccdcore.emva_dark import dark_current
+    from ccdcore.emva.dark import dark_current
 
     return dark_current(list(inp["dark_t"]), inp["dark_u"], inp["dark_u_err"], inp["dark_s2"],
                         inp["dark_s2_err"], float(inp["K"]), float(inp["K_err"]))
@@ -429,7 +429,7 @@ def pkg_dark(res) -> tuple[float, float]:
 
 
 def ours_plots(inp: dict):
-    from ccdcore.emva_spatial import spatial_plots
+    from ccdcore.emva.spatial import spatial_plots
 
     return spatial_plots(inp["b_avg"], inp["d_avg"], L=int(inp["L"]), L_dark=int(inp["L_dark"]),
                          s2_stack=float(inp["s2b"]), s2_stack_dark=float(inp["s2d"]),
@@ -644,7 +644,7 @@ def plot_checks(e_plots: dict, o_sp: dict, fig, res) -> dict:
     """Every comparison of the plot arrays of one data set (module docstring)."""
     from emva1288.process import routines
 
-    from ccdcore.emva_spatial import high_pass
+    from ccdcore.emva.spatial import high_pass
 
     sp = res.spatial
     L, Ld = sp["L"], sp["L_dark"]
@@ -699,7 +699,7 @@ def analytic_spectrogram_checks() -> list[str]:
     """Spectrograms of known images: a white relative pattern at two signal levels, a cosine."""
     from emva1288.process import routines
 
-    from ccdcore.emva_spatial import spectrogram
+    from ccdcore.emva.spatial import spectrogram
 
     rng = np.random.default_rng(PATTERN_SEED)
     M, N = 480, 640
@@ -731,7 +731,7 @@ def scatter_dark(camera: str, width: int, height: int, bits: int, L: int, texp_s
     ``Camera`` set up as ``DatasetGenerator`` does (black offset and gain searched), L dark frames
     at the spatial exposure; z = (s²_part − K² s²_part(dsnu map)) / stated error, in DN² (K is
     the camera's, so K's error is not in it)."""
-    from ccdcore.emva_spatial import variance_split
+    from ccdcore.emva.spatial import variance_split
 
     _, dsnu, _ = draw_camera(camera, height, width)
     truth = variance_split(np.zeros((height, width)) if dsnu is None else dsnu, 0.0, 1)
@@ -983,7 +983,7 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(out))
         return
     if args.child:
-        from ccdcore.datasheet import emva_figures  # noqa: F401  (imports are not the tool's)
+        from ccdcore.emva.datasheet import emva_figures  # noqa: F401  (imports are not the tool's)
         import emva1288.process  # noqa: F401
         import emva1288.process.plotting  # noqa: F401
         logging.disable(logging.INFO)   # emva1288 logs every file it opens at INFO

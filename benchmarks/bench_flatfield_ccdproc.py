@@ -11,7 +11,7 @@ own:
     clipping), ``subtract_dark`` of the master dark from the master flat and from the test frame,
     ``flat_correct`` of the test frame.
 ``ccdcore``
-    :func:`ccdcore.flatfield.flat_field` (streamed averages of the darks and flats through
+    :func:`ccdcore.flatfield.fit.flat_field` (streamed averages of the darks and flats through
     :class:`ccdcore.stats.PixelMoments`) and :meth:`FlatField.correct` of the test frame.
 
 Both compute k·(DL − DL_0)/(DL_B − DL_0); the table gives wall time, peak memory and the SNUP
@@ -47,7 +47,7 @@ BLACK, SIGNAL, E_PER_DN, READ_E = 100.0, 20000.0, 2.0, 10.0
 
 
 def make_data(folder: Path, size: int) -> None:
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     stamp = folder / ".stamp"
     want = f"flat size={size} darks={N_DARK} flats={N_FLAT} seed=7"
@@ -84,7 +84,7 @@ def _rss_mb() -> float:
 
 
 def _snup(a: np.ndarray) -> dict:
-    from ccdcore.uniformity import snup
+    from ccdcore.flatfield.uniformity import snup
     c = snup(a)["L"]
     return {"snup": c.snup, "snup_err": c.snup_err}
 
@@ -112,8 +112,8 @@ def run_ccdproc(folder: Path) -> dict:
 
 
 def run_ccdcore(folder: Path) -> dict:
-    from ccdcore.flatfield import flat_field
-    from ccdcore.io import read_image
+    from ccdcore.flatfield.fit import flat_field
+    from ccdcore.io.frames import read_image
 
     darks = sorted(folder.glob("dark_*.fits"))
     flats = sorted(folder.glob("flat_*.fits"))

@@ -71,19 +71,19 @@ def make_data() -> None:
 
 
 def _snup(a: np.ndarray, mask: np.ndarray | None = None) -> float:
-    from ccdcore.uniformity import snup
+    from ccdcore.flatfield.uniformity import snup
     return float(snup(np.asarray(a, np.float64), mask=mask)["L"].snup)
 
 
 def _flags() -> np.ndarray:
     """ccdcore's flagged pixels (flat_flags: DL_B − DL_0 not above 5σ, dead pixels): left out
     of both tools' SNUP (a dead pixel cannot be corrected; ccdproc divides by about 0 there)."""
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     return np.asarray(read_image(WORK / "ccdcore_product" / "maps" / "flat_flags.exr")) > 0
 
 
 def run_ccdcore() -> dict:
-    from ccdcore.cli import main
+    from ccdcore.cli.command import main
 
     out, applied = WORK / "ccdcore_product", WORK / "ccdcore_applied"
     shutil.rmtree(applied, ignore_errors=True)
@@ -93,7 +93,7 @@ def run_ccdcore() -> dict:
         assert main(["calibrate", str(FIT), "-o", str(out)]) == 0
         assert main(["apply", str(out), str(SBIG / HELD), "-o", str(applied)]) == 0
     t1 = time.perf_counter()
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     corrected = read_image(applied / HELD)
     doc = json.loads((out / "calibration.json").read_text())
     model = doc["estimates"]["dark"]["model"]
@@ -138,7 +138,7 @@ def run_ccdproc() -> dict:
 def temporal_noise() -> tuple[float, int]:
     """σ_t (DN): the per-pixel temporal std of the 9 fitted flats, each scaled to the first's
     mean level, averaged in variance over the frame; and N."""
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     from ccdcore.stats import PixelMoments
 
     acc, ref = PixelMoments(), None

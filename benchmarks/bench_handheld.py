@@ -336,7 +336,7 @@ def _corr(a, b, mask) -> float:
 def _read_radiance(key: str, out: Path):
     import numpy as np
 
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     if key.startswith("ccdcore"):
         rad = np.asarray(read_image(out / "radiance.exr"), np.float64)
@@ -396,7 +396,7 @@ def measure(case: Case) -> None:
     """Every run's figures, into ``case.runs[key]["m"]``."""
     import numpy as np
 
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     import cv2
 

@@ -57,7 +57,7 @@ def _rss_mb() -> float:
 
 
 def run_variant(folder: Path, n1: int, n2: int) -> dict:
-    from ccdcore.darkframe import dark_reference
+    from ccdcore.dark.frame import dark_reference
     from ccdcore.fixedpattern import fixed_pattern_map
     from ccdcore.session import open_session
 

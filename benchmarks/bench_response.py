@@ -10,8 +10,8 @@ free scale is fitted over z = 5…250 (``ccdcore.response.scale``); the tables g
 sequences) and the spread (standard deviation over the sequences) -- the paper's Fig. 2 in
 numbers -- and the run time per sequence.
 
-Methods: ccdcore's estimator of sec. 3.2 (``ccdcore.response.tsin``, instrumented pools, and
-the pools as printed for comparison), Debevec & Malik, Robertson and Mitsunaga & Nayar
+Methods: ccdcore's estimator of sec. 3.2 (``ccdcore.response.tsin.estimator``, instrumented pools,
+and the pools as printed for comparison), Debevec & Malik, Robertson and Mitsunaga & Nayar
 (``ccdcore.response.classic``; brackets read as ``load_bracket`` does, without the blooming mask:
 this simulation has no blooming and OpenCV uses every pixel), OpenCV's ``CalibrateDebevec``
 and ``CalibrateRobertson`` at their defaults (the grey frames given as three equal channels,
@@ -48,7 +48,7 @@ import _report  # noqa: E402
 
 from ccdcore.response import bracket_data, debevec, mitsunaga_nayar, robertson  # noqa: E402
 from ccdcore.response.hdr import ResponseModel, merge  # noqa: E402
-from ccdcore.response.tsin import TsinOptions, estimate  # noqa: E402
+from ccdcore.response.tsin.estimator import TsinOptions, estimate  # noqa: E402
 from ccdcore.response.scale import aligned, rms_error  # noqa: E402
 from ccdcore.simulate import tsin  # noqa: E402
 

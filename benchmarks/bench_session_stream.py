@@ -37,7 +37,7 @@ import _report  # noqa: E402  (benchmarks/_report.py, beside this script)
 
 
 def make_data(folder: Path, n: int, size: int) -> None:
-    from ccdcore.io import atomic_write_text, write_image
+    from ccdcore.io.frames import atomic_write_text, write_image
 
     manifest = folder / "session.toml"
     stamp = f"{n} {size}"
@@ -59,7 +59,7 @@ def make_data(folder: Path, n: int, size: int) -> None:
 def run_variant(variant: str, folder: Path) -> dict:
     import OpenImageIO as oiio
 
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     from ccdcore.session import open_session
     from ccdcore.stats import PixelMoments
 

@@ -28,7 +28,7 @@ VERBS = ("simulate", "session", "ptc", "calibrate", "datasheet", "apply", "snup"
 
 def ccdcore(args: list[str], cwd: Path) -> tuple[int, str, str]:
     """``ccdcore ARGS`` in a fresh process of this interpreter (the checkout on PYTHONPATH)."""
-    code = "import sys; from ccdcore.cli import main; sys.exit(main())"
+    code = "import sys; from ccdcore.cli.command import main; sys.exit(main())"
     proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True,
                           cwd=cwd, env={**os.environ, "COLUMNS": "100"})
     return proc.returncode, proc.stdout, proc.stderr

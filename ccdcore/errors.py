@@ -21,6 +21,15 @@ class CcdError(ValueError):
         The file, manifest entry or argument the problem concerns (may be ``None``).
     problem
         One line describing what is wrong and, where possible, what to do.
+
+    Examples
+    --------
+    >>> from ccdcore import open_session
+    >>> try:
+    ...     open_session("no/such/folder")
+    ... except CcdError as err:
+    ...     print(err.where, "|", err.problem)
+    no/such/folder | does not exist
     """
 
     def __init__(self, where: str | PathLike | None, problem: str):

@@ -41,8 +41,8 @@ the same to the bit.  The frames of the next configuration are decoded ahead in 
 
 The streamed estimate is :meth:`ccdcore.reduce.Reducer.fixed_pattern`. With a Dask reducer
 (``reducer=DaskReducer(client)``), eqs. 45–50 run band by band of rows on the workers
-(:func:`ccdcore.distributed.fixed_pattern_bands`): each band's averages e_i are read with a halo
-of m//2 + 1 rows above and m//2 below; ē_i's column running sums are handed from band to band
+(:func:`ccdcore.distributed.client.fixed_pattern_bands`): each band's averages e_i are read with a
+halo of m//2 + 1 rows above and m//2 below; ē_i's column running sums are handed from band to band
 (:func:`box_mean_band`), and the whole-frame means (the levels, the noise, σ̂) are rebuilt from
 the bands' shares of numpy's pairwise sums (:func:`pw_pieces`, :func:`pw_total`), so the result
 is the streamed one to the bit, with no process holding the n1 full-frame averages.
@@ -69,7 +69,7 @@ from typing import Any
 
 import numpy as np
 
-from .darkframe import DarkReference, as_dark_map, dark_reference
+from .dark.frame import DarkReference, as_dark_map, dark_reference
 from .errors import CcdError
 from .kmap_kernels import FixedPattern, fixed_pattern_of
 from .reduce import STREAMED, Reducer
@@ -92,7 +92,7 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
         a mapping ``config id -> iterable of frames`` (arrays or ``(record, array)`` pairs); a
         sequence of such iterables; or an ``(n1, n2, H, W)`` array.  Frames are streamed.
     dark
-        The dark reference D̂_D (:class:`~ccdcore.darkframe.DarkReference` or an array).  With a
+        The dark reference D̂_D (:class:`~ccdcore.dark.frame.DarkReference` or an array).  With a
         session it may be omitted: it is then computed from the session's dark frames.
     window
         m, the side of the local window whose mean ē_i estimates I_i·A (odd, ≥ 3; default 9).
@@ -103,9 +103,9 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
         the paper's m̄ of eq. 48 (see the module docstring for why the median is the default).
     reducer
         Runs eqs. 45–50 over the frames (:mod:`ccdcore.reduce`; default streamed here). On a
-        Dask cluster (:class:`ccdcore.distributed.DaskReducer`) they run band by band of rows,
-        so that no process holds the n1 full-frame averages; the result equals the streamed one
-        (every map ``np.array_equal``, the summary statistics ``==``).  ``session_or_configs``
+        Dask cluster (:class:`ccdcore.distributed.client.DaskReducer`) they run band by band of
+        rows, so that no process holds the n1 full-frame averages; the result equals the streamed
+        one (every map ``np.array_equal``, the summary statistics ``==``).  ``session_or_configs``
         is then a session or a mapping ``config id -> records or file paths``; a dark
         reference computed here uses the same reducer.
 
@@ -118,6 +118,20 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
     CcdError
         Fewer than 2 configurations; frames of different shapes (naming the file); no dark
         reference; colour frames; a bad window or p.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from ccdcore.simulate import simulate
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> from ccdcore.session import open_session
+    >>> from ccdcore.dark import dark_reference
+    >>> _ = simulate("healey94", tmp.name, seed=1, size=(64, 48))
+    >>> session = open_session(tmp.name)
+    >>> kmap = fixed_pattern_map(session, dark_reference(session))
+    >>> kmap.K.shape, bool(abs(float(kmap.K.mean()) - 1) < 0.01)     # K̂ averages to 1
+    ((48, 64), True)
+    >>> tmp.cleanup()
     """
     window = int(window)
     if window < 3 or window % 2 == 0:

@@ -171,7 +171,7 @@ class DarkStep:
 def dark_step(session: Any, *, dark: Any = None) -> DarkStep:
     """Dark reference (sec. V-A) of the session's dark frames, its level per exposure and the
     gate (see the module docstring); ``dark`` may pass an already computed reference."""
-    from .darkframe import dark_reference
+    from .dark.frame import dark_reference
 
     recs = session.dark_frames()
     if not recs:
@@ -259,9 +259,9 @@ def pattern_step(session: Any, *, dark: Any = None, noise: Any = None, window: i
     """K̂ (eqs. 45–50) against the plan of sec. V-B, and the flat field (de Lasarte et al.)
     with SNUP before and after on up to ``max_held_out`` flat frames outside the base group."""
     from .fixedpattern import correction_check, fixed_pattern_map
-    from .flatfield import flat_field_from_session
+    from .flatfield.fit import flat_field_from_session
     from .planning import check_session_plan, plan_acquisition
-    from .uniformity import snup
+    from .flatfield.uniformity import snup
 
     reasons: list[str] = []
     nxt: list[str] = []
@@ -452,7 +452,7 @@ def _local_nonuniformity(plane: np.ndarray, window: int) -> float:
 
 def verify(session: Any, product: Any, *, records: Sequence[Any] | None = None,
            noise: Any = None, window: int = 9, limit: int = 6) -> Verification:
-    """Apply ``product`` (:meth:`~ccdcore.product.CalibrationProduct.correct`) to held-out
+    """Apply ``product`` (:meth:`~ccdcore.product.make.CalibrationProduct.correct`) to held-out
     frames (:func:`held_out_frames` unless ``records``; at most ``limit``, spread over the
     list) and compare their nonuniformity before and after (:class:`VerifyRow`).
 

@@ -1,7 +1,7 @@
 """The compiled per-pixel kernels of the fixed-pattern map K̂ (Healey & Kondepudy 1994, eqs. 45–50).
 
 They sit below both callers: :mod:`ccdcore.fixedpattern` (the streamed estimate) and
-:mod:`ccdcore.distributed` (K̂ band by band on a Dask cluster), which run the same kernels so
+:mod:`ccdcore.distributed.client` (K̂ band by band on a Dask cluster), which run the same kernels so
 the two give the same map to the bit. Nothing here reads files or knows a session.
 
 Public objects

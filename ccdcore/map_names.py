@@ -1,7 +1,7 @@
 """The names of a calibration product's maps: :class:`MapName`.
 
-Its home is below :mod:`ccdcore.product` (which re-exports it) so that the estimators writing
-maps for a product (:meth:`ccdcore.flatfield.FlatField.maps`) name them without importing the
+Its home is below :mod:`ccdcore.product.make` (which re-exports it) so that the estimators writing
+maps for a product (:meth:`ccdcore.flatfield.fit.FlatField.maps`) name them without importing the
 product module, which imports them.
 """
 from __future__ import annotations
@@ -12,12 +12,12 @@ __all__ = ["MapName"]
 
 
 class MapName(StrEnum):
-    """The name of one map of :attr:`ccdcore.product.CalibrationProduct.maps`.
+    """The name of one map of :attr:`ccdcore.product.make.CalibrationProduct.maps`.
 
     A ``str``: each member equals, hashes, formats and serialises (JSON) as its value
     (``MapName.K == "K"``, ``f"maps/{MapName.K}.exr" == "maps/K.exr"``), so
     ``calibration.json``, the map files and a lookup by the plain string are unchanged.
-    :func:`ccdcore.product.load_product` refuses a map whose name is not a member.
+    :func:`ccdcore.product.make.load_product` refuses a map whose name is not a member.
     """
 
     DARK = "dark"              # D̂_D (sec. V-A of Healey & Kondepudy 1994)

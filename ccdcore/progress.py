@@ -30,7 +30,7 @@ within(progress, start, end, prefix="")
     ``progress`` (``None``: :data:`silent`).
 Steps(progress, table)
     Reports a table of named steps (``(name, start)``, as
-    :data:`ccdcore.product.ESTIMATE_STEPS`): ``steps(name)`` is ``progress(start, name)``;
+    :data:`ccdcore.product.make.ESTIMATE_STEPS`): ``steps(name)`` is ``progress(start, name)``;
     ``steps.within(name)`` the :func:`within` of that step's range.
 Cancelled
     Raised inside a tracked computation after :meth:`Tracker.cancel`; not an input error.
@@ -109,7 +109,7 @@ class Steps:
     """Reports the named steps of a computation to ``progress``.
 
     ``table`` lists the steps in order with the overall fraction at which each starts, e.g.
-    :data:`ccdcore.product.ESTIMATE_STEPS`; a step runs up to the next one's start (the last
+    :data:`ccdcore.product.make.ESTIMATE_STEPS`; a step runs up to the next one's start (the last
     one's to 1). ``steps(name)`` reports ``progress(start, name)``; ``steps.within(name)`` is
     the :func:`within` of the step's range, for a long function run as that step.
     ``progress=None``: nothing is reported.
@@ -146,11 +146,11 @@ class Tracker:
     steps
         The steps in order with the overall fraction at which each starts, e.g.
         ``(("dark reference", 0.0), ("fixed pattern", 0.4), ("done", 1.0))`` (as
-        :data:`ccdcore.product.ESTIMATE_STEPS`). A step runs up to the next one's start; within
+        :data:`ccdcore.product.make.ESTIMATE_STEPS`). A step runs up to the next one's start; within
         it the fraction advances with the frames read. Without steps the computation is one
         step from 0 to 1.
 
-    The tracker is also a :class:`Progress` (:func:`ccdcore.product.estimate_all` takes one):
+    The tracker is also a :class:`Progress` (:func:`ccdcore.product.make.estimate_all` takes one):
     each call ``tracker(fraction, message)`` starts the step ``message`` at the overall
     ``fraction``. Reading its attributes from another thread is safe (each is one atomic
     assignment).

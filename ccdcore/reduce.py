@@ -1,19 +1,21 @@
 """The reduction layer: every per-pixel reduction over frames that an estimator needs, run by
 one :class:`Reducer` chosen once for a whole computation.
 
-An estimator (:mod:`ccdcore.darkframe`, :mod:`ccdcore.noise`, :mod:`ccdcore.fixedpattern`,
-:mod:`ccdcore.flatfield`, :mod:`ccdcore.response.hdr`) takes ``reducer=`` (``None``: :data:`STREAMED`),
-checks its own inputs and calls the reducer's methods; it never imports Dask and never asks
-where the work runs. Two reducers exist:
+An estimator (:mod:`ccdcore.dark.frame`, :mod:`ccdcore.noise`, :mod:`ccdcore.fixedpattern`,
+:mod:`ccdcore.flatfield.fit`, :mod:`ccdcore.response.hdr`) takes ``reducer=`` (``None``:
+:data:`STREAMED`), checks its own inputs and calls the reducer's methods; it never imports Dask and
+never asks where the work runs. Two reducers exist:
 
 * :class:`Reducer` itself (:data:`STREAMED`): the frames are streamed through this process,
   read ahead in threads (:meth:`ccdcore.session.Session.iter_frames`), into the compiled
   accumulators below (:class:`~ccdcore.stats.PixelMoments`, :func:`~ccdcore.stats.pair_statistics`,
   :mod:`ccdcore.kmap_kernels`, :func:`ccdcore.response.hdr_merge.merge`);
-* :class:`ccdcore.distributed.DaskReducer`: the same reductions on a Dask cluster, band by band
+* :class:`ccdcore.distributed.client.DaskReducer`: the same reductions on a Dask cluster, band by
+band
   of rows, bit-identical (photon-transfer variances to 1e-12); it checks the frames from their
-  headers first, with the messages the streamed path gives. :func:`ccdcore.distributed.open_reducer`
-  makes the one a command asks for (``--workers``, ``--scheduler``).
+  headers first, with the messages the streamed path gives.
+  :func:`ccdcore.distributed.client.open_reducer` makes the one a command asks for (``--workers``,
+  ``--scheduler``).
 
 The estimator-specific checks of a frame are handed in as callables ``check(name, frame)``; the
 cluster calls them with a zero-memory stand-in of the frame built from its header (a broadcast
@@ -70,7 +72,7 @@ def _is_session(obj: Any) -> bool:
 class Reducer:
     """The per-pixel reductions over frames, streamed through this process.
 
-    Subclasses (:class:`ccdcore.distributed.DaskReducer`) run the same reductions elsewhere
+    Subclasses (:class:`ccdcore.distributed.client.DaskReducer`) run the same reductions elsewhere
     with the same results; every method says what it returns, whoever runs it."""
 
     #: what a product's provenance records as the scheduler
@@ -182,7 +184,7 @@ class Reducer:
         """The HDR merge of a bracket (:func:`ccdcore.response.hdr_merge.merge`): ``frames``
         when already read, else every record's file read here. ``session`` (header cache) and
         ``band_rows`` (band height) serve a cluster."""
-        from .io import read_image
+        from .io.frames import read_image
         from .response.hdr_merge import merge
 
         if frames is None:

@@ -6,7 +6,7 @@ import pytest
 
 @pytest.fixture(scope="module")
 def client():
-    """A real Dask cluster for the tests of ccdcore.distributed: a ``LocalCluster`` of 2 worker
+    """A real Dask cluster for the tests of ccdcore.distributed.client: a ``LocalCluster`` of 2 worker
     processes with one thread each (as ``--workers 2`` starts), one per test module."""
     import distributed
 

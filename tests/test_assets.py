@@ -20,7 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 import pytest
 
-from ccdcore.io import is_image_path, read_image
+from ccdcore.io.frames import is_image_path, read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth
 from ccdcore.simulate._common import TRUTH_DIGITS
@@ -237,7 +237,7 @@ def test_comparison_tolerates_one_rounding_step_and_names_the_key(tmp_path):
 
 
 def test_comparison_names_the_pixel_of_images_and_maps(tmp_path):
-    from ccdcore.io import read_header, write_image, write_map
+    from ccdcore.io.frames import read_header, write_image, write_map
 
     new = _copy(ASSETS / "tsin01", tmp_path / "new")
     frame = new / "bracket/s0_k03.tif"

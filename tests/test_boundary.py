@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import build_parser, main
+from ccdcore.cli.command import build_parser, main
 from ccdcore.errors import CcdError, SessionError
-from ccdcore.io import TEMP_PREFIX, write_image, write_map
+from ccdcore.io.frames import TEMP_PREFIX, write_image, write_map
 from ccdcore.noise import photon_transfer
-from ccdcore.product import REQUIREMENTS, calibrate, load_product, missing_frames
+from ccdcore.product.make import REQUIREMENTS, calibrate, load_product, missing_frames
 from ccdcore.session import open_session
 from ccdcore.simulate import simulate
 
@@ -106,14 +106,14 @@ def test_sigterm_during_save_leaves_no_temporary_folder(h94, tmp_path):
     the next save into the same folder."""
     script = textwrap.dedent(f"""
         import sys, time
-        import ccdcore.io as io
-        from ccdcore.product import calibrate
+        import ccdcore.io.frames as io
+        from ccdcore.product.make import calibrate
         product = calibrate({str(h94)!r})
         real = io.write_map
         def slow(*a, **k):
             print("writing", flush=True)
             time.sleep(30)
-        import ccdcore.product_file as prod
+        import ccdcore.product.file as prod
         prod.write_map = slow
         product.save({str(tmp_path / "out")!r})
     """)

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
-from ccdcore.io import read_image
+from ccdcore.cli.command import main
+from ccdcore.io.frames import read_image
 from ccdcore.response.bracket_fit import fit_bracket, register_frames
 from ccdcore.response.brackets import bracket_records
 from ccdcore.session import open_session
@@ -120,7 +120,7 @@ def test_cli_hdr_says_the_registration_and_the_moving_pixels(handheld, tmp_path,
 def test_the_product_and_the_report_say_the_registration(handheld, tmp_path, capsys):
     """calibrate records the verdict with its registration and moving pixels; the report
     shows them in the same words (rows of the response section)."""
-    from ccdcore.product import load_product
+    from ccdcore.product.make import load_product
 
     assert main(["calibrate", str(handheld), "-o", str(tmp_path / "p")]) == 0
     v = load_product(tmp_path / "p").estimates.response.verdict

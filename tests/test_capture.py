@@ -10,7 +10,7 @@ import pytest
 
 from ccdcore.capture import MIN_BRACKET, MIN_DARKS, plan_captures, predicted_gain_error
 from ccdcore.errors import CcdError
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore.noise import weighted_line_fit
 from ccdcore.planning import plan_acquisition
 from ccdcore.session import open_session

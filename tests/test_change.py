@@ -1,4 +1,5 @@
-"""Illumination-invariant change detection, Tsin, Ramesh & Kanade (2001) sec. 5: ccdcore.change.
+"""Illumination-invariant change detection, Tsin, Ramesh & Kanade (2001) sec. 5:
+ccdcore.change.detector.
 
 On the ``change`` preset at 256x192 (seed 0: a background lit anew, two shades of shadow, three
 new objects; brackets of 7 exposures) against the simulator's truth. Tolerances:
@@ -23,12 +24,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from ccdcore import change as CH
-from ccdcore import change_kernels as CK
-from ccdcore.change_session import session_change
-from ccdcore.cli import main
+from ccdcore.change import detector as CH
+from ccdcore.change import kernels as CK
+from ccdcore.change.session import session_change
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_image
+from ccdcore.io.frames import read_image, write_image
 from ccdcore.session import open_session
 from ccdcore.simulate import change as sim
 

@@ -1,4 +1,4 @@
-"""Change detection between single frames or a few frames (ccdcore.change_frames; Tsin, Ramesh &
+"""Change detection between single frames or a few frames (ccdcore.change.frames; Tsin, Ramesh &
 Kanade 2001, sec. 5, eq. 20) on simulated video-camera pairs (ccdcore.simulate.change_frames):
 an unknown sRGB-like response with toe and shoulder, 8-bit frames without exposure, a global
 change of light with automatic gain, inserted objects with a truth mask."""
@@ -9,13 +9,13 @@ import json
 import numpy as np
 import pytest
 
-from ccdcore.change import ChangeOptions
-from ccdcore.change_session import session_change
-from ccdcore.change_frames import (ASSUMED_NOISE, fit_noise_terms, frames_change, role_kind,
+from ccdcore.change.detector import ChangeOptions
+from ccdcore.change.session import session_change
+from ccdcore.change.frames import (ASSUMED_NOISE, fit_noise_terms, frames_change, role_kind,
                                    srgb_inverse)
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore.session import open_session
 from ccdcore.simulate.change_frames import frame_pair, write_frame_pair
 

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.simulate import load_truth
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -27,15 +27,15 @@ np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E7
 
 from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 
-import ccdcore.datasheet_files as datasheet_files  # noqa: E402
-from ccdcore.cli import main  # noqa: E402
+import ccdcore.emva.datasheet_files as datasheet_files  # noqa: E402
+from ccdcore.cli.command import main  # noqa: E402
 from ccdcore.common import format_pm  # noqa: E402
-from ccdcore.io import RECORD  # noqa: E402
-from ccdcore.datasheet import emva_figures  # noqa: E402
-from ccdcore.datasheet_files import CSV_COLUMNS, PLOT_FORMATS, PLOTS  # noqa: E402
-from ccdcore.emva_sheet import DATASHEET, datasheet_rows  # noqa: E402
+from ccdcore.io.frames import RECORD  # noqa: E402
+from ccdcore.emva.datasheet import emva_figures  # noqa: E402
+from ccdcore.emva.datasheet_files import CSV_COLUMNS, PLOT_FORMATS, PLOTS  # noqa: E402
+from ccdcore.emva.sheet import DATASHEET, datasheet_rows  # noqa: E402
 from ccdcore.noise import EMVA_FIT_FRACTION  # noqa: E402
-from ccdcore.product import PRODUCT_FILE  # noqa: E402
+from ccdcore.product.make import PRODUCT_FILE  # noqa: E402
 from ccdcore.simulate import simulate  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -323,7 +323,7 @@ def test_without_matplotlib_the_verb_says_what_to_install(emva_set, tmp_path):
     """matplotlib made unimportable, as on a machine with the library alone."""
     argv = ["datasheet", str(emva_set), "-o", str(tmp_path / "ds")]
     code = ("import sys\nsys.modules['matplotlib'] = None\n"
-            "from ccdcore.cli import main\n"
+            "from ccdcore.cli.command import main\n"
             f"sys.exit(main({argv!r}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 2, out.stderr
@@ -337,8 +337,8 @@ def test_csv_and_json_need_no_plotting_package(figures, tmp_path):
     """``write_datasheet(..., plots=False)`` writes the CSV and the JSON only; importing the
     module does not import matplotlib."""
     code = ("import sys, json\nsys.modules['matplotlib'] = None\n"
-            "from ccdcore.datasheet_files import write_datasheet\n"
-            "from ccdcore.emva_results import EmvaSummary\n"
+            "from ccdcore.emva.datasheet_files import write_datasheet\n"
+            "from ccdcore.emva.results import EmvaSummary\n"
             f"e = EmvaSummary.from_dict(json.loads(open({str(tmp_path / 'e.json')!r}).read()))\n"
             f"print('\\n'.join(map(str, write_datasheet(e, {str(tmp_path / 'ds')!r}, "
             "plots=False))))\n")
@@ -405,8 +405,8 @@ def test_the_plots_do_not_depend_on_a_matplotlibrc(figures, tmp_path):
     datasheet_files.write_datasheet(emva, tmp_path / "here")
     (tmp_path / "matplotlibrc").write_text("savefig.dpi: 30\nfont.size: 22\n"
                                            "lines.linewidth: 7\n")
-    code = ("import json, sys\nfrom ccdcore.datasheet_files import write_datasheet\n"
-            "from ccdcore.emva_results import EmvaSummary\n"
+    code = ("import json, sys\nfrom ccdcore.emva.datasheet_files import write_datasheet\n"
+            "from ccdcore.emva.results import EmvaSummary\n"
             "write_datasheet(EmvaSummary.from_dict(json.loads(open("
             f"{str(tmp_path / 'e.json')!r}).read())), {str(tmp_path / 'there')!r})\n")
     env = dict(os.environ, MATPLOTLIBRC=str(tmp_path / "matplotlibrc"))

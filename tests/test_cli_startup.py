@@ -21,11 +21,12 @@ ROOT = Path(__file__).resolve().parents[1]
 #: Dask, the UI packages, and the estimators
 HEAVY = ("numba", "scipy", "threadpoolctl", "OpenImageIO", "astropy", "dask", "distributed",
          "panel", "bokeh", "holoviews", "matplotlib", "ccdcore_app", "ccdcore_report")
-ESTIMATORS = ("ccdcore.response.tsin", "ccdcore.response.methods", "ccdcore.response.brackets",
-              "ccdcore.response.classic", "ccdcore.response.hdr", "ccdcore.reduce",
-              "ccdcore.kmap_kernels", "ccdcore.noise", "ccdcore.darkframe",
-              "ccdcore.fixedpattern", "ccdcore.flatfield", "ccdcore.uniformity",
-              "ccdcore.product", "ccdcore.change", "ccdcore.session", "ccdcore.io")
+ESTIMATORS = ("ccdcore.response.tsin.estimator", "ccdcore.response.methods",
+              "ccdcore.response.brackets", "ccdcore.response.classic", "ccdcore.response.hdr",
+              "ccdcore.reduce", "ccdcore.kmap_kernels", "ccdcore.noise", "ccdcore.dark.frame",
+              "ccdcore.fixedpattern", "ccdcore.flatfield.fit", "ccdcore.flatfield.uniformity",
+              "ccdcore.product.make", "ccdcore.change.detector", "ccdcore.session",
+              "ccdcore.io.frames")
 
 VERBS = ("simulate", "session", "ptc", "calibrate", "datasheet", "apply", "snup", "response",
          "hdr", "change", "report", "app")
@@ -40,8 +41,8 @@ def _python(code: str, *args: str) -> subprocess.CompletedProcess:
 #: for the help of each verb named on the command line (``-`` for ``ccdcore --help``)
 _LOADED = f"""
 import contextlib, io, sys
-import ccdcore.cli
-parser = ccdcore.cli.build_parser()
+import ccdcore.cli.command
+parser = ccdcore.cli.command.build_parser()
 for verb in sys.argv[1:]:
     with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
         parser.parse_args(["--help"] if verb == "-" else [verb, "--help"])
@@ -108,7 +109,7 @@ print(before, missing, response_of is m.response_of, r.methods is m,
 @pytest.mark.parametrize("method", ["tsin", "debevec"])
 def test_response_runs_end_to_end_in_a_fresh_process(tmp_path, method):
     """The verbs load what they need when they run: simulate a small bracket, estimate its
-    response, each in its own interpreter (``python -m ccdcore.cli``)."""
+    response, each in its own interpreter (``python -m ccdcore.cli.command``)."""
     session = tmp_path / "tsin01"
     cli = [sys.executable, "-m", "ccdcore.cli"]
     out = subprocess.run(cli + ["simulate", "tsin01", str(session), "--size", "48x32"],

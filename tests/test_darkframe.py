@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ccdcore.darkframe import DarkReference, dark_reference
+from ccdcore.dark.frame import DarkReference, dark_reference
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 

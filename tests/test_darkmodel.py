@@ -1,5 +1,5 @@
-"""The dark model o + c·t (ccdcore.darkmodel), temperature matching, the held-out check of the
-flat field (ccdcore.flatcheck) and the product's darks and flats, on the simulated cooled CCD
+"""The dark model o + c·t (ccdcore.dark.model), temperature matching, the held-out check of the
+flat field (ccdcore.flatfield.check) and the product's darks and flats, on the simulated cooled CCD
 (ccdcore.simulate.ccdlab).  Never reads /work/shared."""
 from __future__ import annotations
 
@@ -10,14 +10,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
-from ccdcore.darkframe import dark_reference
-from ccdcore.darkmodel import fit_dark_model, session_dark_model
+from ccdcore.cli.command import main
+from ccdcore.dark.frame import dark_reference
+from ccdcore.dark.model import fit_dark_model, session_dark_model
 from ccdcore.errors import CcdError
-from ccdcore.flatcheck import HELD_OUT_FACTOR, held_out_figures
-from ccdcore.flatfield import flat_field, flat_field_from_session, held_out_check, session_dark
-from ccdcore.io import read_image
-from ccdcore.product import calibrate, load_product
+from ccdcore.flatfield.check import HELD_OUT_FACTOR, held_out_figures
+from ccdcore.flatfield.fit import flat_field, flat_field_from_session, held_out_check, session_dark
+from ccdcore.io.frames import read_image
+from ccdcore.product.make import calibrate, load_product
 from ccdcore.session import ProblemCode, open_session
 from ccdcore.session.temperature import TEMPERATURE_TOLERANCE
 from ccdcore.simulate.ccdlab import simulate

@@ -1,4 +1,4 @@
-"""Tests of ccdcore.datasheet: the EMVA 1288 figures against the reference implementation
+"""Tests of ccdcore.emva.datasheet: the EMVA 1288 figures against the reference implementation
 (emva1288 1.0.2's Results1288) and against its DatasetGenerator's truth; the product and the
 command line carrying them; the session content hash of the provenance.
 
@@ -30,12 +30,12 @@ from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 from emva1288.process import (Data1288, LoadImageData, ParseEmvaDescriptorFile,  # noqa: E402
                               Results1288)
 
-from ccdcore.cli import main  # noqa: E402
-from ccdcore.datasheet import (DISAGREEMENT_Z, EMVA_STEPS, SIGMA2_Y_DARK_FLOOR,  # noqa: E402
+from ccdcore.cli.command import main  # noqa: E402
+from ccdcore.emva.datasheet import (DISAGREEMENT_Z, EMVA_STEPS, SIGMA2_Y_DARK_FLOOR,  # noqa: E402
                                EmvaFigures, emva_figures)
 from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.noise import photon_transfer  # noqa: E402
-from ccdcore.product import PRODUCT_FILE, calibrate, load_product  # noqa: E402
+from ccdcore.product.make import PRODUCT_FILE, calibrate, load_product  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore.simulate import simulate  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""The reductions over frames on a Dask cluster (ccdcore.distributed).
+"""The reductions over frames on a Dask cluster (ccdcore.distributed.client).
 
 One real ``LocalCluster`` of two worker processes (one thread each) serves the module. On the
 bundled demos every wired reduction equals the streamed one: ``np.array_equal`` for the moment
@@ -23,17 +23,17 @@ import numpy as np
 import pytest
 
 
-from ccdcore import dask_bands  # noqa: E402
-from ccdcore import distributed as ccd_dist  # noqa: E402
-from ccdcore.distributed import DaskReducer  # noqa: E402
-from ccdcore.cli import main  # noqa: E402
-from ccdcore.darkframe import dark_reference  # noqa: E402
+from ccdcore.distributed import band_tasks as dask_bands
+from ccdcore.distributed import client as ccd_dist
+from ccdcore.distributed.client import DaskReducer  # noqa: E402
+from ccdcore.cli.command import main  # noqa: E402
+from ccdcore.dark.frame import dark_reference  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.fixedpattern import fixed_pattern_map  # noqa: E402
-from ccdcore.io import read_image  # noqa: E402
-from ccdcore.flatfield import flat_field, flat_field_from_session  # noqa: E402
+from ccdcore.io.frames import read_image  # noqa: E402
+from ccdcore.flatfield.fit import flat_field, flat_field_from_session  # noqa: E402
 from ccdcore.noise import photon_transfer  # noqa: E402
-from ccdcore.product import calibrate  # noqa: E402
+from ccdcore.product.make import calibrate  # noqa: E402
 from ccdcore.progress import Cancelled, Tracker, tracking  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore.stats import pixel_moments  # noqa: E402
@@ -101,7 +101,7 @@ def test_band_moments_equal_pixel_moments(client, healey, band_rows):
 def test_band_moments_float_frames_keep_the_order(client, tmp_path, band_rows):
     """Float frames (not integer-valued) make the shifted sums order dependent: the bands are
     bit-identical to the stream only when every task takes the frames in the stream's order."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     rng = np.random.default_rng(1994)
     paths = []
@@ -318,7 +318,7 @@ def test_unreadable_file_same_message(client, damaged):
 
 def test_nonfinite_pixels_same_message(client, tmp_path):
     """Float ptc and dark frames with NaN: the streamed message, counted over the bands."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
     from ccdcore.simulate import simulate
 
     root = tmp_path / "nan"
@@ -351,7 +351,7 @@ def test_nonfinite_pixels_same_message(client, tmp_path):
 def test_header_checks_same_message(client, healey, tmp_path):
     """A frame of another shape, and a colour frame, among the darks: checked on the client
     from the headers, with the streamed messages."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
     from ccdcore.session import FrameRecord
 
     odd = FrameRecord(write_image(tmp_path / "odd.tif", np.zeros((100, 120), np.uint8)),
@@ -407,7 +407,8 @@ def test_cli_bad_scheduler(capsys, monkeypatch):
 
 
 def test_import_stays_light():
-    code = ("import sys, ccdcore, ccdcore.product, ccdcore.distributed, ccdcore.cli; "
+    code = ("import sys, ccdcore, ccdcore.product.make, ccdcore.distributed.client, "
+            "ccdcore.cli.command; "
             "print(any(m.split('.')[0] in ('dask', 'distributed') for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=Path(__file__).resolve().parents[1])

@@ -1,4 +1,4 @@
-"""The edges of the Dask cluster paths (ccdcore.distributed): a local cluster listens on
+"""The edges of the Dask cluster paths (ccdcore.distributed.client): a local cluster listens on
 127.0.0.1 only and has no dashboard unless asked; an absurd ``--workers`` and an address that is
 no Dask scheduler fail in one line, within a bounded time; a small file declaring a huge image
 is refused from its header before any band is decoded."""
@@ -12,9 +12,9 @@ from typing import Iterator
 
 import pytest
 
-from ccdcore import dask_bands
-from ccdcore import distributed as ccd_dist
-from ccdcore.cli import main
+from ccdcore.distributed import band_tasks as dask_bands
+from ccdcore.distributed import client as ccd_dist
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError, ImageReadError
 from imagefiles import bomb_tiff
 

@@ -1,7 +1,7 @@
 """The HDR merge and change detection per row band on a Dask cluster.
 
 One real ``LocalCluster`` of two worker processes (one thread each) serves the module.
-:func:`ccdcore.distributed.band_merge` reads each band of every bracket frame with a halo of
+:func:`ccdcore.distributed.client.band_merge` reads each band of every bracket frame with a halo of
 rows covering the blooming disk and runs the same :func:`ccdcore.response.hdr.merge` on it; the
 assembled maps must be **bit-identical** to the whole-frame merge (``assert_array_equal``,
 NaN-aware), on tsin01 (mono, 8 frames, saturated pixels in the two longest exposures), on the
@@ -20,13 +20,13 @@ import numpy as np
 import pytest
 
 
-from ccdcore import distributed as ccd_dist  # noqa: E402
-from ccdcore.distributed import DaskReducer  # noqa: E402
-from ccdcore.change import ChangeOptions  # noqa: E402
-from ccdcore.change_session import session_change  # noqa: E402
-from ccdcore.cli import main  # noqa: E402
+from ccdcore.distributed import client as ccd_dist
+from ccdcore.distributed.client import DaskReducer  # noqa: E402
+from ccdcore.change.detector import ChangeOptions  # noqa: E402
+from ccdcore.change.session import session_change  # noqa: E402
+from ccdcore.cli.command import main  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
-from ccdcore.io import read_image, write_image  # noqa: E402
+from ccdcore.io.frames import read_image, write_image  # noqa: E402
 from ccdcore.response.brackets import bracket_records  # noqa: E402
 from ccdcore.response.hdr import (FLAG_BLOOMED, FLAG_SATURATED, ResponseModel,  # noqa: E402
                                   merge, merge_bracket)
@@ -295,7 +295,7 @@ def test_cli_hdr_bad_scheduler(capsys, monkeypatch, tmp_path):
 def test_cli_hdr_calib_frames_read_by_the_workers(client, capsys, tmp_path, monkeypatch):
     """With ``--calib`` and a cluster the client reads no frame (the workers do): the client's
     readers are made to fail, and the maps equal the streamed ones."""
-    import ccdcore.io
+    import ccdcore.io.frames
     import ccdcore.session.records
 
     assert main(["calibrate", str(TSIN), "-o", str(tmp_path / "p")]) == 0
@@ -308,7 +308,7 @@ def test_cli_hdr_calib_frames_read_by_the_workers(client, capsys, tmp_path, monk
         raise AssertionError("a frame was read on the client")
 
     monkeypatch.setattr(ccdcore.session.records, "read_image", refuse)
-    monkeypatch.setattr(ccdcore.io, "read_image", refuse)
+    monkeypatch.setattr(ccdcore.io.frames, "read_image", refuse)
     assert main(["hdr", str(TSIN), "--calib", str(tmp_path / "p"), "-o", str(tmp_path / "c"),
                  "--json", "--scheduler", client.scheduler.address]) == 0
     cluster = json.loads(capsys.readouterr().out)

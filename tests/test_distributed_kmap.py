@@ -1,4 +1,4 @@
-"""K̂ band by band on a Dask cluster (ccdcore.distributed.fixed_pattern_bands).
+"""K̂ band by band on a Dask cluster (ccdcore.distributed.client.fixed_pattern_bands).
 
 eqs. 45–50 run on the workers in bands of rows, so no process holds the n1 full-frame averages;
 the result must equal the streamed :class:`~ccdcore.fixedpattern.FixedPattern` exactly: every map
@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 
 
-from ccdcore import dask_bands  # noqa: E402
-from ccdcore import dask_kmap  # noqa: E402
-from ccdcore import distributed as ccd_dist  # noqa: E402
-from ccdcore.distributed import DaskReducer  # noqa: E402
-from ccdcore.darkframe import dark_reference  # noqa: E402
+from ccdcore.distributed import band_tasks as dask_bands
+from ccdcore.distributed import kmap as dask_kmap
+from ccdcore.distributed import client as ccd_dist
+from ccdcore.distributed.client import DaskReducer  # noqa: E402
+from ccdcore.dark.frame import dark_reference  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
 from ccdcore.fixedpattern import fixed_pattern_map  # noqa: E402
 from ccdcore.kmap_kernels import box_mean, box_mean_band, pw_pieces, pw_total  # noqa: E402
@@ -156,7 +156,7 @@ def test_unlit_configuration_same_message(client, healey):
 def _float_configs(tmp_path, seed, h=53, w=41):
     """Five configurations of three float64 frames (not integer-valued), a spot in the third
     (rejected slopes), and a float dark map."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     rng = np.random.default_rng(seed)
     gain = 1.0 + rng.normal(0.0, 0.01, (h, w))
@@ -177,7 +177,7 @@ def test_float_frames(client, tmp_path, window):
     """Float frames: numpy's pairwise sums (levels, noise, σ̂) round, so only the rebuilt
     pairwise blocks give the streamed bits (on healey94's quarter-integer averages every sum is
     exact).  A spot in one configuration makes rejections."""
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     configs, dark = _float_configs(tmp_path, 47 + window)
     streamed = fixed_pattern_map({c: [read_image(p) for p in ps] for c, ps in configs.items()},
@@ -194,7 +194,7 @@ def test_slope_chain_carries_the_column_sums(tmp_path):
     rounding at a row depends on every row above).  A filter of each band and its halo alone
     gives ē to within rounding only, which the float32 slopes nearly always hide; this checks
     the chain itself."""
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     from ccdcore.stats import pixel_moments
 
     configs, dark = _float_configs(tmp_path, 50)

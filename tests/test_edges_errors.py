@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_image
-from ccdcore.product import load_product
+from ccdcore.io.frames import read_image, write_image
+from ccdcore.product.make import load_product
 from ccdcore.response.brackets import MAX_BLOOM_RADIUS, bloom_mask, check_times
 from ccdcore.session import open_session
 from imagefiles import bomb_tiff
@@ -354,7 +354,7 @@ def test_one_channel_frames_under_an_rgb_layout_are_an_error(capsys, tmp_path):
 
 @pytest.fixture(scope="module")
 def h94_product(tmp_path_factory):
-    from ccdcore.product import calibrate
+    from ccdcore.product.make import calibrate
     from ccdcore.simulate import simulate
 
     root = tmp_path_factory.mktemp("p") / "s"
@@ -392,8 +392,8 @@ def test_a_product_with_impossible_figures_is_refused(capsys, h94_product, tmp_p
 
 def test_an_emva_gain_that_is_not_positive_is_refused():
     """The EMVA 1288 system gain K of a stored datasheet must be positive."""
-    from ccdcore.datasheet import emva_figures
-    from ccdcore.emva_results import EmvaSummary
+    from ccdcore.emva.datasheet import emva_figures
+    from ccdcore.emva.results import EmvaSummary
 
     doc = emva_figures(open_session(Path(__file__).parents[1] / "assets" / "emva1288")).summary(
     ).to_dict()

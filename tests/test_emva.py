@@ -14,7 +14,7 @@ from emva1288.process.parser import ParseEmvaDescriptorFile  # noqa: E402
 from PIL import Image  # noqa: E402  (Pillow wrote the images; read them back with it)
 
 from ccdcore.session import open_emva_descriptor  # noqa: E402
-from ccdcore.io import write_image  # noqa: E402
+from ccdcore.io.frames import write_image  # noqa: E402
 from ccdcore.session import draft_manifest, open_session  # noqa: E402
 
 W, H, STEPS, L = 16, 12, 4, 4

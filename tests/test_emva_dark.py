@@ -1,5 +1,5 @@
-"""Tests of ccdcore.emva_dark (the dark current of EMVA 1288 sec. 3.1) and of the new figures of
-ccdcore.datasheet against the reference implementation (emva1288 1.0.2's Results1288: u_I_mean,
+"""Tests of ccdcore.emva.dark (the dark current of EMVA 1288 sec. 3.1) and of the new figures of
+ccdcore.emva.datasheet against the reference implementation (emva1288 1.0.2's Results1288: u_I_mean,
 u_I_var, DSNU1288_row/col/pixel, PRNU1288_row/col/pixel) and the generator's dark current.
 
 Tolerances
@@ -26,9 +26,9 @@ from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 from emva1288.process import (Data1288, LoadImageData, ParseEmvaDescriptorFile,  # noqa: E402
                               Results1288)
 
-from ccdcore.datasheet import emva_figures  # noqa: E402
-from ccdcore.emva_dark import RESOLVED_Z, dark_current  # noqa: E402
-from ccdcore.emva_sheet import DATASHEET, datasheet_rows  # noqa: E402
+from ccdcore.emva.datasheet import emva_figures  # noqa: E402
+from ccdcore.emva.dark import RESOLVED_Z, dark_current  # noqa: E402
+from ccdcore.emva.sheet import DATASHEET, datasheet_rows  # noqa: E402
 
 T = np.array([0.001, 0.01, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5])
 K = 0.1
@@ -174,7 +174,7 @@ def test_datasheet_rows_follow_the_standard_and_carry_every_figure(generated):
 
 # ------------------------------------------------------- darks at many exposure times ----
 def test_exposures_in_a_few_words_and_the_nearest_one():
-    from ccdcore.darkframe import exposures_text, nearest_exposure
+    from ccdcore.dark.frame import exposures_text, nearest_exposure
 
     assert exposures_text([0.4, 0.1, 0.2]) == "0.1, 0.2 and 0.4 s"
     many = list(np.linspace(4e-5, 0.05, 51))
@@ -188,9 +188,9 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
     """An EMVA set's darks span 16 exposure times: the dark reference and its hot/dead maps are
     made (not skipped) at the one nearest the ptc frames' median exposure, and a note says so
     in a few words (never every exposure); --dark-exposure names another."""
-    from ccdcore.cli import main
+    from ccdcore.cli.command import main
     from ccdcore.common import format_pm
-    from ccdcore.product import calibrate, dark_exposure_for
+    from ccdcore.product.make import calibrate, dark_exposure_for
     from ccdcore.session import open_session
 
     gen, _, _ = generated
@@ -227,7 +227,7 @@ def test_calibrate_makes_the_dark_reference_at_the_exposure_nearest_the_bright_f
 
 def test_a_section_as_markdown_items(generated):
     from ccdcore.common import format_pm
-    from ccdcore.emva_sheet import section_markdown
+    from ccdcore.emva.sheet import section_markdown
 
     _, ours, _ = generated
     d = ours.to_dict()
@@ -261,7 +261,7 @@ def test_figures_take_another_photon_transfer_without_reading_frames(generated):
     """with_photon_transfer(figures without photon transfer, noise) is what emva_figures gives
     with that photon transfer (its notes in another order), for the paper's and the EMVA
     range; and None takes σ_d from the intercept out again."""
-    from ccdcore.datasheet import with_photon_transfer
+    from ccdcore.emva.datasheet import with_photon_transfer
     from ccdcore.noise import EMVA_FIT_FRACTION, photon_transfer
     from ccdcore.session import open_session
 

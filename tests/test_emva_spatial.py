@@ -1,4 +1,4 @@
-"""Tests of ccdcore.emva_spatial: the release 4.0 split of the spatial variance into row, column
+"""Tests of ccdcore.emva.spatial: the release 4.0 split of the spatial variance into row, column
 and pixel parts, DSNU and PRNU parts, and the arrays of the spatial section's plots.
 
 Tolerances
@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from ccdcore.emva_spatial import (DETERMINABLE_Z, HIGH_PASS_SIZE, accumulated_histogram,
+from ccdcore.emva.spatial import (DETERMINABLE_Z, HIGH_PASS_SIZE, accumulated_histogram,
                                   defect_histogram, high_pass, nonuniformity_split, profiles,
                                   spectrogram, variance_split)
 

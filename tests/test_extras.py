@@ -57,7 +57,7 @@ def test_a_verb_without_its_extra_says_what_to_install(tmp_path, argv, missing, 
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
     code = (
         f"import sys\nsys.modules[{missing!r}] = None\n"
-        "from ccdcore.cli import main\n"
+        "from ccdcore.cli.command import main\n"
         f"sys.exit(main({argv!r}))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)

@@ -14,11 +14,11 @@ import tomli_w
 from scipy.ndimage import uniform_filter
 from scipy.special import ndtr
 
-from ccdcore.darkframe import dark_reference
+from ccdcore.dark.frame import dark_reference
 from ccdcore.errors import CcdError
 from ccdcore.fixedpattern import (CorrectionCheck, FixedPattern, correct, correction_check,
                                   fixed_pattern_map)
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 

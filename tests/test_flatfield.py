@@ -16,12 +16,12 @@ import pytest
 
 from ccdcore import channels
 from ccdcore.errors import CcdError
-from ccdcore.flatfield import (base_image_study, compare_dark_settings, compare_with_k_map,
+from ccdcore.flatfield.fit import (base_image_study, compare_dark_settings, compare_with_k_map,
                                correct, flat_field, flat_field_from_session, recommend_base,
                                zero_dark)
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
-from ccdcore.uniformity import snup
+from ccdcore.flatfield.uniformity import snup
 
 SIZE = (64, 48)
 

@@ -9,12 +9,12 @@ import shutil
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.flatcheck import held_out_figures
-from ccdcore.flatfield import flat_field, flat_field_from_session
-from ccdcore.io import write_image
-from ccdcore.product import calibrate
+from ccdcore.flatfield.check import held_out_figures
+from ccdcore.flatfield.fit import flat_field, flat_field_from_session
+from ccdcore.io.frames import write_image
+from ccdcore.product.make import calibrate
 from ccdcore.session import open_session
 from ccdcore.simulate.ccdlab import simulate
 
@@ -112,7 +112,7 @@ def test_the_base_images_note_is_in_words(tmp_path):
     """The recommended base's note names its group as the summary does ("level –, exposure
     0.003125 s"), never a raw key with None or 16 digits, and never says "inside the linear
     range" of a group it could not show linear."""
-    from ccdcore.flatfield import recommend_base
+    from ccdcore.flatfield.fit import recommend_base
 
     folder = tmp_path / "card"
     _rgb_flats(folder)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from ccdcore import guide
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore.noise import photon_transfer
-from ccdcore.product import CalibrationProduct, calibrate
+from ccdcore.product.make import CalibrationProduct, calibrate
 from ccdcore.session import open_session
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"

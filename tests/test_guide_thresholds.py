@@ -215,8 +215,8 @@ def test_ptc_gate_linearity_error_from_photon_counts(off, status):
 def test_pattern_step_held_out_flat(monkeypatch, after, status):
     """A held-out flat whose SNUP after the correction exceeds (not equals) the SNUP before
     fails the step; SNUP is stubbed: 2 % before, ``after`` after."""
-    import ccdcore.flatfield as ff
-    import ccdcore.uniformity as un
+    import ccdcore.flatfield.fit as ff
+    import ccdcore.flatfield.uniformity as un
 
     raw = np.full((8, 8), 2000, np.uint16)
     corrected = np.full((8, 8), 1.0)
@@ -246,7 +246,7 @@ class _Snup:
 
 def test_pattern_step_without_held_out_flats_warns(monkeypatch):
     """Held-out flats outside 10-90 % of full scale are not used: the check is missing, warn."""
-    import ccdcore.flatfield as ff
+    import ccdcore.flatfield.fit as ff
 
     flat = NS(base_key=(1, 0.1), correct=lambda frame, where=None: frame)
     monkeypatch.setattr(ff, "flat_field_from_session", lambda s, base=None: flat)

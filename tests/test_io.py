@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError, ImageReadError, ImageWriteError, MethodNotAvailable
-from ccdcore.io import (atomic_path, atomic_write_text, read_frame, read_header, read_image,
+from ccdcore.io.frames import (atomic_path, atomic_write_text, read_frame, read_header, read_image,
                         read_region,
                         write_image, write_map)
 

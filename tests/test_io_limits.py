@@ -1,4 +1,5 @@
-"""The file boundary of ccdcore.io: pixel limit, region reads, failed writes, quiet bad input."""
+"""The file boundary of ccdcore.io.frames: pixel limit, region reads, failed writes, quiet bad
+input."""
 from __future__ import annotations
 
 import errno
@@ -13,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore import io as ccd_io
+from ccdcore.io import frames as ccd_io
 from ccdcore.errors import CcdError, ImageReadError, ImageWriteError
-from ccdcore.io import (MAX_PIXELS, atomic_write_text, pixel_limit, read_frame, read_header,
+from ccdcore.io.frames import (MAX_PIXELS, atomic_write_text, pixel_limit, read_frame, read_header,
                         read_image, read_region, write_image, write_map)
 from imagefiles import bomb_tiff
 
@@ -420,7 +421,7 @@ QUIET_SCRIPT = textwrap.dedent("""
     from pathlib import Path
     import numpy as np
     from ccdcore.errors import ImageReadError, ImageWriteError
-    from ccdcore.io import read_header, read_image, read_region, write_image, write_map
+    from ccdcore.io.frames import read_header, read_image, read_region, write_image, write_map
 
     folder = Path(sys.argv[1])
     a = (np.arange(64 * 64, dtype=np.uint16).reshape(64, 64) * 7) % 4096

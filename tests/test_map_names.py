@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.product import PRODUCT_FILE, CalibrationProduct, MapName, calibrate, load_product
+from ccdcore.product.make import PRODUCT_FILE, CalibrationProduct, MapName, calibrate, load_product
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSIONS = ("healey94", "delasarte07")
@@ -92,8 +92,8 @@ _LITERAL = re.compile(
     rf"""maps\s*(?:\[|\.get\(|\.pop\()\s*(["'])({_NAMES})\1"""
     rf"""|(["'])({_NAMES})\3\s+(?:not\s+)?in\s+[\w.]*maps\b""")
 _SCANNED = [*sorted((ROOT / "ccdcore").rglob("*.py")),
-            *sorted((ROOT / "ccdcore_report").rglob("*.py")),
-            *sorted((ROOT / "ccdcore_app").rglob("*.py"))]
+            *sorted((ROOT / "report").rglob("*.py")),
+            *sorted((ROOT / "app").rglob("*.py"))]
 
 
 def test_the_scan_finds_a_literal_name():

@@ -20,7 +20,7 @@ import pytest
 import tomli_w
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_image
+from ccdcore.io.frames import read_image, write_image
 from ccdcore.noise import (CLIP_LIMIT, LineFit, PhotonTransfer, fit_points, goodness_of_fit,
                            pair_statistics, photon_transfer, ptc_points, weighted_line_fit)
 from ccdcore.session import open_session

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.io import (RECORD, TEMP_PREFIX, check_not_inputs, read_image, write_image,
+from ccdcore.io.frames import (RECORD, TEMP_PREFIX, check_not_inputs, read_image, write_image,
                         write_outputs)
-from ccdcore.product import CalibrationProduct, calibrate, load_product
+from ccdcore.product.make import CalibrationProduct, calibrate, load_product
 from ccdcore.simulate import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -161,7 +161,7 @@ def test_check_not_inputs_compares_resolved_paths(tmp_path):
 
 # 4. multi-file outputs as one set ----------------------------------------------------------
 def test_hdr_failure_midway_leaves_the_earlier_set(capsys, tmp_path, monkeypatch):
-    import ccdcore.io as io
+    import ccdcore.io.frames as io
 
     out = tmp_path / "h"
     assert run(capsys, "hdr", BRACKET, "-o", out)[0] == 0
@@ -181,7 +181,7 @@ def test_hdr_failure_midway_leaves_the_earlier_set(capsys, tmp_path, monkeypatch
 
 
 def test_full_disk_names_the_users_folder(capsys, tmp_path, monkeypatch):
-    import ccdcore.io as io
+    import ccdcore.io.frames as io
 
     monkeypatch.setattr(io, "_free_bytes", lambda folder: 0)
     out = tmp_path / "h"
@@ -258,7 +258,7 @@ def test_an_infinite_dark_pixel_skips_the_maps_it_would_damage(capsys, sim, tmp_
 def others(tmp_path_factory) -> dict:
     """A response and a flat field as calibration.json stores them (small simulated sessions),
     to damage one field of a whole estimate."""
-    from ccdcore.flatfield import flat_field_from_session
+    from ccdcore.flatfield.fit import flat_field_from_session
     from ccdcore.response.brackets import load_bracket
     from ccdcore.response.methods import response_of
     from ccdcore.session import open_session
@@ -303,7 +303,7 @@ def test_sigterm_while_writing_outputs_leaves_nothing(tmp_path):
     script = textwrap.dedent(f"""
         import time
         from pathlib import Path
-        from ccdcore.io import write_outputs
+        from ccdcore.io.frames import write_outputs
         def slow(path):
             Path(path).write_text("new, half")
             print("writing", flush=True)
@@ -331,8 +331,8 @@ def test_sigterm_during_report_leaves_no_temporary_file(calib, tmp_path):
     write_outputs(out.parent, {out.name: lambda p: Path(p).write_text("an earlier report")})
     script = textwrap.dedent(f"""
         import time
-        import ccdcore.io as io
-        from ccdcore.cli import main
+        import ccdcore.io.frames as io
+        from ccdcore.cli.command import main
         def slow(path, text):
             open(path, "w").write(text[:100])
             print("writing", flush=True)
@@ -354,7 +354,7 @@ def test_sigterm_during_report_leaves_no_temporary_file(calib, tmp_path):
 _KILL_AT = textwrap.dedent("""
     import os, signal, sys
     from pathlib import Path
-    import ccdcore.io_outputs as outs
+    import ccdcore.io.outputs as outs
     real, calls = os.replace, [0]
     def replace(a, b):
         calls[0] += 1
@@ -390,8 +390,8 @@ def test_a_run_killed_at_any_moment_of_the_swap_leaves_one_whole_set(tmp_path):
     """A run killed (SIGKILL) before, during or after each rename of the swap: once the next
     write has recovered, the folder holds exactly the earlier set or exactly the new one (and
     the user's file beside them), and no folder of ours is left."""
-    from ccdcore.io import write_outputs
-    from ccdcore.io_outputs import recover_swaps, remove_stale_temporaries
+    from ccdcore.io.frames import write_outputs
+    from ccdcore.io.outputs import recover_swaps, remove_stale_temporaries
 
     def earlier(folder: Path) -> None:
         write_outputs(folder, {n: writer("old " + n) for n in ("a.txt", "plots", "c.txt")},
@@ -427,7 +427,7 @@ def test_only_what_ccdcore_wrote_is_replaced_or_removed(capsys, tmp_path):
     """A folder of the user's named like our temporary folders is never removed; a file or a
     file inside a folder entry that ccdcore did not write is refused, naming it, and nothing
     is lost; the parts of an earlier set of ours are replaced as before."""
-    from ccdcore.io import output_set, write_outputs
+    from ccdcore.io.frames import output_set, write_outputs
 
     out = tmp_path / "out"
     out.mkdir()

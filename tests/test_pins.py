@@ -19,13 +19,13 @@ import math
 import numpy as np
 import pytest
 
-from ccdcore.darkframe import dark_reference
+from ccdcore.dark.frame import dark_reference
 from ccdcore.fixedpattern import fixed_pattern_map
-from ccdcore.flatfield import flat_field
+from ccdcore.flatfield.fit import flat_field
 from ccdcore.noise import PtcPoint, fit_points, pair_statistics, photon_transfer
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
-from ccdcore.uniformity import snup_vs_averaging
+from ccdcore.flatfield.uniformity import snup_vs_averaging
 
 #: q²/12 for integer data (q = 1 DN), the quantisation term of eq. 27 (Healey & Kondepudy 1994)
 Q2_12 = 1.0 / 12.0

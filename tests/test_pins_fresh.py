@@ -13,12 +13,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ccdcore.darkmodel import fit_dark_model
+from ccdcore.dark.model import fit_dark_model
 from ccdcore.records import positive_problems
 from ccdcore.response.hdr_merge import HdrResult
 from ccdcore.session.manifest import MAX_KEY_PARTS, MAX_NESTING, bound_problem
 from ccdcore.session.temperature import match_temperature
-from ccdcore_app.cache import entry_size_problem
+from ccdcore_app.cache.store import entry_size_problem
 
 
 # -- the dark model's errors: n − 2 degrees of freedom ------------------------------------------

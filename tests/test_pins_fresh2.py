@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ccdcore.flatcheck import held_out_figures
+from ccdcore.flatfield.check import held_out_figures
 from ccdcore.session.temperature import target_temperature
 from ccdcore.simulate.camera import SrgbKneeTone
 from ccdcore.simulate.change_frames import _soft_shadows, frame_pair

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from ccdcore.change import ChangeOptions, detect
+from ccdcore.change.detector import ChangeOptions, detect
 from ccdcore.response.align import _fit
 from ccdcore.response.bracket_fit import _displacement
 from ccdcore.response.moving import suspect_moving
@@ -54,7 +54,7 @@ def test_the_displacement_of_a_rotation_is_in_radians():
 def test_the_slider_sees_the_shades_of_a_looser_p():
     # a result fitted at P = 1e-3 tests every pixel above the threshold at the slider's end
     # (P = 0.2) for a shade, so re-thresholding there can label shades
-    from ccdcore.change import SHADE_LOOSEST_P
+    from ccdcore.change.detector import SHADE_LOOSEST_P
     from ccdcore.simulate.change_frames import frame_pair
 
     pair = frame_pair(1, (96, 80), n_shadows=2, n_objects=1)

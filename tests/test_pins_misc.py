@@ -28,8 +28,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from ccdcore import emva_dark
-from ccdcore.emva_spatial import spatial_plots
+from ccdcore.emva import dark as emva_dark
+from ccdcore.emva.spatial import spatial_plots
 from ccdcore.ptc_fit import (PtcPoint, linearity_reasons, range_reasons,
                              saturation_reasons)
 
@@ -289,9 +289,9 @@ def test_flat_maps_of_different_shapes_refused_on_save_and_on_load(tmp_path):
     another shape is refused on load with an error naming the shapes.  Maps of the two
     families may differ (a colour flat field beside a mono-shaped dark)."""
     from ccdcore.errors import CcdError
-    from ccdcore.io import write_map
+    from ccdcore.io.frames import write_map
     from ccdcore.map_names import MapName
-    from ccdcore.product_file import CalibrationProduct, load_product
+    from ccdcore.product.file import CalibrationProduct, load_product
 
     g = np.full((4, 6), 1.25, np.float32)
     o = np.full((4, 6), -2.0, np.float32)
@@ -322,7 +322,7 @@ _CAMERA = {"Make": "Canon", "Model": "Canon EOS 80D", "Exif:ISOSpeedRatings": 10
 
 def _jpeg(root, rel, seconds, shape=(24, 32)):
     """A colour JPEG of a gradient exposed ``seconds``, with that EXIF ExposureTime."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     y, x = np.mgrid[0:shape[0], 0:shape[1]]
     img = np.clip((1.0 + 7 * x + 3 * y)[..., None] * np.array([1.0, 0.8, 0.6]) * seconds * 180,
@@ -427,7 +427,7 @@ def _dark_figures(times, seed=5):
     them from the figures (``dark_points``, ``dark_current``; the rest of the figures absent)."""
     from types import SimpleNamespace
 
-    from ccdcore.emva_results import DarkPointSummary
+    from ccdcore.emva.results import DarkPointSummary
 
     rng = np.random.default_rng(seed)
     t = np.asarray(times, np.float64)
@@ -449,7 +449,7 @@ def test_dark_plots_need_two_exposure_times(times, drawn):
     """Sec. 7's plots of the dark signal and variance against the exposure time need two
     distinct known exposure times (a line needs two; the dark current three): drawn with two,
     skipped with one (whatever the number of points)."""
-    from ccdcore.datasheet_files import plot_plan
+    from ccdcore.emva.datasheet_files import plot_plan
 
     plan = plot_plan(_dark_figures(times)[0])
     assert ("dark_signal" in plan.drawn) is drawn
@@ -467,7 +467,7 @@ def _plotted(name, emva):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from ccdcore.datasheet_files import draw_plot
+    from ccdcore.emva.datasheet_files import draw_plot
 
     fig = Figure()
     FigureCanvasAgg(fig)

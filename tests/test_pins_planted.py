@@ -24,12 +24,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from ccdcore import change as ch
-from ccdcore import change_kernels
+from ccdcore.change import detector as ch
+from ccdcore.change import kernels as change_kernels
 from ccdcore.planning import plan_acquisition
 from ccdcore.response import classic
-from ccdcore.response import tsin as T
-from ccdcore.response import tsin_kernels as TK
+from ccdcore.response.tsin import estimator as T
+from ccdcore.response.tsin import kernels as TK
 from ccdcore.response.brackets import BAYER_MAD_FACTOR, BracketData, bracket_data
 from ccdcore.response.scale import rms_error
 from ccdcore.simulate import tsin as sim

@@ -23,9 +23,9 @@ import pytest
 from scipy.stats import mstats
 
 from ccdcore.response import agreement as AG
-from ccdcore.response import tsin as T
-from ccdcore.response import tsin_gauge as TG
-from ccdcore.response import tsin_kernels as TK
+from ccdcore.response.tsin import estimator as T
+from ccdcore.response.tsin import gauge as TG
+from ccdcore.response.tsin import kernels as TK
 from ccdcore.response.brackets import BracketData, bracket_data
 from ccdcore.response.scale import reference_codes
 from ccdcore.simulate import tsin as sim

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_image
-from ccdcore.product import apply_product, calibrate, load_product
+from ccdcore.io.frames import read_image, write_image
+from ccdcore.product.make import apply_product, calibrate, load_product
 from ccdcore.simulate import simulate
 
 
@@ -145,7 +145,7 @@ def test_cli_calibrate_and_apply(sim, tmp_path, capsys):
 
 
 def test_flat_field_product_round_trip_and_apply(tmp_path):
-    from ccdcore.flatfield import flat_field_from_session
+    from ccdcore.flatfield.fit import flat_field_from_session
     from ccdcore.session import open_session
 
     root = tmp_path / "dl"

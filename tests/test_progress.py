@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ccdcore.noise import photon_transfer
-from ccdcore.product import ESTIMATE_STEPS, estimate_all
+from ccdcore.product.make import ESTIMATE_STEPS, estimate_all
 from ccdcore.progress import (Cancelled, Progress, Steps, Tracker, checkpoint, silent,
                               tracking, within)
 from ccdcore.session import open_session
@@ -220,7 +220,7 @@ def test_a_tracker_is_a_progress_that_starts_a_step_at_the_fraction():
 # every long function keeps to it
 # --------------------------------------------------------------------------------------------
 def test_estimate_all_and_calibrate_report_fraction_then_message():
-    from ccdcore.product import calibrate
+    from ccdcore.product.make import calibrate
 
     rec = Recording()
     estimate_all(open_session(DEMO), progress=rec)
@@ -241,7 +241,7 @@ def _emva_descriptor(root: Path) -> Path:
 
 
 def test_emva_figures_report_fraction_then_message(tmp_path):
-    from ccdcore.datasheet import EMVA_STEPS, emva_figures
+    from ccdcore.emva.datasheet import EMVA_STEPS, emva_figures
 
     rec = Recording()
     emva_figures(_emva_descriptor(tmp_path / "emva"), progress=rec)

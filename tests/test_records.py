@@ -15,8 +15,8 @@ import pytest
 
 import ccdcore
 from ccdcore.errors import CcdError
-from ccdcore.product import CalibrationProduct, Estimates
-from ccdcore.product_records import ProductEstimates, Provenance
+from ccdcore.product.make import CalibrationProduct, Estimates
+from ccdcore.product.records import ProductEstimates, Provenance
 from ccdcore.records import OMIT_NONE, Record, Row
 
 
@@ -154,7 +154,7 @@ def test_empty_product_records_write_empty_objects():
 
 @pytest.fixture(scope="module", params=["healey94", "delasarte07", "tsin01", "emva1288"])
 def demo_product(request, tmp_path_factory):
-    from ccdcore.product import calibrate
+    from ccdcore.product.make import calibrate
     from ccdcore.simulate import simulate
 
     root = tmp_path_factory.mktemp(request.param)
@@ -163,7 +163,7 @@ def demo_product(request, tmp_path_factory):
 
 
 def test_a_product_saved_loaded_and_saved_again_writes_the_same_bytes(demo_product):
-    from ccdcore.product import PRODUCT_FILE, load_product
+    from ccdcore.product.make import PRODUCT_FILE, load_product
 
     product, out = demo_product
     first = product.save(out / "first")

@@ -16,17 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
+from ccdcore.cli.command import main
 from ccdcore.common import format_pm
 from ccdcore.guide import ptc_gate
-from ccdcore.emva_results import EmvaSummary
+from ccdcore.emva.results import EmvaSummary
 from ccdcore.errors import CcdError
-from ccdcore.flatfield import correct
-from ccdcore.product import CalibrationProduct, calibrate, load_product
-from ccdcore.product_records import ProductEstimates
+from ccdcore.flatfield.fit import correct
+from ccdcore.product.make import CalibrationProduct, calibrate, load_product
+from ccdcore.product.records import ProductEstimates
 from ccdcore.response.methods import ResponseSummary
 from ccdcore.session import Camera, open_session
-from ccdcore.uniformity import snup
+from ccdcore.flatfield.uniformity import snup
 from ccdcore_report import MAX_MAP_SIDE, build_report, write_report
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -173,7 +173,7 @@ def test_the_report_stays_offline_when_panel_is_imported(h94):
 
 
 def test_the_report_verb_does_not_load_panel(h94, tmp_path):
-    code = ("import sys; from ccdcore.cli import main; "
+    code = ("import sys; from ccdcore.cli.command import main; "
             f"rc = main(['report', {str(h94['calib'])!r}, '-o', {str(tmp_path / 'r.html')!r}]); "
             "print(rc, sorted(m for m in ('panel', 'holoviews') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -355,8 +355,8 @@ def load_product_of(tmp: Path, demo: str) -> CalibrationProduct:
 
 
 def test_change_has_the_change_section(tmp_path):
-    from ccdcore.change import LABEL_CHANGE
-    from ccdcore.change_session import session_change
+    from ccdcore.change.detector import LABEL_CHANGE
+    from ccdcore.change.session import session_change
 
     code, _, err = run("report", str(ASSETS / "change"), "-o", str(tmp_path / "c.html"))
     assert code == 0, err
@@ -390,7 +390,7 @@ def emva_dict() -> dict:
 @pytest.fixture(scope="module")
 def emva_demo() -> EmvaSummary:
     """The EMVA 1288 figures of the emva1288 demo as a product holds them."""
-    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva.datasheet import emva_figures
 
     return emva_figures(ASSETS / "emva1288").summary()
 
@@ -428,7 +428,7 @@ def test_emva1288_figures_with_missing_keys_are_refused_and_none_is_no_section(h
 
 # ------------------------------------------------------------------------------ properties -----
 def test_building_from_a_product_computes_nothing(h94, monkeypatch):
-    import ccdcore.change_session
+    import ccdcore.change.session
     import ccdcore_report.build
 
     def refuse(*a, **k):
@@ -436,7 +436,7 @@ def test_building_from_a_product_computes_nothing(h94, monkeypatch):
 
     monkeypatch.setattr(ccdcore_report.build, "calibrate", refuse)
     monkeypatch.setattr(ccdcore_report.build, "estimate_all", refuse)
-    monkeypatch.setattr(ccdcore.change_session, "session_change", refuse)
+    monkeypatch.setattr(ccdcore.change.session, "session_change", refuse)
     session = open_session(ASSETS / "healey94")
     text = build_report(session, product=h94["product"])
     assert section(text, "noise") == section(h94["html"], "noise")
@@ -466,7 +466,7 @@ def test_large_maps_are_reduced_and_the_caption_says_so(h94):
 
 # ------------------------------------------------------------------------------ bad input ------
 def test_bad_inputs_exit_2_naming_the_file_and_write_nothing(h94, tmp_path):
-    from ccdcore.io import write_outputs
+    from ccdcore.io.frames import write_outputs
 
     out = tmp_path / "r.html"
     write_outputs(tmp_path, {out.name: lambda p: p.write_text("an earlier report")})
@@ -475,7 +475,7 @@ def test_bad_inputs_exit_2_naming_the_file_and_write_nothing(h94, tmp_path):
     (broken / "calibration.json").write_text("{not json")
     plain = tmp_path / "plain"
     (plain / "scene").mkdir(parents=True)
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     write_image(plain / "scene" / "a.tif", np.full((8, 8), 100, np.uint16), bits=12)
     missing = tmp_path / "nowhere"

@@ -1,7 +1,8 @@
 """The report's package boundary: ``ccdcore_report`` is Bokeh only, so the CLI's ``report`` verb
 loads neither Panel, HoloViews nor the app.
 
-That ``ccdcore report SESSION -o out.html`` works through ``ccdcore.cli.main`` on the bundled
+That ``ccdcore report SESSION -o out.html`` works through ``ccdcore.cli.command.main`` on the
+bundled
 healey94 is checked by tests/test_report.py (its ``h94`` fixture and the tests using it)."""
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ def test_the_report_path_of_the_cli_loads_no_app_or_panel(tmp_path):
     out = tmp_path / "r.html"
     code = (
         "import sys\n"
-        "import ccdcore_report, ccdcore.cli\n"
-        f"rc = ccdcore.cli.main(['report', {str(ROOT / 'assets' / 'healey94')!r}, '-o', "
+        "import ccdcore_report, ccdcore.cli.command\n"
+        f"rc = ccdcore.cli.command.main(['report', {str(ROOT / 'assets' / 'healey94')!r}, '-o', "
         f"{str(out)!r}])\n"
         f"bad = sorted(n for n in sys.modules if n.split('.')[0] in {FORBIDDEN!r})\n"
         "print(rc, ','.join(bad))\n"
@@ -45,7 +46,7 @@ def _imported_modules(path: Path) -> set[str]:
 
 def test_no_module_of_the_report_imports_the_app_or_panel():
     """Also the imports of code paths a demo report does not take (lazy imports included)."""
-    modules = sorted((ROOT / "ccdcore_report").rglob("*.py"))
+    modules = sorted((ROOT / "report").rglob("*.py"))
     assert modules
     bad = {p.name: sorted(_imported_modules(p) & set(FORBIDDEN)) for p in modules}
     assert {k: v for k, v in bad.items() if v} == {}

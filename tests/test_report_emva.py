@@ -29,10 +29,10 @@ np.asfarray = lambda a, dtype=np.float64: np.asarray(a, dtype=dtype)  # noqa: E7
 from emva1288.camera.dataset_generator import DatasetGenerator  # noqa: E402
 
 from ccdcore.common import format_pm  # noqa: E402
-from ccdcore.emva_results import EmvaSummary  # noqa: E402
+from ccdcore.emva.results import EmvaSummary  # noqa: E402
 from ccdcore.errors import CcdError  # noqa: E402
-from ccdcore.emva_sheet import DATASHEET, datasheet_rows, linearity_deviation  # noqa: E402
-from ccdcore.product import calibrate  # noqa: E402
+from ccdcore.emva.sheet import DATASHEET, datasheet_rows, linearity_deviation  # noqa: E402
+from ccdcore.product.make import calibrate  # noqa: E402
 from ccdcore.session import open_session  # noqa: E402
 from ccdcore_report import build_report  # noqa: E402
 from ccdcore_report import emva_figures as ef  # noqa: E402

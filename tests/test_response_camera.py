@@ -58,7 +58,7 @@ def test_channels_in_threads_match_each_channel_alone(camera):
     differ by 1e-11)."""
     from threadpoolctl import threadpool_limits
 
-    from ccdcore.response.tsin import estimate
+    from ccdcore.response.tsin.estimator import estimate
 
     br, _, tsin, _ = camera
     for ch in br:
@@ -88,7 +88,7 @@ def test_a_rejected_step_is_shortened_to_the_parabolas_minimum():
     """On an objective that is exactly a parabola along the update, obj0 - 2 q η + c η² (eq.
     15's model with the wrong curvature c instead of q), the next step is its minimum q / c,
     kept within [0.1, 0.5] of the rejected step; without a usable curvature, half the step."""
-    from ccdcore.response.tsin import _shorter_step
+    from ccdcore.response.tsin.estimator import _shorter_step
 
     def obj(eta, q, c):
         return 10.0 - 2.0 * q * eta + c * eta * eta

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.response.hdr import (FLAG_BLOOMED, FLAG_DARK, FLAG_OK, FLAG_SATURATED,
                                   HdrResult, ResponseModel, merge, noise_sigma)
 from ccdcore.session import open_session

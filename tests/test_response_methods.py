@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import build_parser, main
+from ccdcore.cli.command import build_parser, main
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
-from ccdcore.product import calibrate, load_product
+from ccdcore.io.frames import read_image
+from ccdcore.product.make import calibrate, load_product
 from ccdcore.response.brackets import load_bracket
 from ccdcore.response.bracket_fit import session_response
 from ccdcore.response.methods import METHODS, response_of

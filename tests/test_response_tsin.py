@@ -1,4 +1,5 @@
-"""The iterative estimator of Tsin, Ramesh & Kanade (2001), sec. 3.2: ccdcore.response.tsin.
+"""The iterative estimator of Tsin, Ramesh & Kanade (2001), sec. 3.2:
+ccdcore.response.tsin.estimator.
 
 Tolerances come from the sec. 4.1 protocol (8 exposures a factor √2 apart, g = (z/255)^1.2,
 E uniform, σ_s = 0.015, σ_c1 = 0.01, σ_c2 = 1 DN) at 256² pixels, where pools hold about 250
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.response import tsin as T
+from ccdcore.response.tsin import estimator as T
 from ccdcore.response.brackets import bracket_data
 from ccdcore.response.scale import aligned, reference_codes, rms_error
 from ccdcore.simulate import tsin as sim
@@ -293,7 +294,7 @@ def test_sort_rows_from_the_last_order_is_an_exact_sort():
     """The per-row sort started from the last pass's order (an insertion sort) gives the rows
     sorted exactly as a fresh sort does, pass after pass, for rows that move a little, a lot or
     not at all, and rows of 1, 2 and many values; the order it keeps points at the values."""
-    from ccdcore.response.tsin_kernels import sort_rows
+    from ccdcore.response.tsin.kernels import sort_rows
     rng = np.random.default_rng(7)
     sizes = [1, 2, 3, 17, 200, 256, 5]
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)

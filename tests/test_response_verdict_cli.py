@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
-from ccdcore.product import load_product
+from ccdcore.cli.command import main
+from ccdcore.product.make import load_product
 from ccdcore.simulate import simulate
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
@@ -139,7 +139,7 @@ def test_hdr_with_a_calibration_takes_the_brackets_own_exposures(capsys, wrong, 
     listed = json.loads(run(capsys, "hdr", wrong, "--calib", tmp_path / "product", "-o",
                             tmp_path / "h2", "--json", "--exposures", "listed"))
     assert listed["exposures"] is None
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
 
     own = read_image(tmp_path / "h" / "radiance.exr")
     lst = read_image(tmp_path / "h2" / "radiance.exr")

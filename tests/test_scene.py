@@ -18,7 +18,7 @@ import pytest
 from scipy.stats import chi2 as chi2_dist
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.scene import (BUDGET_COMPONENTS, SceneVariation, fit_scene_variation,
                            scene_measurement, scene_variation, scene_variations, variance_budget)
 from ccdcore.session import open_session

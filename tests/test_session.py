@@ -11,7 +11,7 @@ import pytest
 
 import ccdcore.session.records as session_mod
 from ccdcore.errors import CcdError, ImageReadError, SessionError
-from ccdcore.io import read_header, read_image, write_image
+from ccdcore.io.frames import read_header, read_image, write_image
 from ccdcore.session import (LAYOUTS, ROLES, FrameRecord, Problem, Session, draft_manifest,
                              open_session)
 from ccdcore.common import format_size
@@ -414,7 +414,7 @@ def test_unreadable_and_truncated_images(tmp_path: Path) -> None:
     names = ("good.tif", "cut.tif", "stub.tif", "junk.tif", "empty.fits")
     s = manifest(root, "".join(f'[[frames]]\npath = "{n}"\nrole = "scene"\n' for n in names))
 
-    def message(read, name: str) -> str:  # the ImageReadError problem, as ccdcore.io words it
+    def message(read, name: str) -> str:  # the ImageReadError problem, as ccdcore.io.frames words it
         with pytest.raises(ImageReadError) as info:
             read(root / name)
         return info.value.problem

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ccdcore.io as io_mod
+import ccdcore.io.frames as io_mod
 import ccdcore.session.folder as folder_mod
-from ccdcore.cli import main
-from ccdcore.io import ImageHeader, _exposure_seconds, read_header, write_image
+from ccdcore.cli.command import main
+from ccdcore.io.frames import ImageHeader, _exposure_seconds, read_header, write_image
 from ccdcore.response.brackets import load_bracket
 from ccdcore.session import FrameRecord, Session, draft_manifest, open_session
 from ccdcore.session.folder import MISSING_EXPOSURE_NOTE, format_exposure

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_header, read_image
+from ccdcore.io.frames import read_header, read_image
 from ccdcore.simulate import change, load_truth
 from ccdcore.simulate import simulate as simulate_preset
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.io import read_frame, read_image
+from ccdcore.io.frames import read_frame, read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 

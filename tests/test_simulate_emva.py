@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore.cli import main
-from ccdcore.datasheet import emva_figures
-from ccdcore.io import read_image
+from ccdcore.cli.command import main
+from ccdcore.emva.datasheet import emva_figures
+from ccdcore.io.frames import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 from ccdcore.simulate.emva import DESCRIPTOR_NAME

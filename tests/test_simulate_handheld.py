@@ -17,7 +17,7 @@ import pytest
 from scipy import ndimage
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.simulate import handheld, load_truth, tsin
 from ccdcore.simulate import simulate as simulate_preset
 

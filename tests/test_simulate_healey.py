@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.session import open_session
 from ccdcore.simulate import load_truth, simulate
 from ccdcore.simulate.sensor import SensorModel, child_rng

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.simulate import camera, load_truth, tsin
 from ccdcore.simulate import simulate as simulate_preset
 NEW_KEYS = {"listed_step_factors", "listed_step_cumulative", "true_exposure", "listed_steps"}

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_map
+from ccdcore.io.frames import read_image, write_map
 from ccdcore.session import open_session
 from ccdcore.simulate import Truth, find_truth, load_truth, simulate
 

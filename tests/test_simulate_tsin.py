@@ -17,7 +17,7 @@ from scipy import ndimage, stats
 
 from ccdcore import channels
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.simulate import load_truth, tsin
 from ccdcore.simulate import simulate as simulate_preset
 
@@ -542,7 +542,7 @@ def test_jpeg_model():
 def test_jpeg_model_is_close_to_libjpeg(tmp_path):
     """The model against a real JPEG (libjpeg through OpenImageIO, quality 90, 4:2:0): the
     differences are a fraction of the compression error itself."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     rng = np.random.default_rng(3)
     smooth = ndimage.gaussian_filter(rng.random((64, 96, 3)) * 255, (3, 3, 0))

@@ -1,10 +1,10 @@
-"""Tests of the records of the EMVA 1288 figures (``ccdcore.emva_results.EmvaSummary`` and the
-records it nests from ``ccdcore.emva_dark`` and ``ccdcore.emva_spatial``): every summary
+"""Tests of the records of the EMVA 1288 figures (``ccdcore.emva.results.EmvaSummary`` and the
+records it nests from ``ccdcore.emva.dark`` and ``ccdcore.emva.spatial``): every summary
 round-trips through JSON, its JSON is what the result's ``to_dict()`` gives (and what the
 figures' attributes gave through ``json_safe`` before the records), a damaged object is refused
 with the key's path, and ``rows()`` carry the figures (for ``EmvaSummary``: the headline
-figures of the datasheet, :data:`ccdcore.emva_sheet.HEADLINE` of
-:func:`ccdcore.emva_sheet.datasheet_rows`, those determined, under their symbols).
+figures of the datasheet, :data:`ccdcore.emva.sheet.HEADLINE` of
+:func:`ccdcore.emva.sheet.datasheet_rows`, those determined, under their symbols).
 
 The figures are computed fresh: on the demo session ``assets/emva1288`` and on a small
 simulated session (``ccdcore.simulate``, fixed seed), with the ``None`` branches (no spatial
@@ -23,12 +23,12 @@ import numpy as np
 import pytest
 
 from ccdcore.common import json_safe
-from ccdcore.datasheet import EmvaFigures, emva_figures
-from ccdcore.emva_dark import DarkCurrentSummary, DarkLineSummary, dark_current
-from ccdcore.emva_results import (DarkPointSummary, EmvaPointSummary, EmvaSummary,
+from ccdcore.emva.datasheet import EmvaFigures, emva_figures
+from ccdcore.emva.dark import DarkCurrentSummary, DarkLineSummary, dark_current
+from ccdcore.emva.results import (DarkPointSummary, EmvaPointSummary, EmvaSummary,
                                   SnrCurveSummary, SpatialSetSummary)
-from ccdcore.emva_sheet import DATASHEET, HEADLINE, datasheet_rows
-from ccdcore.emva_spatial import (NonuniformitySplitSummary, SpatialPlotsSummary,
+from ccdcore.emva.sheet import DATASHEET, HEADLINE, datasheet_rows
+from ccdcore.emva.spatial import (NonuniformitySplitSummary, SpatialPlotsSummary,
                                   VarianceSplitSummary, nonuniformity_split, variance_split)
 from ccdcore.errors import CcdError
 from ccdcore.records import Record

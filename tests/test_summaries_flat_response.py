@@ -19,7 +19,7 @@ import pytest
 
 from ccdcore.common import json_safe
 from ccdcore.errors import CcdError
-from ccdcore.flatfield import (FlatChannel, FlatChannelSummary, FlatFieldSummary, flat_field,
+from ccdcore.flatfield.fit import (FlatChannel, FlatChannelSummary, FlatFieldSummary, flat_field,
                                flat_field_from_session)
 from ccdcore.response.agreement import (AgreementSummary, ChannelAgreement,
                                         ChannelAgreementSummary, PairAgreement,

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 from ccdcore.common import json_safe
-from ccdcore.darkframe import dark_reference
-from ccdcore.darkmap import DarkSummary
+from ccdcore.dark.frame import dark_reference
+from ccdcore.dark.map import DarkSummary
 from ccdcore.gates import ptc_gate
 from ccdcore.errors import CcdError
 from ccdcore.fixedpattern import correction_check, fixed_pattern_map

@@ -15,7 +15,7 @@ from ccdcore.errors import CcdError
 from ccdcore.session import open_session
 from ccdcore.simulate import simulate
 from ccdcore.channels import channel_names, split_channels
-from ccdcore.uniformity import linearity, snup, snup_vs_averaging
+from ccdcore.flatfield.uniformity import linearity, snup, snup_vs_averaging
 
 SIZE = (64, 48)
 

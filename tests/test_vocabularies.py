@@ -84,8 +84,8 @@ def test_layouts_are_an_enum_written_as_their_names(tmp_path):
 
 def test_no_layout_is_compared_with_a_spelled_name():
     """A layout is compared with a :class:`channels.Layout` member, never with its spelling."""
-    every = SOURCES + sorted((ROOT / "ccdcore_app").rglob("*.py")) + sorted(
-        (ROOT / "ccdcore_report").rglob("*.py"))
+    every = SOURCES + sorted((ROOT / "app").rglob("*.py")) + sorted(
+        (ROOT / "report").rglob("*.py"))
     bad = [f"{p.relative_to(ROOT)}:{i}" for p in every
            for i, line in enumerate(p.read_text().splitlines(), 1)
            if re.search(r"""layout\s*[!=]=\s*["'](mono|rgb|bayer-\w+)["']""", line)]

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ccdcore.cli_common as cli_common
-import ccdcore.cli_response as cli_response
-from ccdcore.cli import main
-from ccdcore.io import write_image
+import ccdcore.cli.common as cli_common
+import ccdcore.cli.response as cli_response
+from ccdcore.cli.command import main
+from ccdcore.io.frames import write_image
 
 ROOT = Path(__file__).resolve().parents[1]
 ASSETS = ROOT / "assets"
@@ -54,7 +54,7 @@ def test_calibrate_names_the_correction_and_flat_field_figures(capsys, tmp_path)
 
 
 def test_calibrate_ctrl_c_says_nothing_was_written(capsys, tmp_path, monkeypatch):
-    import ccdcore.product as product
+    import ccdcore.product.make as product
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
@@ -67,7 +67,7 @@ def test_calibrate_ctrl_c_says_nothing_was_written(capsys, tmp_path, monkeypatch
 
 def test_calibrate_ctrl_c_during_save_keeps_the_earlier_product(capsys, h94_product,
                                                                 monkeypatch):
-    import ccdcore.product as product
+    import ccdcore.product.make as product
 
     before = (h94_product / "calibration.json").read_text()
 
@@ -118,7 +118,7 @@ def test_white_balance_prints_gains_and_offsets_with_errors(capsys):
 
 
 def test_change_labels_the_colour_transform(capsys, tmp_path, monkeypatch):
-    import ccdcore.change_session as change
+    import ccdcore.change.session as change
 
     got = []
     real = change.session_change
@@ -259,7 +259,7 @@ def test_calibrate_rows_keep_their_columns(capsys, tmp_path):
     """A value wider than its column (the photon-transfer verdict's line) takes the row's first
     line to itself: no line of the summary runs past the width, and every meaning starts in
     the meaning column."""
-    from ccdcore.cli_common import WIDTH
+    from ccdcore.cli.common import WIDTH
 
     code, out, err = run(capsys, "calibrate", ASSETS / "healey94", "-o", tmp_path / "h")
     assert code == 0, err

@@ -13,9 +13,9 @@ Modules
     their shared input checks and curve finishing in :mod:`ccdcore.response.classic_common`.
 :mod:`ccdcore.response.tsin`
     The iterative estimator of sec. 3.2 (instrumented pools), its band and the noise terms;
-    its compiled passes over the pools in :mod:`ccdcore.response.tsin_kernels`, the gauge of
-    the white-balance fit and the band in :mod:`ccdcore.response.tsin_gauge`, eq. 17's fit in
-    :mod:`ccdcore.response.tsin_noise`, its notes in :mod:`ccdcore.response.tsin_notes`.
+    its compiled passes over the pools in :mod:`ccdcore.response.tsin.kernels`, the gauge of
+    the white-balance fit and the band in :mod:`ccdcore.response.tsin.gauge`, eq. 17's fit in
+    :mod:`ccdcore.response.tsin.noise`, its notes in :mod:`ccdcore.response.tsin.notes`.
 :mod:`ccdcore.response.exposures`
     The bracket's own exposures, estimated from its images against the listed ones.
 :mod:`ccdcore.response.methods`
@@ -45,57 +45,19 @@ Modules
 
 See docs/response.md.
 """
-from __future__ import annotations
+import lazy_loader as lazy
 
-import importlib
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:  # what a type checker sees; at run time the names load on first use
-    from .brackets import BracketData, bracket_data, load_bracket, preprocess
-    from .classic import ClassicFit, debevec, mitsunaga_nayar, robertson
-    from .hdr import HdrResult, ResponseModel, merge
-    from .methods import METHODS, ResponseResult, response_of
-    from .bracket_fit import fit_bracket, session_response
-    from .align import apply_alignment, estimate_alignment
-    from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
-    from .scale import normalize, reference_codes, rms_error
-
-__all__ = ["BracketData", "bracket_data", "load_bracket", "preprocess", "ClassicFit",
-           "debevec", "robertson", "mitsunaga_nayar", "HdrResult", "ResponseModel", "merge",
-           "normalize", "reference_codes", "rms_error", "METHODS", "ResponseResult",
-           "response_of", "session_response", "ChannelResponse", "TsinOptions", "estimate",
-           "noise_terms", "fit_bracket", "estimate_alignment", "apply_alignment"]
-
-#: each public name -> the submodule that defines it, imported on first use (SPEC 1's lazy
-#: loading): ``import ccdcore.response.names`` (the command line) loads no estimator
-_HOMES = {name: module for module, names in {
-    "brackets": ("BracketData", "bracket_data", "load_bracket", "preprocess"),
-    "classic": ("ClassicFit", "debevec", "mitsunaga_nayar", "robertson"),
-    "hdr": ("HdrResult", "ResponseModel", "merge"),
-    "methods": ("METHODS", "ResponseResult", "response_of"),
-    "bracket_fit": ("fit_bracket", "session_response"),
-    "align": ("estimate_alignment", "apply_alignment"),
-    "tsin": ("ChannelResponse", "TsinOptions", "estimate", "noise_terms"),
-    "scale": ("normalize", "reference_codes", "rms_error"),
-}.items() for name in names}
-
-#: the submodules, which ``ccdcore.response.<name>`` also loads on first use
-_SUBMODULES = ("agreement", "align", "bracket_fit", "brackets", "classic", "classic_common",
-               "exposures", "hdr", "hdr_merge", "methods", "moving", "names", "scale", "tsin",
-               "tsin_gauge", "tsin_kernels", "tsin_noise", "tsin_notes", "verdict")
-
-
-def __getattr__(name: str) -> Any:
-    """A public name from its submodule (or a submodule), imported on first use and kept."""
-    if name in _HOMES:
-        value = getattr(importlib.import_module(f".{_HOMES[name]}", __name__), name)
-    elif name in _SUBMODULES:
-        value = importlib.import_module(f".{name}", __name__)
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__) | set(_SUBMODULES))
+# each public name is imported from its module on first use (SPEC 1's lazy loading):
+# ``import ccdcore.response.names`` (the command line) loads no estimator
+__getattr__, __dir__, __all__ = lazy.attach(__name__, submodules=[
+    "agreement", "align", "bracket_fit", "brackets", "classic", "classic_common", "exposures",
+    "hdr", "hdr_merge", "methods", "moving", "names", "scale", "tsin", "verdict"], submod_attrs={
+    "brackets": ["BracketData", "bracket_data", "load_bracket", "preprocess"],
+    "classic": ["ClassicFit", "debevec", "mitsunaga_nayar", "robertson"],
+    "hdr": ["HdrResult", "ResponseModel", "merge"],
+    "methods": ["METHODS", "ResponseResult", "response_of"],
+    "bracket_fit": ["fit_bracket", "session_response"],
+    "align": ["estimate_alignment", "apply_alignment"],
+    "tsin": ["ChannelResponse", "TsinOptions", "estimate", "noise_terms"],
+    "scale": ["normalize", "reference_codes", "rms_error"],
+})

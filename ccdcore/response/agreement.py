@@ -486,8 +486,8 @@ def agreement(brackets: Mapping[str, BracketData], responses: Mapping[str, Any],
               codes: tuple[int, int] | None = None, max_pixels: int = MAX_PIXELS,
               pairs_of: Mapping[str, tuple[PairMoments, ...]] | None = None) -> Agreement:
     """The agreement of every channel of ``brackets`` with ``responses[channel]`` (anything
-    with ``g``, ``a``, ``b``: a :class:`ccdcore.response.tsin.ChannelResponse`, or a mapping
-    with those keys), pooled over the channels. ``pairs_of``: per channel, the pairs' code
+    with ``g``, ``a``, ``b``: a :class:`ccdcore.response.tsin.estimator.ChannelResponse`, or a
+    mapping with those keys), pooled over the channels. ``pairs_of``: per channel, the pairs' code
     moments to count (:func:`channel_agreement`)."""
     out = []
     for name, data in brackets.items():

@@ -244,7 +244,20 @@ def session_response(session: Any, method: str = "auto", *, stack: Any = None,
                      exposures: str = "auto", align: str = "auto", moving: bool = True) -> Any:
     """The response (a :class:`ccdcore.response.methods.ResponseResult`) of a session's
     bracket ``stack`` (a path or an open session): :func:`fit_bracket`'s, the frames registered
-    (``align``) and the moving pixels left out (``moving``), both said in its verdict."""
+    (``align``) and the moving pixels left out (``moving``), both said in its verdict.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from ccdcore.simulate import simulate
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> from ccdcore.session import open_session
+    >>> _ = simulate("tsin01", tmp.name, seed=1, size=(64, 48))
+    >>> result = session_response(open_session(tmp.name))
+    >>> result.channels, result.verdict.status
+    (('L',), 'trusted')
+    >>> tmp.cleanup()
+    """
     from ..session import open_session
 
     if not hasattr(session, "bracket_stacks"):

@@ -20,7 +20,7 @@ merge(frames, models, ...)
     Eqs. 9, 18, 19 over a bracket's frames (one model per channel).
 merge_bracket(records, models, ..., reducer=None)
     The same over a bracket's files: read here (streamed), or band by band by the workers of a
-    Dask reducer (:func:`ccdcore.distributed.band_merge`, bit-identical).
+    Dask reducer (:func:`ccdcore.distributed.client.band_merge`, bit-identical).
 noise_sigma(model, z, k)
     σ(a_k, z) of eq. 7 for codes z of image k.
 FLAG_OK, FLAG_DARK, FLAG_SATURATED, FLAG_BLOOMED
@@ -51,9 +51,9 @@ def merge_bracket(records: Sequence[Any], models: Mapping[str, Any] | Any, *,
     by ``reducer`` (:meth:`ccdcore.reduce.Reducer.merge`).
 
     Streamed (the default): the frames (``frames`` when already read, else each file read
-    here with :func:`ccdcore.io.read_image`) are merged whole.  With a Dask reducer
-    (:class:`ccdcore.distributed.DaskReducer`) the frames are read by the workers, band by
-    band with a halo covering the blooming disk (:func:`ccdcore.distributed.band_merge`); the
+    here with :func:`ccdcore.io.frames.read_image`) are merged whole.  With a Dask reducer
+    (:class:`ccdcore.distributed.client.DaskReducer`) the frames are read by the workers, band by
+    band with a halo covering the blooming disk (:func:`ccdcore.distributed.client.band_merge`); the
     result is bit-identical.  The frames' shapes, integer codes and layout are then checked
     first, from the headers (``session``'s cache when given), with :func:`merge`'s messages;
     ``band_rows`` sets the band height (frame rows).

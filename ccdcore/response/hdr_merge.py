@@ -28,8 +28,8 @@ are never returned as 0 or NaN without a flag:
   codes, flag ``BLOOMED``.
 
 This is the kernel both paths run: :func:`ccdcore.response.hdr.merge_bracket` on whole frames in
-this process, and :func:`ccdcore.distributed.band_merge` on each band of rows (with a halo) on a
-Dask cluster, which is why it sits below both.  Nothing here reads files.  Every public name is
+this process, and :func:`ccdcore.distributed.client.band_merge` on each band of rows (with a halo)
+on a Dask cluster, which is why it sits below both.  Nothing here reads files.  Every public name is
 re-exported by :mod:`ccdcore.response.hdr`, its usual address.
 
 Public objects
@@ -262,8 +262,8 @@ def _merge_plane(planes: list[NDArray], model: ResponseModel, bloom_radius: int,
                  out: tuple[NDArray, NDArray, NDArray, NDArray] | None = None,
                  band_rows: int | None = None) -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """One channel's merge, in bands of rows (each with the halo of rows its blooming disk
-    reaches, as :func:`ccdcore.dask_hdr.merge_halo`): bit-identical to the whole plane at once,
-    in a band's memory. ``out``: radiance, sigma (float64), flags (uint8) and used (int16)
+    reaches, as :func:`ccdcore.distributed.hdr.merge_halo`): bit-identical to the whole plane at
+    once, in a band's memory. ``out``: radiance, sigma (float64), flags (uint8) and used (int16)
     arrays of the plane's shape to fill (views of a colour result), else new ones."""
     planes = [np.asarray(p) for p in planes]
     N = len(planes)
@@ -307,6 +307,18 @@ def merge(frames: Sequence[ArrayLike], models: Mapping[str, Any] | Any, *,
     maps each channel name (:func:`ccdcore.channels.split_channels`) to its
     :class:`ResponseModel` (or an object with the same attributes); a mono bracket may pass one
     model.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from ccdcore.response import ResponseModel
+    >>> g = np.arange(256, dtype=float)                 # a linear camera: g(z) = z
+    >>> model = ResponseModel(g, a=np.array([1.0, 4.0]), b=np.zeros(2), sigma_s=0.0,
+    ...                       sigma_c1=0.0, sigma_c2=0.5)
+    >>> scene = np.full((2, 3), 20.0)                   # the radiance
+    >>> hdr = merge([np.uint8(scene * 1.0), np.uint8(scene * 4.0)], model)
+    >>> hdr.radiance.tolist()[0], bool((hdr.sigma < 0.5).all())
+    ([20.0, 20.0, 20.0], True)
     """
     if len(frames) < 1:
         raise CcdError("bracket", "no frames to merge")

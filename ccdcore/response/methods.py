@@ -1,17 +1,17 @@
 """One registry of response estimators, and the response of a session's bracket.
 
-Every method returns, per channel, a :class:`ccdcore.response.tsin.ChannelResponse`: g on the
-reported scale (:mod:`ccdcore.response.scale`) with its 1-sigma band, a_k and b_k, and the noise
+Every method returns, per channel, a :class:`ccdcore.response.tsin.estimator.ChannelResponse`: g on
+the reported scale (:mod:`ccdcore.response.scale`) with its 1-sigma band, a_k and b_k, and the noise
 terms of eq. 17:
 
 ``tsin``
-    Tsin, Ramesh & Kanade (2001), sec. 3.2 (:func:`ccdcore.response.tsin.estimate`): the band
-    is the sandwich estimate of the pools' spread, the noise terms come with the estimate.
+    Tsin, Ramesh & Kanade (2001), sec. 3.2 (:func:`ccdcore.response.tsin.estimator.estimate`): the
+    band is the sandwich estimate of the pools' spread, the noise terms come with the estimate.
 ``debevec``, ``robertson``, ``mitsunaga-nayar``
     The classic methods of :mod:`ccdcore.response.classic`. They return g only; here the band is
     a delete-one-block jackknife over 8 blocks of pixels (bands of rows of the frame, so that
     correlated neighbours stay together), and the noise terms are fitted to eq. 17 with their g
-    on the same pools as ``tsin`` (:func:`ccdcore.response.tsin.noise_terms`).
+    on the same pools as ``tsin`` (:func:`ccdcore.response.tsin.estimator.noise_terms`).
 
 Public objects
 --------------
@@ -51,7 +51,7 @@ from .classic import debevec, mitsunaga_nayar, robertson
 from .hdr_merge import ResponseModel
 from .names import DEFAULT_METHOD, EXPOSURE_MODES, METHOD_CHOICES, METHOD_NAMES
 from .scale import reference_codes
-from .tsin import ChannelResponse, TsinOptions, estimate, noise_terms
+from .tsin.estimator import ChannelResponse, TsinOptions, estimate, noise_terms
 from .exposures import ExposureEstimate, ExposureSummary, estimate_exposures
 from .verdict import ResponseVerdict, response_verdict
 

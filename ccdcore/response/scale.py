@@ -11,7 +11,7 @@ every method's ``g`` on one documented scale (docs/response.md):
 * where the offsets are free too (white balance on), an offset of g and one of the radiance
   are free as well; estimators fit with ``g(z_lo)`` fixed too, at ``z_lo = round(0.2 (levels -
   1))`` (51 for 8 bits: the two fixed points of sec. 3.2), and report the offsets b_k of
-  smallest norm (``ccdcore.response.tsin``).
+  smallest norm (``ccdcore.response.tsin.estimator``).
 
 Public objects
 --------------

@@ -42,7 +42,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import CcdError
-from ..io import atomic_write_text
+from ..io.frames import atomic_write_text
 from .emva import open_emva_descriptor
 from .folder import ROLE_SYNONYMS, open_folder
 from .manifest import open_manifest
@@ -104,6 +104,19 @@ def open_session(path: str | Path, *, check_pixels: bool = False,
     CcdError
         The path does not exist, is not a folder, manifest or descriptor, or the manifest is not
         valid TOML (the message gives the line).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from ccdcore.simulate import simulate
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> _ = simulate("healey94", tmp.name, seed=1, size=(64, 48))
+    >>> session = open_session(tmp.name)
+    >>> session.ok, session.roles()
+    (True, {'dark': 16, 'ptc': 16, 'fixed_pattern': 48, 'scene': 16})
+    >>> session.camera.bits, session.camera.layout
+    (8, 'mono')
+    >>> tmp.cleanup()
     """
     p = Path(path)
     if not p.exists():

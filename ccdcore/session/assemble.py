@@ -16,7 +16,7 @@ from typing import Any, Callable
 from ..common import format_size, group_by
 from ..channels import Layout
 from ..errors import ImageReadError
-from ..io import ImageHeader, check_pixel_limit, pixel_limit, read_header
+from ..io.frames import ImageHeader, check_pixel_limit, pixel_limit, read_header
 from .records import (EXPOSURE_ROLES, MAX_EXPOSURE, MIN_EXPOSURE, ROLES, UNIFORM_ROLES, Camera,
                       FrameRecord, Problem, ProblemCode, Session)
 from .temperature import temperature_problems
@@ -71,8 +71,8 @@ def assemble(root: Path, manifest_path: Path | None, source: str, camera: Camera
              read: Callable[[Path], ImageHeader] | None = None) -> Session:
     """Check paths, read headers, infer header metadata and validate a list of candidates.
 
-    ``read`` reads a header (default :func:`~ccdcore.io.read_header`): a source that looked at
-    the headers already (a plain folder, to find brackets) passes its cache so no file is read
+    ``read`` reads a header (default :func:`~ccdcore.io.frames.read_header`): a source that looked
+    at the headers already (a plain folder, to find brackets) passes its cache so no file is read
     twice.
     """
     read = read or read_header

@@ -27,7 +27,7 @@ from typing import Any
 
 from ..channels import LAYOUTS
 from ..errors import CcdError, ImageReadError
-from ..io import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
+from ..io.frames import IMAGE_EXTENSIONS, RAW_EXTENSIONS, ImageHeader, read_header
 from .assemble import Candidate, assemble, path_problem
 from .records import MANIFEST_NAME, ROLES, Camera, Problem, ProblemCode, Session
 
@@ -165,7 +165,7 @@ class _Headers:
         self._cache: dict[Path, ImageHeader | ImageReadError] = {}
 
     def read(self, path: Path) -> ImageHeader:
-        """:func:`~ccdcore.io.read_header` through the cache (for :func:`assemble`)."""
+        """:func:`~ccdcore.io.frames.read_header` through the cache (for :func:`assemble`)."""
         got = self._cache.get(path)
         if got is None:
             try:

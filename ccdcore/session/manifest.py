@@ -16,7 +16,7 @@ from typing import Any
 
 from ..channels import LAYOUTS
 from ..errors import CcdError
-from ..io import IMAGE_EXTENSIONS
+from ..io.frames import IMAGE_EXTENSIONS
 from .assemble import Candidate, assemble
 from .records import (FLAGS, MAX_EXPOSURE, MAX_INTENSITY, META_KEYS, MIN_EXPOSURE, ROLES, SCHEMA,
                       Camera, Problem, ProblemCode, Session)

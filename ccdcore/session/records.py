@@ -34,7 +34,7 @@ import tomli_w
 from ..channels import LAYOUTS
 from ..common import group_by, sort_key
 from ..errors import CcdError, ImageReadError, SessionError
-from ..io import ImageHeader, read_header, read_image
+from ..io.frames import ImageHeader, read_header, read_image
 from ..progress import checkpoint
 
 __all__ = ["ROLES", "LAYOUTS", "FLAGS", "MAX_INTENSITY", "META_KEYS", "EXPOSURE_ROLES",

@@ -98,10 +98,10 @@ def simulate(preset: str, out_dir: str | Path, *, seed: int = 0,
     **options
         Preset-specific options (numbers of frames, noise parameters ...), see each module.
 
-    The session is written as one set (:func:`ccdcore.io.output_set`): into a temporary
+    The session is written as one set (:func:`ccdcore.io.frames.output_set`): into a temporary
     folder, then renamed into ``out_dir``, so a failure or SIGTERM leaves ``out_dir`` as it was.
     """
-    from ..io import TEMP_PREFIX, check_output, output_set   # here: importing stays light
+    from ..io.frames import TEMP_PREFIX, check_output, output_set   # here: importing stays light
 
     if preset not in PRESETS:
         raise CcdError(preset, f"unknown preset; choose one of {', '.join(PRESETS)}")

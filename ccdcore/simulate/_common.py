@@ -22,7 +22,7 @@ import numpy as np
 import tomli_w
 
 from ..common import json_safe
-from ..io import atomic_write_text, write_image, write_map
+from ..io.frames import atomic_write_text, write_image, write_map
 
 __all__ = ["SessionWriter", "round_sig", "round_floats", "TRUTH_DIGITS"]
 

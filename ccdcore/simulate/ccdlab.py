@@ -12,7 +12,7 @@ a PRNU of ``prnu_std``, mean 1).  A frame of exposure t at temperature T is::
 
 the model of eq. 43 of Healey & Kondepudy 1994 (dark current, shot and read noise,
 quantisation) with the flat signal S (DN) for the flats.  The expected dark at t is o + c_T·t,
-which :mod:`ccdcore.darkmodel` fits.  Every frame carries its ``temperature`` (the set point) in
+which :mod:`ccdcore.dark.model` fits.  Every frame carries its ``temperature`` (the set point) in
 the manifest, as a FITS ``SET-TEMP`` would.
 
 Frames (role; manifest keys ``exposure``, ``temperature``):

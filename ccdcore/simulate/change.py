@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from .. import channels
 from ..errors import CcdError
-from ..io import write_image
+from ..io.frames import write_image
 from . import _det
 from ._common import SessionWriter
 from .tsin import (QUANTISATION_NOTE, SHOT_NOISE_NOTE, effective_radiance, expose, exposure_times,

@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import CcdError
-from ..io import write_image
+from ..io.frames import write_image
 from .camera import SrgbKneeTone
 from .change import background_radiance
 

@@ -7,7 +7,7 @@ with its mean number of photons per pixel μ_p and a pair of dark frames; then t
 of sec. 8: L bright frames at about 50 % of saturation and L dark frames at their exposure.  The
 camera has a known dark current (sec. 3.1) and known row, column and pixel patterns of its
 offset (DSNU) and its response (PRNU) (sec. 4.1), the three parts release 4.0 separates
-(:mod:`ccdcore.emva_spatial`).
+(:mod:`ccdcore.emva.spatial`).
 
 Camera model
 ------------
@@ -72,7 +72,7 @@ Truth (``truth.json``)
     μ_I (e⁻/s), what the slope of the dark mean (K μ_I) and of the dark variance (K² μ_I)
     against the exposure time measure.
 ``DSNU1288_row``, ``_col``, ``_pixel`` (e⁻) and ``DSNU1288``
-    √s²_part of :func:`ccdcore.emva_spatial.variance_split` applied to the noiseless DSNU map
+    √s²_part of :func:`ccdcore.emva.spatial.variance_split` applied to the noiseless DSNU map
     (``variance_split(D, 0.0, 1)``; the total is √s²_y, the release 3.1 DSNU1288).
 ``PRNU1288_row``, ``_col``, ``_pixel`` (%) and ``PRNU1288``
     100 √s²_part / P̄ of the same split of the PRNU map P.
@@ -132,9 +132,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..emva_spatial import variance_split
+from ..emva.spatial import variance_split
 from ..errors import CcdError
-from ..io import atomic_write_text
+from ..io.frames import atomic_write_text
 from ._common import SessionWriter
 from .sensor import child_rng
 

@@ -5,8 +5,8 @@ per-frame expectations and the file names of the true maps (``truth/K.exr``, ``t
 masks ...), relative to the session folder.  :func:`load_truth` reads it into a :class:`Truth`,
 which reads those maps on request (refusing a name that leads outside the folder).
 
-Importing this module is light (no NumPy); :meth:`Truth.map` imports :mod:`ccdcore.io` when it
-reads a map.
+Importing this module is light (no NumPy); :meth:`Truth.map` imports :mod:`ccdcore.io.frames` when
+it reads a map.
 
 Public objects
 --------------
@@ -48,7 +48,7 @@ def _lookup(values: Any, dotted: str) -> Any:
 
 
 def _is_image_name(value: Any) -> bool:
-    from ..io import is_image_path
+    from ..io.frames import is_image_path
 
     return isinstance(value, str) and bool(value) and is_image_path(value)
 
@@ -129,14 +129,14 @@ class Truth:
         raise CcdError(self.path, f"no map {key!r} in the truth (maps: {known})")
 
     def map(self, key: str) -> "np.ndarray":
-        """Read the map named by ``key``, with :func:`ccdcore.io.read_image`.
+        """Read the map named by ``key``, with :func:`ccdcore.io.frames.read_image`.
 
         ``key`` is a top-level key whose value is a file name (``"K_map"``, ``"flatfield_map"``),
         a name of the ``maps`` table (``"K"``, ``"E"``, ``"flatfield"``) or a dotted path to a
         file name (``"masks.change"``, ``"settings.NZDI.dark_map"``).  The file name is relative
         to :attr:`folder`; one leading outside it is refused (:class:`CcdError`).
         """
-        from ..io import read_image
+        from ..io.frames import read_image
 
         return read_image(self.resolve(self._map_name(key)))
 

@@ -162,7 +162,7 @@ from scipy import ndimage
 
 from .. import channels
 from ..errors import CcdError
-from ..io import write_image
+from ..io.frames import write_image
 from . import _det
 from . import camera as _cam
 from . import handheld as _hh

@@ -22,7 +22,7 @@ def pytest_configure(config: pytest.Config) -> None:
                             "ignore:The inplace keyword in DataFrame.reset_index is deprecated")
     config.addinivalue_line("filterwarnings",
                             "ignore:Session-scoped fixtures defined as instance methods")
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
@@ -47,7 +47,7 @@ def _no_result_cache(monkeypatch: pytest.MonkeyPatch) -> None:
     test's results; a test of the cache points CCDCORE_CACHE at its own folder."""
     monkeypatch.setenv("CCDCORE_CACHE", "off")
     # nor the server-wide store of shared results (app/cache.py): a fresh one per test
-    import ccdcore_app.cache as cache
+    import ccdcore_app.cache.store as cache
     monkeypatch.setattr(cache, "_SHARED", None)
 
 

@@ -124,7 +124,7 @@ def test_colour_demo_channels_colour_range_and_hover_tooltip(page: Page, serve_a
     hover tooltip shows the exact DN of the pixel under the cursor."""
     import numpy as np
 
-    from ccdcore_app import plots
+    from ccdcore_app.plots import base as plots
     from ccdcore.session import open_session
 
     url = serve_app(None)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from ccdcore_app import plots
+from ccdcore_app.plots import base as plots
 from ccdcore_app.pages import PAGES, build_page
 from ccdcore_app.pages.session import SessionPage, frames_frame, groups_frame
 from ccdcore_app.state import AppState, demo_sessions
@@ -218,7 +218,7 @@ def test_compute_reports_progress_and_cancel_stops_it(tmp_path):
     import threading
     import time
 
-    from ccdcore.product import ESTIMATE_STEPS, estimate_all
+    from ccdcore.product.make import ESTIMATE_STEPS, estimate_all
 
     demo = Path(__file__).resolve().parents[2] / "assets" / "healey94"
     state = AppState(allowed_roots=[demo.parent])

@@ -1,6 +1,6 @@
-"""The disk cache of finished results (ccdcore_app.cache, AppState.cached_compute) and its use by the
-Photon transfer and Maps pages: round trips, reopening without computing, what makes a miss
-(a changed frame, another ROI, a corrupt entry) and the size bound."""
+"""The disk cache of finished results (ccdcore_app.cache.store, AppState.cached_compute) and its
+use by the Photon transfer and Maps pages: round trips, reopening without computing, what makes a
+miss (a changed frame, another ROI, a corrupt entry) and the size bound."""
 from __future__ import annotations
 
 import dataclasses
@@ -19,17 +19,17 @@ import numpy as np
 import pytest
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel extensions, as serving does)
-import ccdcore_app.pages.maps
+import ccdcore_app.pages.maps.page
 import ccdcore_app.pages.photon_transfer
-from ccdcore_app import cache as cache_mod
-from ccdcore_app.cache import (ResultCache, cache_folder, default_cache, estimates_entry, fingerprint,
-                       photon_transfer_entry)
-from ccdcore_app.pages.maps import MapsPage
+from ccdcore_app.cache import store as cache_mod
+from ccdcore_app.cache.store import (ResultCache, cache_folder, default_cache, estimates_entry,
+                                     fingerprint, photon_transfer_entry)
+from ccdcore_app.pages.maps.page import MapsPage
 from ccdcore_app.pages.photon_transfer import PhotonTransferPage
 from ccdcore_app.state import AppState
-from ccdcore.io import read_header, read_image, write_image
+from ccdcore.io.frames import read_header, read_image, write_image
 from ccdcore.noise import PhotonTransfer, photon_transfer
-from ccdcore.product import Estimates, estimate_all
+from ccdcore.product.make import Estimates, estimate_all
 from ccdcore.session import Session, open_session
 from _coro import run
 
@@ -175,7 +175,7 @@ def test_another_state_shows_both_pages_without_computing(cache_dir, demo, monke
     est = first.results.estimates
     assert est is not None and first.status.startswith("Computed")
 
-    for module, name in ((ccdcore_app.pages.maps, "estimate_all"),
+    for module, name in ((ccdcore_app.pages.maps.page, "estimate_all"),
                          (ccdcore_app.pages.photon_transfer, "photon_transfer"),
                          (ccdcore_app.pages.photon_transfer, "ptc_points")):
         monkeypatch.setattr(module, name, Failing(getattr(module, name), fail_from=0))
@@ -391,9 +391,9 @@ def test_a_planted_pickle_entry_is_never_executed(cache_dir, demo, tmp_path):
 
 
 @pytest.mark.parametrize("name", ["os:system", "subprocess:Popen", "builtins:eval",
-                                  "ccdcore.io:read_image", "ccdcore.io:os.system",
+                                  "ccdcore.io.frames:read_image", "ccdcore.io.frames:os.system",
                                   "ccdcore.noise:PhotonTransfer.__init__.__globals__",
-                                  "ccdcore_app.cache:Shared", "pathlib:Path"])
+                                  "ccdcore_app.cache.store:Shared", "pathlib:Path"])
 def test_an_entry_naming_another_class_is_refused(cache_dir, name, tmp_path):
     marker = tmp_path / "pwned"
     key = "3" * 64
@@ -421,7 +421,7 @@ def test_a_folder_others_may_write_is_refused(cache_dir, caplog):
     assert cache.put(key, np.arange(3))
     assert (cache_dir / "results").stat().st_mode & 0o777 == 0o700
     os.chmod(cache_dir, 0o777)
-    with caplog.at_level("WARNING", logger="ccdcore_app.cache"):
+    with caplog.at_level("WARNING", logger="ccdcore_app.cache.store"):
         assert cache.get(key) is None
         assert not cache.put("5" * 64, np.arange(3))
         assert cache.get(key) is None

@@ -10,8 +10,8 @@ import numpy as np
 from playwright.sync_api import Page, expect
 
 from ccdcore_app.pages.change import DEFAULT_PFA, PFA_STEPS
-from ccdcore.change import LABEL_CHANGE, ChangeOptions
-from ccdcore.change_session import session_change
+from ccdcore.change.detector import LABEL_CHANGE, ChangeOptions
+from ccdcore.change.session import session_change
 from ccdcore.session import open_session
 
 TIMEOUT = 90_000  # both brackets' radiance, the response and the clusters on first visit

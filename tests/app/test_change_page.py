@@ -10,12 +10,12 @@ import pytest
 from bokeh.document import Document
 from scipy import stats
 
-from ccdcore_app import change_plots
-from ccdcore_app.change_plots import ABOVE_COLOUR, BELOW_COLOUR, label_colour, label_rgb, pack_rgba
+from ccdcore_app.plots import change as change_plots
+from ccdcore_app.plots.change import ABOVE_COLOUR, BELOW_COLOUR, label_colour, label_rgb, pack_rgba
 from ccdcore_app.pages import change as change_page
 from ccdcore_app.pages.change import DEFAULT_PFA, PFA_STEPS, ChangePage, compute_change
 from ccdcore_app.state import AppState
-from ccdcore.change import LABEL_CHANGE, ChangeOptions
+from ccdcore.change.detector import LABEL_CHANGE, ChangeOptions
 from ccdcore.common import format_pm
 from _coro import run as _run
 
@@ -242,7 +242,7 @@ def test_session_without_brackets_shows_the_error_and_the_app_goes_on(assets):
 def test_unusable_brackets_show_ccdcore_error(assets, tmp_path):
     """Every target frame saturated: ccdcore's error (no pixel with a radiance in both
     brackets) in the alert, no result, the page still usable."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     root = tmp_path / "s"
     shutil.copytree(assets / "change", root)
@@ -313,7 +313,7 @@ def test_a_session_opened_while_computing_is_shown_next(shown, assets, monkeypat
 def test_single_frames_session_shows_the_result_and_its_sources(tmp_path):
     """A plain folder of one reference and one target PNG (no exposure, as video frames come):
     the page computes through the frame-set path and names the response and noise sources."""
-    from ccdcore.change_frames import FRAME_MIN_REGION
+    from ccdcore.change.frames import FRAME_MIN_REGION
     from ccdcore.simulate.change_frames import write_frame_pair
 
     root = tmp_path / "frames"

@@ -15,13 +15,13 @@ import ccdcore_app.main  # noqa: F401  (loads the Panel extensions, as serving d
 from _coro import run as _run
 from ccdcore import guide
 from ccdcore.common import format_pm
-from ccdcore.datasheet import emva_figures
-from ccdcore.emva_sheet import DATASHEET, datasheet_rows
+from ccdcore.emva.datasheet import emva_figures
+from ccdcore.emva.sheet import DATASHEET, datasheet_rows
 from ccdcore.noise import EMVA_FIT_FRACTION, photon_transfer
 from ccdcore.session import open_session
-from ccdcore_app.cache import ResultCache
-from ccdcore_app.pages import maps
-from ccdcore_app.pages.maps import EMVA_TAB, MapsPage, emva_spatial_layout
+from ccdcore_app.cache.store import ResultCache
+from ccdcore_app.pages.maps import page as maps
+from ccdcore_app.pages.maps.page import EMVA_TAB, MapsPage, emva_spatial_layout
 from ccdcore_app.pages.walkthrough import WalkthroughPage, emva_table
 from ccdcore_app.state import AppState
 

@@ -6,12 +6,12 @@ import re
 
 from playwright.sync_api import Page, expect
 
-from ccdcore_app.flat_plots import group_label
+from ccdcore_app.plots.flat import group_label
 from ccdcore_app.pages.flat_field import default_frame
 from ccdcore.common import format_pm
-from ccdcore.flatfield import flat_field_from_session, recommend_base
+from ccdcore.flatfield.fit import flat_field_from_session, recommend_base
 from ccdcore.session import open_session
-from ccdcore.uniformity import snup
+from ccdcore.flatfield.uniformity import snup
 
 TIMEOUT = 60_000  # generous: a busy CI machine draws slowly; passing runs do not wait
 OTHER_BASE = (2, 0.04)

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from ccdcore_app import flat_plots
+from ccdcore_app.plots import flat as flat_plots
 from ccdcore_app.pages.flat_field import (NO_FLAT_MESSAGE, ZERO_DARK_MESSAGE, FlatFieldPage,
                                   default_frame)
 from ccdcore_app.state import AppState, FlatResults
 from ccdcore.common import format_pm
-from ccdcore.flatfield import (BaseRecommendation, FlatField, base_image_study,
+from ccdcore.flatfield.fit import (BaseRecommendation, FlatField, base_image_study,
                                flat_field_from_session, recommend_base, zero_dark)
-from ccdcore.io import write_image
-from ccdcore.uniformity import snup, snup_vs_averaging
+from ccdcore.io.frames import write_image
+from ccdcore.flatfield.uniformity import snup, snup_vs_averaging
 from _coro import run as _run
 
 

@@ -97,7 +97,7 @@ def test_events_reach_the_callbacks_and_marks_cover_pixel_edges():
 
 
 def test_marked_pixels_are_crosses_at_their_centres():
-    from ccdcore_app.flat_plots import flagged_pixels
+    from ccdcore_app.plots.flat import flagged_pixels
 
     view = ImageView()
     view.set_points(np.array([], int), np.array([], int))

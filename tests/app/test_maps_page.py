@@ -7,16 +7,17 @@ import pytest
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 import ccdcore.fixedpattern
-from ccdcore_app import map_plots, plots
+from ccdcore_app.plots import maps as map_plots
+from ccdcore_app.plots import base as plots
 from ccdcore_app.image_view import HistogramView
-from ccdcore_app.pages import maps
-from ccdcore_app.pages.maps import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
+from ccdcore_app.pages.maps import page as maps
+from ccdcore_app.pages.maps.page import (MAPS_ESTIMATES, PAPER_PLAN_INPUTS, MapsPage, export_bytes,
                             missing_sentences, scene_patch_frame)
 from ccdcore_app.state import AppState
 from ccdcore.common import format_pm
-from ccdcore.io import read_image
+from ccdcore.io.frames import read_image
 from ccdcore.planning import check_session_plan, plan_acquisition
-from ccdcore.product import Requirement, budget_inputs, estimate_all, missing_frames
+from ccdcore.product.make import Requirement, budget_inputs, estimate_all, missing_frames
 from ccdcore.session import open_session
 from _coro import run as _run
 

@@ -15,7 +15,7 @@ import panel as pn
 import pytest
 from playwright.sync_api import Page, expect
 
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore_app.main import host_allowed
 from ccdcore_app.markup import forbid_raw_html
 

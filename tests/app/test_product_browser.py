@@ -1,7 +1,7 @@
 """A calibration product round trip through the app in headless Chromium: ccdcore calibrates the
 healey94 demo into a folder; on the Session page the product opens, is applied to a frame (the
 before and after views draw, ccdcore's SNUP shows, the readout gives both pixel values) and the
-corrected frames of a role are saved, equal to what ``ccdcore.product.apply_product`` writes."""
+corrected frames of a role are saved, equal to what ``ccdcore.product.make.apply_product`` writes."""
 from __future__ import annotations
 
 import re
@@ -9,10 +9,10 @@ import re
 from playwright.sync_api import Page, expect
 
 from ccdcore.common import format_pm
-from ccdcore.io import RECORD, read_image
-from ccdcore.product import apply_product, calibrate, load_product
+from ccdcore.io.frames import RECORD, read_image
+from ccdcore.product.make import apply_product, calibrate, load_product
 from ccdcore.session import open_session
-from ccdcore.uniformity import snup
+from ccdcore.flatfield.uniformity import snup
 
 TIMEOUT = 60_000  # generous: a busy CI machine draws slowly; passing runs do not wait
 FRAME = "scene/paper_L02.tif"

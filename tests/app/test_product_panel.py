@@ -14,16 +14,16 @@ from bokeh.document import Document
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
 from ccdcore_app.pages.session import SessionPage
-from ccdcore_app.product_panel import (CORRECT, IN_VIEW, LINEARISE, ROLE, ProductPanel,
+from ccdcore_app.product.panel import (CORRECT, IN_VIEW, LINEARISE, ROLE, ProductPanel,
                                estimate_headline, estimates_frame, save_corrected, snup_table,
                                view_roi)
 from ccdcore_app.state import AppState
 from ccdcore.common import format_pm, format_size
 from ccdcore.errors import CcdError
-from ccdcore.io import read_image, write_image, write_map
+from ccdcore.io.frames import read_image, write_image, write_map
 from ccdcore.noise import photon_transfer
-from ccdcore.product import PRODUCT_FILE, apply_product, calibrate, load_product
-from ccdcore.uniformity import snup
+from ccdcore.product.make import PRODUCT_FILE, apply_product, calibrate, load_product
+from ccdcore.flatfield.uniformity import snup
 from _coro import run as _run
 
 SCENE = "scene/matte_grey_L03.tif"
@@ -150,7 +150,7 @@ def test_snup_before_and_after_are_ccdcore_s(opened):
 
 
 def test_headlines_of_an_emva_product_and_of_damaged_summaries(made, assets):
-    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva.datasheet import emva_figures
 
     _, product, _ = made
     # the demo's figures with these headline figures, no DSNU and no dark current

@@ -17,10 +17,10 @@ from ccdcore_app.state import AppState
 from ccdcore.common import check_roi, format_pm
 from ccdcore.guide import ptc_gate
 from ccdcore.errors import CcdError
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore.noise import USER_EXCLUDED, photon_transfer
 from ccdcore.planning import check_session_plan, plan_acquisition
-from ccdcore.product import Estimates
+from ccdcore.product.make import Estimates
 from _coro import run as _run
 
 

@@ -81,8 +81,8 @@ def _open(page: Page, path: Path) -> None:
 def test_change_labels_are_drawn_in_the_apps_colours(page: Page, reports, assets):
     from PIL import Image
 
-    from ccdcore_app.change_plots import label_colour
-    from ccdcore.change_session import session_change
+    from ccdcore_app.plots.change import label_colour
+    from ccdcore.change.session import session_change
     from ccdcore.session import open_session
 
     result, _ = session_change(open_session(assets / "change"))
@@ -100,7 +100,7 @@ def test_change_labels_are_drawn_in_the_apps_colours(page: Page, reports, assets
 
 
 def test_the_response_band_is_two_sigma_of_the_products_curve(page: Page, reports, assets):
-    from ccdcore.product import calibrate
+    from ccdcore.product.make import calibrate
 
     r = calibrate(assets / "tsin01").estimates.response
     _open(page, reports["tsin01"])

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from playwright.sync_api import Page, expect
 
-import ccdcore_app.cache
-from ccdcore_app.cache import SharedResults
+import ccdcore_app.cache.store
+from ccdcore_app.cache.store import SharedResults
 from ccdcore.response.bracket_fit import finish_fit, prepare_bracket
 from ccdcore.response.methods import METHODS, response_of
 from ccdcore.session import open_session
@@ -25,7 +25,7 @@ TIMEOUT = 90_000  # the default result, then one more method, on a busy machine
 def _own_store(monkeypatch):
     """The served app shares results through a store of this test's own (the page tests'
     results, computed in this process, are not reused)."""
-    monkeypatch.setattr(ccdcore_app.cache, "_SHARED", SharedResults())
+    monkeypatch.setattr(ccdcore_app.cache.store, "_SHARED", SharedResults())
 
 
 BAND_AT = """(code) => {

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 from bokeh.document import Document
 
-import ccdcore_app.cache
+import ccdcore_app.cache.store
 import ccdcore_app.pages.response_hdr as response_hdr
-from ccdcore_app.cache import SharedResults
+from ccdcore_app.cache.store import SharedResults
 from ccdcore_app.pages.response_hdr import (AUTO_LABEL, LABELS, NO_BRACKET_MESSAGE,
                                             ResponsePage)
-from ccdcore_app.response_plots import VERDICT_ALERTS, details_markdown, md_text, tone_map
+from ccdcore_app.plots.response import VERDICT_ALERTS, details_markdown, md_text, tone_map
 from ccdcore_app.state import AppState
 from ccdcore.channels import channel_names
 from ccdcore.errors import CcdError
@@ -35,7 +35,7 @@ KEY = (3, False, "auto")      # the page's cache key with its default options
 @pytest.fixture(autouse=True)
 def _own_store(monkeypatch):
     """Each test shares results through its own process-wide store (no test sees another's)."""
-    monkeypatch.setattr(ccdcore_app.cache, "_SHARED", SharedResults())
+    monkeypatch.setattr(ccdcore_app.cache.store, "_SHARED", SharedResults())
 
 
 def _page(path, **kw):
@@ -180,7 +180,7 @@ def test_session_without_bracket_says_what_to_capture(assets):
 
 def test_unusable_bracket_shows_an_error_and_the_app_goes_on(assets, tmp_path):
     """Every frame saturated: one error naming the frame, the page stays usable."""
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
 
     root = tmp_path / "s"
     shutil.copytree(assets / "tsin01", root)
@@ -578,7 +578,7 @@ def test_the_simulators_truth_is_drawn_on_the_reported_scale(wrong_root):
 def test_the_truths_legend_entry_only_where_there_is_a_truth():
     """A simulation shows its truth's line and legend entry; a bracket without truth.json (a
     real camera's) shows neither."""
-    from ccdcore_app.response_plots import ResponseFigure
+    from ccdcore_app.plots.response import ResponseFigure
 
     curves = ResponseFigure(list(METHODS), {m: m for m in METHODS})
     g = np.linspace(0.0, 1.0, 256)

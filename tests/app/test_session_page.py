@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 import ccdcore_app.main  # noqa: F401  (loads the Panel and HoloViews extensions, as serving does)
-from ccdcore_app import plots
+from ccdcore_app.plots import base as plots
 from ccdcore_app.main import AppShell, _session_header, create_app
 from ccdcore_app.pages import PAGES, build_page, get_page
 from ccdcore_app.pages.session import MAX_ALERTS, SessionPage, inferred_summary
 from ccdcore_app.state import AppState, is_allowed
-from ccdcore.io import write_image
+from ccdcore.io.frames import write_image
 from ccdcore.session import open_session
 from _coro import run as _run
 from conftest import make_session as make_manifest_session

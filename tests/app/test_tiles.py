@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ccdcore_app import plots, tiles
+from ccdcore_app import tiles
+from ccdcore_app.plots import base as plots
 from ccdcore_app.image_view import ImageView
 from ccdcore_app.tiles import FramePyramid, TiledPlane, needs_tiles
-from ccdcore.io import read_header, write_image
+from ccdcore.io.frames import read_header, write_image
 from imagefiles import bomb_tiff
 
 
@@ -196,7 +197,7 @@ def test_the_session_page_previews_a_large_frame_from_its_pyramid(tmp_path, smal
     import ccdcore_app.main  # noqa: F401  (the Panel extensions, as serving does)
     from ccdcore_app.pages.session import SessionPage
     from ccdcore_app.state import AppState
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     from ccdcore.session import Session
     from _coro import run
 
@@ -241,7 +242,7 @@ def test_the_photon_transfer_preview_of_a_large_frame(tmp_path, assets, monkeypa
     import ccdcore_app.main  # noqa: F401
     from ccdcore_app.pages.photon_transfer import PhotonTransferPage
     from ccdcore_app.state import AppState
-    from ccdcore.io import read_image
+    from ccdcore.io.frames import read_image
     from ccdcore.session import Session
     from _coro import run
 
@@ -308,7 +309,7 @@ def test_a_bomb_is_refused_from_its_header(tmp_path, monkeypatch):
 
 def test_the_limit_counts_every_channel(tmp_path, monkeypatch):
     """An RGB frame whose each band (and each plane) is within the limit, but not the whole
-    image with its three channels, is refused (the rule of ccdcore.io.read_frame)."""
+    image with its three channels, is refused (the rule of ccdcore.io.frames.read_frame)."""
     from ccdcore.errors import ImageReadError
 
     rgb = write_image(tmp_path / "rgb.tif",

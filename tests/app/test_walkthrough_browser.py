@@ -8,7 +8,7 @@ from pathlib import Path
 from playwright.sync_api import Page, expect
 
 from ccdcore.guide import STEPS
-from ccdcore.product import load_product
+from ccdcore.product.make import load_product
 
 TIMEOUT = 60_000
 

@@ -13,7 +13,7 @@ from ccdcore_app.state import AppState
 from ccdcore import guide
 from ccdcore.capture import plan_captures
 from ccdcore.noise import photon_transfer
-from ccdcore.product import load_product
+from ccdcore.product.make import load_product
 from ccdcore.session import open_session
 
 
@@ -134,7 +134,7 @@ def test_an_emva_session_shows_the_emva_figures(tmp_path: Path) -> None:
     from emva1288.camera.dataset_generator import DatasetGenerator
 
     from ccdcore_app.pages.walkthrough import emva_table
-    from ccdcore.datasheet import emva_figures
+    from ccdcore.emva.datasheet import emva_figures
 
     gen = DatasetGenerator(steps=20, L=4, image_format="tif", outdir=str(tmp_path / "d"),
                            width=32, height=24, bit_depth=12, seed=5)
@@ -159,7 +159,7 @@ def test_dark_step_plots_a_dark_series_and_lists_few_exposures(assets: Path, tmp
     not a long table; one exposure (healey94): the table."""
     import numpy as np
 
-    from ccdcore.io import write_image
+    from ccdcore.io.frames import write_image
     from ccdcore_app.pages.walkthrough import DARK_TABLE_MAX, dark_level_columns
 
     root = tmp_path / "series"
@@ -253,7 +253,7 @@ def test_the_steps_follow_what_the_session_holds(assets: Path, tmp_path: Path) -
 
 
 def test_the_response_step_says_the_librarys_verdict_with_its_registration(assets: Path) -> None:
-    from ccdcore_app.response_plots import verdict_markdown
+    from ccdcore_app.plots.response import verdict_markdown
 
     page = _page(assets / "tsin01")
     _walk(page)
