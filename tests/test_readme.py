@@ -18,5 +18,7 @@ def test_the_python_example_runs_from_any_folder(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     lines = out.stdout.strip().splitlines()
     assert "'dark'" in lines[0] and "'ptc'" in lines[0]
-    mean, var = (float(v) for v in lines[1].split())
+    a, a_err, truth = (float(v) for v in lines[1].split())
+    assert abs(a - truth) < 4 * a_err            # the photon-transfer A within its error
+    mean, var = (float(v) for v in lines[2].split())
     assert mean > 0 and var > 0
