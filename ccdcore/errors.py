@@ -17,9 +17,9 @@ class CcdError(ValueError):
 
     Parameters
     ----------
-    where
+    where : str or PathLike or None
         The file, manifest entry or argument the problem concerns (may be ``None``).
-    problem
+    problem : str
         One line describing what is wrong and, where possible, what to do.
 
     Examples

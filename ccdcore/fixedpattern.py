@@ -87,21 +87,21 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
 
     Parameters
     ----------
-    session_or_configs
+    session_or_configs : Session, mapping, sequence or numpy.ndarray
         A :class:`~ccdcore.session.Session` (its ``fixed_pattern`` frames grouped by ``config``);
         a mapping ``config id -> iterable of frames`` (arrays or ``(record, array)`` pairs); a
         sequence of such iterables; or an ``(n1, n2, H, W)`` array.  Frames are streamed.
-    dark
+    dark : DarkReference or numpy.ndarray or None, optional
         The dark reference D̂_D (:class:`~ccdcore.dark.frame.DarkReference` or an array).  With a
         session it may be omitted: it is then computed from the session's dark frames.
-    window
+    window : int, optional
         m, the side of the local window whose mean ē_i estimates I_i·A (odd, ≥ 3; default 9).
-    p
+    p : float, optional
         Rejection half-width in units of σ̂ (default 1.5, the paper's value).
-    center
+    center : str, optional
         Centre of the rejection interval: ``"median"`` (default) of the n1 slopes, or ``"mean"``,
         the paper's m̄ of eq. 48 (see the module docstring for why the median is the default).
-    reducer
+    reducer : Reducer or None, optional
         Runs eqs. 45–50 over the frames (:mod:`ccdcore.reduce`; default streamed here). On a
         Dask cluster (:class:`ccdcore.distributed.client.DaskReducer`) they run band by band of
         rows, so that no process holds the n1 full-frame averages; the result equals the streamed
@@ -112,12 +112,18 @@ def fixed_pattern_map(session_or_configs: Any, dark: DarkReference | np.ndarray 
     Returns
     -------
     FixedPattern
+        K̂ (``K``, eq. 49) and its per-pixel variance, the slopes kept per pixel, the rejected
+        ones, m̄ (eq. 48), σ̂, the variance bound of eq. 50, the mean and spatial standard
+        deviation of K̂, the configurations' ids and levels, and notes.
 
     Raises
     ------
     CcdError
         Fewer than 2 configurations; frames of different shapes (naming the file); no dark
-        reference; colour frames; a bad window or p.
+        reference (no ``dark`` and no session dark frames), or one that is not a 2-D map; colour
+        frames; a configuration without frames or not above the dark level; no pixel with two
+        usable slopes (σ̂ unknown); an array that is not ``(n1, n2, H, W)``; a bad window or p;
+        a ``center`` other than ``"median"`` or ``"mean"``.
 
     Examples
     --------

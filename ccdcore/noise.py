@@ -720,40 +720,45 @@ def photon_transfer(session_or_path: Session | str | PathLike, *,
 
     Parameters
     ----------
-    session_or_path
+    session_or_path : Session or str or PathLike
         A :class:`~ccdcore.session.Session` or anything :func:`~ccdcore.session.open_session`
         opens.
-    roi
+    roi : sequence of int or None, optional
         ``(x, y, w, h)`` in pixels; default the whole frame.
-    robust
+    robust : bool, optional
         Robust mode (drop levels beyond 3 sigma one at a time, reported).
-    exclude_levels
+    exclude_levels : iterable of int, optional
         Level ids to leave out.
-    black_level
+    black_level : float or None, optional
         b₀ in DN; overrides the manifest and the dark frames (module docstring).
-    linearity_tolerance
+    linearity_tolerance : float, optional
         Relative deviation from linearity tolerated (module docstring).
-    fit_fraction
-        The fit range (:func:`fit_points`): ``None`` every level below saturation, 0.7 the
-        EMVA 1288 range.
-    reducer
+    reducer : Reducer or None, optional
         Runs the reductions over frames (:mod:`ccdcore.reduce`; default streamed here). On a
         Dask cluster (:class:`ccdcore.distributed.client.DaskReducer`) the pairs and the dark sums
         of the black level are reduced in bands of rows, each worker reading its band of every
         frame: μ̂ (eq. 37) and the clipped fractions are identical for integer data; σ̂²_N
         (eq. 38), merged over the bands, agrees to a relative 1e-12
         (:data:`ccdcore.distributed.client.PTC_RTOL`), and so do A, σ²_C and their errors.
+    fit_fraction : float or None, optional
+        The fit range (:func:`fit_points`): ``None`` every level below saturation, 0.7 the
+        EMVA 1288 range.
 
     Returns
     -------
     PhotonTransfer
+        The noise model: A and σ²_C with their standard errors and covariance, χ² and Q with
+        their verdict, every level's point (used or not, with the reason) and diagnostics.
 
     Raises
     ------
     CcdError
         No ptc frames; a session error concerning the PTC or dark frames; colour frames; an ROI
         outside the frame; frames of one level with different exposure times (or photon counts);
-        NaN or infinite pixels; fewer than three usable levels.
+        NaN or infinite pixels; fewer than three usable levels; a ``black_level`` that is not a
+        finite number, a ``linearity_tolerance`` not above 0, a ``fit_fraction`` outside (0, 1]
+        or a level of ``exclude_levels`` the session does not have; a path that
+        :func:`~ccdcore.session.open_session` refuses.
 
     Examples
     --------

@@ -705,14 +705,43 @@ def detect(E_ref: ArrayLike, sigma_ref: ArrayLike, E_tgt: ArrayLike, sigma_tgt: 
     """Sec. 5 on two radiance maps (H, W, C) or (H, W) with their per-pixel sigmas.
 
     Pixels whose sigma is not finite in either map (the merge's bounds) are undetermined.
-    ``names`` name the two inputs in messages. Raises :class:`CcdError` on mismatched shapes,
-    NaN radiance, or too few pixels with a radiance in both maps.
 
     The steps of the module docstring, each a function: the inputs checked
     (:func:`_checked_maps`, :func:`_valid_pixels`), the dominant cluster and the calibrated
     threshold (steps 1-3, :func:`_background`), the further clusters (step 4,
     :func:`_further_clusters`), the shades of the background's light (step 5,
     :func:`_shades`) and the result with its labels (step 6, :func:`_change_result`).
+
+    Parameters
+    ----------
+    E_ref : array_like
+        The reference's radiance map, (H, W, C) or (H, W).
+    sigma_ref : array_like
+        Its per-pixel sigma, of the same shape.
+    E_tgt : array_like
+        The target's radiance map, of the reference's shape.
+    sigma_tgt : array_like
+        Its per-pixel sigma, of the same shape.
+    options : ChangeOptions or None, optional
+        The settings (:class:`ChangeOptions`); default ``ChangeOptions()``.
+    names : tuple of str, optional
+        The names of the two inputs in messages.
+    progress : Progress or None, optional
+        A :class:`ccdcore.progress.Progress` that follows the steps.
+
+    Returns
+    -------
+    ChangeResult
+        The clusters (the background first, each with its transform M), one d² map per
+        cluster, the valid pixels, the background's d² sample that calibrates the threshold and
+        its scale s, the degrees of freedom, the labels with the threshold, the predicted
+        target, the shades of the background's light and notes.
+
+    Raises
+    ------
+    CcdError
+        Mismatched shapes, NaN radiance, or too few pixels with a radiance in both maps;
+        ``options`` outside their ranges.
 
     Examples
     --------

@@ -44,26 +44,68 @@ def session_change(session: Any, options: ChangeOptions | None = None, *,
 
     The response (g and the noise terms) comes from ``calib`` (a calibration product) or is
     estimated from the reference bracket (sec. 3.2); both brackets are merged with it at their
-    nominal times (eqs. 9, 18, 19). Returns the result and its :class:`ChangeInputs` (both
-    radiance maps with their sigma, the channels, the response's source, the frames).
-    ``progress`` (a :class:`ccdcore.progress.Progress`): the response estimate takes its first
-    half (without ``calib``), :func:`detect` the rest. ``method``, ``white_balance`` and
-    ``exposures`` are :func:`ccdcore.response.methods.response_of`'s, for the reference
-    bracket's response (without ``calib``); each bracket is merged at its own exposures when
-    ``exposures`` asks for them or the images disagree with the listed ones: the reference's
-    from its response, the other brackets' estimated with the curve
-    (:func:`ccdcore.response.exposures.exposures_with_curves`, on frames read here even when a
-    cluster's workers merge them).
+    nominal times (eqs. 9, 18, 19).
 
-    ``reducer`` runs both merges (:mod:`ccdcore.reduce`; default streamed here). With a Dask
-    reducer (:class:`ccdcore.distributed.client.DaskReducer`) they run band by band, the workers
-    reading the frames (:func:`ccdcore.response.hdr.merge_bracket`; ``band_rows`` sets the band
-    height): the radiance and sigma maps are bit-identical to the streamed ones, hence so is
-    everything after.  The shapes and sample types are then checked first, from the headers.  What
-    stays in this process: the response estimated from the reference bracket without ``calib`` (it
-    reads the reference frames here, as the streamed path does: the pixel traces of every
-    pixel), and the fit of M and d² (:func:`detect`), which need the whole radiance maps --
-    the streamed path holds them too.
+    With a Dask reducer (:class:`ccdcore.distributed.client.DaskReducer`) both merges run band
+    by band, the workers reading the frames (:func:`ccdcore.response.hdr.merge_bracket`;
+    ``band_rows`` sets the band height): the radiance and sigma maps are bit-identical to the
+    streamed ones, hence so is everything after.  The shapes and sample types are then checked
+    first, from the headers.  What stays in this process: the response estimated from the
+    reference bracket without ``calib`` (it reads the reference frames here, as the streamed
+    path does: the pixel traces of every pixel), and the fit of M and d² (:func:`detect`),
+    which need the whole radiance maps -- the streamed path holds them too.
+
+    Parameters
+    ----------
+    session : Session
+        An open session with ``reference`` and ``target`` frames.
+    options : ChangeOptions or None, optional
+        The settings of :func:`detect`; default ``ChangeOptions()`` (frame sets: see above).
+    calib : str or Path or None, optional
+        A calibration product (its folder or its ``calibration.json``) whose response (g and the
+        noise terms) is used; default: the response estimated from the reference bracket.
+    bloom_radius : int or None, optional
+        Radius (pixels) around a saturated pixel whose codes are dropped; ``None``:
+        :data:`ccdcore.response.names.DEFAULT_BLOOM_RADIUS`.
+    progress : Progress or None, optional
+        A :class:`ccdcore.progress.Progress`: the response estimate takes its first half
+        (without ``calib``), :func:`detect` the rest.
+    reducer : Reducer or None, optional
+        Runs both merges (:mod:`ccdcore.reduce`; default streamed here; a Dask reducer: see
+        above).
+    band_rows : int or None, optional
+        The height of the bands of rows a Dask reducer's merges run in.
+    method : str, optional
+        :func:`ccdcore.response.methods.response_of`'s, for the reference bracket's response
+        (without ``calib``).
+    white_balance : bool, optional
+        :func:`ccdcore.response.methods.response_of`'s, for the reference bracket's response
+        (without ``calib``).
+    exposures : str, optional
+        :func:`ccdcore.response.methods.response_of`'s, for the reference bracket's response
+        (without ``calib``); each bracket is merged at its own exposures when ``exposures``
+        asks for them or the images disagree with the listed ones: the reference's from its
+        response, the other brackets' estimated with the curve
+        (:func:`ccdcore.response.exposures.exposures_with_curves`, on frames read here even when
+        a cluster's workers merge them).
+    response : str, optional
+        ``"auto"``, or ``"srgb"``: the sRGB curve whatever the session holds (frame sets).
+
+    Returns
+    -------
+    tuple of ChangeResult and ChangeInputs
+        The result (:func:`detect`'s, its ``sources`` the response and the noise in words) and
+        its :class:`ChangeInputs` (both radiance maps with their sigma, the channels, the
+        response's source, the frames).
+
+    Raises
+    ------
+    CcdError
+        No ``reference`` or ``target`` frames, or a role whose exposures are mixed; a session
+        error touching them; frames of another shape or sample type than the reference's; a
+        response (``calib``'s or estimated) with another number of codes than the camera's; an
+        unknown ``response``, ``method`` or ``exposures``; a ``calib`` that cannot be loaded or
+        has no response; the errors of :func:`detect`.
 
     Examples
     --------

@@ -122,37 +122,42 @@ def dark_reference(frames_or_session: Any, *, hot_sigma: float = 6.0,
 
     Parameters
     ----------
-    frames_or_session
+    frames_or_session : Session or iterable
         A :class:`~ccdcore.session.Session` (its ``dark`` frames are used), or an iterable of 2-D
         arrays or ``(record, array)`` pairs (as :meth:`Session.iter_frames` yields).  Streamed.
-    hot_sigma
+    hot_sigma : float, optional
         k of the hot/dead rules: a pixel whose mean is more than k robust spatial standard
         deviations (1.4826·MAD) above (hot) or below (dead) the median is flagged.
-    noisy_factor
+    noisy_factor : float, optional
         Multiplies the χ² threshold of the temporal-variance ("noisy"/RTS) rule; ``inf`` disables.
-    exposure
+    exposure : float or None, optional
         With a session whose darks have several exposures, the exposure to use (seconds).
-    temperature
-        With a session: use only the darks within
-        :data:`~ccdcore.session.temperature.TEMPERATURE_TOLERANCE` of this temperature (°C);
-        default the temperature of the frames they correct (flat, fixed-pattern, ptc), else
-        the one most darks share (:func:`ccdcore.dark.model.select_darks`; noted).
-    reducer
+    reducer : Reducer or None, optional
         Runs the moments (:mod:`ccdcore.reduce`; default streamed here). On a Dask cluster
         (:class:`ccdcore.distributed.client.DaskReducer`) they are reduced in bands of rows, each
         worker reading its band of every frame; the maps are bit-identical to the streamed
         ones, and the hot/dead rules run here on them. ``frames_or_session`` is then a session
         or a sequence of records or file paths.
+    temperature : float or None, optional
+        With a session: use only the darks within
+        :data:`~ccdcore.session.temperature.TEMPERATURE_TOLERANCE` of this temperature (°C);
+        default the temperature of the frames they correct (flat, fixed-pattern, ptc), else
+        the one most darks share (:func:`ccdcore.dark.model.select_darks`; noted).
 
     Returns
     -------
     DarkReference
+        D̂_D (``mean_map``) with its temporal variance map, the number of frames s, its spatial
+        mean and standard deviation, the hot and dead masks with their rules, the exposure, the
+        notes and (with a session) the frames it was made from.
 
     Raises
     ------
     CcdError
         No frames, frames of different shapes (naming the file), colour frames, or a session
-        with darks at several exposures and no ``exposure``.
+        with darks at several exposures and no ``exposure``; a session with no dark frames
+        within the temperature tolerance or none at ``exposure``; a single 2-D frame given
+        instead of an iterable of frames.
 
     Examples
     --------

@@ -427,31 +427,36 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
 
     Parameters
     ----------
-    session
+    session : Session or str or PathLike
         An EMVA1288 descriptor opened as a session, or its path (or a manifest with
         ``photons``): temporal bright points (``ptc`` levels of two frames), the two dark frames
         at each of their exposure times and, optionally, a spatial set (module docstring).
-    noise
+    noise : PhotonTransfer or None, optional
         Our photon-transfer result for the same session (:func:`ccdcore.noise.photon_transfer`),
         for ``sigma_d_ptc``; computed here when not given.
-    progress
+    progress : Progress or None, optional
         A :class:`ccdcore.progress.Progress`: ``progress(start, name)`` as each of
         :data:`EMVA_STEPS` starts.
-    with_ptc
+    with_ptc : bool, optional
         When ``noise`` is not given: compute it (``True``), or leave ``sigma_d_ptc`` out
         (``False``: a caller whose photon transfer already failed).
 
     Returns
     -------
     EmvaFigures
+        The figures of the Notes with their standard errors, the points, the spatial sets and
+        notes.
 
     Raises
     ------
     CcdError
-        The ptc frames carry no photon counts; a session error touching the ptc or dark frames;
+        The ptc frames carry no photon counts (or one not above 0, or the frames of one level
+        differ in it or in exposure time); a session error touching the ptc or dark frames;
         fewer than 3 temporal bright points; no dark frames, or none at a bright point's exposure;
-        colour frames; every point saturated (no point below 70 % of the saturation signal);
-        fewer than 2 points in the sensitivity fit.
+        colour frames, frames of different shapes, NaN or infinite pixels; every point saturated
+        (no point below 70 % of the saturation signal); fewer than 2 points in the sensitivity
+        fit or in the linearity range; a fitted K or R not above 0; a path that
+        :func:`~ccdcore.session.open_session` refuses.
 
     Notes
     -----
@@ -486,12 +491,12 @@ def emva_figures(session: Session | str | PathLike, *, noise: PhotonTransfer | N
       line (eq. 27 of Healey & Kondepudy; :attr:`PhotonTransfer.read_noise_e`), with its error
       from the fit covariance.  A note flags a disagreement beyond :data:`DISAGREEMENT_Z`
       combined standard errors, and σ_y.dark below 0.5 DN (quantisation dominates).
-    * μ_p.min = (σ_y.dark/K + 1/2)/η (absolute sensitivity threshold, sec. 2.4), μ_e.sat = η·μ_p.sat
-      (saturation capacity), SNR_max = √μ_e.sat (eq. 33), DR = μ_p.sat/μ_p.min (eq. 18) and
-      20·log₁₀ DR; errors by first-order propagation.  μ_p.sat is the photon count of one of
-      the points, so its error is the resolution of the series: the local spacing of μ_p over
-      √12 (over seeds of the generator the saturation point moves between neighbours, and this
-      error matches that spread); it enters μ_e.sat, SNR_max and DR.
+    * μ_p.min = (σ_y.dark/K + 1/2)/η (absolute sensitivity threshold, sec. 2.4),
+      μ_e.sat = η·μ_p.sat (saturation capacity), SNR_max = √μ_e.sat (eq. 33), DR = μ_p.sat/μ_p.min
+      (eq. 18) and 20·log₁₀ DR; errors by first-order propagation.  μ_p.sat is the photon count of
+      one of the points, so its error is the resolution of the series: the local spacing of μ_p
+      over √12 (over seeds of the generator the saturation point moves between neighbours, and
+      this error matches that spread); it enters μ_e.sat, SNR_max and DR.
     * Linearity (sec. 6.7, ``Results1288.linearity``): the line a·μ_p + b through the points from
       5 % to 95 % of the saturation signal, minimising Σ((Y − a·μ_p − b)/Y)² (Y = μ_y − μ_y.dark);
       LE_min, LE_max = the extreme relative deviations 100·(Y − fit)/fit over those points (%).

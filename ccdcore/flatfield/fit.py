@@ -405,32 +405,41 @@ def flat_field_from_session(session: Any, *, setting: str | None = None,
 
     Parameters
     ----------
-    session
-        A :class:`~ccdcore.session.Session` with dark and flat frames.
-    setting
+    session : Session
+        A :class:`~ccdcore.session.Session` with dark and flat frames.  Only darks within the
+        temperature tolerance of the base flats are used; with no dark frames at all, DL_0 = 0
+        (de Lasarte's zero-dark form, noted; ``dark_source = "zero"``).
+    setting : str or None, optional
         Offset setting (manifest key ``setting``); ``None`` takes the first of
         several (noted) or all frames when none is named.
-    base
+    base : tuple or str, optional
         ``(level, exposure)`` of the flat group used as the base image, or ``"auto"``: the
         recommendation of :func:`recommend_base`.
-    gain
+    gain : float or None, optional
         Gain setting, when the session has several.
-    dark_exposure
+    dark_exposure : float or None, optional
         Exposure of the dark frames; default the base frames' exposure (a single dark exposure,
         or darks without exposure, are used as they are, noted).  With darks at two or more
         exposures the dark model serves instead, at the base exposure (:func:`session_dark`).
-    reducer
+    reducer : Reducer or None, optional
         Runs the averages (see :func:`flat_field`; bit-identical maps on a cluster).
-    dark_model
+    dark_model : DarkModel or None, optional
         A :class:`~ccdcore.dark.model.DarkModel` to take DL_0 from (at the base exposure);
         default: fitted when the matched darks have two or more exposures.
-    held_out
+    held_out : bool, optional
         Also make the held-out check (:func:`held_out_check`) into ``FlatField.held_out``.
-
-    Only darks within the temperature tolerance of the base flats are used; with no dark
-    frames at all, DL_0 = 0 (de Lasarte's zero-dark form, noted; ``dark_source = "zero"``).
     **options
         ``k``, ``noise_limit``, ``window`` of :func:`flat_field`.
+
+    Returns
+    -------
+    FlatField
+        G, O (eqs. 3–4), their flags and what they were made from; with ``held_out``, the check.
+
+    Raises
+    ------
+    CcdError
+        No flat frames; a bad ``base``; the errors of :func:`session_dark` and :func:`flat_field`.
 
     Examples
     --------

@@ -166,28 +166,30 @@ def snup(image: ArrayLike, *, roi: Sequence[int] | None = None, layout: str | No
 
     Parameters
     ----------
-    image
+    image : array_like
         One frame: ``(H, W)`` mono or Bayer raw, or ``(H, W, 3)`` rgb; any real dtype.
-    roi
+    roi : sequence of int or None, optional
         ``(x, y, w, h)`` in frame pixels (even values on Bayer data); default the whole frame.
-    layout
+    layout : str or None, optional
         ``"mono"``, ``"rgb"``, ``"bayer-rggb"`` ...; ``None`` infers mono or rgb from the shape.
-    mask
+    mask : array_like or None, optional
         Optional boolean map of the frame's shape (``(H, W)`` or the full shape): True pixels are
         left out (e.g. :attr:`ccdcore.flatfield.fit.FlatField.flags`).
-    where
+    where : str or PathLike, optional
         Name used in error messages (the file).
 
     Returns
     -------
     SnupResult
-        One :class:`ChannelSnup` per channel; the standard error is in the module docstring.
+        One :class:`ChannelSnup` per channel (mean, std, SNUP and its standard error over the
+        ROI's unmasked pixels; the standard error is in the module docstring), with the layout
+        and the ROI.
 
     Raises
     ------
     CcdError
-        NaN or infinite values not masked, a layout that does not fit, a bad ROI, a channel mean
-        <= 0 or fewer than 2 pixels.
+        NaN or infinite values not masked, a layout that does not fit, a bad ROI, a ``mask`` of
+        another shape than the image, a channel mean <= 0 or fewer than 2 pixels.
 
     Examples
     --------

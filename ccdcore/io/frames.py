@@ -233,6 +233,29 @@ def read_frame(path: str | os.PathLike, *,
 def read_image(path: str | os.PathLike, *, max_pixels: int | None = None) -> np.ndarray:
     """Read one frame's pixels (see :func:`read_frame`, which takes the same arguments).
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The image file.
+    max_pixels : int or None, optional
+        Refuse, before decoding, an image of more pixel values (width x height x channels) than
+        this; ``None`` takes ``CCDCORE_MAX_PIXELS`` or :data:`MAX_PIXELS` (see
+        :func:`pixel_limit`).
+
+    Returns
+    -------
+    numpy.ndarray
+        The pixels: ``(H, W)`` for one channel, ``(H, W, C)`` otherwise, in the stored dtype.
+
+    Raises
+    ------
+    ImageReadError
+        Missing, empty, truncated, unreadable, unsupported or too large file (the message names
+        the file); a :class:`~ccdcore.errors.CcdError`.
+    CcdError
+        ``max_pixels`` or ``CCDCORE_MAX_PIXELS`` is not a positive whole number; a camera raw
+        file without the ``raw`` extra installed (:class:`~ccdcore.errors.MethodNotAvailable`).
+
     Examples
     --------
     >>> import tempfile, numpy as np
@@ -445,33 +468,33 @@ def write_image(path: str | os.PathLike, array: np.ndarray, *, exposure: float |
 
     Parameters
     ----------
-    path
+    path : str or os.PathLike
         Output file; the format follows the extension: ``.tif``/``.tiff`` (any integer or float
         type), ``.png`` and ``.pgm``/``.ppm``/``.pnm`` (uint8, uint16), ``.fits`` (any; unsigned
         integers with the standard ``BZERO`` convention), ``.exr`` (float16/float32; integers are
         stored as float32, which is exact up to 2**24).
-    array
+    array : numpy.ndarray
         ``(H, W)`` or ``(H, W, C)``.
-    exposure
+    exposure : float or None, optional
         Exposure time in seconds, written as EXIF ``ExposureTime`` (TIFF, PNG, EXR) or ``EXPTIME``
         (FITS).
-    bits
+    bits : int or None, optional
         Significant bits of the ADC (TIFF ``BitsPerSample`` stays the container width; FITS gets
         ``BITDEPTH``).
-    attributes
+    attributes : dict of str to Any, or None, optional
         Extra header attributes (OpenImageIO names, or FITS keywords).
 
     Returns
     -------
     pathlib.Path
-        ``path``.
+        ``path``, the file written.
 
     Raises
     ------
     ImageWriteError
         The array cannot be stored in this format, or writing failed (full disk, no permission,
         an OpenImageIO or astropy error): the message names ``path``, which keeps its previous
-        content, and no temporary file is left behind.
+        content, and no temporary file is left behind; a :class:`~ccdcore.errors.CcdError`.
 
     Examples
     --------

@@ -336,6 +336,18 @@ def load_product(folder: str | os.PathLike) -> CalibrationProduct:
     the folder and readable, that maps of one family share a shape, that K̂ is finite and
     positive and the other maps finite.
 
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        The product folder, or its description file (``calibration.json``) itself.
+
+    Returns
+    -------
+    CalibrationProduct
+        The product as saved: its maps, the summaries of its estimates, the camera, the
+        provenance, the estimates skipped, its warnings and notes, the EMVA 1288 figures and the
+        frames of each map.
+
     Raises
     ------
     CcdError

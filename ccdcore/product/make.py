@@ -533,8 +533,7 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
               noise: PhotonTransfer | None = None, reducer: Reducer | None = None,
               dark_exposure: float | None = None,
               response_options: Mapping[str, Any] | None = None) -> CalibrationProduct:
-    """Run every estimate the session's frames allow (``response_options``: see
-    :func:`estimate_all`).
+    """Run every estimate the session's frames allow.
 
     - ``ptc`` levels: photon transfer (eqs. 37–42, 59–67), over ``roi`` when given;
     - ``dark`` frames: dark reference D̂_D with hot/dead flags (sec. V-A); with darks at
@@ -547,13 +546,10 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     - ``scene`` frames with patches/ROIs, K̂ and the noise model: scene variation V_S (sec. VI);
     - ``flat`` frames and darks: flat-field G/O maps (de Lasarte et al. 2007);
     - a ``bracket``: the inverse response g per channel with its band and the noise terms
-      (Tsin et al. 2001, sec. 3.2), for :func:`apply_product` (``linearise``) and the HDR merge.
-
-    ``noise`` passes a photon-transfer result already made (e.g. with levels left out or the
-    robust mode, as the app's Walkthrough chooses) instead of estimating it here.
-
+      (Tsin et al. 2001, sec. 3.2), for :func:`apply_product` (``linearise``) and the HDR merge;
     - ``ptc`` frames with photon counts (an EMVA1288 descriptor) and dark frames: the EMVA 1288
-      figures (:func:`ccdcore.emva.datasheet.emva_figures`), in :attr:`CalibrationProduct.emva1288`.
+      figures (:func:`ccdcore.emva.datasheet.emva_figures`), in
+      :attr:`CalibrationProduct.emva1288`.
 
     The product holds every estimate that could be made; each one that could not is listed in
     :attr:`CalibrationProduct.skipped` with its reason (missing frames, or frames the method
@@ -561,11 +557,46 @@ def calibrate(session_or_path: Session | str | os.PathLike, *,
     ``scheduler`` the reductions ran on: ``"streamed (this process)"``, or with a Dask
     ``reducer`` (see :func:`estimate_all`) the scheduler's address and its number of workers.
 
+    Parameters
+    ----------
+    session_or_path : Session or str or os.PathLike
+        A :class:`~ccdcore.session.Session` or anything :func:`~ccdcore.session.open_session`
+        opens.
+    roi : tuple of 4 int or None, optional
+        ``(x, y, w, h)`` in pixels, the photon transfer's region; default the whole frame.
+    window : int, optional
+        m, the side of K̂'s local window (:func:`~ccdcore.fixedpattern.fixed_pattern_map`).
+    p : float, optional
+        K̂'s rejection half-width in units of σ̂ (:func:`~ccdcore.fixedpattern.fixed_pattern_map`).
+    progress : Progress or None, optional
+        A :class:`ccdcore.progress.Progress`: ``progress(start, name)`` as each of
+        :data:`ESTIMATE_STEPS` starts (:func:`estimate_all`).
+    noise : PhotonTransfer or None, optional
+        A photon-transfer result already made (e.g. with levels left out or the robust mode, as
+        the app's Walkthrough chooses), used instead of estimating it here.
+    reducer : Reducer or None, optional
+        Runs the reductions over frames (:mod:`ccdcore.reduce`; default streamed here); a Dask
+        reducer runs them on its cluster (see :func:`estimate_all`).
+    dark_exposure : float or None, optional
+        With darks at several exposures, the exposure of the darks the dark reference is made
+        from; default the one nearest the other frames' (:func:`dark_exposure_for`).
+    response_options : mapping of str to Any, or None, optional
+        Options of the bracket's response: see :func:`estimate_all` (``method``,
+        ``white_balance``, ``exposures`` of :func:`ccdcore.response.bracket_fit.session_response`).
+
+    Returns
+    -------
+    CalibrationProduct
+        The maps (by :class:`MapName`), the summary of each estimate made, the camera, the
+        provenance, the estimates skipped with their reasons, the plan's warnings, the EMVA 1288
+        figures and the frames each map was made from; :meth:`CalibrationProduct.save` writes it.
+
     Raises
     ------
     CcdError
         The session has errors (every error is listed), or no estimate at all could be made
-        ("nothing to calibrate", naming the roles that would be needed).
+        ("nothing to calibrate", naming the roles that would be needed); a path that
+        :func:`~ccdcore.session.open_session` refuses.
 
     Examples
     --------
@@ -725,13 +756,39 @@ def apply_product(product: CalibrationProduct | str | os.PathLike,
     device. The images are written as one set (:func:`ccdcore.io.frames.output_set`): a failure or
     SIGTERM leaves the earlier outputs of ``out_dir`` as they were.
 
-    ``compression`` (one of :data:`COMPRESSIONS`) applies to TIFF and EXR outputs: ``"none"`` by
-    default, because deflating float32 noise saves about a quarter of the size at ten times the
-    write time (6x on 2048² frames, benchmarks/bench_apply.py); ``"zip"`` when disk space
-    matters more.
+    Parameters
+    ----------
+    product : CalibrationProduct or str or os.PathLike
+        The calibration product, or its folder (or its ``calibration.json``), loaded with
+        :func:`load_product`.
+    images : iterable of str or os.PathLike
+        The image files to correct.
+    out_dir : str or os.PathLike
+        The folder the corrected images are written to.
+    compression : str, optional
+        One of :data:`COMPRESSIONS`, for TIFF and EXR outputs: ``"none"`` by default, because
+        deflating float32 noise saves about a quarter of the size at ten times the write time
+        (6x on 2048² frames, benchmarks/bench_apply.py); ``"zip"`` when disk space matters more.
+    linearise : bool, optional
+        Map each image's codes through the product's inverse response g instead
+        (:meth:`CalibrationProduct.linearise`): values linear in exposure.
 
-    ``linearise`` maps each image's codes through the product's inverse response g instead
-    (:meth:`CalibrationProduct.linearise`): values linear in exposure.
+    Returns
+    -------
+    list of pathlib.Path
+        The files written, ``out_dir`` / each image's output name, in the order of ``images``.
+
+    Raises
+    ------
+    CcdError
+        No images; an unknown ``compression``; an output that would overwrite an input, two
+        images with the same output name, an output inside the product folder, over a FIFO or a
+        device, or over a file ccdcore did not write there; an image whose shape differs from
+        the maps' or whose bit depth exceeds the product's camera's; with ``linearise``, a
+        product without a response curve or an image without integer codes, without it a
+        product with neither dark reference nor flat field; a product that cannot be loaded
+        (:func:`load_product`), an image that cannot be read or an output that cannot be
+        written.
 
     Examples
     --------

@@ -242,9 +242,56 @@ def session_response(session: Any, method: str = "auto", *, stack: Any = None,
                      bloom_radius: int = DEFAULT_BLOOM_RADIUS, border: int = DEFAULT_BORDER,
                      progress: Progress | None = None, white_balance: bool = False,
                      exposures: str = "auto", align: str = "auto", moving: bool = True) -> Any:
-    """The response (a :class:`ccdcore.response.methods.ResponseResult`) of a session's
-    bracket ``stack`` (a path or an open session): :func:`fit_bracket`'s, the frames registered
-    (``align``) and the moving pixels left out (``moving``), both said in its verdict.
+    """The response of a session's bracket ``stack``: :func:`fit_bracket`'s.
+
+    The frames are registered (``align``) and the moving pixels left out (``moving``), both
+    said in the result's verdict.
+
+    Parameters
+    ----------
+    session : Session or str or PathLike
+        A path (anything :func:`~ccdcore.session.open_session` opens) or an open session.
+    method : str, optional
+        A key of :data:`ccdcore.response.methods.METHODS`, or ``"auto"``: sec. 3.2 unless
+        Debevec & Malik's curve predicts the bracket clearly better
+        (:func:`ccdcore.response.methods.response_of`).
+    stack : hashable or None, optional
+        The stack id of the bracket (its frames' ``stack``); ``None``: the first bracket.
+    bloom_radius : int, optional
+        Radius (pixels) around a saturated pixel whose codes are dropped (sec. 2: blooming).
+    border : int, optional
+        Width (pixels) of the frame boundary dropped (sec. 3.2, step 1).
+    progress : Progress or None, optional
+        A :class:`ccdcore.progress.Progress` that follows the fit's steps.
+    white_balance : bool, optional
+        Also estimate the gains a_k of the channels (the ``tsin`` method only).
+    exposures : str, optional
+        One of :data:`ccdcore.response.names.EXPOSURE_MODES`: the bracket's own exposures
+        (:func:`ccdcore.response.exposures.estimate_exposures`) are estimated unless
+        ``"listed"``, and taken when the images disagree with the listed ones (``"auto"``) or
+        always (``"estimated"``).
+    align : str, optional
+        One of :data:`ALIGN_CHOICES`: ``"auto"`` registers the frames to the bracket's middle
+        one (resampling only the frames that moved), ``"off"`` takes them as they are.
+    moving : bool, optional
+        Leave the pixels off the bracket's own code-to-code mapping out of the fit and find the
+        pixels whose exposures disagree beyond the noise model.
+
+    Returns
+    -------
+    ccdcore.response.methods.ResponseResult
+        One response per channel (the inverse response g with its band and the noise terms),
+        the method kept and why, the exposures, the agreement with the bracket's own images and
+        the verdict, which carries the registration and the moving pixels.
+
+    Raises
+    ------
+    CcdError
+        A path that :func:`~ccdcore.session.open_session` refuses; no ``bracket`` frames, or no
+        bracket ``stack``; a session error touching the bracket; an unknown ``method``,
+        ``exposures`` or ``align``; ``white_balance`` with a method that takes the exposures as
+        exact; a ``bloom_radius`` out of range; a bracket of fewer than two exposures or with a
+        missing, zero or repeated exposure time, or one the method cannot fit.
 
     Examples
     --------

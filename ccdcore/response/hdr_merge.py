@@ -303,10 +303,34 @@ def merge(frames: Sequence[ArrayLike], models: Mapping[str, Any] | Any, *,
           layout: str | None = None, bloom_radius: int = DEFAULT_BLOOM_RADIUS) -> HdrResult:
     """Radiance and σ_E of a bracket (eqs. 9, 18, 19).
 
-    ``frames`` are the bracket's images in the order of the models' ``a`` and ``b``; ``models``
-    maps each channel name (:func:`ccdcore.channels.split_channels`) to its
-    :class:`ResponseModel` (or an object with the same attributes); a mono bracket may pass one
-    model.
+    Parameters
+    ----------
+    frames : sequence of array_like
+        The bracket's images (integer codes, all of one shape) in the order of the models' ``a``
+        and ``b``.
+    models : mapping of str to ResponseModel, or ResponseModel
+        Maps each channel name (:func:`ccdcore.channels.split_channels`) to its
+        :class:`ResponseModel` (or an object with the same attributes); a mono bracket may pass
+        one model.
+    layout : str or None, optional
+        ``"mono"``, ``"rgb"``, ``"bayer-rggb"`` ...; ``None`` infers mono or rgb from the shape.
+    bloom_radius : int, optional
+        Radius (pixels) around a saturated pixel whose codes are not merged (blooming).
+
+    Returns
+    -------
+    HdrResult
+        ``radiance`` and its ``sigma`` σ_E (float64, the frames' shape), ``flags`` and ``used``
+        (how many images each value merged), per channel in ``channels`` order along the last
+        axis for colour, and the ``layout``.
+
+    Raises
+    ------
+    CcdError
+        No frames; a frame of another shape than the first or not of integer codes; a layout
+        that does not fit the frames; one model for several channels, or a channel without a
+        model; a model for another number of images, or codes beyond its response; a
+        ``bloom_radius`` out of range (when a frame saturates).
 
     Examples
     --------

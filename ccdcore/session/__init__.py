@@ -81,14 +81,14 @@ def open_session(path: str | Path, *, check_pixels: bool = False,
 
     Parameters
     ----------
-    path
+    path : str or Path
         A session folder holding ``session.toml``; a manifest file (``*.toml``); a plain folder of
         images (no manifest: roles from folder names, metadata from headers); or an EMVA1288
         descriptor file (``v``/``n``/``b``/``d``/``i`` lines, see :mod:`ccdcore.session.emva`).
-    check_pixels
+    check_pixels : bool, optional
         Also decode every frame once (streamed) to find truncated or corrupt pixel data, see
         :meth:`Session.verify_pixels`.  By default only headers are read.
-    role
+    role : str or None, optional
         For a plain folder of images only: every image takes this role (e.g. ``"flat"`` for a
         camera's flat fields named as the camera named them), see
         :func:`~ccdcore.session.folder.open_folder`.  Refused for a manifest or a descriptor,
@@ -97,13 +97,16 @@ def open_session(path: str | Path, *, check_pixels: bool = False,
     Returns
     -------
     Session
-        Validation problems are in :attr:`Session.problems`; nothing is raised for them.
+        The session: its camera and its frame records by role.  Validation problems are in
+        :attr:`Session.problems`; nothing is raised for them.
 
     Raises
     ------
     CcdError
-        The path does not exist, is not a folder, manifest or descriptor, or the manifest is not
-        valid TOML (the message gives the line).
+        The path does not exist, is not a folder, manifest or descriptor (a FIFO or another
+        special file included); the manifest or descriptor cannot be read, or the manifest is
+        not valid TOML (the message gives the line); ``role`` is given for a manifest or a
+        descriptor, or is not a known role.
 
     Examples
     --------
