@@ -9,7 +9,8 @@ Modules
     The verbs by family: ``simulate``, ``session``, ``report``, ``app``; ``ptc``,
     ``calibrate``, ``datasheet``, ``apply``, ``snup``; ``response``, ``hdr``, ``change``.
 :mod:`ccdcore.cli.common`
-    What the verbs share: the one-line refusal (exit 2), JSON output, progress.
+    What the verbs share: the printing, the ``--scheduler`` / ``--workers`` reducer and its
+    note, the parser pieces every verb uses.
 """
 import lazy_loader as lazy
 

@@ -1,5 +1,5 @@
-"""What the verb modules of the command line share (:mod:`ccdcore.cli.command` and the verbs
-modules).
+"""What the front of the command line (:mod:`ccdcore.cli.command`) and its verb modules
+share.
 
 The printing (wrapped at 100 characters), the ``--scheduler`` / ``--workers`` reducer and its note,
 and the parser pieces every verb uses. It imports no verb module, so each of them can import it.

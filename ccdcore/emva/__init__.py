@@ -8,7 +8,8 @@ Modules
 :mod:`ccdcore.emva.results`
     The figures' result records and their summaries.
 :mod:`ccdcore.emva.fits`
-    The photon-transfer and linearity fits over the standard's ranges.
+    One function per step of the figures: sensitivity, dark noise, the dynamic range, the
+    linearity, DSNU1288 and PRNU1288.
 :mod:`ccdcore.emva.dark`
     Dark current from the mean and from the variance.
 :mod:`ccdcore.emva.spatial`
