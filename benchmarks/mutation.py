@@ -8,15 +8,19 @@ Run by hand from the project root (it edits a clone, never this tree)::
 Each mutant changes one expression, the way a plausible slip would: a comparison on the other side
 of its bound (``<`` for ``<=``), an operator for its neighbour (``+``/``-``, ``*``/``/``), a power
 dropped, a number moved (an integer by one, a float doubled), ``and``/``or``, a ``not`` dropped,
-``all``/``any``, ``min``/``max``, ``mean``/``median`` or a square root dropped. The mutants are drawn
-with a fixed seed *before* any test runs. For each one the script runs the tests that execute its
-line (from a coverage database recorded with ``dynamic_context = test_function``; numba kernels,
-which coverage cannot see, fall back to the test files that import their module), stops at the
-first failure, and counts the mutant caught when a test fails or runs out of time.
+``all``/``any``, ``min``/``max``, ``mean``/``median`` or a square root dropped. The mutants are
+drawn with a fixed seed *before* any test runs. For each one the script runs the tests that
+execute its line (from a coverage database recorded with ``dynamic_context = test_function``;
+lines run at import or by no recorded test, and numba kernels, which coverage cannot see, take
+every test file importing their module), stops at the first failure, and counts the mutant caught
+when a test fails or runs out of time.
+
+``--patches DIR`` runs hand-planted bugs instead (one ``*.patch`` each, ``git diff`` format) with
+every test file importing a changed module or running a changed line.
 
 Why not mutmut: it rewrites every function into a trampoline, which breaks numba's compiled
 kernels and our lazily loaded packages, and its stats pass runs the whole suite under its own
-runner. This script is ~250 lines, edits only a throw-away clone, and uses the suite as it is.
+runner. This script is ~400 lines, edits only a throw-away clone, and uses the suite as it is.
 """
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ import argparse
 import itertools
 import ast
 import json
+import os
 import random
 import signal
 import sqlite3
@@ -66,8 +71,9 @@ def _skip_lines(tree: ast.Module) -> set[int]:
     skip: set[int] = set()
     for node in ast.walk(tree):
         body = getattr(node, "body", None)
-        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
-                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+        first = body[0] if isinstance(body, list) and body else None
+        if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) \
+                and isinstance(first.value.value, str):
             skip.update(range(body[0].lineno, body[0].end_lineno + 1))
         if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__"
                                                 for t in node.targets):
@@ -203,15 +209,38 @@ def _node_id(context: str) -> str:
     return ""
 
 
+def _imported(test: Path) -> set[str]:
+    """The dotted names a test file imports: ``from X import a, b`` gives X, X.a and X.b."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(test.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            names.update(f"{node.module}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+    return names
+
+
 def importers(module: str) -> list[str]:
+    """Test files that import ``module`` or a name of its package (whose ``__init__`` may hand
+    out the module's functions); ``app/`` and ``report/`` count as ``ccdcore_app`` and
+    ``ccdcore_report``."""
     dotted = module.removesuffix(".py").replace("/", ".").removesuffix(".__init__")
-    stem = dotted.rsplit(".", 1)[-1]
+    dotted = dotted.replace("app.", "ccdcore_app.", 1) if dotted.startswith("app.") else dotted
+    dotted = dotted.replace("report.", "ccdcore_report.", 1) \
+        if dotted.startswith("report.") else dotted
+    package = dotted.rsplit(".", 1)[0]
     hits = []
     for test in sorted((ROOT / "tests").rglob("test_*.py")):
-        text = test.read_text()
-        if dotted in text or f"import {stem}" in text:
+        names = _imported(test)
+        if dotted in names or package in names:
             hits.append(str(test.relative_to(ROOT)))
     return hits
+
+
+def _app_last(test: str) -> tuple[bool, str]:
+    """The app's and browser tests are the slowest: run them after the library's."""
+    return test.startswith("tests/app/"), test
 
 
 def run(m: Mutant, clone: Path, tests: list[str], timeout: float) -> None:
@@ -233,8 +262,9 @@ def run(m: Mutant, clone: Path, tests: list[str], timeout: float) -> None:
             return
         proc = subprocess.run(
             [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-             "-p", "no:randomly", *tests], cwd=clone, capture_output=True, text=True,
-            timeout=timeout, env={**__import__("os").environ, "PYTHONPATH": str(clone)})
+             "-p", "no:randomly", *sorted(tests, key=_app_last)], cwd=clone,
+            capture_output=True, text=True, timeout=timeout,
+            env={**os.environ, "PYTHONPATH": str(clone)})
         if proc.returncode == 0:
             m.status = "survived"
         elif proc.returncode in (1, 3):
@@ -288,8 +318,8 @@ def run_patches(folder: Path, clone: Path, db: Path | None, timeout: float, out:
             try:
                 proc = subprocess.run(
                     [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
-                     *sorted(files)], cwd=clone, capture_output=True, text=True,
-                    timeout=timeout, env={**__import__("os").environ, "PYTHONPATH": str(clone)})
+                     *sorted(files, key=_app_last)], cwd=clone, capture_output=True,
+                    text=True, timeout=timeout, env={**os.environ, "PYTHONPATH": str(clone)})
                 m.status = "survived" if proc.returncode == 0 else "caught"
                 failed = [ln for ln in proc.stdout.splitlines()
                           if ln.startswith(("FAILED", "ERROR"))]
@@ -318,6 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1288)
     p.add_argument("--timeout", type=float, default=400.0)
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--limit", type=int, default=0, help="run only the first N drawn mutants")
     p.add_argument("--list", action="store_true", help="only list the drawn mutants")
     a = p.parse_args(argv)
     # a kill must still restore the clone's file (``run``'s ``finally``)
@@ -335,6 +366,8 @@ def main(argv: list[str] | None = None) -> int:
         drawn.append(sorted(ms, key=lambda m: (m.line, m.kind)))
     # round robin over the modules, so that a run cut short has sampled every one
     drawn = [m for group in itertools.zip_longest(*drawn) for m in group if m is not None]
+    if a.limit:
+        drawn = drawn[:a.limit]
     if a.list:
         for m in drawn:
             print(f"{m.module}:{m.line} {m.kind}: {m.before!r} -> {m.after!r}")
@@ -353,7 +386,7 @@ def main(argv: list[str] | None = None) -> int:
         if "kernels" in m.module or "numba" in (ROOT / m.module).read_text():
             tests = sorted(set(covering_tests(a.coverage, m.module, m.line, [])) | set(fallback))
         else:
-            tests = covering_tests(a.coverage, m.module, m.line, [])
+            tests = covering_tests(a.coverage, m.module, m.line, fallback)
         run(m, a.clone, tests, a.timeout)
         results.append(asdict(m))
         tmp = a.out.with_suffix(".tmp")
