@@ -238,6 +238,17 @@ def importers(module: str) -> list[str]:
     return hits
 
 
+def _verdict(code: int) -> str:
+    """pytest's exit code as a verdict: a failure (1), a collection error the bug caused (2) or
+    a crash (a signal) catch the bug; 0 lets it survive; anything else (no tests, a usage
+    error) says nothing of it."""
+    if code == 0:
+        return "survived"
+    if code in (1, 2) or code < 0:
+        return "caught"
+    return f"pytest exit {code}"
+
+
 def _app_last(test: str) -> tuple[bool, str]:
     """The app's and browser tests are the slowest: run them after the library's."""
     return test.startswith("tests/app/"), test
@@ -265,15 +276,9 @@ def run(m: Mutant, clone: Path, tests: list[str], timeout: float) -> None:
              "-p", "no:randomly", *sorted(tests, key=_app_last)], cwd=clone,
             capture_output=True, text=True, timeout=timeout,
             env={**os.environ, "PYTHONPATH": str(clone)})
-        if proc.returncode == 0:
-            m.status = "survived"
-        elif proc.returncode in (1, 3):
-            m.status = "caught"
-            failed = [ln for ln in proc.stdout.splitlines() if ln.startswith(("FAILED", "ERROR"))]
-            m.killer = failed[0] if failed else proc.stdout.strip().splitlines()[-1]
-        else:
-            m.status = f"pytest exit {proc.returncode}"
-            m.killer = (proc.stdout + proc.stderr)[-300:]
+        m.status = _verdict(proc.returncode)
+        failed = [ln for ln in proc.stdout.splitlines() if ln.startswith(("FAILED", "ERROR"))]
+        m.killer = failed[0] if failed else (proc.stdout + proc.stderr).strip()[-300:]
     except subprocess.TimeoutExpired:
         m.status = "caught"
         m.killer = "timeout"
@@ -320,7 +325,7 @@ def run_patches(folder: Path, clone: Path, db: Path | None, timeout: float, out:
                     [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider",
                      *sorted(files, key=_app_last)], cwd=clone, capture_output=True,
                     text=True, timeout=timeout, env={**os.environ, "PYTHONPATH": str(clone)})
-                m.status = "survived" if proc.returncode == 0 else "caught"
+                m.status = _verdict(proc.returncode)
                 failed = [ln for ln in proc.stdout.splitlines()
                           if ln.startswith(("FAILED", "ERROR"))]
                 m.killer = failed[0] if failed else proc.stdout.strip().splitlines()[-1]
