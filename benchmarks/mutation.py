@@ -25,6 +25,7 @@ runner. This script is ~400 lines, edits only a throw-away clone, and uses the s
 from __future__ import annotations
 
 import argparse
+import functools
 import itertools
 import ast
 import json
@@ -36,6 +37,7 @@ import subprocess
 import sys
 import time
 from dataclasses import asdict, dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -172,10 +174,11 @@ def apply(source: str, m: Mutant) -> str:
     return source[:a] + m.after + source[b:]
 
 
-def covering_tests(db: Path | None, module: str, line: int, fallback: list[str]) -> list[str]:
-    """Test node ids that ran ``module:line``, from coverage's contexts."""
-    if db is None:
-        return fallback
+@functools.lru_cache(maxsize=None)
+def _line_contexts(db: Path, module: str) -> dict[int, frozenset[str]]:
+    """Every line of ``module`` that the recorded suite ran, with the contexts (test functions;
+    "" for import time) that ran it: the database is read once a module."""
+    from coverage.numbits import numbits_to_nums
     con = sqlite3.connect(db)
     try:
         rows = con.execute(
@@ -184,19 +187,24 @@ def covering_tests(db: Path | None, module: str, line: int, fallback: list[str])
         ).fetchall()
     finally:
         con.close()
-    from coverage.numbits import numbits_to_nums
-    tests = set()
-    at_import = False
+    by_line: dict[int, set[str]] = {}
     for context, numbits in rows:
-        if line in numbits_to_nums(numbits):
-            if context:
-                tests.add(_node_id(context.split("|")[0]))
-            else:                 # run while a module was imported: every importer reaches it
-                at_import = True
-    found = sorted(t for t in tests if t)
-    if at_import:
-        found = sorted(set(found) | set(importers(module)))
-    return found or fallback
+        for line in numbits_to_nums(numbits):
+            by_line.setdefault(line, set()).add(context.split("|")[0] if context else "")
+    return {line: frozenset(c) for line, c in by_line.items()}
+
+
+def covering_tests(db: Path | None, module: str, line: int,
+                   fallback: Sequence[str]) -> Sequence[str]:
+    """Test node ids that ran ``module:line``, from coverage's contexts; a line run at import
+    is reached by every test file importing the module."""
+    if db is None:
+        return fallback
+    contexts = _line_contexts(db, module).get(line, frozenset())
+    found = {_node_id(c) for c in contexts if c} - {""}
+    if "" in contexts:
+        found |= set(importers(module))
+    return sorted(found) or fallback
 
 
 def _node_id(context: str) -> str:
@@ -209,7 +217,8 @@ def _node_id(context: str) -> str:
     return ""
 
 
-def _imported(test: Path) -> set[str]:
+@functools.lru_cache(maxsize=None)
+def _imported(test: Path) -> frozenset[str]:
     """The dotted names a test file imports: ``from X import a, b`` gives X, X.a and X.b."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(test.read_text())):
@@ -218,10 +227,11 @@ def _imported(test: Path) -> set[str]:
             names.update(f"{node.module}.{a.name}" for a in node.names)
         elif isinstance(node, ast.Import):
             names.update(a.name for a in node.names)
-    return names
+    return frozenset(names)
 
 
-def importers(module: str) -> list[str]:
+@functools.lru_cache(maxsize=None)
+def importers(module: str) -> tuple[str, ...]:
     """Test files that import ``module`` or a name of its package (whose ``__init__`` may hand
     out the module's functions); ``app/`` and ``report/`` count as ``ccdcore_app`` and
     ``ccdcore_report``."""
@@ -235,7 +245,7 @@ def importers(module: str) -> list[str]:
         names = _imported(test)
         if dotted in names or package in names:
             hits.append(str(test.relative_to(ROOT)))
-    return hits
+    return tuple(hits)
 
 
 def _verdict(code: int) -> str:
